@@ -1,0 +1,64 @@
+//! # prt-wavelet — wavelets and incremental relighting
+//!
+//! Haar and Daubechies-4 wavelets, non-linear and incremental wavelet approximation of changing
+//! lighting, and a wavelet-domain relighting engine, reproducing Overbeck's thesis "Exploiting
+//! Temporal Coherence for Pre-computation Based Rendering" (Columbia, 2009; EGSR 2006 paper with
+//! Ben-Artzi, Ramamoorthi and Grinspun) on top of Ng, Ramamoorthi and Hanrahan's "All-Frequency
+//! Shadows Using Non-linear Wavelet Lighting Approximation" (SIGGRAPH 2003).
+//!
+//! | item | what it is |
+//! |---|---|
+//! | [`haar_forward`], [`Haar2d`] | orthonormal Haar: 1D multilevel, 2D non-standard decomposition |
+//! | [`CubemapHaar`], [`CubemapLayout`] | a cube map as one coefficient vector, band and area weight per coefficient |
+//! | [`Daubechies4`] | PyWavelets' `db2` with `mode='periodization'`, multilevel, orthonormal |
+//! | [`Approximator`] | NWA, BI and PBI (exhaustive, L1-test and dealer band strategies) |
+//! | [`ShApproximator`] | PBI for spherical-harmonic lighting with tolerance-driven band filling |
+//! | [`sequence`] | lighting sequences: rotation about +Y with a stop frame, interpolation |
+//! | [`analysis`] | per-frame area-weighted L1, terms per band per frame, spatio-temporal band energy |
+//! | [`brdf`] | 256-bin BRDF curves (Beckmann, free-hand) edited with BI in Daubechies-4 |
+//! | [`Relighter`], [`SparseTransport`] | `B = T L` with quantised, row-truncated wavelet transport and per-band partial images |
+//!
+//! ## The method
+//! Lighting `L` (a cube map, 6 × n × n texels per channel) is Haar-transformed face by face.
+//! All-frequency relighting computes `B = T L` with a sparse wavelet-domain transport `T`, and
+//! its cost is proportional to the number of lighting terms used, so `L` is approximated with
+//! `k` terms per frame. NWA keeps the `k` largest coefficients; BI spends the `k` terms on the
+//! largest coefficients of the *difference* to last frame's approximation; PBI decides per
+//! wavelet level whether the difference or the lighting itself is sparser, because coarse
+//! levels are temporally coherent under motion and fine levels are not. See [`Approximator`].
+//!
+//! ```
+//! use prt_wavelet::{Approximator, BandStrategy, Cubemap, CubemapHaar, CubemapLayout, Policy, Weighting};
+//!
+//! // A 1-channel 8 × 8 cube map with one bright texel on +Y.
+//! let mut texels = vec![0.1f32; 6 * 64];
+//! texels[2 * 64 + 3 * 8 + 4] = 50.0;
+//! let map = Cubemap::new(8, 1, texels)?;
+//! let mut coeffs = map.into_data();
+//! CubemapHaar::new(8)?.forward(&mut coeffs)?;
+//!
+//! let layout = CubemapLayout::new(8)?;
+//! let mut pbi = Approximator::for_cubemap(&layout, 1, Weighting::Area, 10, Policy::PerBand(BandStrategy::L1Test))?;
+//! // Static lighting: PBI converges to the exact coefficients within ⌈non-zeros / k⌉ frames.
+//! for _ in 0..((6 + 7) / 10 + 1) {
+//!     pbi.step(&coeffs)?;
+//! }
+//! assert_eq!(pbi.approximation(), &coeffs[..]);
+//! # Ok::<(), prt_wavelet::WaveletError>(())
+//! ```
+//!
+//! Errors are [`WaveletError`]s: sizes that are not powers of two, mismatched faces or buffers,
+//! and non-finite lighting (naming the face, texel and channel) are reported, never panicked on.
+#![deny(missing_docs)]
+
+mod approx;
+mod cubemap;
+mod daubechies;
+mod error;
+mod haar;
+
+pub use approx::{Approximator, BandMode, BandStrategy, FrameUpdate, Policy, Term, Weighting};
+pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, LatLong, texel_direction, texel_solid_angles};
+pub use daubechies::Daubechies4;
+pub use error::WaveletError;
+pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};
