@@ -12,11 +12,17 @@ pub struct Aabb {
 impl Aabb {
     /// A box from its corners (component-wise min and max are taken, so order does not matter).
     pub fn new(a: Vec3, b: Vec3) -> Self {
-        Self { min: a.min(b), max: a.max(b) }
+        Self {
+            min: a.min(b),
+            max: a.max(b),
+        }
     }
 
     /// The unit cube `[0, 1]³`.
-    pub const UNIT: Aabb = Aabb { min: Vec3::ZERO, max: Vec3::ONE };
+    pub const UNIT: Aabb = Aabb {
+        min: Vec3::ZERO,
+        max: Vec3::ONE,
+    };
 
     /// Edge lengths.
     pub fn size(&self) -> Vec3 {
@@ -40,12 +46,18 @@ impl Aabb {
 
     /// The box grown by `margin` on every side.
     pub fn expand(&self, margin: f32) -> Aabb {
-        Aabb { min: self.min - Vec3::splat(margin), max: self.max + Vec3::splat(margin) }
+        Aabb {
+            min: self.min - Vec3::splat(margin),
+            max: self.max + Vec3::splat(margin),
+        }
     }
 
     /// Smallest box holding both.
     pub fn union(&self, other: &Aabb) -> Aabb {
-        Aabb { min: self.min.min(other.min), max: self.max.max(other.max) }
+        Aabb {
+            min: self.min.min(other.min),
+            max: self.max.max(other.max),
+        }
     }
 
     /// Maps `p` to local coordinates in `[0, 1]³` (0 at `min`, 1 at `max`); a degenerate axis maps to 0.

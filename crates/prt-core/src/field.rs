@@ -39,7 +39,11 @@ impl GridField {
     pub fn new(dims: [usize; 3], bounds: Aabb, dim: usize) -> Result<Self, CoreError> {
         Self::check_shape(dims, bounds, dim)?;
         let voxels = dims[0] * dims[1] * dims[2];
-        Ok(Self { dims, bounds, data: Array2::zeros((voxels, dim)) })
+        Ok(Self {
+            dims,
+            bounds,
+            data: Array2::zeros((voxels, dim)),
+        })
     }
 
     /// A field from a `voxels × dim` array (x fastest). Errors on a shape mismatch or a
@@ -78,10 +82,14 @@ impl GridField {
 
     fn check_shape(dims: [usize; 3], bounds: Aabb, dim: usize) -> Result<(), CoreError> {
         if dims.contains(&0) {
-            return Err(CoreError::Empty { what: "grid dimensions" });
+            return Err(CoreError::Empty {
+                what: "grid dimensions",
+            });
         }
         if dim == 0 {
-            return Err(CoreError::Empty { what: "field vector dimension" });
+            return Err(CoreError::Empty {
+                what: "field vector dimension",
+            });
         }
         if !bounds.is_valid() {
             return Err(CoreError::Invalid {
@@ -103,7 +111,10 @@ impl GridField {
     /// Errors naming the first non-finite value (flat index into `data`, row-major).
     pub fn check_finite(&self) -> Result<(), CoreError> {
         match self.data.iter().position(|v| !v.is_finite()) {
-            Some(index) => Err(CoreError::NonFinite { what: "field data", index }),
+            Some(index) => Err(CoreError::NonFinite {
+                what: "field data",
+                index,
+            }),
             None => Ok(()),
         }
     }
@@ -159,7 +170,12 @@ impl GridField {
 
     /// Edge lengths of one voxel cell.
     pub fn voxel_size(&self) -> Vec3 {
-        self.bounds.size() / Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32)
+        self.bounds.size()
+            / Vec3::new(
+                self.dims[0] as f32,
+                self.dims[1] as f32,
+                self.dims[2] as f32,
+            )
     }
 
     /// World-space centre of voxel `(ix, iy, iz)`.
@@ -199,7 +215,10 @@ impl GridField {
     pub fn trilinear_weights(&self, p: Vec3) -> Result<TrilinearWeights, CoreError> {
         if !p.is_finite() {
             let index = (0..3).find(|&k| !p[k].is_finite()).unwrap_or(0);
-            return Err(CoreError::NonFinite { what: "query point", index });
+            return Err(CoreError::NonFinite {
+                what: "query point",
+                index,
+            });
         }
         let local = self.bounds.to_local(p);
         let mut lo = [0usize; 3];
@@ -217,7 +236,13 @@ impl GridField {
         let mut indices = [0usize; 8];
         let mut weights = [0.0f32; 8];
         for c in 0..8 {
-            let pick = |k: usize| if (c >> k) & 1 == 1 { (hi[k], t[k]) } else { (lo[k], 1.0 - t[k]) };
+            let pick = |k: usize| {
+                if (c >> k) & 1 == 1 {
+                    (hi[k], t[k])
+                } else {
+                    (lo[k], 1.0 - t[k])
+                }
+            };
             let (ix, wx) = pick(0);
             let (iy, wy) = pick(1);
             let (iz, wz) = pick(2);

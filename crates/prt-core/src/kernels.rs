@@ -18,7 +18,10 @@ pub struct KernelWeights {
 impl KernelWeights {
     /// Empty, with room for `n` pairs.
     pub fn with_capacity(n: usize) -> Self {
-        Self { indices: Vec::with_capacity(n), weights: Vec::with_capacity(n) }
+        Self {
+            indices: Vec::with_capacity(n),
+            weights: Vec::with_capacity(n),
+        }
     }
 
     /// Removes all pairs.
@@ -46,7 +49,10 @@ impl KernelWeights {
 
     /// The pairs as `(index, weight)`.
     pub fn iter(&self) -> impl Iterator<Item = (u32, f32)> + '_ {
-        self.indices.iter().copied().zip(self.weights.iter().copied())
+        self.indices
+            .iter()
+            .copied()
+            .zip(self.weights.iter().copied())
     }
 
     /// Sum of the weights (1 for a partition of unity), accumulated in f64.

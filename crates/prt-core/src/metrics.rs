@@ -36,7 +36,11 @@ pub fn squared_error(approx: &[f32], reference: &[f32]) -> Result<f64, CoreError
 /// Root mean squared error `sqrt(Σ (a - b)² / n)`; 0 for empty input.
 pub fn rmse(approx: &[f32], reference: &[f32]) -> Result<f64, CoreError> {
     let se = squared_error(approx, reference)?;
-    Ok(if approx.is_empty() { 0.0 } else { (se / approx.len() as f64).sqrt() })
+    Ok(if approx.is_empty() {
+        0.0
+    } else {
+        (se / approx.len() as f64).sqrt()
+    })
 }
 
 /// Relative mean squared error `Σ (a - b)² / Σ b²` (the MBD paper's error measure).
@@ -57,8 +61,12 @@ pub fn relative_frobenius_error(approx: &[f32], reference: &[f32]) -> Result<f64
 }
 
 /// Area-weighted L1 error `Σ w |a − b| / Σ w` (Overbeck's lighting error, with `w` the texel
-/// solid angles). Weights must be non-negative and finite.
-pub fn area_weighted_l1(approx: &[f32], reference: &[f32], weights: &[f32]) -> Result<f64, CoreError> {
+/// solid angles). Weights must be non-negative and finite; zero total weight gives 0.
+pub fn area_weighted_l1(
+    approx: &[f32],
+    reference: &[f32],
+    weights: &[f32],
+) -> Result<f64, CoreError> {
     check(approx, reference)?;
     if weights.len() != approx.len() {
         return Err(CoreError::LengthMismatch {

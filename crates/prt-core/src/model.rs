@@ -28,8 +28,11 @@ pub trait Compressor {
     type Error: std::error::Error + Send + Sync + 'static;
 
     /// Fits a model to `field`, reporting progress and honouring cancellation.
-    fn compress(&self, field: &GridField, progress: &dyn Progress)
-    -> Result<Self::Model, Self::Error>;
+    fn compress(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<Self::Model, Self::Error>;
 }
 
 /// Evaluates `model` at the voxel centres of a `dims` grid over `field_like`'s box, giving a

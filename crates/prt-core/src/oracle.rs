@@ -47,18 +47,30 @@ impl DenseOracle {
     /// the column count, or a value is non-finite.
     pub fn new(data: Array2<f32>, channels: usize) -> Result<Self, CoreError> {
         if channels == 0 {
-            return Err(CoreError::Empty { what: "oracle channels" });
+            return Err(CoreError::Empty {
+                what: "oracle channels",
+            });
         }
-        if data.ncols() % channels != 0 {
+        if !data.ncols().is_multiple_of(channels) {
             return Err(CoreError::Invalid {
                 what: "oracle shape",
-                why: format!("{} columns is not a multiple of {channels} channels", data.ncols()),
+                why: format!(
+                    "{} columns is not a multiple of {channels} channels",
+                    data.ncols()
+                ),
             });
         }
         if let Some(index) = data.iter().position(|v| !v.is_finite()) {
-            return Err(CoreError::NonFinite { what: "oracle matrix", index });
+            return Err(CoreError::NonFinite {
+                what: "oracle matrix",
+                index,
+            });
         }
-        Ok(Self { data, channels, evaluated: AtomicU64::new(0) })
+        Ok(Self {
+            data,
+            channels,
+            evaluated: AtomicU64::new(0),
+        })
     }
 
     /// The underlying array.
@@ -87,7 +99,11 @@ impl MatrixOracle for DenseOracle {
 
     fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
         if i >= self.rows() {
-            return Err(CoreError::OutOfRange { what: "oracle row", index: i, len: self.rows() });
+            return Err(CoreError::OutOfRange {
+                what: "oracle row",
+                index: i,
+                len: self.rows(),
+            });
         }
         if out.len() != self.data.ncols() {
             return Err(CoreError::LengthMismatch {
@@ -99,13 +115,18 @@ impl MatrixOracle for DenseOracle {
         for (o, &x) in out.iter_mut().zip(self.data.row(i)) {
             *o = x;
         }
-        self.evaluated.fetch_add(self.cols() as u64, Ordering::Relaxed);
+        self.evaluated
+            .fetch_add(self.cols() as u64, Ordering::Relaxed);
         Ok(())
     }
 
     fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
         if j >= self.cols() {
-            return Err(CoreError::OutOfRange { what: "oracle column", index: j, len: self.cols() });
+            return Err(CoreError::OutOfRange {
+                what: "oracle column",
+                index: j,
+                len: self.cols(),
+            });
         }
         let c = self.channels;
         if out.len() != self.rows() * c {
@@ -120,7 +141,8 @@ impl MatrixOracle for DenseOracle {
                 out[i * c + k] = row[j * c + k];
             }
         }
-        self.evaluated.fetch_add(self.rows() as u64, Ordering::Relaxed);
+        self.evaluated
+            .fetch_add(self.rows() as u64, Ordering::Relaxed);
         Ok(())
     }
 

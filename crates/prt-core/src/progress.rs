@@ -24,7 +24,11 @@ pub trait Progress: Sync {
 
     /// `Err(CoreError::Cancelled)` once cancellation was requested.
     fn check(&self) -> Result<(), CoreError> {
-        if self.is_cancelled() { Err(CoreError::Cancelled) } else { Ok(()) }
+        if self.is_cancelled() {
+            Err(CoreError::Cancelled)
+        } else {
+            Ok(())
+        }
     }
 }
 
@@ -55,7 +59,10 @@ pub struct AtomicProgress {
 impl AtomicProgress {
     /// A fresh handle, not cancelled.
     pub fn new() -> Self {
-        Self { cancel_after: AtomicU64::new(u64::MAX), ..Self::default() }
+        Self {
+            cancel_after: AtomicU64::new(u64::MAX),
+            ..Self::default()
+        }
     }
 
     /// A handle that cancels itself once `units` of work have been reported.
@@ -87,7 +94,10 @@ impl AtomicProgress {
 
     /// The last message.
     pub fn last_message(&self) -> String {
-        self.last_message.lock().map(|m| m.clone()).unwrap_or_default()
+        self.last_message
+            .lock()
+            .map(|m| m.clone())
+            .unwrap_or_default()
     }
 }
 
