@@ -1,0 +1,587 @@
+//! The 324-dimensional transfer-volume baker.
+
+use std::f32::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use glam::{Vec2, Vec3};
+use prt_core::{Aabb, GridField, Progress};
+use rayon::prelude::*;
+
+use crate::bvh::{BuildQuality, RayTracer};
+use crate::sampling::{ICOSA, cosine_hemisphere, group_rotation, hash_seed, icosahedron};
+use crate::sh::{SH9, sh9};
+use crate::{Scene, TraceError};
+
+/// Dimension of a transfer vector: `[direct 81 | R 81 | G 81 | B 81]`.
+pub const TRANSFER_DIM: usize = 4 * SH9 * SH9;
+
+/// Offset of block `k` (0 = direct, 1..=3 = R, G, B direct-to-indirect) in a transfer vector.
+pub const fn block(k: usize) -> std::ops::Range<usize> {
+    k * SH9 * SH9..(k + 1) * SH9 * SH9
+}
+
+const STREAM_VOXEL: u64 = 1;
+const STREAM_CACHE: u64 = 2;
+const STREAM_BRUTE: u64 = 3;
+const VOXEL_CHUNK: usize = 32;
+const CACHE_CHUNK: usize = 256;
+/// Lattice points are pulled this fraction towards the triangle's centroid so that no cache
+/// point sits exactly on an edge shared with a neighbouring wall.
+const CACHE_SHRINK: f32 = 1e-3;
+
+/// How the direct-to-indirect (one-bounce) part is computed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum IndirectMode {
+    /// Per-surface-point transfer vectors computed once and interpolated at every voxel-ray hit
+    /// (cost: cache points x `cache_rays`, independent of the voxel count). The default.
+    #[default]
+    SurfaceCache,
+    /// `cache_rays` fresh hemisphere rays at every voxel-ray hit: the unbiased reference that
+    /// validates the cache (cost: voxels x rays per voxel x `cache_rays`).
+    BruteForce,
+    /// Direct part only; the indirect blocks are zero.
+    Off,
+}
+
+/// Options of [`TransferBaker`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeOptions {
+    /// Grid resolution `[nx, ny, nz]`.
+    pub resolution: [usize; 3],
+    /// World-space margin added on every side of the scene bounds to form the grid box (ignored
+    /// when `bounds` is given).
+    pub margin: f32,
+    /// Explicit grid box. Voxels whose centre lies outside the scene bounds grown by `margin`
+    /// are then not traced: they are zero and invalid.
+    pub bounds: Option<Aabb>,
+    /// Directions per voxel, rounded up to a multiple of 12 (whole rotated icosahedra).
+    pub rays_per_voxel: usize,
+    /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force).
+    pub cache_rays: usize,
+    /// Largest spacing between surface-cache points on a triangle; `None`: half the smallest
+    /// voxel edge.
+    pub cache_spacing: Option<f32>,
+    /// The validity of a voxel is decided on its first `probe_rays` directions (rounded up to a
+    /// multiple of 12, at most `rays_per_voxel`): an invalid voxel costs only those.
+    pub probe_rays: usize,
+    /// A voxel is invalid (inside geometry) when more than this fraction of its probe rays hit
+    /// a back face.
+    pub max_backface_fraction: f32,
+    /// How the one-bounce part is computed.
+    pub indirect: IndirectMode,
+    /// Seed of every random choice; the result depends on it and on nothing else (not on the
+    /// thread count).
+    pub seed: u64,
+    /// BVH build quality.
+    pub build_quality: BuildQuality,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        Self {
+            resolution: [32; 3],
+            margin: 0.0,
+            bounds: None,
+            rays_per_voxel: 256,
+            cache_rays: 64,
+            cache_spacing: None,
+            probe_rays: 48,
+            max_backface_fraction: 0.25,
+            indirect: IndirectMode::SurfaceCache,
+            seed: 0,
+            build_quality: BuildQuality::Medium,
+        }
+    }
+}
+
+/// Counters and timings of one bake.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BakeStats {
+    /// Voxels in the grid.
+    pub voxels: usize,
+    /// Voxels marked invalid by the back-face test.
+    pub invalid_voxels: usize,
+    /// Voxels outside the scene bounds plus margin (not traced).
+    pub skipped_voxels: usize,
+    /// Effective directions per voxel (a multiple of 12).
+    pub rays_per_voxel: usize,
+    /// Surface-cache points (both sides of a double-sided point count once).
+    pub cache_points: usize,
+    /// Rays traced for the surface cache.
+    pub cache_rays: u64,
+    /// Rays traced from voxels (plus brute-force hemisphere rays).
+    pub voxel_rays: u64,
+    /// BVH build time.
+    pub bvh_time: Duration,
+    /// Surface-cache time.
+    pub cache_time: Duration,
+    /// Voxel tracing time.
+    pub voxel_time: Duration,
+}
+
+impl BakeStats {
+    /// All rays traced.
+    pub fn rays(&self) -> u64 {
+        self.cache_rays + self.voxel_rays
+    }
+
+    /// Rays per second over the cache and voxel stages, in millions.
+    pub fn mrays_per_second(&self) -> f64 {
+        let t = (self.cache_time + self.voxel_time).as_secs_f64();
+        if t > 0.0 { self.rays() as f64 / t / 1e6 } else { 0.0 }
+    }
+}
+
+/// The baker's output.
+#[derive(Debug, Clone)]
+pub struct TransferVolume {
+    /// `voxels × 324` transfer vectors, layout `[direct 81 | R 81 | G 81 | B 81]`; each block is
+    /// a 9×9 matrix stored row-major, `T[i * 9 + j]`, row `i` the SH coefficient of incident
+    /// radiance at the voxel and column `j` the SH coefficient of the sky. Incident radiance in
+    /// channel c is `l_i = Σ_j (D_ij + T^c_ij) s^c_j` for a sky with SH coefficients `s^c`.
+    pub field: GridField,
+    /// Per voxel: `false` for voxels inside geometry (too many back-face hits) or outside the
+    /// scene bounds; their transfer is zero. Engines use it against light leaks.
+    pub valid: Vec<bool>,
+    /// Counters and timings.
+    pub stats: BakeStats,
+}
+
+/// SH coefficients (order 3) of a constant sky of radiance `radiance`.
+pub fn constant_sky(radiance: f32) -> [f32; SH9] {
+    let mut s = [0.0; SH9];
+    s[0] = radiance * 2.0 * PI.sqrt();
+    s
+}
+
+/// Irradiance `E(n) = ∫ L(ω) max(0, n·ω) dω` on a surface of unit normal `n` from radiance SH
+/// `l`, by zonal convolution with the clamped cosine (A0 = π, A1 = 2π/3, A2 = π/4).
+pub fn irradiance(l: &[f32; SH9], n: Vec3) -> f32 {
+    let y = sh9(n);
+    let a = [PI, 2.0 * PI / 3.0, 2.0 * PI / 3.0, 2.0 * PI / 3.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0];
+    (0..SH9).map(|i| a[i] * l[i] * y[i]).sum()
+}
+
+impl TransferVolume {
+    /// Incident-radiance SH at voxel `v`, `[direct, indirect R, indirect G, indirect B]`, for a
+    /// sky with per-channel SH `sky` (R, G, B). The direct part is the same matrix for every
+    /// channel; it is returned for channel R's sky (pass a grey sky for a single direct image).
+    pub fn incident(&self, v: usize, sky: &[[f32; SH9]; 3]) -> [[f32; SH9]; 4] {
+        let t = self.field.voxel(v);
+        let mut out = [[0.0; SH9]; 4];
+        for k in 0..4usize {
+            let s = &sky[k.saturating_sub(1)];
+            let m = &t[block(k)];
+            for i in 0..SH9 {
+                out[k][i] = (0..SH9).map(|j| m[i * SH9 + j] * s[j]).sum();
+            }
+        }
+        out
+    }
+
+    /// Fraction of the sphere of directions from voxel `v` that reaches the sky (`D_00`).
+    pub fn sky_visibility(&self, v: usize) -> f32 {
+        self.field.voxel(v)[0]
+    }
+}
+
+/// Per-slot surface data the hot loop reads (BVH order).
+#[derive(Debug, Clone, Copy)]
+struct SlotMaterial {
+    albedo: [f32; 3],
+    double_sided: bool,
+}
+
+/// Per-surface-point SH irradiance-transfer vectors `t_j(p) = (1/π) ∫_H V(p, ω) (n·ω) Y_j(ω) dω`
+/// on a barycentric lattice over each triangle, for each side.
+#[derive(Debug, Clone)]
+struct SurfaceCache {
+    /// First point of each slot.
+    start: Vec<u32>,
+    /// Lattice subdivision of each slot (0: a single point at the centroid).
+    subdiv: Vec<u16>,
+    /// `[point * 2 + side]`, side 0 = front, 1 = back.
+    values: Vec<[f32; SH9]>,
+}
+
+fn lattice_index(m: usize, a: usize, b: usize) -> usize {
+    // Row a (= 0..=m) holds the m + 1 - a points b = 0..=m - a.
+    a * (m + 1) - a * a.saturating_sub(1) / 2 + b
+}
+
+impl SurfaceCache {
+    #[inline]
+    fn lookup(&self, slot: u32, side: usize, uv: impl FnOnce() -> Vec2) -> [f32; SH9] {
+        let s = slot as usize;
+        let start = self.start[s] as usize;
+        let m = self.subdiv[s] as usize;
+        if m == 0 {
+            return self.values[start * 2 + side];
+        }
+        let uv = uv();
+        let fu = (uv.x.clamp(0.0, 1.0)) * m as f32;
+        let fv = (uv.y.clamp(0.0, 1.0)) * m as f32;
+        let i = (fu.floor() as usize).min(m - 1);
+        let j = (fv.floor() as usize).min(m - 1 - i);
+        let du = (fu - i as f32).clamp(0.0, 1.0);
+        let dv = (fv - j as f32).clamp(0.0, 1.0);
+        let (corners, weights) = if du + dv <= 1.0 || i + j + 2 > m {
+            let w0 = (1.0 - du - dv).max(0.0);
+            ([(i, j), (i + 1, j), (i, j + 1)], [w0, du, dv])
+        } else {
+            ([(i + 1, j + 1), (i, j + 1), (i + 1, j)], [du + dv - 1.0, 1.0 - du, 1.0 - dv])
+        };
+        let mut out = [0.0f32; SH9];
+        for (&(a, b), &w) in corners.iter().zip(&weights) {
+            let v = &self.values[(start + lattice_index(m, a, b)) * 2 + side];
+            for k in 0..SH9 {
+                out[k] += w * v[k];
+            }
+        }
+        out
+    }
+}
+
+/// Bakes transfer volumes of one scene (see the crate docs for the method).
+///
+/// ```
+/// use prt_core::NoProgress;
+/// use prt_trace::{BakeOptions, Scene, TransferBaker};
+///
+/// let scene = Scene::cornell_box();
+/// let options = BakeOptions { resolution: [4, 4, 4], rays_per_voxel: 48, cache_rays: 16, ..Default::default() };
+/// let volume = TransferBaker::new(&scene, options)?.bake(&NoProgress)?;
+/// assert_eq!(volume.field.dim(), 324);
+/// assert_eq!(volume.valid.len(), 64);
+/// # Ok::<(), prt_trace::TraceError>(())
+/// ```
+#[derive(Debug)]
+pub struct TransferBaker<'s> {
+    scene: &'s Scene,
+    options: BakeOptions,
+    tracer: RayTracer,
+    materials: Vec<SlotMaterial>,
+    grid: Aabb,
+    /// Voxels whose centre is outside this box are skipped.
+    trace_box: Option<Aabb>,
+    /// Ray-origin offset off surfaces.
+    eps: f32,
+    groups: usize,
+    probe_groups: usize,
+    bvh_time: Duration,
+}
+
+impl<'s> TransferBaker<'s> {
+    /// Validates the options and builds the BVH.
+    ///
+    /// Errors: [`TraceError::EmptyScene`] for a scene without triangles unless
+    /// `options.bounds` is given; [`TraceError::InvalidOption`] for a zero resolution, zero rays,
+    /// a negative or non-finite margin or spacing, or invalid bounds.
+    pub fn new(scene: &'s Scene, options: BakeOptions) -> Result<Self, TraceError> {
+        let invalid = |what, why: String| Err(TraceError::InvalidOption { what, why });
+        if options.resolution.contains(&0) {
+            return invalid("resolution", format!("{:?} has a zero axis", options.resolution));
+        }
+        if options.rays_per_voxel == 0 {
+            return invalid("rays_per_voxel", "must be positive".into());
+        }
+        if options.indirect != IndirectMode::Off && options.cache_rays == 0 {
+            return invalid("cache_rays", "must be positive when the indirect part is computed".into());
+        }
+        if !(options.margin.is_finite() && options.margin >= 0.0) {
+            return invalid("margin", format!("{} is not a finite non-negative length", options.margin));
+        }
+        if let Some(s) = options.cache_spacing
+            && !(s.is_finite() && s > 0.0)
+        {
+            return invalid("cache_spacing", format!("{s} is not a finite positive length"));
+        }
+        if !(0.0..=1.0).contains(&options.max_backface_fraction) {
+            return invalid("max_backface_fraction", format!("{} is outside [0, 1]", options.max_backface_fraction));
+        }
+        let scene_bounds = scene.bounds();
+        let (grid, trace_box) = match (options.bounds, scene_bounds) {
+            (Some(b), sb) => {
+                if !b.is_valid() {
+                    return invalid("bounds", format!("{b:?} is not a finite box"));
+                }
+                (b, sb.map(|s| s.expand(options.margin)))
+            }
+            (None, Some(sb)) => (sb.expand(options.margin), None),
+            (None, None) => return Err(TraceError::EmptyScene),
+        };
+        let diag = scene_bounds.map_or(1.0, |b| b.size().length()).max(1e-6);
+        let groups = options.rays_per_voxel.div_ceil(ICOSA);
+        let probe_groups = options.probe_rays.div_ceil(ICOSA).clamp(1, groups);
+        let t0 = Instant::now();
+        let tracer = RayTracer::with_quality(scene.triangles(), options.build_quality);
+        let bvh_time = t0.elapsed();
+        let materials = (0..tracer.slots() as u32)
+            .map(|s| {
+                let m = scene.material_of(tracer.scene_triangle(s) as usize);
+                SlotMaterial { albedo: m.albedo.to_array(), double_sided: m.double_sided }
+            })
+            .collect();
+        Ok(Self {
+            scene,
+            options,
+            tracer,
+            materials,
+            grid,
+            trace_box,
+            eps: 1e-4 * diag,
+            groups,
+            probe_groups,
+            bvh_time,
+        })
+    }
+
+    /// The ray tracer built over the scene.
+    pub fn tracer(&self) -> &RayTracer {
+        &self.tracer
+    }
+
+    /// The scene being baked.
+    pub fn scene(&self) -> &Scene {
+        self.scene
+    }
+
+    /// The box the grid covers.
+    pub fn grid_bounds(&self) -> Aabb {
+        self.grid
+    }
+
+    /// Effective directions per voxel (a multiple of 12).
+    pub fn rays_per_voxel(&self) -> usize {
+        self.groups * ICOSA
+    }
+
+    fn cache_spacing(&self) -> f32 {
+        self.options.cache_spacing.unwrap_or_else(|| {
+            let [nx, ny, nz] = self.options.resolution;
+            let cell = self.grid.size() / Vec3::new(nx as f32, ny as f32, nz as f32);
+            let m = cell.min_element();
+            // A flat grid axis (zero extent) does not constrain the spacing.
+            0.5 * if m > 0.0 { m } else { cell.max_element().max(1e-3) }
+        })
+    }
+
+    /// Hemisphere transfer `t_j = (1/R) Σ_k V(ω_k) Y_j(ω_k)` with R cosine-weighted rays about `n`.
+    fn hemisphere_transfer(&self, p: Vec3, n: Vec3, scramble: u32) -> [f32; SH9] {
+        let origin = p + n * self.eps;
+        let r = self.options.cache_rays;
+        let mut acc = [0.0f32; SH9];
+        for k in 0..r as u32 {
+            let [u1, u2, _, _] = sobol_burley::sample_4d(k, 0, scramble);
+            let w = cosine_hemisphere(n, u1, u2);
+            if !self.tracer.occluded(origin, w, 0.0, f32::INFINITY) {
+                let y = sh9(w);
+                for j in 0..SH9 {
+                    acc[j] += y[j];
+                }
+            }
+        }
+        acc.map(|a| a / r as f32)
+    }
+
+    fn build_cache(&self, progress: &dyn Progress, cache_rays: &AtomicU64) -> Result<SurfaceCache, TraceError> {
+        let spacing = self.cache_spacing();
+        let slots = self.tracer.slots();
+        let mut start = Vec::with_capacity(slots);
+        let mut subdiv = Vec::with_capacity(slots);
+        // (point, normal, side count) for every lattice point.
+        let mut points: Vec<(Vec3, Vec3, bool)> = Vec::new();
+        for s in 0..slots as u32 {
+            let v = self.tracer.slot_vertices(s);
+            let n = self.tracer.slot_normal(s).normalize_or_zero();
+            let longest = (v[1] - v[0]).length().max((v[2] - v[0]).length()).max((v[2] - v[1]).length());
+            let m = if longest <= spacing { 0 } else { (longest / spacing).ceil().min(u16::MAX as f32 - 1.0) as usize };
+            start.push(points.len() as u32);
+            subdiv.push(m as u16);
+            let two_sided = self.materials[s as usize].double_sided;
+            let centroid = (v[0] + v[1] + v[2]) / 3.0;
+            if m == 0 {
+                points.push((centroid, n, two_sided));
+                continue;
+            }
+            for a in 0..=m {
+                for b in 0..=(m - a) {
+                    let p = v[0] + (v[1] - v[0]) * (a as f32 / m as f32) + (v[2] - v[0]) * (b as f32 / m as f32);
+                    points.push((p + (centroid - p) * CACHE_SHRINK, n, two_sided));
+                }
+            }
+        }
+        if points.len() > u32::MAX as usize / 2 {
+            return Err(TraceError::InvalidOption {
+                what: "cache_spacing",
+                why: format!("{} cache points are too many", points.len()),
+            });
+        }
+        let r = self.options.cache_rays as u64;
+        let sides: u64 = points.iter().map(|p| 1 + p.2 as u64).sum();
+        progress.message("surface transfer cache");
+        progress.set_len(sides * r);
+        let mut values = vec![[0.0f32; SH9]; points.len() * 2];
+        values.par_chunks_mut(2 * CACHE_CHUNK).enumerate().try_for_each(|(c, out)| {
+            progress.check()?;
+            let mut rays = 0;
+            for (k, pair) in out.chunks_exact_mut(2).enumerate() {
+                let index = c * CACHE_CHUNK + k;
+                let (p, n, two_sided) = points[index];
+                pair[0] = self.hemisphere_transfer(p, n, hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64));
+                rays += r;
+                if two_sided {
+                    pair[1] =
+                        self.hemisphere_transfer(p, -n, hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64 + 1));
+                    rays += r;
+                }
+            }
+            cache_rays.fetch_add(rays, Ordering::Relaxed);
+            progress.inc(rays);
+            Ok::<(), TraceError>(())
+        })?;
+        Ok(SurfaceCache { start, subdiv, values })
+    }
+
+    /// Transfer vector of one voxel into `out` (324 values); returns `(valid, rays traced)`.
+    fn voxel_transfer(&self, x: Vec3, voxel: usize, cache: Option<&SurfaceCache>, out: &mut [f32]) -> (bool, u64) {
+        let dirs = icosahedron();
+        let scramble = hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64);
+        let mut acc = [0.0f64; TRANSFER_DIM];
+        let mut group = [0.0f32; TRANSFER_DIM];
+        let mut backfaces = 0usize;
+        let mut rays = 0u64;
+        for g in 0..self.groups {
+            let q = group_rotation(g as u32, scramble);
+            group.fill(0.0);
+            for (k, &d) in dirs.iter().enumerate() {
+                let w = q * d;
+                let y = sh9(w);
+                rays += 1;
+                let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) else {
+                    for i in 0..SH9 {
+                        for j in 0..SH9 {
+                            group[i * SH9 + j] += y[i] * y[j];
+                        }
+                    }
+                    continue;
+                };
+                let ng = self.tracer.slot_normal(hit.slot);
+                let front = ng.dot(w) < 0.0;
+                if !front {
+                    backfaces += 1;
+                }
+                let mat = self.materials[hit.slot as usize];
+                if !(front || mat.double_sided) || self.options.indirect == IndirectMode::Off {
+                    continue;
+                }
+                let side = usize::from(!front);
+                let t = match cache {
+                    Some(c) => c.lookup(hit.slot, side, || self.tracer.slot_barycentrics(hit.slot, x, w)),
+                    None => {
+                        let n = ng.normalize_or_zero() * if front { 1.0 } else { -1.0 };
+                        let ray_index = (g * ICOSA + k) as u64;
+                        let s = hash_seed(self.options.seed ^ voxel as u64, STREAM_BRUTE, ray_index);
+                        rays += self.options.cache_rays as u64;
+                        self.hemisphere_transfer(x + w * hit.t, n, s)
+                    }
+                };
+                for c in 0..3 {
+                    let rho_t = t.map(|tj| tj * mat.albedo[c]);
+                    let base = (c + 1) * SH9 * SH9;
+                    for i in 0..SH9 {
+                        for j in 0..SH9 {
+                            group[base + i * SH9 + j] += y[i] * rho_t[j];
+                        }
+                    }
+                }
+            }
+            for (a, &gv) in acc.iter_mut().zip(group.iter()) {
+                *a += gv as f64;
+            }
+            if g + 1 == self.probe_groups
+                && backfaces as f32 > self.options.max_backface_fraction * (self.probe_groups * ICOSA) as f32
+            {
+                out.fill(0.0);
+                return (false, rays);
+            }
+        }
+        let scale = 4.0 * std::f64::consts::PI / (self.groups * ICOSA) as f64;
+        for (o, a) in out.iter_mut().zip(acc.iter()) {
+            *o = (a * scale) as f32;
+        }
+        (true, rays)
+    }
+
+    /// Bakes the volume. Reports rays traced to `progress` (stage 1: the surface cache, stage
+    /// 2: voxels) and returns [`TraceError::Core`]`(Cancelled)` if it is cancelled.
+    pub fn bake(&self, progress: &dyn Progress) -> Result<TransferVolume, TraceError> {
+        let field = GridField::new(self.options.resolution, self.grid, TRANSFER_DIM)?;
+        let voxels = field.num_voxels();
+        let cache_rays = AtomicU64::new(0);
+        let t0 = Instant::now();
+        let cache = match self.options.indirect {
+            IndirectMode::SurfaceCache => Some(self.build_cache(progress, &cache_rays)?),
+            IndirectMode::BruteForce | IndirectMode::Off => None,
+        };
+        let cache_time = t0.elapsed();
+        let cache_points = cache.as_ref().map_or(0, |c| c.values.len() / 2);
+
+        let t1 = Instant::now();
+        let voxel_rays = AtomicU64::new(0);
+        let invalid = AtomicU64::new(0);
+        let skipped = AtomicU64::new(0);
+        let per_voxel = (self.groups * ICOSA) as u64;
+        progress.message("tracing voxels");
+        progress.set_len(voxels as u64 * per_voxel);
+        let mut valid = vec![false; voxels];
+        let mut field = field;
+        let centres: Vec<Vec3> = (0..voxels).map(|v| field.centre_of(v)).collect();
+        {
+            let mut data = field.data_mut();
+            let Some(slice) = data.as_slice_mut() else {
+                unreachable!("a fresh GridField is in standard layout")
+            };
+            slice
+                .par_chunks_mut(TRANSFER_DIM * VOXEL_CHUNK)
+                .zip(valid.par_chunks_mut(VOXEL_CHUNK))
+                .enumerate()
+                .try_for_each(|(c, (out, ok))| {
+                    progress.check()?;
+                    let mut rays = 0;
+                    for (k, (o, okv)) in out.chunks_exact_mut(TRANSFER_DIM).zip(ok.iter_mut()).enumerate() {
+                        let v = c * VOXEL_CHUNK + k;
+                        let x = centres[v];
+                        if self.trace_box.is_some_and(|b| !b.contains(x)) {
+                            skipped.fetch_add(1, Ordering::Relaxed);
+                            continue;
+                        }
+                        let (is_valid, r) = self.voxel_transfer(x, v, cache.as_ref(), o);
+                        *okv = is_valid;
+                        if !is_valid {
+                            invalid.fetch_add(1, Ordering::Relaxed);
+                        }
+                        rays += r;
+                    }
+                    voxel_rays.fetch_add(rays, Ordering::Relaxed);
+                    progress.inc(ok.len() as u64 * per_voxel);
+                    Ok::<(), TraceError>(())
+                })?;
+        }
+        let stats = BakeStats {
+            voxels,
+            invalid_voxels: invalid.into_inner() as usize,
+            skipped_voxels: skipped.into_inner() as usize,
+            rays_per_voxel: self.rays_per_voxel(),
+            cache_points,
+            cache_rays: cache_rays.into_inner(),
+            voxel_rays: voxel_rays.into_inner(),
+            bvh_time: self.bvh_time,
+            cache_time,
+            voxel_time: t1.elapsed(),
+        };
+        Ok(TransferVolume { field, valid, stats })
+    }
+}

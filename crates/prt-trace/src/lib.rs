@@ -1,0 +1,82 @@
+//! # prt-trace — scenes, ray queries and the transfer-volume baker of prt
+//!
+//! This crate produces the data that Moving Basis Decomposition compresses: the
+//! 324-dimensional light-transport volumes of Silvennoinen and Sloan, "Moving Basis
+//! Decomposition for Precomputed Light Transport" (EGSR 2021), traced out of real scenes.
+//!
+//! * **Scenes** ([`Scene`]): glTF 2.0 files flattened to world-space triangles with diffuse
+//!   materials, lights and cameras ([`Scene::load_gltf`]), or built-in scenes: the Cornell box,
+//!   a ground plane under open sky, a closed box, the empty scene.
+//! * **Ray queries** ([`RayTracer`]): a compressed wide BVH (obvhs CWBVH, Ylitie et al. 2017)
+//!   with the triangles reordered into BVH order; closest hits and occlusion (stopping at the
+//!   first hit), single or batched over rayon.
+//! * **The baker** ([`TransferBaker`]): for every voxel centre `x` of a grid, with real SH of
+//!   order 3 (9 coefficients, [`sh9`]) for distant sky light,
+//!   - direct transfer `D_ij = ∫ V(x, ω) Y_i(ω) Y_j(ω) dω` (sky visibility), and
+//!   - one-bounce direct-to-indirect transfer per colour channel
+//!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and
+//!     `L^c_j(h) = (ρ_c/π) ∫_H V(h, ω') (n·ω') Y_j(ω') dω'` is the radiance leaving `h` when the
+//!     sky is `Y_j`.
+//!
+//! ## Output layout
+//! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
+//! `[direct 81 | R 81 | G 81 | B 81]`; each block is a 9×9 matrix stored row-major,
+//! `T[i * 9 + j]`, with row `i` the SH coefficient of incident radiance at the voxel and column
+//! `j` that of the sky: `l^c_i = Σ_j (D_ij + T^c_ij) s^c_j`. `D` is symmetric. A validity mask
+//! marks voxels inside geometry (more than [`BakeOptions::max_backface_fraction`] of their
+//! probe rays hit back faces): their transfer is zero, and engines use the mask against leaks.
+//!
+//! ## Method
+//! * **Directions.** Each voxel traces whole *randomly rotated icosahedra*. The 12 vertices of
+//!   an icosahedron form a spherical 5-design, so for any rotation `4π/12 Σ_k Y_i Y_j = δ_ij`
+//!   exactly: the empty scene gives `D = I` and a closed box `D = 0` with no sampling noise, and
+//!   `0 ⪯ D ⪯ I` holds for every estimate. The rotations of successive icosahedra are
+//!   Owen-scrambled Sobol' points (Burley 2020) pushed through Shoemake's uniform-rotation map,
+//!   so the estimator is unbiased and stratified; the error falls at least like `1/√N`.
+//! * **Surface transfer cache.** The one-bounce term needs, at every hit, a hemisphere integral.
+//!   Instead of `rays per voxel × rays per hit`, every triangle carries a barycentric lattice of
+//!   cache points (spacing at most half a voxel by default), each with the 9-vector
+//!   `t_j = (1/π) ∫_H V (n·ω) Y_j dω` for each reflecting side, estimated with cosine-weighted
+//!   scrambled Sobol' rays. A voxel-ray hit interpolates the lattice linearly and multiplies by
+//!   the albedo. [`IndirectMode::BruteForce`] traces fresh rays per hit instead, and the tests
+//!   check that both agree within Monte Carlo noise.
+//! * **Determinism.** Every random number is a function of `(seed, voxel or cache point, ray)`;
+//!   sums run in a fixed order inside a voxel (f32 per icosahedron, f64 across them), so a seed
+//!   gives bit-identical volumes on any thread count.
+//! * **Cost control.** Invalid voxels stop after their probe rays; with explicit grid bounds,
+//!   voxels outside the scene bounds plus margin are not traced at all.
+//!
+//! ```
+//! use prt_core::NoProgress;
+//! use prt_trace::{BakeOptions, Scene, TransferBaker, constant_sky};
+//!
+//! let scene = Scene::cornell_box();
+//! let options = BakeOptions { resolution: [6, 6, 6], rays_per_voxel: 96, cache_rays: 32, seed: 7, ..Default::default() };
+//! let volume = TransferBaker::new(&scene, options)?.bake(&NoProgress)?;
+//! // The voxel at the box's centre sees the sky through the open front only.
+//! let v = volume.field.index(3, 3, 3);
+//! let visible = volume.sky_visibility(v);
+//! assert!(volume.valid[v] && visible > 0.05 && visible < 0.5);
+//! let sky = [constant_sky(1.0); 3];
+//! let [direct, red, _, _] = volume.incident(v, &sky);
+//! assert!(direct[0] > 0.0 && red[0] > 0.0);
+//! # Ok::<(), prt_trace::TraceError>(())
+//! ```
+#![deny(missing_docs)]
+
+mod bake;
+mod bvh;
+mod error;
+mod gltf_load;
+mod sampling;
+mod scene;
+mod sh;
+
+pub use bake::{
+    BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block, constant_sky, irradiance,
+};
+pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
+pub use error::TraceError;
+pub use gltf_load::LoadOptions;
+pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
+pub use sh::{SH9, sh9};

@@ -1,0 +1,324 @@
+//! Scenes as flat world-space triangle lists with per-triangle materials.
+
+use glam::{Mat4, Vec3};
+use prt_core::Aabb;
+
+use crate::TraceError;
+
+/// A diffuse material as the baker sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Material {
+    /// Name from the file (or the built-in scene).
+    pub name: String,
+    /// Diffuse reflectance (linear RGB) used for the bounce: the base colour factor times the
+    /// texture's mean, or times the scene's default albedo when a texture was not decoded.
+    pub albedo: Vec3,
+    /// Emitted radiance (linear RGB): emissive factor times `KHR_materials_emissive_strength`.
+    /// Not used by the sky-transfer baker (emission is not sky light), kept for renderers.
+    pub emissive: Vec3,
+    /// Whether both faces reflect light. A single-sided surface is black from behind.
+    pub double_sided: bool,
+}
+
+impl Material {
+    /// A double-sided, non-emissive diffuse material.
+    pub fn diffuse(name: &str, albedo: Vec3) -> Self {
+        Self { name: name.to_owned(), albedo, emissive: Vec3::ZERO, double_sided: true }
+    }
+}
+
+/// A `KHR_lights_punctual` light placed in world space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PunctualLight {
+    /// Name, if any.
+    pub name: Option<String>,
+    /// Kind of light.
+    pub kind: LightKind,
+    /// Linear RGB colour.
+    pub color: Vec3,
+    /// Intensity (candela for point and spot, lux for directional).
+    pub intensity: f32,
+    /// Range, if given.
+    pub range: Option<f32>,
+    /// World-space position (the node's translation).
+    pub position: Vec3,
+    /// World-space direction the light points to (the node's -Z axis).
+    pub direction: Vec3,
+}
+
+/// Kinds of punctual light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum LightKind {
+    /// A directional light.
+    Directional,
+    /// A point light.
+    Point,
+    /// A spot light with its cone angles (radians).
+    Spot {
+        /// Inner cone angle.
+        inner_cone_angle: f32,
+        /// Outer cone angle.
+        outer_cone_angle: f32,
+    },
+}
+
+/// A perspective camera placed in world space (orthographic cameras are skipped with a warning).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Camera {
+    /// Name, if any.
+    pub name: Option<String>,
+    /// Camera-to-world transform (the camera looks down its local -Z, +Y up).
+    pub to_world: Mat4,
+    /// Vertical field of view (radians).
+    pub yfov: f32,
+    /// Aspect ratio, if given.
+    pub aspect_ratio: Option<f32>,
+    /// Near plane distance.
+    pub znear: f32,
+}
+
+/// A scene: world-space triangles, one material index per triangle, lights, cameras.
+///
+/// Construction drops degenerate triangles (zero area, counted in
+/// [`Scene::degenerate_dropped`]) and rejects non-finite positions with a typed error.
+#[derive(Debug, Clone, Default)]
+pub struct Scene {
+    triangles: Vec<[Vec3; 3]>,
+    material_ids: Vec<u32>,
+    materials: Vec<Material>,
+    lights: Vec<PunctualLight>,
+    cameras: Vec<Camera>,
+    degenerate_dropped: usize,
+    warnings: Vec<String>,
+}
+
+/// Whether a triangle has (numerically) zero area relative to its size.
+pub(crate) fn is_degenerate(t: &[Vec3; 3]) -> bool {
+    let e1 = t[1] - t[0];
+    let e2 = t[2] - t[0];
+    let area2 = e1.cross(e2).length();
+    let scale = e1.length_squared().max(e2.length_squared()).max((t[2] - t[1]).length_squared());
+    !(area2 > 1e-10 * scale)
+}
+
+impl Scene {
+    /// A scene from triangles and their material indices.
+    ///
+    /// Errors: a non-finite position ([`TraceError::NonFinitePosition`] naming the triangle), a
+    /// length mismatch or a material index out of range ([`TraceError::InvalidOption`]).
+    /// Degenerate triangles are dropped and counted.
+    pub fn from_triangles(
+        triangles: Vec<[Vec3; 3]>,
+        material_ids: Vec<u32>,
+        materials: Vec<Material>,
+    ) -> Result<Self, TraceError> {
+        let mut scene = Self { materials, ..Self::default() };
+        if material_ids.len() != triangles.len() {
+            return Err(TraceError::InvalidOption {
+                what: "material ids",
+                why: format!("{} ids for {} triangles", material_ids.len(), triangles.len()),
+            });
+        }
+        for (i, (t, m)) in triangles.into_iter().zip(material_ids).enumerate() {
+            if m as usize >= scene.materials.len() {
+                return Err(TraceError::InvalidOption {
+                    what: "material ids",
+                    why: format!("triangle {i} uses material {m} of {}", scene.materials.len()),
+                });
+            }
+            scene.push_triangle(t, m, "triangles", i)?;
+        }
+        Ok(scene)
+    }
+
+    /// Adds one triangle (dropping it if degenerate).
+    pub(crate) fn push_triangle(
+        &mut self,
+        t: [Vec3; 3],
+        material: u32,
+        what: &str,
+        index: usize,
+    ) -> Result<(), TraceError> {
+        if !t.iter().all(|v| v.is_finite()) {
+            return Err(TraceError::NonFinitePosition { what: what.to_owned(), triangle: index });
+        }
+        if is_degenerate(&t) {
+            self.degenerate_dropped += 1;
+        } else {
+            self.triangles.push(t);
+            self.material_ids.push(material);
+        }
+        Ok(())
+    }
+
+    pub(crate) fn push_material(&mut self, m: Material) -> u32 {
+        self.materials.push(m);
+        (self.materials.len() - 1) as u32
+    }
+
+    pub(crate) fn push_light(&mut self, l: PunctualLight) {
+        self.lights.push(l);
+    }
+
+    pub(crate) fn push_camera(&mut self, c: Camera) {
+        self.cameras.push(c);
+    }
+
+    pub(crate) fn warn(&mut self, w: String) {
+        self.warnings.push(w);
+    }
+
+    /// The empty scene: no triangles (open sky everywhere).
+    pub fn empty() -> Self {
+        Self::default()
+    }
+
+    /// The Cornell box of `../shared/scenes/cornell_box` (Morgan McGuire's "CornellBox-Original",
+    /// Y up, floor at y = 0, ceiling at 1.99, open towards +Z; 32 triangles, 8 materials with the
+    /// file's colours; the light is a quad just below the ceiling with emissive (1, 1, 1)).
+    pub fn cornell_box() -> Self {
+        let white = Vec3::new(0.725, 0.71, 0.68);
+        let quad = [0u32, 1, 2, 0, 2, 3];
+        let boxq = [0u32, 1, 2, 3, 0, 2, 4, 5, 6, 4, 6, 7, 8, 9, 10, 8, 10, 11, 12, 13, 14, 12, 14, 15, 16, 17, 18, 16, 18, 19];
+        #[rustfmt::skip]
+        let parts: [(&str, Vec3, &[[f32; 3]], &[u32]); 8] = [
+            ("floor", white, &[[1.0, 0.0, 0.99], [1.0, 0.0, -1.04], [-0.99, 0.0, -1.04], [-1.01, 0.0, 0.99]], &quad),
+            ("ceiling", white, &[[-1.02, 1.99, 0.99], [-1.02, 1.99, -1.04], [1.0, 1.99, -1.04], [1.0, 1.99, 0.99]], &quad),
+            ("backWall", white, &[[1.0, 0.0, -1.04], [1.0, 1.99, -1.04], [-1.02, 1.99, -1.04], [-0.99, 0.0, -1.04]], &quad),
+            ("rightWall", Vec3::new(0.14, 0.45, 0.091), &[[1.0, 1.99, 0.99], [1.0, 1.99, -1.04], [1.0, 0.0, -1.04], [1.0, 0.0, 0.99]], &quad),
+            ("leftWall", Vec3::new(0.63, 0.065, 0.05), &[[-1.01, 0.0, 0.99], [-0.99, 0.0, -1.04], [-1.02, 1.99, -1.04], [-1.02, 1.99, 0.99]], &quad),
+            ("shortBox", white, &[
+                [0.7, 0.6, 0.17], [0.13, 0.6, 0.0], [-0.05, 0.6, 0.57], [0.53, 0.6, 0.75],
+                [-0.05, 0.6, 0.57], [0.13, 0.6, 0.0], [0.13, 0.0, 0.0], [-0.05, 0.0, 0.57],
+                [0.53, 0.6, 0.75], [-0.05, 0.6, 0.57], [-0.05, 0.0, 0.57], [0.53, 0.0, 0.75],
+                [0.7, 0.0, 0.17], [0.13, 0.0, 0.0], [0.13, 0.6, 0.0], [0.7, 0.6, 0.17],
+                [0.53, 0.0, 0.75], [0.7, 0.0, 0.17], [0.7, 0.6, 0.17], [0.53, 0.6, 0.75],
+            ], &boxq),
+            ("tallBox", white, &[
+                [0.04, 1.2, -0.09], [-0.14, 1.2, -0.67], [-0.71, 1.2, -0.49], [-0.53, 1.2, 0.09],
+                [-0.53, 1.2, 0.09], [-0.71, 1.2, -0.49], [-0.71, 0.0, -0.49], [-0.53, 0.0, 0.09],
+                [-0.71, 1.2, -0.49], [-0.14, 1.2, -0.67], [-0.14, 0.0, -0.67], [-0.71, 0.0, -0.49],
+                [0.04, 0.0, -0.09], [-0.14, 0.0, -0.67], [-0.14, 1.2, -0.67], [0.04, 1.2, -0.09],
+                [-0.53, 0.0, 0.09], [0.04, 0.0, -0.09], [0.04, 1.2, -0.09], [-0.53, 1.2, 0.09],
+            ], &boxq),
+            ("Light", Vec3::ONE, &[[-0.24, 1.98, 0.16], [-0.24, 1.98, -0.22], [0.23, 1.98, -0.22], [0.23, 1.98, 0.16]], &quad),
+        ];
+        let mut scene = Self::default();
+        for (name, albedo, verts, indices) in parts {
+            let mut material = Material::diffuse(name, albedo);
+            if name == "Light" {
+                material.emissive = Vec3::ONE;
+            }
+            let m = scene.push_material(material);
+            for (k, tri) in indices.chunks_exact(3).enumerate() {
+                let t = [0, 1, 2].map(|c| Vec3::from_array(verts[tri[c] as usize]));
+                // Built-in data is finite by construction.
+                if scene.push_triangle(t, m, name, k).is_err() {
+                    unreachable!("built-in Cornell box has finite positions");
+                }
+            }
+        }
+        scene
+    }
+
+    /// A square ground plane `y = 0` of half-size `half_size` centred at the origin, front face
+    /// up, diffuse `albedo`, under open sky.
+    pub fn ground_plane(half_size: f32, albedo: Vec3) -> Self {
+        let h = half_size;
+        let v = [Vec3::new(-h, 0.0, -h), Vec3::new(-h, 0.0, h), Vec3::new(h, 0.0, h), Vec3::new(h, 0.0, -h)];
+        let mut scene = Self::default();
+        let m = scene.push_material(Material { double_sided: false, ..Material::diffuse("ground", albedo) });
+        for (k, t) in [[v[0], v[1], v[2]], [v[0], v[2], v[3]]].into_iter().enumerate() {
+            if scene.push_triangle(t, m, "ground", k).is_err() {
+                unreachable!("finite built-in plane");
+            }
+        }
+        scene
+    }
+
+    /// A closed axis-aligned box `[-half, half]³` with inward-facing front faces (12 triangles),
+    /// single-sided, diffuse `albedo`: no sky light reaches its inside.
+    pub fn closed_box(half: f32, albedo: Vec3) -> Self {
+        let mut scene = Self::default();
+        let m = scene.push_material(Material { double_sided: false, ..Material::diffuse("box", albedo) });
+        let mut k = 0;
+        for axis in 0..3 {
+            for sign in [-1.0f32, 1.0] {
+                // Face at coordinate `sign * half` on `axis`; its inward normal is -sign along axis.
+                let n = Vec3::from_array(std::array::from_fn(|i| if i == axis { -sign } else { 0.0 }));
+                let u = Vec3::from_array(std::array::from_fn(|i| if i == (axis + 1) % 3 { half } else { 0.0 }));
+                let w = n.cross(u).normalize() * half;
+                let c = -n * half;
+                let q = [c - u - w, c + u - w, c + u + w, c - u + w];
+                for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
+                    // Orient each triangle so that its winding normal points inwards.
+                    let t = if (t[1] - t[0]).cross(t[2] - t[0]).dot(n) > 0.0 { t } else { [t[0], t[2], t[1]] };
+                    if scene.push_triangle(t, m, "box", k).is_err() {
+                        unreachable!("finite built-in box");
+                    }
+                    k += 1;
+                }
+            }
+        }
+        scene
+    }
+
+    /// World-space triangles (degenerate ones already dropped).
+    pub fn triangles(&self) -> &[[Vec3; 3]] {
+        &self.triangles
+    }
+
+    /// Material index of each triangle.
+    pub fn material_ids(&self) -> &[u32] {
+        &self.material_ids
+    }
+
+    /// Materials.
+    pub fn materials(&self) -> &[Material] {
+        &self.materials
+    }
+
+    /// The material of triangle `t` (panics if `t` is out of range).
+    pub fn material_of(&self, t: usize) -> &Material {
+        &self.materials[self.material_ids[t] as usize]
+    }
+
+    /// Punctual lights (`KHR_lights_punctual`).
+    pub fn lights(&self) -> &[PunctualLight] {
+        &self.lights
+    }
+
+    /// Cameras.
+    pub fn cameras(&self) -> &[Camera] {
+        &self.cameras
+    }
+
+    /// Number of degenerate triangles dropped while building the scene.
+    pub fn degenerate_dropped(&self) -> usize {
+        self.degenerate_dropped
+    }
+
+    /// Non-fatal problems met while loading (unsupported required extensions, undecoded textures, ...).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// Bounding box of all triangles, `None` for a scene without triangles.
+    pub fn bounds(&self) -> Option<Aabb> {
+        let first = self.triangles.first()?[0];
+        let (lo, hi) = self
+            .triangles
+            .iter()
+            .flatten()
+            .fold((first, first), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        Some(Aabb::new(lo, hi))
+    }
+
+    /// Replaces the albedo of every material (for tests and for scenes whose colours are unknown).
+    pub fn set_uniform_albedo(&mut self, albedo: Vec3) {
+        for m in &mut self.materials {
+            m.albedo = albedo;
+        }
+    }
+}
