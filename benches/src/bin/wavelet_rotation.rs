@@ -12,7 +12,9 @@ use std::time::Instant;
 use prt_benches::Table;
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
-use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, LatLong, Policy, Weighting};
+use prt_wavelet::{
+    Approximator, BandStrategy, CubemapHaar, CubemapLayout, LatLong, Policy, Weighting,
+};
 
 const SIZE: usize = 64;
 const FRAMES: usize = 200;
@@ -20,7 +22,9 @@ const STOP: usize = 100;
 const WARMUP: usize = 10;
 
 fn load(name: &str) -> Option<LatLong> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps").join(format!("{name}.hdr"));
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/envmaps")
+        .join(format!("{name}.hdr"));
     let img = image::open(&path).ok()?.into_rgb32f();
     let (w, h) = img.dimensions();
     LatLong::new(w as usize, h as usize, 3, img.into_raw()).ok()
@@ -37,7 +41,8 @@ struct Method {
 fn method(layout: &CubemapLayout, name: &str, terms: usize, policy: Policy) -> Method {
     Method {
         name: name.to_string(),
-        approx: Approximator::for_cubemap(layout, 3, Weighting::Area, terms, policy).expect("valid config"),
+        approx: Approximator::for_cubemap(layout, 3, Weighting::Area, terms, policy)
+            .expect("valid config"),
         errors: Vec::new(),
         band_terms: Vec::new(),
         seconds: 0.0,
@@ -57,7 +62,9 @@ fn run(rotation: &Rotation, methods: &mut [Method], keep_coeffs: bool) -> Vec<Ve
             let update = m.approx.step(&coeffs).expect("step");
             m.seconds += start.elapsed().as_secs_f64();
             m.band_terms.push(update.terms_per_band());
-            let e = metric.error(m.approx.approximation(), &texels).expect("metric");
+            let e = metric
+                .error(m.approx.approximation(), &texels)
+                .expect("metric");
             m.errors.push(e);
         }
         if keep_coeffs && t < 128 {
@@ -74,7 +81,11 @@ fn mean(v: &[f64]) -> f64 {
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let maps: Vec<String> = if args.is_empty() {
-        vec!["probulator_uffizi".into(), "probulator_grace".into(), "venice_sunset_1k".into()]
+        vec![
+            "probulator_uffizi".into(),
+            "probulator_grace".into(),
+            "venice_sunset_1k".into(),
+        ]
     } else {
         args
     };
@@ -91,18 +102,40 @@ fn main() {
         "PBI30 > BI30 after frame 50",
         "first frame after stop with PBI30 < NWA500",
     ]);
-    let mut curves = Table::new(&["map", "deg/frame", "terms", "NWA", "BI", "PBI L1 test", "PBI exhaustive", "PBI dealer"]);
-    let mut strategy_table = Table::new(&["map", "deg/frame", "PBI strategy", "mean error rotating", "mean error frames 100-130", "step time"]);
+    let mut curves = Table::new(&[
+        "map",
+        "deg/frame",
+        "terms",
+        "NWA",
+        "BI",
+        "PBI L1 test",
+        "PBI exhaustive",
+        "PBI dealer",
+    ]);
+    let mut strategy_table = Table::new(&[
+        "map",
+        "deg/frame",
+        "PBI strategy",
+        "mean error rotating",
+        "mean error frames 100-130",
+        "step time",
+    ]);
     for name in &maps {
         let Some(map) = load(name) else {
             eprintln!("skipping {name}: ../shared/envmaps/{name}.hdr not readable");
             continue;
         };
         for &deg in &speeds {
-            let rotation = Rotation::new(map.clone(), SIZE, deg.to_radians(), STOP).expect("rotation");
+            let rotation =
+                Rotation::new(map.clone(), SIZE, deg.to_radians(), STOP).expect("rotation");
             let mut methods = vec![
                 method(&layout, "PBI30", 30, Policy::PerBand(BandStrategy::L1Test)),
-                method(&layout, "PBI30x", 30, Policy::PerBand(BandStrategy::Exhaustive)),
+                method(
+                    &layout,
+                    "PBI30x",
+                    30,
+                    Policy::PerBand(BandStrategy::Exhaustive),
+                ),
                 method(&layout, "PBI30d", 30, Policy::PerBand(BandStrategy::Dealer)),
                 method(&layout, "BI30", 30, Policy::Incremental),
                 method(&layout, "NWA30", 30, Policy::NonIncremental),
@@ -113,11 +146,21 @@ fn main() {
             let first = name == &maps[0] && deg == speeds[0];
             let coeffs = run(&rotation, &mut methods, first);
             let err = |n: &str| &methods.iter().find(|m| m.name == n).expect("method").errors;
-            let (pbi, bi, nwa60, nwa100, nwa500) = (err("PBI30"), err("BI30"), err("NWA60"), err("NWA100"), err("NWA500"));
+            let (pbi, bi, nwa60, nwa100, nwa500) = (
+                err("PBI30"),
+                err("BI30"),
+                err("NWA60"),
+                err("NWA100"),
+                err("NWA500"),
+            );
             let rotating = WARMUP..STOP;
             let wins = rotating.clone().filter(|&t| pbi[t] < nwa60[t]).count();
-            let ghost = (50..FRAMES).filter(|&t| pbi[t] > bi[t] * (1.0 + 1e-9)).count();
-            let converge = (STOP..FRAMES).find(|&t| pbi[t] < nwa500[t]).map_or("never".to_string(), |t| format!("{} (+{})", t, t - STOP));
+            let ghost = (50..FRAMES)
+                .filter(|&t| pbi[t] > bi[t] * (1.0 + 1e-9))
+                .count();
+            let converge = (STOP..FRAMES)
+                .find(|&t| pbi[t] < nwa500[t])
+                .map_or("never".to_string(), |t| format!("{} (+{})", t, t - STOP));
             summary.row(vec![
                 name.clone(),
                 format!("{deg}"),
@@ -139,26 +182,50 @@ fn main() {
                     format!("{:.1} µs", m.seconds / FRAMES as f64 * 1e6),
                 ]);
             }
-            let mut frames = Table::new(&["frame", "PBI30", "PBI30 exhaustive", "PBI30 dealer", "BI30", "NWA30", "NWA60", "NWA100", "NWA500"]);
+            let mut frames = Table::new(&[
+                "frame",
+                "PBI30",
+                "PBI30 exhaustive",
+                "PBI30 dealer",
+                "BI30",
+                "NWA30",
+                "NWA60",
+                "NWA100",
+                "NWA500",
+            ]);
             for t in 0..FRAMES {
                 let mut row = vec![t.to_string()];
                 row.extend(methods.iter().map(|m| format!("{:.5}", m.errors[t])));
                 frames.row(row);
             }
-            frames.write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg")).expect("csv");
+            frames
+                .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg"))
+                .expect("csv");
             if first {
-                let mut usage = Table::new(&["frame", "band 0", "band 1", "band 2", "band 3", "band 4", "band 5", "band 6"]);
+                let mut usage = Table::new(&[
+                    "frame", "band 0", "band 1", "band 2", "band 3", "band 4", "band 5", "band 6",
+                ]);
                 for t in [1, 5, 20, 50, 99, 101, 105, 110, 120] {
                     let mut row = vec![t.to_string()];
                     row.extend(methods[0].band_terms[t].iter().map(|c| c.to_string()));
                     usage.row(row);
                 }
-                println!("\n### PBI30 (L1 test) terms per band per frame, {name}, {deg} deg/frame (figure 5.3)\n\n{}", usage.markdown());
+                println!(
+                    "\n### PBI30 (L1 test) terms per band per frame, {name}, {deg} deg/frame (figure 5.3)\n\n{}",
+                    usage.markdown()
+                );
                 let energy = band_energy(&coeffs, layout.bands()).expect("energy");
-                let mut e = Table::new(&["temporal level", "band 0", "band 1", "band 2", "band 3", "band 4", "band 5", "band 6"]);
+                let mut e = Table::new(&[
+                    "temporal level",
+                    "band 0",
+                    "band 1",
+                    "band 2",
+                    "band 3",
+                    "band 4",
+                    "band 5",
+                    "band 6",
+                ]);
                 for (lvl, row) in energy.iter().enumerate() {
-                    let total: f64 = energy.iter().map(|r| r.iter().sum::<f64>()).sum();
-                    let _ = total;
                     let mut cells = vec![lvl.to_string()];
                     // Each band's energy share per temporal level (columns sum to 1).
                     cells.extend(row.iter().enumerate().map(|(b, v)| {
@@ -167,7 +234,10 @@ fn main() {
                     }));
                     e.row(cells);
                 }
-                println!("\n### Spatio-temporal band energy, first 128 frames, {name}, {deg} deg/frame (figure 5.4; share of each spatial band's energy per temporal level)\n\n{}", e.markdown());
+                println!(
+                    "\n### Spatio-temporal band energy, first 128 frames, {name}, {deg} deg/frame (figure 5.4; share of each spatial band's energy per temporal level)\n\n{}",
+                    e.markdown()
+                );
             }
             // Error vs terms per frame: mean over rotating frames.
             for terms in [10usize, 20, 30, 60, 100] {
@@ -175,19 +245,45 @@ fn main() {
                     method(&layout, "NWA", terms, Policy::NonIncremental),
                     method(&layout, "BI", terms, Policy::Incremental),
                     method(&layout, "PBI", terms, Policy::PerBand(BandStrategy::L1Test)),
-                    method(&layout, "PBIx", terms, Policy::PerBand(BandStrategy::Exhaustive)),
-                    method(&layout, "PBId", terms, Policy::PerBand(BandStrategy::Dealer)),
+                    method(
+                        &layout,
+                        "PBIx",
+                        terms,
+                        Policy::PerBand(BandStrategy::Exhaustive),
+                    ),
+                    method(
+                        &layout,
+                        "PBId",
+                        terms,
+                        Policy::PerBand(BandStrategy::Dealer),
+                    ),
                 ];
                 run(&rotation, &mut ms, false);
                 let mut row = vec![name.clone(), format!("{deg}"), terms.to_string()];
-                row.extend(ms.iter().map(|m| format!("{:.4}", mean(&m.errors[rotating.clone()]))));
+                row.extend(
+                    ms.iter()
+                        .map(|m| format!("{:.4}", mean(&m.errors[rotating.clone()]))),
+                );
                 curves.row(row);
             }
         }
     }
-    println!("\n### Rotating map: 100 frames rotating, 100 static (rotating frames = {WARMUP}..{STOP})\n\n{}", summary.markdown());
-    println!("\n### PBI band strategies (30 terms)\n\n{}", strategy_table.markdown());
-    println!("\n### Error vs terms per frame (mean area-weighted L1 over rotating frames {WARMUP}..{STOP})\n\n{}", curves.markdown());
-    summary.write_csv_if_requested("wavelet_rotation_summary").expect("csv");
-    curves.write_csv_if_requested("wavelet_rotation_curves").expect("csv");
+    println!(
+        "\n### Rotating map: 100 frames rotating, 100 static (rotating frames = {WARMUP}..{STOP})\n\n{}",
+        summary.markdown()
+    );
+    println!(
+        "\n### PBI band strategies (30 terms)\n\n{}",
+        strategy_table.markdown()
+    );
+    println!(
+        "\n### Error vs terms per frame (mean area-weighted L1 over rotating frames {WARMUP}..{STOP})\n\n{}",
+        curves.markdown()
+    );
+    summary
+        .write_csv_if_requested("wavelet_rotation_summary")
+        .expect("csv");
+    curves
+        .write_csv_if_requested("wavelet_rotation_curves")
+        .expect("csv");
 }

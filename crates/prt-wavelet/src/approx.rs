@@ -93,7 +93,8 @@ pub struct FrameUpdate {
     pub terms: Vec<Term>,
     /// `values[t * channels + c]`: delta or new value of term `t`, channel `c`.
     pub values: Vec<f32>,
-    /// The objective after the update: the weighted L1 norm of `L − L̃` (f64).
+    /// The objective after the update: the weighted L1 norm of `L − L̃` for the wavelet
+    /// [`Approximator`]; for [`crate::ShApproximator`] the summed L2 change of the bands left stale.
     pub residual: f64,
 }
 
@@ -148,7 +149,10 @@ impl Approximator {
         WaveletError::check_len("selection weights", bands.len(), weights.len())?;
         WaveletError::check_finite("selection weights", &weights)?;
         if let Some(i) = weights.iter().position(|&w| w < 0.0) {
-            return Err(WaveletError::Invalid { what: "selection weights", why: format!("weight {i} is negative") });
+            return Err(WaveletError::Invalid {
+                what: "selection weights",
+                why: format!("weight {i} is negative"),
+            });
         }
         if channels == 0 || bands.is_empty() {
             return Err(WaveletError::Invalid {
@@ -160,7 +164,9 @@ impl Approximator {
         if let (Policy::PerBand(BandStrategy::Exhaustive), true) = (policy, band_count > 20) {
             return Err(WaveletError::Invalid {
                 what: "policy",
-                why: format!("exhaustive search over {band_count} bands (2^{band_count} assignments)"),
+                why: format!(
+                    "exhaustive search over {band_count} bands (2^{band_count} assignments)"
+                ),
             });
         }
         let mut band_members = vec![Vec::new(); band_count];
@@ -239,7 +245,13 @@ impl Approximator {
             Policy::Incremental => (vec![BandMode::Incremental; band_count], None),
             Policy::PerBand(BandStrategy::L1Test) => (
                 (0..band_count)
-                    .map(|b| if inc[b].total <= rep[b].total { BandMode::Incremental } else { BandMode::Replace })
+                    .map(|b| {
+                        if inc[b].total <= rep[b].total {
+                            BandMode::Incremental
+                        } else {
+                            BandMode::Replace
+                        }
+                    })
                     .collect(),
                 None,
             ),
@@ -249,10 +261,23 @@ impl Approximator {
                 (modes, Some(counts))
             }
         };
-        let lists: Vec<&Candidates> =
-            modes.iter().enumerate().map(|(b, m)| if *m == BandMode::Incremental { &inc[b] } else { &rep[b] }).collect();
+        let lists: Vec<&Candidates> = modes
+            .iter()
+            .enumerate()
+            .map(|(b, m)| {
+                if *m == BandMode::Incremental {
+                    &inc[b]
+                } else {
+                    &rep[b]
+                }
+            })
+            .collect();
         let chosen = match counts {
-            Some(counts) => lists.iter().zip(&counts).flat_map(|(l, &c)| l.best[..c].iter().map(|p| p.1)).collect(),
+            Some(counts) => lists
+                .iter()
+                .zip(&counts)
+                .flat_map(|(l, &c)| l.best[..c].iter().map(|p| p.1))
+                .collect(),
             None => merge_best(&lists, k),
         };
         let residual: f64 = lists.iter().map(|l| l.total).sum::<f64>() - {
@@ -287,7 +312,11 @@ impl Approximator {
 
     /// The best `k` candidates of band `b` in one mode (linear-time partial selection).
     fn candidates(&mut self, b: usize, incremental: bool, k: usize) -> Candidates {
-        let scores = if incremental { &self.inc_scores } else { &self.rep_scores };
+        let scores = if incremental {
+            &self.inc_scores
+        } else {
+            &self.rep_scores
+        };
         self.work.clear();
         let mut total = 0.0f64;
         for &i in &self.band_members[b] {
@@ -298,7 +327,9 @@ impl Approximator {
             }
         }
         let better = |a: &u32, b: &u32| {
-            scores[*b as usize].total_cmp(&scores[*a as usize]).then(a.cmp(b))
+            scores[*b as usize]
+                .total_cmp(&scores[*a as usize])
+                .then(a.cmp(b))
         };
         if self.work.len() > k && k > 0 {
             self.work.select_nth_unstable_by(k - 1, better);
@@ -311,7 +342,11 @@ impl Approximator {
         for (s, _) in &best {
             prefix.push(prefix[prefix.len() - 1] + *s as f64);
         }
-        Candidates { best, total, prefix }
+        Candidates {
+            best,
+            total,
+            prefix,
+        }
     }
 
     fn apply(&mut self, target: &[f32], modes: Vec<BandMode>, mut chosen: Vec<u32>, residual: f64) {
@@ -404,7 +439,11 @@ fn exhaustive(inc: &[Candidates], rep: &[Candidates], k: usize) -> Vec<BandMode>
         lists.clear();
         let mut total = 0.0;
         for b in 0..bands {
-            let l = if mask & (1 << b) != 0 { &rep[b] } else { &inc[b] };
+            let l = if mask & (1 << b) != 0 {
+                &rep[b]
+            } else {
+                &inc[b]
+            };
             total += l.total;
             lists.push(l);
         }
@@ -415,7 +454,15 @@ fn exhaustive(inc: &[Candidates], rep: &[Candidates], k: usize) -> Vec<BandMode>
         }
     }
     let mask = best.map_or(0, |b| b.1);
-    (0..bands).map(|b| if mask & (1 << b) != 0 { BandMode::Replace } else { BandMode::Incremental }).collect()
+    (0..bands)
+        .map(|b| {
+            if mask & (1 << b) != 0 {
+                BandMode::Replace
+            } else {
+                BandMode::Incremental
+            }
+        })
+        .collect()
 }
 
 fn deal(inc: &[Candidates], rep: &[Candidates], k: usize) -> (Vec<BandMode>, Vec<usize>) {
@@ -441,10 +488,20 @@ fn deal(inc: &[Candidates], rep: &[Candidates], k: usize) -> (Vec<BandMode>, Vec
         }
     }
     let modes: Vec<BandMode> = (0..bands)
-        .map(|b| if err(&inc[b], counts[b]) <= err(&rep[b], counts[b]) { BandMode::Incremental } else { BandMode::Replace })
+        .map(|b| {
+            if err(&inc[b], counts[b]) <= err(&rep[b], counts[b]) {
+                BandMode::Incremental
+            } else {
+                BandMode::Replace
+            }
+        })
         .collect();
     for b in 0..bands {
-        let list = if modes[b] == BandMode::Incremental { &inc[b] } else { &rep[b] };
+        let list = if modes[b] == BandMode::Incremental {
+            &inc[b]
+        } else {
+            &rep[b]
+        };
         counts[b] = counts[b].min(list.best.len());
     }
     (modes, counts)

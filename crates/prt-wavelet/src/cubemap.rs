@@ -26,7 +26,12 @@ pub struct LatLong {
 
 impl LatLong {
     /// Wraps pixel data; errors on a size mismatch, zero dimensions or a non-finite value.
-    pub fn new(width: usize, height: usize, channels: usize, data: Vec<f32>) -> Result<Self, WaveletError> {
+    pub fn new(
+        width: usize,
+        height: usize,
+        channels: usize,
+        data: Vec<f32>,
+    ) -> Result<Self, WaveletError> {
         if width == 0 || height == 0 || channels == 0 {
             return Err(WaveletError::Invalid {
                 what: "lat-long map",
@@ -35,7 +40,12 @@ impl LatLong {
         }
         WaveletError::check_len("lat-long pixels", width * height * channels, data.len())?;
         WaveletError::check_finite("lat-long pixels", &data)?;
-        Ok(Self { width, height, channels, data })
+        Ok(Self {
+            width,
+            height,
+            channels,
+            data,
+        })
     }
 
     /// Width in pixels.
@@ -151,23 +161,39 @@ impl Cubemap {
     pub fn new(size: usize, channels: usize, data: Vec<f32>) -> Result<Self, WaveletError> {
         WaveletError::check_pow2("cube face side", size, 1)?;
         if channels == 0 {
-            return Err(WaveletError::Invalid { what: "channels", why: "must be at least 1".into() });
+            return Err(WaveletError::Invalid {
+                what: "channels",
+                why: "must be at least 1".into(),
+            });
         }
         WaveletError::check_len("cubemap data", channels * 6 * size * size, data.len())?;
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             let plane = 6 * size * size;
             let (channel, rest) = (i / plane, i % plane);
             let (face, texel) = (rest / (size * size), rest % (size * size));
-            return Err(WaveletError::NonFiniteTexel { face, x: texel % size, y: texel / size, channel });
+            return Err(WaveletError::NonFiniteTexel {
+                face,
+                x: texel % size,
+                y: texel / size,
+                channel,
+            });
         }
-        Ok(Self { size, channels, data })
+        Ok(Self {
+            size,
+            channels,
+            data,
+        })
     }
 
     /// Builds a cube map from six faces in image layout (`[y][x][channel]`, interleaved), in the
     /// order +X, −X, +Y, −Y, +Z, −Z. Errors: not six faces, a face of the wrong length (the
     /// "face" length mismatch names the expected `size² × channels`), a side that is not a power
     /// of two, or a non-finite texel.
-    pub fn from_faces(size: usize, channels: usize, faces: &[&[f32]]) -> Result<Self, WaveletError> {
+    pub fn from_faces(
+        size: usize,
+        channels: usize,
+        faces: &[&[f32]],
+    ) -> Result<Self, WaveletError> {
         WaveletError::check_len("cube faces", 6, faces.len())?;
         WaveletError::check_pow2("cube face side", size, 1)?;
         for face in faces {
@@ -278,7 +304,11 @@ impl CubemapLayout {
             bands.extend_from_slice(&face_bands);
             area_weights.extend_from_slice(&face_weights);
         }
-        Ok(Self { size, bands, area_weights })
+        Ok(Self {
+            size,
+            bands,
+            area_weights,
+        })
     }
 
     /// Face side length.
@@ -330,7 +360,10 @@ impl CubemapHaar {
     /// A transform for `size × size` faces.
     pub fn new(size: usize) -> Result<Self, WaveletError> {
         WaveletError::check_pow2("cube face side", size, 1)?;
-        Ok(Self { size, scratch: vec![0.0; size * size] })
+        Ok(Self {
+            size,
+            scratch: vec![0.0; size * size],
+        })
     }
 
     /// Forward transform of planar data (any whole number of `6 × size²` planes) in place.
@@ -355,7 +388,7 @@ impl CubemapHaar {
 
     fn check(&self, data: &[f32]) -> Result<(), WaveletError> {
         let plane = 6 * self.size * self.size;
-        if data.is_empty() || data.len() % plane != 0 {
+        if data.is_empty() || !data.len().is_multiple_of(plane) {
             return Err(WaveletError::LengthMismatch {
                 what: "cubemap planes (a non-zero multiple of 6 x size^2)",
                 expected: plane * (data.len() / plane).max(1),

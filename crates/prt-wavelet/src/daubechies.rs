@@ -14,7 +14,12 @@ use crate::WaveletError;
 const C64: [f64; 4] = {
     let s3 = 1.732_050_807_568_877_2;
     let k = 1.0 / (4.0 * std::f64::consts::SQRT_2);
-    [(1.0 + s3) * k, (3.0 + s3) * k, (3.0 - s3) * k, (1.0 - s3) * k]
+    [
+        (1.0 + s3) * k,
+        (3.0 + s3) * k,
+        (3.0 - s3) * k,
+        (1.0 - s3) * k,
+    ]
 };
 const C: [f32; 4] = [C64[0] as f32, C64[1] as f32, C64[2] as f32, C64[3] as f32];
 const G: [f32; 4] = [C[3], -C[2], C[1], -C[0]];
@@ -46,7 +51,11 @@ impl Daubechies4 {
                 why: format!("{levels} is outside 1..={max} for {len} samples"),
             });
         }
-        Ok(Self { len, levels, scratch: vec![0.0; len] })
+        Ok(Self {
+            len,
+            levels,
+            scratch: vec![0.0; len],
+        })
     }
 
     /// The signal length.
@@ -120,8 +129,10 @@ fn synthesis_step(coeffs: &[f32], out: &mut [f32]) {
     for k in 0..h {
         let prev = if k == 0 { h - 1 } else { k - 1 };
         let next = if k + 1 == h { 0 } else { k + 1 };
-        out[2 * k] = C[1] * approx[k] + G[1] * detail[k] + C[3] * approx[prev] + G[3] * detail[prev];
-        out[2 * k + 1] = C[2] * approx[k] + G[2] * detail[k] + C[0] * approx[next] + G[0] * detail[next];
+        out[2 * k] =
+            C[1] * approx[k] + G[1] * detail[k] + C[3] * approx[prev] + G[3] * detail[prev];
+        out[2 * k + 1] =
+            C[2] * approx[k] + G[2] * detail[k] + C[0] * approx[next] + G[0] * detail[next];
     }
 }
 

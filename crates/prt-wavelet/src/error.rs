@@ -70,11 +70,27 @@ impl WaveletError {
         }
     }
 
-    pub(crate) fn check_len(what: &'static str, expected: usize, got: usize) -> Result<(), WaveletError> {
-        if expected == got { Ok(()) } else { Err(WaveletError::LengthMismatch { what, expected, got }) }
+    pub(crate) fn check_len(
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    ) -> Result<(), WaveletError> {
+        if expected == got {
+            Ok(())
+        } else {
+            Err(WaveletError::LengthMismatch {
+                what,
+                expected,
+                got,
+            })
+        }
     }
 
-    pub(crate) fn check_pow2(what: &'static str, len: usize, min: usize) -> Result<(), WaveletError> {
+    pub(crate) fn check_pow2(
+        what: &'static str,
+        len: usize,
+        min: usize,
+    ) -> Result<(), WaveletError> {
         if len >= min && len.is_power_of_two() {
             Ok(())
         } else {

@@ -67,7 +67,10 @@ impl Haar2d {
     /// A transform for `size × size` images; `size` must be a power of two (1 is allowed).
     pub fn new(size: usize) -> Result<Self, WaveletError> {
         WaveletError::check_pow2("image side", size, 1)?;
-        Ok(Self { size, scratch: vec![0.0; size * size] })
+        Ok(Self {
+            size,
+            scratch: vec![0.0; size * size],
+        })
     }
 
     /// The side length.
@@ -152,5 +155,9 @@ pub(crate) fn inverse_2d(image: &mut [f32], n: usize, scratch: &mut [f32]) {
 /// coefficient, `j ≥ 1` for the details with `max(x, y) ∈ [2^(j−1), 2^j)` (1 = coarsest).
 pub fn band_of_2d(x: usize, y: usize) -> usize {
     let m = x.max(y);
-    if m == 0 { 0 } else { (usize::BITS - m.leading_zeros()) as usize }
+    if m == 0 {
+        0
+    } else {
+        (usize::BITS - m.leading_zeros()) as usize
+    }
 }

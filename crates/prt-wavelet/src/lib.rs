@@ -51,14 +51,23 @@
 //! and non-finite lighting (naming the face, texel and channel) are reported, never panicked on.
 #![deny(missing_docs)]
 
+pub mod analysis;
 mod approx;
+pub mod brdf;
 mod cubemap;
 mod daubechies;
 mod error;
 mod haar;
+mod relight;
+pub mod sequence;
+mod sh;
 
 pub use approx::{Approximator, BandMode, BandStrategy, FrameUpdate, Policy, Term, Weighting};
-pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, LatLong, texel_direction, texel_solid_angles};
+pub use cubemap::{
+    Cubemap, CubemapHaar, CubemapLayout, LatLong, texel_direction, texel_solid_angles,
+};
 pub use daubechies::Daubechies4;
 pub use error::WaveletError;
 pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};
+pub use relight::{Relighter, SparseTransport};
+pub use sh::ShApproximator;

@@ -3,21 +3,29 @@
 
 use proptest::prelude::*;
 use prt_wavelet::{
-    Cubemap, CubemapHaar, CubemapLayout, Daubechies4, Haar2d, WaveletError, band_of_2d, haar_forward, haar_inverse,
-    texel_solid_angles,
+    Cubemap, CubemapHaar, CubemapLayout, Daubechies4, Haar2d, WaveletError, band_of_2d,
+    haar_forward, haar_inverse, texel_solid_angles,
 };
 use serde_json::Value;
 
 fn vectors() -> Value {
-    serde_json::from_str(include_str!("data/pywt_vectors.json")).expect("committed test data parses")
+    serde_json::from_str(include_str!("data/pywt_vectors.json"))
+        .expect("committed test data parses")
 }
 
 fn floats(v: &Value) -> Vec<f32> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number") as f32).collect()
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number") as f32)
+        .collect()
 }
 
 fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
 }
 
 #[test]
@@ -31,7 +39,11 @@ fn db2_matches_pywavelets_periodization() {
         let mut t = Daubechies4::with_levels(input.len(), levels).expect("valid");
         let mut x = input.clone();
         t.forward(&mut x).expect("forward");
-        assert!(max_abs_diff(&x, &expected) < 2e-5, "n={} levels={levels}: {x:?} vs {expected:?}", input.len());
+        assert!(
+            max_abs_diff(&x, &expected) < 2e-5,
+            "n={} levels={levels}: {x:?} vs {expected:?}",
+            input.len()
+        );
         t.inverse(&mut x).expect("inverse");
         assert!(max_abs_diff(&x, &input) < 2e-5);
     }
@@ -48,26 +60,69 @@ fn haar_1d_and_2d_match_pywavelets() {
     for case in v["haar2d"].as_array().expect("haar2d") {
         let n = case["size"].as_u64().expect("size") as usize;
         let mut x = floats(&case["input"]);
-        Haar2d::new(n).expect("size").forward(&mut x).expect("forward");
-        assert!(max_abs_diff(&x, &floats(&case["coeffs"])) < 2e-5, "size {n}");
+        Haar2d::new(n)
+            .expect("size")
+            .forward(&mut x)
+            .expect("forward");
+        assert!(
+            max_abs_diff(&x, &floats(&case["coeffs"])) < 2e-5,
+            "size {n}"
+        );
     }
 }
 
 #[test]
 fn bad_sizes_are_typed_errors() {
-    assert!(matches!(Daubechies4::new(96), Err(WaveletError::NotPowerOfTwo { len: 96, .. })));
-    assert!(matches!(Daubechies4::new(1), Err(WaveletError::NotPowerOfTwo { len: 1, .. })));
-    assert!(matches!(Daubechies4::with_levels(16, 5), Err(WaveletError::Invalid { .. })));
-    assert!(matches!(haar_forward(&mut [1.0; 6]), Err(WaveletError::NotPowerOfTwo { len: 6, .. })));
-    assert!(matches!(Haar2d::new(12), Err(WaveletError::NotPowerOfTwo { len: 12, .. })));
+    assert!(matches!(
+        Daubechies4::new(96),
+        Err(WaveletError::NotPowerOfTwo { len: 96, .. })
+    ));
+    assert!(matches!(
+        Daubechies4::new(1),
+        Err(WaveletError::NotPowerOfTwo { len: 1, .. })
+    ));
+    assert!(matches!(
+        Daubechies4::with_levels(16, 5),
+        Err(WaveletError::Invalid { .. })
+    ));
+    assert!(matches!(
+        haar_forward(&mut [1.0; 6]),
+        Err(WaveletError::NotPowerOfTwo { len: 6, .. })
+    ));
+    assert!(matches!(
+        Haar2d::new(12),
+        Err(WaveletError::NotPowerOfTwo { len: 12, .. })
+    ));
     let mut t = Daubechies4::new(16).expect("valid");
-    assert!(matches!(t.forward(&mut [0.0; 8]), Err(WaveletError::LengthMismatch { expected: 16, got: 8, .. })));
-    assert!(matches!(Cubemap::new(12, 1, vec![0.0; 6 * 144]), Err(WaveletError::NotPowerOfTwo { .. })));
+    assert!(matches!(
+        t.forward(&mut [0.0; 8]),
+        Err(WaveletError::LengthMismatch {
+            expected: 16,
+            got: 8,
+            ..
+        })
+    ));
+    assert!(matches!(
+        Cubemap::new(12, 1, vec![0.0; 6 * 144]),
+        Err(WaveletError::NotPowerOfTwo { .. })
+    ));
     let face = vec![0.0f32; 4 * 4 * 3];
     let short = vec![0.0f32; 4 * 3 * 3];
     let faces: Vec<&[f32]> = vec![&face, &face, &face, &short, &face, &face];
-    assert!(matches!(Cubemap::from_faces(4, 3, &faces), Err(WaveletError::LengthMismatch { what: "cube face", .. })));
-    assert!(matches!(Cubemap::from_faces(4, 3, &faces[..5]), Err(WaveletError::LengthMismatch { what: "cube faces", .. })));
+    assert!(matches!(
+        Cubemap::from_faces(4, 3, &faces),
+        Err(WaveletError::LengthMismatch {
+            what: "cube face",
+            ..
+        })
+    ));
+    assert!(matches!(
+        Cubemap::from_faces(4, 3, &faces[..5]),
+        Err(WaveletError::LengthMismatch {
+            what: "cube faces",
+            ..
+        })
+    ));
 }
 
 #[test]
@@ -77,7 +132,12 @@ fn non_finite_lighting_names_the_texel() {
     data[6 * 16 + 3 * 16 + 4 + 2] = f32::NAN;
     assert_eq!(
         Cubemap::new(4, 2, data),
-        Err(WaveletError::NonFiniteTexel { face: 3, x: 2, y: 1, channel: 1 })
+        Err(WaveletError::NonFiniteTexel {
+            face: 3,
+            x: 2,
+            y: 1,
+            channel: 1
+        })
     );
     let face = vec![1.0f32; 16 * 3];
     let mut bad = face.clone();
@@ -85,7 +145,12 @@ fn non_finite_lighting_names_the_texel() {
     let faces: Vec<&[f32]> = vec![&face, &face, &face, &face, &bad, &face];
     assert_eq!(
         Cubemap::from_faces(4, 3, &faces),
-        Err(WaveletError::NonFiniteTexel { face: 4, x: 1, y: 2, channel: 2 })
+        Err(WaveletError::NonFiniteTexel {
+            face: 4,
+            x: 1,
+            y: 2,
+            channel: 2
+        })
     );
 }
 
@@ -93,7 +158,10 @@ fn non_finite_lighting_names_the_texel() {
 fn constant_map_has_one_coefficient_per_face() {
     let n = 16;
     let mut data = vec![3.0f32; 6 * n * n];
-    CubemapHaar::new(n).expect("size").forward(&mut data).expect("forward");
+    CubemapHaar::new(n)
+        .expect("size")
+        .forward(&mut data)
+        .expect("forward");
     for face in 0..6 {
         let f = &data[face * n * n..(face + 1) * n * n];
         // The scaling coefficient of an orthonormal transform of a constant c on n² texels is c·n.
@@ -114,7 +182,14 @@ fn layout_bands_and_area_weights() {
     assert_eq!(band_of_2d(3, 2), 2);
     assert_eq!(band_of_2d(7, 0), 3);
     // Per face: 1 scaling + 3·4^(j−1) details in band j.
-    let per_band: Vec<usize> = (0..4).map(|b| layout.bands()[..64].iter().filter(|&&x| x as usize == b).count()).collect();
+    let per_band: Vec<usize> = (0..4)
+        .map(|b| {
+            layout.bands()[..64]
+                .iter()
+                .filter(|&&x| x as usize == b)
+                .count()
+        })
+        .collect();
     assert_eq!(per_band, vec![1, 3, 12, 48]);
     // Area weights are the basis functions' L1 norms on the sphere: computed directly here from
     // the texel solid angles and the inverse transform of a unit coefficient.
@@ -126,8 +201,15 @@ fn layout_bands_and_area_weights() {
         let mut e = vec![0.0f32; 6 * 64];
         e[i] = 1.0;
         haar.inverse(&mut e).expect("inverse");
-        let l1: f64 = e.iter().zip(&omega).map(|(v, w)| (v.abs() * w) as f64).sum();
-        assert!((l1 - layout.area_weights()[i] as f64).abs() < 1e-6, "coefficient {i}: {l1}");
+        let l1: f64 = e
+            .iter()
+            .zip(&omega)
+            .map(|(v, w)| (v.abs() * w) as f64)
+            .sum();
+        assert!(
+            (l1 - layout.area_weights()[i] as f64).abs() < 1e-6,
+            "coefficient {i}: {l1}"
+        );
     }
 }
 
