@@ -13,6 +13,16 @@ pub enum KernelError {
         /// The axis (0 = x, 1 = y, 2 = z).
         axis: usize,
     },
+    /// An axis has fewer nodes than the family needs.
+    #[error("axis {axis} has {nodes} nodes, at least {min} are needed")]
+    TooFewNodes {
+        /// The axis (0 = x, 1 = y, 2 = z).
+        axis: usize,
+        /// The node count given.
+        nodes: usize,
+        /// The smallest valid count.
+        min: usize,
+    },
     /// The domain is not a box with finite corners and `min <= max`.
     #[error("domain is not a finite box with min <= max: min {min:?}, max {max:?}")]
     InvalidDomain {

@@ -29,6 +29,10 @@
 
 mod error;
 mod hat;
+mod hybrid;
+mod shepard;
 
 pub use error::KernelError;
 pub use hat::{HatCorners, HatGrid, HatLocal};
+pub use hybrid::HybridKernels;
+pub use shepard::{Shepard, wendland_c2};
