@@ -27,20 +27,38 @@ impl LatLongMap {
     /// size, wrong length, a non-finite texel value (named by its flat index into `data`).
     pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self, SphereError> {
         if width == 0 || height == 0 {
-            return Err(SphereError::invalid("map size", format!("{width} × {height}")));
+            return Err(SphereError::invalid(
+                "map size",
+                format!("{width} × {height}"),
+            ));
         }
-        let expected = width.checked_mul(height).and_then(|n| n.checked_mul(3)).ok_or_else(|| {
-            SphereError::invalid("map size", format!("{width} × {height} overflows"))
-        })?;
+        let expected = width
+            .checked_mul(height)
+            .and_then(|n| n.checked_mul(3))
+            .ok_or_else(|| {
+                SphereError::invalid("map size", format!("{width} × {height} overflows"))
+            })?;
         if data.len() != expected {
-            return Err(SphereError::LengthMismatch { what: "texel data", expected, got: data.len() });
+            return Err(SphereError::LengthMismatch {
+                what: "texel data",
+                expected,
+                got: data.len(),
+            });
         }
         SphereError::check_finite("texel", &data)?;
-        Ok(Self { width, height, data })
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
     }
 
     /// A map whose texel at `(x, y)` is `f(dir of texel centre)`.
-    pub fn from_fn(width: usize, height: usize, mut f: impl FnMut(Vec3) -> Vec3) -> Result<Self, SphereError> {
+    pub fn from_fn(
+        width: usize,
+        height: usize,
+        mut f: impl FnMut(Vec3) -> Vec3,
+    ) -> Result<Self, SphereError> {
         let mut data = Vec::with_capacity(width * height * 3);
         for y in 0..height {
             for x in 0..width {
@@ -86,8 +104,10 @@ impl LatLongMap {
     /// The value of the texel containing `dir` (non-unit directions are normalised).
     pub fn nearest(&self, dir: Vec3) -> Vec3 {
         let (u, v) = direction_to_uv(dir);
-        let x = ((u * self.width as f64).floor() as isize).clamp(0, self.width as isize - 1) as usize;
-        let y = ((v * self.height as f64).floor() as isize).clamp(0, self.height as isize - 1) as usize;
+        let x =
+            ((u * self.width as f64).floor() as isize).clamp(0, self.width as isize - 1) as usize;
+        let y =
+            ((v * self.height as f64).floor() as isize).clamp(0, self.height as isize - 1) as usize;
         self.texel(x, y)
     }
 
@@ -182,7 +202,11 @@ impl CubeMap {
         }
         let expected = 18 * size * size;
         if data.len() != expected {
-            return Err(SphereError::LengthMismatch { what: "cubemap data", expected, got: data.len() });
+            return Err(SphereError::LengthMismatch {
+                what: "cubemap data",
+                expected,
+                got: data.len(),
+            });
         }
         SphereError::check_finite("texel", &data)?;
         Ok(Self { size, data })
@@ -281,9 +305,17 @@ pub fn direction_to_cube(dir: Vec3) -> (usize, f64, f64) {
     let d = dir.as_dvec3();
     let (ax, ay, az) = (d.x.abs(), d.y.abs(), d.z.abs());
     let (face, sc, tc, ma) = if ax >= ay && ax >= az {
-        if d.x >= 0.0 { (0, -d.z, -d.y, ax) } else { (1, d.z, -d.y, ax) }
+        if d.x >= 0.0 {
+            (0, -d.z, -d.y, ax)
+        } else {
+            (1, d.z, -d.y, ax)
+        }
     } else if ay >= az {
-        if d.y >= 0.0 { (2, d.x, d.z, ay) } else { (3, d.x, -d.z, ay) }
+        if d.y >= 0.0 {
+            (2, d.x, d.z, ay)
+        } else {
+            (3, d.x, -d.z, ay)
+        }
     } else if d.z >= 0.0 {
         (4, d.x, -d.y, az)
     } else {

@@ -42,6 +42,9 @@ impl SphereError {
     }
 
     pub(crate) fn invalid(what: &'static str, why: impl Into<String>) -> SphereError {
-        SphereError::Invalid { what, why: why.into() }
+        SphereError::Invalid {
+            what,
+            why: why.into(),
+        }
     }
 }

@@ -45,5 +45,7 @@ pub mod sh;
 pub use ambient::{AmbientCube, AmbientDiceSrbf, quadrature_gram};
 pub use envmap::{CubeMap, LatLongMap};
 pub use error::SphereError;
-pub use sg::{SgBasis, SgLobe, fibonacci_axes, icosahedral_axes, sg_inner_product, sg_integral, spiral_axes};
+pub use sg::{
+    SgBasis, SgLobe, fibonacci_axes, icosahedral_axes, sg_inner_product, sg_integral, spiral_axes,
+};
 pub use sh::{ShBasis, ShRotation, eval_sh, eval_sh_f64, sh_index, sh_len};

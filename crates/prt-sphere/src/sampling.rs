@@ -44,7 +44,9 @@ pub fn cosine_hemisphere(u: f64, v: f64) -> Vec3 {
 
 /// Probulator's fit input: Halton(2,3) points with indices `1..=n` mapped by [`uniform_sphere`].
 pub fn halton_sphere(n: usize) -> Vec<Vec3> {
-    (1..=n as u64).map(|i| uniform_sphere(radical_inverse(i, 2), radical_inverse(i, 3))).collect()
+    (1..=n as u64)
+        .map(|i| uniform_sphere(radical_inverse(i, 2), radical_inverse(i, 3)))
+        .collect()
 }
 
 /// `n` Owen-scrambled Sobol points (Burley 2020, crate `sobol_burley`) with seed `seed`, mapped
@@ -73,7 +75,10 @@ pub fn stratified_sphere(nu: usize, nv: usize, seed: u64) -> Vec<Vec3> {
             let h = hash64(((i * nv + j) as u64) ^ seed.rotate_left(32));
             let ju = (h >> 40) as f64 / (1u64 << 24) as f64;
             let jv = ((h >> 16) & 0xff_ffff) as f64 / (1u64 << 24) as f64;
-            out.push(uniform_sphere((i as f64 + ju) / nu as f64, (j as f64 + jv) / nv as f64));
+            out.push(uniform_sphere(
+                (i as f64 + ju) / nu as f64,
+                (j as f64 + jv) / nv as f64,
+            ));
         }
     }
     out
@@ -101,7 +106,13 @@ pub fn gauss_legendre(n: usize) -> (Vec<f64>, Vec<f64>) {
                 p0 = p1;
                 p1 = p2;
             }
-            let p = if n == 0 { 1.0 } else if n == 1 { x } else { p1 };
+            let p = if n == 0 {
+                1.0
+            } else if n == 1 {
+                x
+            } else {
+                p1
+            };
             let pm1 = if n == 1 { 1.0 } else { p0 };
             dp = n as f64 * (x * p - pm1) / (x * x - 1.0);
             let dx = p / dp;

@@ -70,48 +70,54 @@ fn eval_explicit(order: usize, d: Vec3, out: &mut [f32]) {
     if order == 0 {
         return;
     }
-  // band 0
-  out[0] = 0.28209479177387814;
-  if order == 1 {
-    return;
-  }
-  // band 1
-  out[1] = -0.4886025119029199 * dx;
-  out[2] = 0.4886025119029199 * dy;
-  out[3] = -0.4886025119029199 * dz;
-  if order == 2 {
-    return;
-  }
-  // band 2
-  out[4] = 1.0925484305920792 * dx * dz;
-  out[5] = -1.0925484305920792 * dx * dy;
-  out[6] = 0.94617469575756 * dy * dy - 0.31539156525252;
-  out[7] = -1.0925484305920792 * dy * dz;
-  out[8] = -0.5462742152960396 * dx * dx + 0.5462742152960396 * dz * dz;
-  if order == 3 {
-    return;
-  }
-  // band 3
-  out[9] = 0.5900435899266435 * dx * dx * dx - 1.7701307697799304 * dx * dz * dz;
-  out[10] = 2.8906114426405543 * dx * dy * dz;
-  out[11] = -2.2852289973223288 * dx * dy * dy + 0.4570457994644657 * dx;
-  out[12] = 1.865881662950577 * dy * dy * dy - 1.1195289977703462 * dy;
-  out[13] = -2.2852289973223288 * dy * dy * dz + 0.4570457994644657 * dz;
-  out[14] = -1.4453057213202771 * dx * dx * dy + 1.4453057213202771 * dy * dz * dz;
-  out[15] = 1.7701307697799304 * dx * dx * dz - 0.5900435899266435 * dz * dz * dz;
-  if order == 4 {
-    return;
-  }
-  // band 4
-  out[16] = -2.5033429417967046 * dx * dx * dx * dz + 2.5033429417967046 * dx * dz * dz * dz;
-  out[17] = 1.7701307697799304 * dx * dx * dx * dy - 5.310392309339791 * dx * dy * dz * dz;
-  out[18] = 6.623222870302921 * dx * dy * dy * dz - 0.94617469575756 * dx * dz;
-  out[19] = -4.683325804901024 * dx * dy * dy * dy + 2.0071396306718676 * dx * dy;
-  out[20] = 3.7024941420321507 * dy * dy * dy * dy - 3.173566407456129 * dy * dy + 0.31735664074561293;
-  out[21] = -4.683325804901024 * dy * dy * dy * dz + 2.0071396306718676 * dy * dz;
-  out[22] = -3.3116114351514603 * dx * dx * dy * dy + 0.47308734787878 * dx * dx + 3.3116114351514603 * dy * dy * dz * dz - 0.47308734787878 * dz * dz;
-  out[23] = 5.310392309339791 * dx * dx * dy * dz - 1.7701307697799304 * dy * dz * dz * dz;
-  out[24] = 0.6258357354491761 * dx * dx * dx * dx - 3.755014412695057 * dx * dx * dz * dz + 0.6258357354491761 * dz * dz * dz * dz;}
+    // band 0
+    out[0] = 0.28209479177387814;
+    if order == 1 {
+        return;
+    }
+    // band 1
+    out[1] = -0.4886025119029199 * dx;
+    out[2] = 0.4886025119029199 * dy;
+    out[3] = -0.4886025119029199 * dz;
+    if order == 2 {
+        return;
+    }
+    // band 2
+    out[4] = 1.0925484305920792 * dx * dz;
+    out[5] = -1.0925484305920792 * dx * dy;
+    out[6] = 0.94617469575756 * dy * dy - 0.31539156525252;
+    out[7] = -1.0925484305920792 * dy * dz;
+    out[8] = -0.5462742152960396 * dx * dx + 0.5462742152960396 * dz * dz;
+    if order == 3 {
+        return;
+    }
+    // band 3
+    out[9] = 0.5900435899266435 * dx * dx * dx - 1.7701307697799304 * dx * dz * dz;
+    out[10] = 2.8906114426405543 * dx * dy * dz;
+    out[11] = -2.2852289973223288 * dx * dy * dy + 0.4570457994644657 * dx;
+    out[12] = 1.865881662950577 * dy * dy * dy - 1.1195289977703462 * dy;
+    out[13] = -2.2852289973223288 * dy * dy * dz + 0.4570457994644657 * dz;
+    out[14] = -1.4453057213202771 * dx * dx * dy + 1.4453057213202771 * dy * dz * dz;
+    out[15] = 1.7701307697799304 * dx * dx * dz - 0.5900435899266435 * dz * dz * dz;
+    if order == 4 {
+        return;
+    }
+    // band 4
+    out[16] = -2.5033429417967046 * dx * dx * dx * dz + 2.5033429417967046 * dx * dz * dz * dz;
+    out[17] = 1.7701307697799304 * dx * dx * dx * dy - 5.310392309339791 * dx * dy * dz * dz;
+    out[18] = 6.623222870302921 * dx * dy * dy * dz - 0.94617469575756 * dx * dz;
+    out[19] = -4.683325804901024 * dx * dy * dy * dy + 2.0071396306718676 * dx * dy;
+    out[20] =
+        3.7024941420321507 * dy * dy * dy * dy - 3.173566407456129 * dy * dy + 0.31735664074561293;
+    out[21] = -4.683325804901024 * dy * dy * dy * dz + 2.0071396306718676 * dy * dz;
+    out[22] = -3.3116114351514603 * dx * dx * dy * dy
+        + 0.47308734787878 * dx * dx
+        + 3.3116114351514603 * dy * dy * dz * dz
+        - 0.47308734787878 * dz * dz;
+    out[23] = 5.310392309339791 * dx * dx * dy * dz - 1.7701307697799304 * dy * dz * dz * dz;
+    out[24] = 0.6258357354491761 * dx * dx * dx * dx - 3.755014412695057 * dx * dx * dz * dz
+        + 0.6258357354491761 * dz * dz * dz * dz;
+}
 
 /// Evaluates all real SH of order `order` at unit direction `dir` into `out[..order²]` in f64
 /// with the normalised recurrence (any order; used above band 4 and as the reference).
@@ -137,8 +143,11 @@ pub fn eval_sh_f64(order: usize, dir: DVec3, out: &mut [f64]) {
             sm = cm * yt + sm * xt;
             cm = c;
         }
-        let (scale_c, scale_s) =
-            if m == 0 { (1.0, 0.0) } else { (std::f64::consts::SQRT_2 * cm, std::f64::consts::SQRT_2 * sm) };
+        let (scale_c, scale_s) = if m == 0 {
+            (1.0, 0.0)
+        } else {
+            (std::f64::consts::SQRT_2 * cm, std::f64::consts::SQRT_2 * sm)
+        };
         let mi = m as isize;
         let mut store = |l: usize, p: f64| {
             out[sh_index(l, mi)] = p * scale_c;
@@ -156,7 +165,8 @@ pub fn eval_sh_f64(order: usize, dir: DVec3, out: &mut [f64]) {
         for l in (m + 2)..order {
             let (lf, mf) = (l as f64, m as f64);
             let a = ((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf)).sqrt();
-            let b = (((lf - 1.0) * (lf - 1.0) - mf * mf) / (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0)).sqrt();
+            let b = (((lf - 1.0) * (lf - 1.0) - mf * mf) / (4.0 * (lf - 1.0) * (lf - 1.0) - 1.0))
+                .sqrt();
             let p = a * (zt * p_lm1 - b * p_lm2);
             store(l, p);
             p_lm2 = p_lm1;
@@ -224,7 +234,11 @@ pub fn clamped_cosine_coefficient(l: usize) -> f64 {
             for k in 1..=half {
                 central *= (half + k) as f64 / (4.0 * k as f64);
             }
-            let sign = if (half - 1) % 2 == 0 { 1.0 } else { -1.0 };
+            let sign = if (half - 1).is_multiple_of(2) {
+                1.0
+            } else {
+                -1.0
+            };
             2.0 * PI * sign / ((l + 2) as f64 * (l - 1) as f64) * central
         }
     }
@@ -233,10 +247,18 @@ pub fn clamped_cosine_coefficient(l: usize) -> f64 {
 /// Convolves SH coefficients (`order²` rows of `channels` interleaved values) with a zonal
 /// kernel given per band (`kernel[l]` multiplies band `l`, the Funk-Hecke form `sqrt(4π/(2l+1))
 /// k_l` already folded in).
-pub fn convolve_zonal(coeffs: &mut [f32], channels: usize, kernel: &[f64]) -> Result<(), SphereError> {
+pub fn convolve_zonal(
+    coeffs: &mut [f32],
+    channels: usize,
+    kernel: &[f64],
+) -> Result<(), SphereError> {
     let order = order_of(coeffs.len(), channels)?;
     if kernel.len() < order {
-        return Err(SphereError::LengthMismatch { what: "zonal kernel bands", expected: order, got: kernel.len() });
+        return Err(SphereError::LengthMismatch {
+            what: "zonal kernel bands",
+            expected: order,
+            got: kernel.len(),
+        });
     }
     for l in 0..order {
         for i in sh_len(l) * channels..sh_len(l + 1) * channels {
@@ -255,24 +277,39 @@ pub fn irradiance_from_radiance(coeffs: &mut [f32], channels: usize) -> Result<(
 }
 
 fn order_of(len: usize, channels: usize) -> Result<usize, SphereError> {
-    if channels == 0 || len % channels != 0 {
-        return Err(SphereError::invalid("channel count", format!("{channels} does not divide {len}")));
+    if channels == 0 || !len.is_multiple_of(channels) {
+        return Err(SphereError::invalid(
+            "channel count",
+            format!("{channels} does not divide {len}"),
+        ));
     }
     let n = len / channels;
     let order = (n as f64).sqrt().round() as usize;
     if order == 0 || order * order != n {
-        return Err(SphereError::invalid("SH coefficient count", format!("{n} is not a positive square")));
+        return Err(SphereError::invalid(
+            "SH coefficient count",
+            format!("{n} is not a positive square"),
+        ));
     }
     Ok(order)
 }
 
 /// Evaluates an SH expansion (`order²` rows of `channels` interleaved values) at `dir`.
-pub fn eval_expansion(coeffs: &[f32], channels: usize, dir: Vec3, out: &mut [f32]) -> Result<(), SphereError> {
+pub fn eval_expansion(
+    coeffs: &[f32],
+    channels: usize,
+    dir: Vec3,
+    out: &mut [f32],
+) -> Result<(), SphereError> {
     let order = order_of(coeffs.len(), channels)?;
     let mut y = vec![0.0f32; sh_len(order)];
     eval_sh(order, dir, &mut y);
     let got = out.len();
-    let out = out.get_mut(..channels).ok_or(SphereError::LengthMismatch { what: "output channels", expected: channels, got })?;
+    let out = out.get_mut(..channels).ok_or(SphereError::LengthMismatch {
+        what: "output channels",
+        expected: channels,
+        got,
+    })?;
     out.fill(0.0);
     for (i, yi) in y.iter().enumerate() {
         for c in 0..channels {
@@ -305,7 +342,10 @@ pub fn project_samples(
     let mut y = vec![0.0f32; n];
     for (s, d) in dirs.iter().enumerate() {
         if !d.is_finite() {
-            return Err(SphereError::NonFinite { what: "sample direction", index: s });
+            return Err(SphereError::NonFinite {
+                what: "sample direction",
+                index: s,
+            });
         }
         eval_sh(order, *d, &mut y);
         for i in 0..n {
@@ -314,7 +354,11 @@ pub fn project_samples(
             }
         }
     }
-    let w = if dirs.is_empty() { 0.0 } else { 4.0 * std::f64::consts::PI / dirs.len() as f64 };
+    let w = if dirs.is_empty() {
+        0.0
+    } else {
+        4.0 * std::f64::consts::PI / dirs.len() as f64
+    };
     Ok(acc.into_iter().map(|a| (a * w) as f32).collect())
 }
 
@@ -336,9 +380,15 @@ impl ShRotation {
         ShBasis::new(order)?;
         let m = r.as_dmat3();
         let should_be_id = m.transpose() * m;
-        let err = (should_be_id - glam::DMat3::IDENTITY).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let err = (should_be_id - glam::DMat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
         if !err.is_finite() || err > 1e-3 || (m.determinant() - 1.0).abs() > 1e-3 {
-            return Err(SphereError::invalid("rotation matrix", "not orthonormal with determinant +1"));
+            return Err(SphereError::invalid(
+                "rotation matrix",
+                "not orthonormal with determinant +1",
+            ));
         }
         let mut bands = vec![vec![1.0f64]];
         if order > 1 {
@@ -380,7 +430,11 @@ impl ShRotation {
     pub fn apply(&self, coeffs: &mut [f32], channels: usize) -> Result<(), SphereError> {
         let order = order_of(coeffs.len(), channels)?;
         if order != self.order {
-            return Err(SphereError::LengthMismatch { what: "SH order", expected: self.order, got: order });
+            return Err(SphereError::LengthMismatch {
+                what: "SH order",
+                expected: self.order,
+                got: order,
+            });
         }
         SphereError::check_finite("coefficient", coeffs)?;
         let mut tmp = vec![0.0f64; (2 * order + 1) * channels];
@@ -424,11 +478,16 @@ fn ivanic_band(l: usize, r1: &[f64], prev: &[f64]) -> Vec<f64> {
     for m in -li..=li {
         for nn in -li..=li {
             let d = if m == 0 { 1.0 } else { 0.0 };
-            let denom =
-                if nn.abs() == li { (2 * li * (2 * li - 1)) as f64 } else { ((li + nn) * (li - nn)) as f64 };
+            let denom = if nn.abs() == li {
+                (2 * li * (2 * li - 1)) as f64
+            } else {
+                ((li + nn) * (li - nn)) as f64
+            };
             let am = m.abs();
             let u = (((li + m) * (li - m)) as f64 / denom).sqrt();
-            let v = 0.5 * ((1.0 + d) * ((li + am - 1) * (li + am)) as f64 / denom).sqrt() * (1.0 - 2.0 * d);
+            let v = 0.5
+                * ((1.0 + d) * ((li + am - 1) * (li + am)) as f64 / denom).sqrt()
+                * (1.0 - 2.0 * d);
             let w = -0.5 * (((li - am - 1) * (li - am)) as f64 / denom).sqrt() * (1.0 - d);
             let mut val = 0.0;
             if u != 0.0 {
@@ -447,7 +506,11 @@ fn ivanic_band(l: usize, r1: &[f64], prev: &[f64]) -> Vec<f64> {
                 val += v * vv;
             }
             if w != 0.0 {
-                let ww = if m > 0 { p(1, m + 1, nn) + p(-1, -m - 1, nn) } else { p(1, m - 1, nn) - p(-1, -m + 1, nn) };
+                let ww = if m > 0 {
+                    p(1, m + 1, nn) + p(-1, -m - 1, nn)
+                } else {
+                    p(1, m - 1, nn) - p(-1, -m + 1, nn)
+                };
                 val += w * ww;
             }
             out[((m + li) as usize) * n + (nn + li) as usize] = val;
