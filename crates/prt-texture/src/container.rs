@@ -1,0 +1,549 @@
+//! The prt container: a versioned JSON manifest plus one KTX2 texture per named array.
+//!
+//! The container knows no basis and no solver. It stores named, typed arrays that live on 3D
+//! grids of nodes (`dims`, `channels` values per node), each quantised with its own
+//! [`Encoding`] and per-channel [`ChannelRange`]s, plus free-form attributes and kernel
+//! descriptions. A Moving Basis Decomposition model (Silvennoinen & Sloan, "Moving Basis
+//! Decomposition for Precomputed Light Transport", EGSR 2021) maps onto it as
+//!
+//! | array | dims | channels | layout |
+//! |---|---|---|---|
+//! | [`MBD_COEFFICIENTS`] | coefficient-kernel nodes | L (rank) | [`ArrayLayout::Volume`]: L channels packed in RGBA 3D textures |
+//! | [`MBD_BASIS`] | basis-kernel nodes | D x L (basis matrix per node, row-major) | [`ArrayLayout::Rows`] |
+//!
+//! with two [`KernelDescription`]s (kind, node counts, domain) under the same names. The byte
+//! layout of the manifest and of the textures is in docs/formats.md.
+//!
+//! Writing quantises, writes every texture atomically and the manifest last (so a reader never
+//! sees a manifest naming missing files), and reports the bytes actually written.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::ktx2::{KEY_PRT_ARRAY, Ktx2Texture, Shape};
+use crate::limits::{check_at_most, checked_product};
+use crate::quant::{ChannelRange, Encoding, Quantized, dequantize, quantize};
+use crate::{Limits, TextureError};
+
+/// Value of [`Manifest::format`].
+pub const CONTAINER_FORMAT: &str = "prt-container";
+/// The manifest version this crate writes and reads.
+pub const CONTAINER_VERSION: u32 = 1;
+/// File name of the manifest inside a container folder.
+pub const MANIFEST_FILE: &str = "manifest.json";
+/// Name of the MBD coefficient grid array and its kernel.
+pub const MBD_COEFFICIENTS: &str = "coefficients";
+/// Name of the MBD basis grid array and its kernel.
+pub const MBD_BASIS: &str = "basis";
+/// Largest manifest we read, in bytes.
+pub const MAX_MANIFEST_BYTES: usize = 1 << 20;
+/// Largest texture dimension the `Volume` layout produces (Vulkan's guaranteed 3D minimum).
+pub const MAX_VOLUME_DEPTH: u64 = 2048;
+
+/// A dense array on a 3D grid: `channels` values per node, nodes x-fastest then y then z.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GridArray {
+    /// Node counts along x, y, z (each at least 1).
+    pub dims: [u32; 3],
+    /// Values per node (at least 1).
+    pub channels: usize,
+    /// `dims[0]·dims[1]·dims[2]·channels` values, node-major.
+    pub data: Vec<f32>,
+}
+
+impl GridArray {
+    /// An array from its values; checks the length and that every value is finite.
+    pub fn new(dims: [u32; 3], channels: usize, data: Vec<f32>) -> Result<Self, TextureError> {
+        let array = GridArray {
+            dims,
+            channels,
+            data,
+        };
+        array.check()?;
+        Ok(array)
+    }
+
+    /// Number of nodes.
+    pub fn nodes(&self) -> usize {
+        self.dims.iter().map(|&d| d as usize).product()
+    }
+
+    fn check(&self) -> Result<(), TextureError> {
+        if self.dims.contains(&0) || self.channels == 0 {
+            return Err(TextureError::invalid(
+                "grid array",
+                "zero dimension or zero channels",
+            ));
+        }
+        let expected = checked_product(
+            "grid array values",
+            &[
+                self.dims[0].into(),
+                self.dims[1].into(),
+                self.dims[2].into(),
+                self.channels as u64,
+            ],
+        )?;
+        if self.data.len() as u64 != expected {
+            return Err(TextureError::LengthMismatch {
+                what: "grid array values",
+                expected: expected as usize,
+                got: self.data.len(),
+            });
+        }
+        TextureError::check_finite("grid array values", &self.data)
+    }
+}
+
+/// How the channel groups of an array are laid out in its texture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ArrayLayout {
+    /// A 3D texture of `(dims[0], dims[1], dims[2]·groups)`: channel group `g` occupies slices
+    /// `g·dims[2] .. (g+1)·dims[2]`, so each group is a hardware-filterable volume.
+    Volume,
+    /// A 2D texture of `(groups, nodes)`: row `n` holds node `n`'s channel groups.
+    Rows,
+}
+
+/// A spatial kernel family, described for a reader that rebuilds it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct KernelDescription {
+    /// Kernel kind, e.g. `"hat"` (trilinear hat grid) or `"shepard"`.
+    pub kind: String,
+    /// Node counts along x, y, z.
+    pub nodes: [u32; 3],
+    /// Lower corner of the domain (metres).
+    pub domain_min: [f32; 3],
+    /// Upper corner of the domain (metres).
+    pub domain_max: [f32; 3],
+}
+
+/// One array's entry in the manifest.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ArrayEntry {
+    /// Unique array name: ASCII letters, digits, `_`, `-`, `.`; at most 64 bytes.
+    pub name: String,
+    /// The KTX2 file holding it (`<name>.ktx2`, in the container folder).
+    pub file: String,
+    /// Node counts along x, y, z.
+    pub dims: [u32; 3],
+    /// Values per node.
+    pub channels: usize,
+    /// Texel encoding.
+    pub encoding: Encoding,
+    /// Texture layout of the channel groups.
+    pub layout: ArrayLayout,
+    /// Per-channel decode map, `value = bias + scale · texel` (identity for float encodings).
+    pub ranges: Vec<ChannelRange>,
+    /// Size of the KTX2 file in bytes.
+    pub bytes: u64,
+}
+
+impl ArrayEntry {
+    /// Channels per texel of the encoding's texture format (4, or 3 for RGB9E5).
+    pub fn group_size(&self) -> usize {
+        self.encoding.rgba_format().channels()
+    }
+
+    /// Number of texels per node.
+    pub fn groups(&self) -> usize {
+        self.channels.div_ceil(self.group_size())
+    }
+
+    fn texture_shape(&self) -> Result<Shape, TextureError> {
+        let groups = self.groups() as u64;
+        let nodes = checked_product("array nodes", &self.dims.map(u64::from))?;
+        let [x, y, z] = self.dims.map(u64::from);
+        let (w, h, d) = match self.layout {
+            ArrayLayout::Volume => (x, y, z * groups),
+            ArrayLayout::Rows => (groups, nodes, 0),
+        };
+        let fits = |v: u64| {
+            u32::try_from(v).map_err(|_| TextureError::TooLarge {
+                what: "texture dimension",
+                value: v,
+                limit: u64::from(u32::MAX),
+            })
+        };
+        Ok(if d == 0 {
+            Shape::d2(fits(w)?, fits(h)?)
+        } else {
+            Shape::d3(fits(w)?, fits(h)?, fits(d)?)
+        })
+    }
+
+    fn validate(&self, limits: &Limits) -> Result<(), TextureError> {
+        let name_ok = !self.name.is_empty()
+            && self.name.len() <= 64
+            && self
+                .name
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b"_-.".contains(&b))
+            && !self.name.starts_with('.');
+        if !name_ok {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!("array name {:?}", self.name),
+            ));
+        }
+        if self.file != format!("{}.ktx2", self.name) {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!("file {:?} for array {:?}", self.file, self.name),
+            ));
+        }
+        if self.dims.contains(&0) || self.channels == 0 {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!("array {:?} is empty", self.name),
+            ));
+        }
+        check_at_most("array channels", self.channels as u64, limits.max_bytes)?;
+        if self.ranges.len() != self.channels {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!(
+                    "array {:?}: {} ranges for {} channels",
+                    self.name,
+                    self.ranges.len(),
+                    self.channels
+                ),
+            ));
+        }
+        if let Some(i) = self
+            .ranges
+            .iter()
+            .position(|r| !r.scale.is_finite() || !r.bias.is_finite() || r.scale < 0.0)
+        {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!("array {:?}: range {i}", self.name),
+            ));
+        }
+        let shape = self.texture_shape()?;
+        for v in [shape.width, shape.height, shape.depth] {
+            limits.check_dimension("array texture dimension", u64::from(v))?;
+        }
+        Ok(())
+    }
+}
+
+/// The container manifest (`manifest.json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    /// Always [`CONTAINER_FORMAT`].
+    pub format: String,
+    /// Always [`CONTAINER_VERSION`] for files this crate writes.
+    pub version: u32,
+    /// Free-form metadata (e.g. `"dimension"`, `"rank"`, `"basis"` for MBD).
+    #[serde(default)]
+    pub attributes: BTreeMap<String, serde_json::Value>,
+    /// Kernel families by name.
+    #[serde(default)]
+    pub kernels: BTreeMap<String, KernelDescription>,
+    /// The arrays, in the order they were added.
+    pub arrays: Vec<ArrayEntry>,
+}
+
+impl Manifest {
+    /// Parses and validates a manifest (size, version, names, ranges, texture dimensions).
+    pub fn from_json(bytes: &[u8], limits: &Limits) -> Result<Manifest, TextureError> {
+        check_at_most(
+            "manifest bytes",
+            bytes.len() as u64,
+            MAX_MANIFEST_BYTES as u64,
+        )?;
+        let manifest: Manifest =
+            serde_json::from_slice(bytes).map_err(|e| TextureError::Json(e.to_string()))?;
+        manifest.validate(limits)?;
+        Ok(manifest)
+    }
+
+    /// Pretty-printed JSON of the manifest.
+    pub fn to_json(&self) -> Result<Vec<u8>, TextureError> {
+        serde_json::to_vec_pretty(self).map_err(|e| TextureError::Json(e.to_string()))
+    }
+
+    fn validate(&self, limits: &Limits) -> Result<(), TextureError> {
+        if self.format != CONTAINER_FORMAT {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!("format {:?}", self.format),
+            ));
+        }
+        if self.version != CONTAINER_VERSION {
+            return Err(TextureError::Unsupported {
+                what: "manifest version",
+                why: format!("{} (this reader knows {CONTAINER_VERSION})", self.version),
+            });
+        }
+        for (i, entry) in self.arrays.iter().enumerate() {
+            entry.validate(limits)?;
+            if self.arrays[..i].iter().any(|e| e.name == entry.name) {
+                return Err(TextureError::malformed(
+                    "manifest",
+                    format!("duplicate array {:?}", entry.name),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What to store: arrays with their encodings, attributes and kernels.
+#[derive(Debug, Clone, Default)]
+pub struct Container {
+    /// Free-form metadata copied into the manifest.
+    pub attributes: BTreeMap<String, serde_json::Value>,
+    /// Kernel families by name.
+    pub kernels: BTreeMap<String, KernelDescription>,
+    /// Named arrays with their encoding and layout, in order.
+    pub arrays: Vec<(String, GridArray, Encoding, ArrayLayout)>,
+}
+
+/// A file of a container: its name and bytes.
+pub type EncodedFile = (String, Vec<u8>);
+
+/// Sizes of what [`Container::write`] put on disk.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WriteReport {
+    /// The manifest as written.
+    pub manifest: Manifest,
+    /// Bytes of `manifest.json`.
+    pub manifest_bytes: u64,
+    /// Bytes of all files (textures and manifest).
+    pub total_bytes: u64,
+}
+
+impl WriteReport {
+    /// Bytes actually written per voxel of a field of `voxels` voxels.
+    pub fn bytes_per_voxel(&self, voxels: u64) -> f64 {
+        self.total_bytes as f64 / voxels.max(1) as f64
+    }
+}
+
+impl Container {
+    /// Quantises every array and encodes the textures; returns the manifest (with file sizes)
+    /// and `(file name, bytes)` of every texture.
+    pub fn encode(&self) -> Result<(Manifest, Vec<EncodedFile>), TextureError> {
+        let mut entries = Vec::with_capacity(self.arrays.len());
+        let mut files = Vec::with_capacity(self.arrays.len());
+        for (name, array, encoding, layout) in &self.arrays {
+            array.check()?;
+            let mut entry = ArrayEntry {
+                name: name.clone(),
+                file: format!("{name}.ktx2"),
+                dims: array.dims,
+                channels: array.channels,
+                encoding: *encoding,
+                layout: *layout,
+                ranges: Vec::new(),
+                bytes: 0,
+            };
+            let (texture, ranges) = encode_array(&entry, array)?;
+            entry.ranges = ranges;
+            let mut texture = texture;
+            let json = serde_json::to_vec(&entry).map_err(|e| TextureError::Json(e.to_string()))?;
+            texture.set_key(KEY_PRT_ARRAY, json);
+            let bytes = texture.to_bytes()?;
+            entry.bytes = bytes.len() as u64;
+            entry.validate(&Limits {
+                max_dimension: u32::MAX,
+                max_layers: u32::MAX,
+                max_levels: 32,
+                max_bytes: u64::MAX,
+            })?;
+            files.push((entry.file.clone(), bytes));
+            entries.push(entry);
+        }
+        let manifest = Manifest {
+            format: CONTAINER_FORMAT.into(),
+            version: CONTAINER_VERSION,
+            attributes: self.attributes.clone(),
+            kernels: self.kernels.clone(),
+            arrays: entries,
+        };
+        manifest.validate(&Limits {
+            max_dimension: u32::MAX,
+            max_layers: u32::MAX,
+            max_levels: 32,
+            max_bytes: u64::MAX,
+        })?;
+        Ok((manifest, files))
+    }
+
+    /// Writes the container into `folder` (created if missing): textures first, manifest last,
+    /// each atomically.
+    pub fn write(&self, folder: &Path) -> Result<WriteReport, TextureError> {
+        let (manifest, files) = self.encode()?;
+        std::fs::create_dir_all(folder).map_err(|e| TextureError::io(folder, e))?;
+        let mut total = 0u64;
+        for (file, bytes) in &files {
+            crate::write_atomic(&folder.join(file), bytes)?;
+            total += bytes.len() as u64;
+        }
+        let json = manifest.to_json()?;
+        crate::write_atomic(&folder.join(MANIFEST_FILE), &json)?;
+        Ok(WriteReport {
+            manifest_bytes: json.len() as u64,
+            total_bytes: total + json.len() as u64,
+            manifest,
+        })
+    }
+}
+
+/// A container read back: the manifest and every array dequantised, in manifest order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadedContainer {
+    /// The validated manifest.
+    pub manifest: Manifest,
+    /// `(name, values)` of every array.
+    pub arrays: Vec<(String, GridArray)>,
+}
+
+impl LoadedContainer {
+    /// The array called `name`.
+    pub fn array(&self, name: &str) -> Option<&GridArray> {
+        self.arrays.iter().find(|(n, _)| n == name).map(|(_, a)| a)
+    }
+
+    /// Reads a container folder written by [`Container::write`].
+    pub fn read(folder: &Path, limits: &Limits) -> Result<LoadedContainer, TextureError> {
+        let manifest =
+            crate::atomic::read_limited(&folder.join(MANIFEST_FILE), MAX_MANIFEST_BYTES as u64)?;
+        LoadedContainer::decode(&manifest, limits, |file| {
+            crate::atomic::read_limited(
+                &folder.join(file),
+                limits.max_bytes.saturating_add(1 << 20),
+            )
+        })
+    }
+
+    /// Decodes a container from its manifest bytes and a loader of its files (by file name,
+    /// already validated to be `<array name>.ktx2`). Every texture must match its manifest
+    /// entry (format, shape, embedded entry).
+    pub fn decode(
+        manifest: &[u8],
+        limits: &Limits,
+        mut load: impl FnMut(&str) -> Result<Vec<u8>, TextureError>,
+    ) -> Result<LoadedContainer, TextureError> {
+        let manifest = Manifest::from_json(manifest, limits)?;
+        let mut arrays = Vec::with_capacity(manifest.arrays.len());
+        for entry in &manifest.arrays {
+            let bytes = load(&entry.file)?;
+            let texture = Ktx2Texture::from_bytes(&bytes, limits)?;
+            arrays.push((entry.name.clone(), decode_array(entry, &texture)?));
+        }
+        Ok(LoadedContainer { manifest, arrays })
+    }
+}
+
+fn encode_array(
+    entry: &ArrayEntry,
+    array: &GridArray,
+) -> Result<(Ktx2Texture, Vec<ChannelRange>), TextureError> {
+    let group = entry.group_size();
+    let padded_channels = entry.groups() * group;
+    let nodes = array.nodes();
+    let mut padded = vec![0.0f32; nodes * padded_channels];
+    for (dst, src) in padded
+        .chunks_exact_mut(padded_channels)
+        .zip(array.data.chunks_exact(array.channels))
+    {
+        dst[..array.channels].copy_from_slice(src);
+    }
+    let q = quantize(&padded, padded_channels, entry.encoding)?;
+    let texel_bytes = entry.encoding.rgba_format().bytes_per_texel();
+    let bytes = match entry.layout {
+        ArrayLayout::Rows => q.bytes,
+        ArrayLayout::Volume => {
+            // node-major [node][group] → group-major [group][node]
+            let groups = entry.groups();
+            let mut out = vec![0u8; q.bytes.len()];
+            for (node, texels) in q.bytes.chunks_exact(groups * texel_bytes).enumerate() {
+                for (g, texel) in texels.chunks_exact(texel_bytes).enumerate() {
+                    let at = (g * nodes + node) * texel_bytes;
+                    out[at..at + texel_bytes].copy_from_slice(texel);
+                }
+            }
+            out
+        }
+    };
+    let texture = Ktx2Texture::new(
+        entry.encoding.rgba_format(),
+        entry.texture_shape()?,
+        vec![bytes],
+    )?;
+    Ok((texture, q.ranges[..array.channels].to_vec()))
+}
+
+fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, TextureError> {
+    let format = entry.encoding.rgba_format();
+    if texture.format() != format || texture.shape() != entry.texture_shape()? {
+        return Err(TextureError::malformed(
+            "container texture",
+            format!(
+                "{} does not have the format and shape its manifest entry announces",
+                entry.file
+            ),
+        ));
+    }
+    let embedded: Option<ArrayEntry> = texture
+        .key(KEY_PRT_ARRAY)
+        .and_then(|json| serde_json::from_slice(json).ok());
+    if let Some(embedded) = embedded {
+        let same = embedded.name == entry.name
+            && embedded.dims == entry.dims
+            && embedded.channels == entry.channels
+            && embedded.encoding == entry.encoding
+            && embedded.layout == entry.layout
+            && embedded.ranges == entry.ranges;
+        if !same {
+            return Err(TextureError::malformed(
+                "container texture",
+                format!("{} belongs to another manifest", entry.file),
+            ));
+        }
+    }
+    let level = &texture.levels()[0];
+    let groups = entry.groups();
+    let group = entry.group_size();
+    let texel_bytes = format.bytes_per_texel();
+    let nodes = entry.dims.iter().map(|&d| d as usize).product::<usize>();
+    let node_major = match entry.layout {
+        ArrayLayout::Rows => level.clone(),
+        ArrayLayout::Volume => {
+            let mut out = vec![0u8; level.len()];
+            for (i, texel) in level.chunks_exact(texel_bytes).enumerate() {
+                let (g, node) = (i / nodes, i % nodes);
+                let at = (node * groups + g) * texel_bytes;
+                out[at..at + texel_bytes].copy_from_slice(texel);
+            }
+            out
+        }
+    };
+    let padded_channels = groups * group;
+    let mut ranges = entry.ranges.clone();
+    ranges.resize(
+        padded_channels,
+        ChannelRange {
+            scale: 0.0,
+            bias: 0.0,
+        },
+    );
+    let values = dequantize(&Quantized {
+        encoding: entry.encoding,
+        channels: padded_channels,
+        ranges,
+        bytes: node_major,
+    })?;
+    let mut data = Vec::with_capacity(nodes * entry.channels);
+    for node in values.chunks_exact(padded_channels) {
+        data.extend_from_slice(&node[..entry.channels]);
+    }
+    GridArray::new(entry.dims, entry.channels, data)
+}
