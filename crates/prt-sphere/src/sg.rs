@@ -28,8 +28,9 @@ pub fn sg_integral(sharpness: f64) -> f64 {
 }
 
 /// `∫_S² G₁ G₂` for unit-amplitude lobes: `2π e^{r − λ₁ − λ₂} (1 − e^{−2r}) / r` with
-/// `r = |λ₁ p₁ + λ₂ p₂|`. Axes must be unit vectors.
+/// `r = |λ₁ p₁ + λ₂ p₂|`. Axes are normalised first (so f32 axes give f64-accurate results).
 pub fn sg_inner_product(p1: DVec3, l1: f64, p2: DVec3, l2: f64) -> f64 {
+    let (p1, p2) = (p1.normalize(), p2.normalize());
     let r = (p1 * l1 + p2 * l2).length();
     let s = l1 + l2;
     // r − s = (r² − s²)/(r + s) = −2 λ₁ λ₂ (1 − p₁·p₂) / (r + s), with 1 − p₁·p₂ = |p₁ − p₂|²/2.
