@@ -21,7 +21,7 @@
 //! the `k` best candidates, then a `k`-way merge. Ties break towards the lower index, so results
 //! are deterministic. Candidates of score 0 are never chosen, so a static lighting converges to
 //! `L̃ = L` exactly (assignment, not accumulation) after at most `⌈nnz / k⌉` frames and then stays
-//! there with no terms spent.
+//! there with no terms spent (coefficients of selection weight 0 are never chosen).
 
 use crate::WaveletError;
 use crate::cubemap::CubemapLayout;
@@ -218,6 +218,15 @@ impl Approximator {
     /// Terms per frame.
     pub fn terms(&self) -> usize {
         self.terms
+    }
+
+    /// Sets the approximation `L̃` (for example to resume from a stored state). Errors on a
+    /// length mismatch or a non-finite value.
+    pub fn set_approximation(&mut self, values: &[f32]) -> Result<(), WaveletError> {
+        WaveletError::check_len("approximation", self.approx.len(), values.len())?;
+        WaveletError::check_finite("approximation", values)?;
+        self.approx.copy_from_slice(values);
+        Ok(())
     }
 
     /// Forgets the approximation (back to `L̃ = 0`).

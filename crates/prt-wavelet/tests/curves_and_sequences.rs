@@ -1,0 +1,240 @@
+//! BRDF editing convergence, SH PBI, lighting sequences and the analyses.
+
+use proptest::prelude::*;
+use prt_wavelet::analysis::{LightingError, band_energy};
+use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke, relative_rms};
+use prt_wavelet::sequence::{Interpolation, Rotation};
+use prt_wavelet::{
+    Cubemap, CubemapHaar, CubemapLayout, LatLong, ShApproximator, WaveletError, texel_direction,
+};
+
+#[test]
+fn beckmann_is_normalised_over_projected_area() {
+    // ∫ D(θ) cos θ sin θ dθ dφ = 1 over the hemisphere; midpoint rule over 256 bins.
+    for m in [0.2f32, 0.5, 1.0] {
+        let d = beckmann_curve(m, 4096).unwrap();
+        let h = std::f64::consts::FRAC_PI_2 / 4096.0;
+        let integral: f64 = d
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| {
+                let t = (i as f64 + 0.5) * h;
+                v as f64 * t.cos() * t.sin() * h * 2.0 * std::f64::consts::PI
+            })
+            .sum();
+        assert!((integral - 1.0).abs() < 1e-3, "m = {m}: {integral}");
+    }
+    assert!(beckmann_curve(0.0, 256).is_err());
+    assert!(beckmann_curve(f32::NAN, 256).is_err());
+}
+
+#[derive(Debug, Clone)]
+enum Edit {
+    Roughness(f32),
+    Stroke {
+        centre: f32,
+        radius: f32,
+        delta: f32,
+    },
+}
+
+fn edit() -> impl Strategy<Value = Edit> {
+    prop_oneof![
+        (0.03f32..1.5).prop_map(Edit::Roughness),
+        (0.0f32..256.0, 1.0f32..60.0, -20.0f32..40.0).prop_map(|(centre, radius, delta)| {
+            Edit::Stroke {
+                centre,
+                radius,
+                delta,
+            }
+        }),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(40))]
+
+    #[test]
+    fn brdf_edits_converge_within_nine_frames_at_30_terms(start in 0.05f32..1.0, edits in prop::collection::vec(edit(), 1..12)) {
+        let mut editor = CurveEditor::new(256, 30).unwrap();
+        let mut curve = beckmann_curve(start, 256).unwrap();
+        for e in &edits {
+            match *e {
+                Edit::Roughness(m) => curve = beckmann_curve(m, 256).unwrap(),
+                Edit::Stroke { centre, radius, delta } => brush_stroke(&mut curve, centre, radius, delta),
+            }
+            editor.step(&curve).unwrap();
+        }
+        let mut errors = Vec::new();
+        for _ in 0..9 {
+            errors.push(relative_rms(editor.step(&curve).unwrap(), &curve));
+        }
+        prop_assert!(errors[8] <= 1e-6, "errors after the edits stop: {:?}", errors);
+        prop_assert!(errors.windows(2).all(|w| w[1] <= w[0] * (1.0 + 1e-6) + 1e-9), "not monotone: {:?}", errors);
+    }
+}
+
+#[test]
+fn a_large_edit_is_not_exact_after_one_frame() {
+    let mut editor = CurveEditor::new(256, 30).unwrap();
+    let a = beckmann_curve(0.5, 256).unwrap();
+    for _ in 0..9 {
+        editor.step(&a).unwrap();
+    }
+    assert!(relative_rms(editor.curve(), &a) <= 1e-6);
+    let b = beckmann_curve(0.08, 256).unwrap();
+    let first = relative_rms(editor.step(&b).unwrap(), &b);
+    assert!(
+        first > 1e-3,
+        "one frame of 30 terms cannot fix a roughness jump: {first}"
+    );
+    assert!(matches!(
+        editor.step(&b[..100]),
+        Err(WaveletError::LengthMismatch { .. })
+    ));
+}
+
+#[test]
+fn sh_pbi_fills_bands_within_budget_and_converges() {
+    let order = 5;
+    let mut sh = ShApproximator::new(order, 3, 9, 0.05).unwrap();
+    let target: Vec<f32> = (0..3 * order * order)
+        .map(|i| ((i * 7919) % 23) as f32 - 11.0)
+        .collect();
+    let mut frames = 0;
+    loop {
+        let u = sh.step(&target).unwrap();
+        assert!(u.terms.len() <= 9);
+        // Whole bands only.
+        for l in 0..order {
+            let n = u.terms.iter().filter(|t| t.band as usize == l).count();
+            assert!(n == 0 || n == 2 * l + 1);
+        }
+        frames += 1;
+        if u.terms.is_empty() {
+            break;
+        }
+        assert!(frames < 10);
+    }
+    assert_eq!(sh.approximation(), &target[..]);
+    // 25 terms in whole bands of 1, 3, 5, 7, 9 at 9 terms per frame: at least ⌈25/9⌉ = 3 frames of
+    // work, at most 4 (9 | 7+1 | 5+3 | ...), then one frame with nothing left to do.
+    assert!((4..=5).contains(&frames), "{frames} frames");
+    // A small change in band 0 only: below tolerance it still gets refreshed with spare budget.
+    let mut moved = target.clone();
+    moved[0] += 0.01;
+    let u = sh.step(&moved).unwrap();
+    assert_eq!(u.terms.len(), 1);
+    assert!(ShApproximator::new(5, 1, 8, 0.1).is_err());
+    assert!(ShApproximator::new(5, 1, 9, f32::NAN).is_err());
+}
+
+#[test]
+fn sh_tolerance_prioritises_stale_bands() {
+    let order = 3;
+    let mut sh = ShApproximator::new(order, 1, 5, 0.1).unwrap();
+    let mut target = vec![1.0f32; 9];
+    for _ in 0..4 {
+        sh.step(&target).unwrap();
+    }
+    assert_eq!(sh.approximation(), &target[..]);
+    // Band 2 changes a lot, band 1 a little: budget 5 fits only band 2 (5 terms).
+    target[1] += 0.001;
+    for v in &mut target[4..9] {
+        *v += 3.0;
+    }
+    let u = sh.step(&target).unwrap();
+    assert!(u.terms.iter().all(|t| t.band == 2));
+    assert_eq!(u.terms.len(), 5);
+}
+
+/// A lat-long map of f(d) = 2 + d.x + 0.5 d.z (single channel).
+fn linear_map(w: usize, h: usize) -> LatLong {
+    let mut data = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let theta = 2.0 * std::f32::consts::PI * (x as f32 + 0.5) / w as f32;
+            let phi = std::f32::consts::PI * (y as f32 + 0.5) / h as f32;
+            let d = glam::Vec3::new(phi.sin() * theta.sin(), phi.cos(), -phi.sin() * theta.cos());
+            data.push(2.0 + d.x + 0.5 * d.z);
+        }
+    }
+    LatLong::new(w, h, 1, data).unwrap()
+}
+
+#[test]
+fn rotation_moves_the_map_about_y_and_stops() {
+    let map = linear_map(512, 256);
+    let angle = 0.7f32;
+    let rot = Rotation::new(map, 8, angle, 3).unwrap();
+    assert_eq!(rot.angle(10), 3.0 * angle);
+    let frame = rot.frame(1).unwrap();
+    for face in 0..6 {
+        for y in 0..8 {
+            for x in 0..8 {
+                let d = texel_direction(8, face, x, y);
+                // Content moves towards increasing θ: L'(θ) = L(θ − α).
+                let theta = d.x.atan2(-d.z) - angle;
+                let r = (d.x * d.x + d.z * d.z).sqrt();
+                let src = glam::Vec3::new(r * theta.sin(), d.y, -r * theta.cos());
+                let expect = 2.0 + src.x + 0.5 * src.z;
+                let got = frame.data()[(face * 8 + y) * 8 + x];
+                assert!(
+                    (got - expect).abs() < 2e-3,
+                    "face {face} ({x},{y}): {got} vs {expect}"
+                );
+            }
+        }
+    }
+    assert_eq!(rot.frame(3).unwrap(), rot.frame(50).unwrap());
+    assert!(Rotation::new(linear_map(8, 4), 6, 0.1, 1).is_err());
+}
+
+#[test]
+fn interpolation_hits_both_ends() {
+    let a = Cubemap::new(2, 1, vec![1.0; 24]).unwrap();
+    let b = Cubemap::new(2, 1, vec![3.0; 24]).unwrap();
+    let s = Interpolation::new(a.clone(), b.clone(), 5).unwrap();
+    assert_eq!(s.frame(0).unwrap(), a);
+    assert_eq!(s.frame(4).unwrap(), b);
+    assert_eq!(s.frame(9).unwrap(), b);
+    assert!(s.frame(2).unwrap().data().iter().all(|&v| v == 2.0));
+    assert!(Interpolation::new(a.clone(), Cubemap::new(4, 1, vec![0.0; 96]).unwrap(), 5).is_err());
+    assert!(Interpolation::new(a.clone(), b, 1).is_err());
+}
+
+#[test]
+fn lighting_error_and_band_energy() {
+    let n = 4;
+    let mut haar = CubemapHaar::new(n).unwrap();
+    let texels: Vec<f32> = (0..6 * n * n).map(|i| (i % 7) as f32).collect();
+    let mut coeffs = texels.clone();
+    haar.forward(&mut coeffs).unwrap();
+    let mut metric = LightingError::new(n, 1).unwrap();
+    assert!(metric.error(&coeffs, &texels).unwrap() < 1e-6);
+    // L̃ = 0: the solid-angle-weighted mean of |L|.
+    let omega = prt_wavelet::texel_solid_angles(n);
+    let mean: f64 = texels
+        .iter()
+        .zip(&omega)
+        .map(|(l, w)| (l * w) as f64)
+        .sum::<f64>()
+        / (4.0 * std::f64::consts::PI);
+    assert!((metric.error(&vec![0.0; 6 * n * n], &texels).unwrap() - mean).abs() < 1e-5);
+
+    let layout = CubemapLayout::new(n).unwrap();
+    let frames: Vec<Vec<f32>> = (0..8)
+        .map(|t| coeffs.iter().map(|c| c * (1.0 + 0.1 * t as f32)).collect())
+        .collect();
+    let energy = band_energy(&frames, layout.bands()).unwrap();
+    assert_eq!(energy.len(), 4);
+    assert_eq!(energy[0].len(), 3);
+    let total: f64 = frames.iter().flatten().map(|&v| v as f64 * v as f64).sum();
+    let table: f64 = energy.iter().flatten().sum();
+    assert!((table - total).abs() < 1e-4 * total);
+    // A static sequence has all of its energy at temporal level 0.
+    let still = vec![coeffs.clone(); 8];
+    let e = band_energy(&still, layout.bands()).unwrap();
+    assert!(e[1..].iter().flatten().all(|&v| v < 1e-6 * total));
+    assert!(band_energy(&frames[..6], layout.bands()).is_err());
+}

@@ -1,0 +1,183 @@
+//! The relighting engine against the dense product, the transport's truncation and
+//! quantisation bounds, and its errors.
+
+use ndarray::Array2;
+use prt_core::{AtomicProgress, CoreError, DenseOracle, MatrixOracle, NoProgress};
+use prt_wavelet::{Approximator, BandStrategy, Policy, Relighter, SparseTransport, WaveletError};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+fn sparse_matrix(rows: usize, cols: usize, density: f64, rng: &mut Pcg64) -> Array2<f32> {
+    Array2::from_shape_fn((rows, cols), |_| {
+        if rng.random_bool(density) {
+            rng.random_range(-1.0f32..1.0) * 10f32.powi(rng.random_range(-3..3))
+        } else {
+            0.0
+        }
+    })
+}
+
+#[test]
+fn truncation_keeps_the_largest_per_row_and_quantisation_is_bounded() {
+    let mut rng = Pcg64::seed_from_u64(7);
+    let dense = sparse_matrix(40, 64, 0.4, &mut rng);
+    let oracle = DenseOracle::new(dense.clone(), 1).unwrap();
+    let keep = 6;
+    let t = SparseTransport::from_oracle(&oracle, keep, &NoProgress).unwrap();
+    let deq = t.to_dense();
+    let mut scale = vec![0.0f32; 64];
+    for r in 0..40 {
+        let row: Vec<f32> = dense.row(r).to_vec();
+        let mut mags: Vec<f32> = row.iter().map(|v| v.abs()).filter(|v| *v > 0.0).collect();
+        mags.sort_by(|a, b| b.total_cmp(a));
+        let threshold = mags.get(keep - 1).copied().unwrap_or(0.0);
+        let kept = (0..64)
+            .filter(|&j| deq[r * 64 + j] != 0.0 || (row[j] != 0.0 && row[j].abs() >= threshold))
+            .count();
+        assert_eq!(kept, mags.len().min(keep), "row {r}");
+        for j in 0..64 {
+            if row[j].abs() >= threshold && row[j] != 0.0 {
+                scale[j] = scale[j].max(row[j].abs());
+            }
+        }
+    }
+    for r in 0..40 {
+        for j in 0..64 {
+            let (d, o) = (deq[r * 64 + j], dense[[r, j]]);
+            if d != 0.0 {
+                assert!(
+                    (d - o).abs() <= scale[j] / 32767.0 * 0.5 + 1e-12,
+                    "({r},{j}): {d} vs {o}"
+                );
+            }
+        }
+    }
+    assert!(t.nnz() <= 40 * keep);
+    let norms = t.column_l1_norms();
+    for j in 0..64 {
+        let s: f32 = (0..40).map(|r| deq[r * 64 + j].abs()).sum();
+        assert!((norms[j] - s).abs() <= 1e-4 * (1.0 + s));
+    }
+}
+
+#[test]
+fn engine_matches_the_dense_product_for_every_policy() {
+    let mut rng = Pcg64::seed_from_u64(11);
+    let (rows, cols, channels) = (50, 48, 3);
+    let oracle = DenseOracle::new(sparse_matrix(rows, cols, 0.3, &mut rng), 1).unwrap();
+    let t = SparseTransport::from_oracle(&oracle, 10, &NoProgress).unwrap();
+    let deq = t.to_dense();
+    let bands: Vec<u8> = (0..cols).map(|j| (j % 4) as u8).collect();
+    for policy in [
+        Policy::NonIncremental,
+        Policy::Incremental,
+        Policy::PerBand(BandStrategy::L1Test),
+        Policy::PerBand(BandStrategy::Exhaustive),
+        Policy::PerBand(BandStrategy::Dealer),
+    ] {
+        let mut a =
+            Approximator::new(bands.clone(), t.column_l1_norms(), channels, 7, policy).unwrap();
+        let mut engine = Relighter::new(t.clone(), channels, 4).unwrap();
+        let mut lighting: Vec<f32> = (0..cols * channels)
+            .map(|_| rng.random_range(-1.0f32..1.0))
+            .collect();
+        for frame in 0..25 {
+            // A drifting lighting with occasional jumps, then static.
+            if frame < 18 {
+                for v in &mut lighting {
+                    *v += rng.random_range(-0.2f32..0.2)
+                        + if frame % 7 == 6 {
+                            rng.random_range(-2.0f32..2.0)
+                        } else {
+                            0.0
+                        };
+                }
+            }
+            let update = a.step(&lighting).unwrap().clone();
+            engine.apply(&update).unwrap();
+            let approx = a.approximation();
+            for c in 0..channels {
+                for r in 0..rows {
+                    let exact: f64 = (0..cols)
+                        .map(|j| deq[r * cols + j] as f64 * approx[c * cols + j] as f64)
+                        .sum();
+                    let scale: f64 = (0..cols)
+                        .map(|j| (deq[r * cols + j] as f64 * approx[c * cols + j] as f64).abs())
+                        .sum();
+                    let got = engine.image()[c * rows + r] as f64;
+                    assert!(
+                        (got - exact).abs() <= 1e-4 * (1.0 + scale),
+                        "{policy:?} frame {frame}: {got} vs {exact}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_input_and_cancellation() {
+    let rgb = DenseOracle::new(Array2::zeros((4, 6)), 3).unwrap();
+    assert!(matches!(
+        SparseTransport::from_oracle(&rgb, 2, &NoProgress),
+        Err(WaveletError::Invalid { .. })
+    ));
+    assert_eq!(
+        SparseTransport::from_oracle(&NanRow, 2, &NoProgress),
+        Err(WaveletError::NonFinite {
+            what: "transport",
+            index: 3 * 5 + 2
+        })
+    );
+    let oracle = DenseOracle::new(Array2::ones((100, 4)), 1).unwrap();
+    let progress = AtomicProgress::cancel_after(10);
+    assert_eq!(
+        SparseTransport::from_oracle(&oracle, 2, &progress),
+        Err(WaveletError::Cancelled)
+    );
+    let t = SparseTransport::from_oracle(&oracle, 2, &NoProgress).unwrap();
+    assert_eq!(t.nnz(), 200);
+    let mut engine = Relighter::new(t, 1, 2).unwrap();
+    let mut a =
+        Approximator::new(vec![0, 1, 2, 0], vec![1.0; 4], 1, 2, Policy::Incremental).unwrap();
+    let update = a.step(&[1.0, 2.0, 3.0, 4.0]).unwrap().clone();
+    // Three bands in the update, two in the engine.
+    assert!(matches!(
+        engine.apply(&update),
+        Err(WaveletError::LengthMismatch { .. })
+    ));
+    assert!(matches!(
+        Relighter::new(
+            SparseTransport::from_oracle(&oracle, 1, &NoProgress).unwrap(),
+            0,
+            1
+        ),
+        Err(WaveletError::Invalid { .. })
+    ));
+}
+
+/// A 4 × 5 oracle whose row 3 holds a NaN in column 2.
+struct NanRow;
+
+impl MatrixOracle for NanRow {
+    fn rows(&self) -> usize {
+        4
+    }
+    fn cols(&self) -> usize {
+        5
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        out.fill(1.0);
+        if i == 3 {
+            out[2] = f32::NAN;
+        }
+        Ok(())
+    }
+    fn eval_col(&self, _j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        out.fill(1.0);
+        Ok(())
+    }
+    fn elements_evaluated(&self) -> u64 {
+        0
+    }
+}
