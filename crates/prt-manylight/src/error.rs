@@ -1,0 +1,65 @@
+use prt_core::CoreError;
+use thiserror::Error;
+
+/// Errors of the many-light algorithms.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
+pub enum ManyLightError {
+    /// The matrix has no rows (pixels), no columns (lights) or no channels.
+    #[error("the matrix has no {what}")]
+    EmptyMatrix {
+        /// "rows (pixels)", "columns (lights)" or "channels".
+        what: &'static str,
+    },
+    /// A sample count was zero.
+    #[error("at least one {what} must be sampled")]
+    ZeroSamples {
+        /// "row" or "column".
+        what: &'static str,
+    },
+    /// More rows or columns were requested than the matrix has.
+    #[error("{requested} {what} requested but the matrix has only {available}")]
+    TooMany {
+        /// "rows" or "columns".
+        what: &'static str,
+        /// The count requested.
+        requested: usize,
+        /// The count available.
+        available: usize,
+    },
+    /// The oracle returned NaN or infinity.
+    #[error("non-finite matrix element ({row}, {col}), channel {channel}")]
+    NonFinite {
+        /// Row (pixel) of the element.
+        row: usize,
+        /// Column (light) of the element.
+        col: usize,
+        /// Channel of the element.
+        channel: usize,
+    },
+    /// The reduced matrix would not fit in memory (`rows × channels × columns` overflows).
+    #[error("reduced matrix of {rows} rows x {channels} channels x {cols} columns is too large")]
+    TooLarge {
+        /// Sampled rows.
+        rows: usize,
+        /// Channels per element.
+        channels: usize,
+        /// Columns of the matrix.
+        cols: usize,
+    },
+    /// The oracle failed.
+    #[error("matrix oracle: {0}")]
+    Oracle(CoreError),
+    /// The work was cancelled through the `Progress` handle.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+impl From<CoreError> for ManyLightError {
+    fn from(e: CoreError) -> Self {
+        match e {
+            CoreError::Cancelled => ManyLightError::Cancelled,
+            e => ManyLightError::Oracle(e),
+        }
+    }
+}

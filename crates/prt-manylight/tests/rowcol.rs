@@ -1,0 +1,407 @@
+//! Row-column sampling: exactness, unbiasedness, clustering laws, determinism and bad input.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use ndarray::Array2;
+use proptest::prelude::*;
+use prt_core::{AtomicProgress, CoreError, DenseOracle, MatrixOracle, NoProgress};
+use prt_manylight::{
+    ManyLightError, ReducedMatrix, RowColumnConfig, SyntheticVplOracle, brute_force,
+    cluster_columns, cluster_cost, row_column_sampling, split_cluster,
+};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+/// A non-negative `rows × cols` RGB matrix of rank `rank` (or full rank with `rank = 0`), with
+/// every 7th column zero.
+fn dense(rows: usize, cols: usize, rank: usize, seed: u64) -> DenseOracle {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let data = if rank == 0 {
+        Array2::from_shape_fn((rows, cols * 3), |_| rng.random::<f32>())
+    } else {
+        let u = Array2::from_shape_fn((rows, rank), |_| rng.random::<f32>());
+        let v = Array2::from_shape_fn((rank, cols * 3), |_| rng.random::<f32>());
+        u.dot(&v)
+    };
+    let mut data = data;
+    for j in (0..cols).step_by(7) {
+        for c in 0..3 {
+            data.column_mut(j * 3 + c).fill(0.0);
+        }
+    }
+    DenseOracle::new(data, 3).unwrap()
+}
+
+fn total(image: &[f32]) -> f64 {
+    image.iter().map(|&v| v as f64).sum()
+}
+
+#[test]
+fn exact_when_every_light_is_its_own_cluster() {
+    for (oracle, rows) in [
+        (dense(40, 30, 3, 1), 5),
+        (dense(40, 30, 0, 2), 40),
+        (dense(1, 1, 0, 3), 1),
+    ] {
+        let exact = brute_force(&oracle, &NoProgress).unwrap();
+        let cols = oracle.cols();
+        for seed in 0..3 {
+            let config = RowColumnConfig::new(rows, cols).with_seed(seed);
+            let estimate = row_column_sampling(&oracle, &config, &NoProgress).unwrap();
+            assert_eq!(estimate.clustering.len(), cols);
+            assert!(estimate.representatives.iter().all(|r| r.weight == 1.0));
+            for (a, b) in estimate.image.iter().zip(&exact) {
+                assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{a} vs {b}");
+            }
+        }
+    }
+}
+
+#[test]
+fn brute_force_is_the_column_sum() {
+    let oracle = dense(9, 13, 0, 4);
+    let image = brute_force(&oracle, &NoProgress).unwrap();
+    let data = oracle.data();
+    for i in 0..9 {
+        for c in 0..3 {
+            let want: f64 = (0..13).map(|j| data[[i, j * 3 + c]] as f64).sum();
+            assert!((image[i * 3 + c] as f64 - want).abs() < 1e-5);
+        }
+    }
+}
+
+/// The estimator is unbiased given any rows and clustering, so the mean over seeds converges to
+/// the exact image. Tolerance: 5 standard errors of the mean, estimated from the samples.
+fn check_unbiased(oracle: &dyn MatrixOracle, config: RowColumnConfig, runs: u64) {
+    let exact = brute_force(oracle, &NoProgress).unwrap();
+    let len = exact.len();
+    let mut sum = vec![0.0f64; len];
+    let mut sum_sq = vec![0.0f64; len];
+    let mut totals = Vec::new();
+    for seed in 0..runs {
+        let estimate = row_column_sampling(oracle, &config.with_seed(seed), &NoProgress).unwrap();
+        for (k, &v) in estimate.image.iter().enumerate() {
+            sum[k] += v as f64;
+            sum_sq[k] += (v as f64).powi(2);
+        }
+        totals.push(total(&estimate.image));
+    }
+    let n = runs as f64;
+    let mean_total = totals.iter().sum::<f64>() / n;
+    let var_total = totals.iter().map(|t| (t - mean_total).powi(2)).sum::<f64>() / (n - 1.0);
+    let exact_total = total(&exact);
+    let z = (mean_total - exact_total) / (var_total / n).sqrt();
+    assert!(var_total > 0.0, "the estimate should vary with the seed");
+    assert!(
+        z.abs() < 5.0,
+        "total: mean {mean_total}, exact {exact_total}, z = {z}"
+    );
+    // Per pixel and channel: 5 standard errors, plus f32 rounding of the images.
+    let mut worst: f64 = 0.0;
+    for k in 0..len {
+        let mean = sum[k] / n;
+        let var = (sum_sq[k] / n - mean * mean).max(0.0) * n / (n - 1.0);
+        let tolerance = 5.0 * (var / n).sqrt() + 1e-5 * (1.0 + exact[k].abs() as f64);
+        let dev = (mean - exact[k] as f64).abs();
+        worst = worst.max(dev / tolerance);
+    }
+    assert!(
+        worst < 1.0,
+        "a pixel's mean is {worst} tolerances away from the exact value"
+    );
+}
+
+#[test]
+fn unbiased_on_low_rank_and_full_rank_matrices() {
+    check_unbiased(&dense(24, 60, 2, 5), RowColumnConfig::new(4, 8), 400);
+    check_unbiased(&dense(24, 60, 0, 6), RowColumnConfig::new(6, 10), 400);
+}
+
+#[test]
+fn unbiased_on_a_vpl_like_matrix() {
+    let oracle = SyntheticVplOracle::new(8, 8, 400, 7);
+    check_unbiased(&oracle, RowColumnConfig::new(8, 24), 300);
+}
+
+#[test]
+fn error_falls_as_rows_and_columns_grow() {
+    let oracle = SyntheticVplOracle::new(24, 24, 3000, 8);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let rms = |image: &[f32]| {
+        let num: f64 = image
+            .iter()
+            .zip(&exact)
+            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+            .sum();
+        let den: f64 = exact.iter().map(|&b| (b as f64).powi(2)).sum();
+        (num / den).sqrt()
+    };
+    let mean_error = |rows: usize, columns: usize| {
+        (0..6u64)
+            .map(|seed| {
+                let config = RowColumnConfig::new(rows, columns).with_seed(seed);
+                rms(&row_column_sampling(&oracle, &config, &NoProgress)
+                    .unwrap()
+                    .image)
+            })
+            .sum::<f64>()
+            / 6.0
+    };
+    let coarse = mean_error(4, 16);
+    let fine = mean_error(32, 300);
+    assert!(fine < 0.5 * coarse, "relative RMS error {coarse} -> {fine}");
+    assert!(
+        fine < 0.1,
+        "relative RMS error {fine} at 32 rows / 300 columns"
+    );
+}
+
+#[test]
+fn same_seed_same_image_on_any_thread_count() {
+    let oracle = SyntheticVplOracle::new(16, 16, 3000, 9);
+    let config = RowColumnConfig::new(20, 60).with_seed(42);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| row_column_sampling(&oracle, &config, &NoProgress).unwrap())
+    };
+    let one = run(1);
+    let three = run(3);
+    assert_eq!(one, three);
+    let other = row_column_sampling(&oracle, &config.with_seed(43), &NoProgress).unwrap();
+    assert_ne!(one.image, other.image);
+}
+
+#[test]
+fn elements_are_counted() {
+    let oracle = SyntheticVplOracle::new(10, 10, 500, 10);
+    let estimate = row_column_sampling(&oracle, &RowColumnConfig::new(7, 30), &NoProgress).unwrap();
+    assert_eq!(
+        estimate.elements,
+        7 * 500 + estimate.representatives.len() as u64 * 100
+    );
+    assert_eq!(oracle.elements_evaluated(), estimate.elements);
+    assert_eq!(estimate.representatives.len(), 30);
+    let sizes: usize = estimate
+        .representatives
+        .iter()
+        .map(|r| r.cluster_size)
+        .sum();
+    assert_eq!(sizes, 500);
+}
+
+/// Random reduced matrices from DenseOracles, with zero columns.
+fn reduced_strategy() -> impl Strategy<Value = ReducedMatrix> {
+    (2usize..12, 2usize..40, 0usize..4, any::<u64>()).prop_map(|(rows, cols, rank, seed)| {
+        let oracle = dense(rows, cols, rank, seed);
+        let r = (rows / 2).max(1);
+        ReducedMatrix::sample(&oracle, (0..r).collect(), &NoProgress).unwrap()
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The O(n) cost formula equals the definition over pairs.
+    #[test]
+    fn cost_matches_pairwise_definition(reduced in reduced_strategy()) {
+        let members: Vec<u32> = (0..reduced.cols() as u32).collect();
+        let norms = reduced.norms();
+        let mut want = 0.0f64;
+        for i in 0..members.len() {
+            for j in i + 1..members.len() {
+                let (a, b) = (norms[i], norms[j]);
+                if a == 0.0 || b == 0.0 {
+                    continue;
+                }
+                let d2: f64 = reduced.column(i).iter().zip(reduced.column(j))
+                    .map(|(&x, &y)| (x as f64 / a - y as f64 / b).powi(2)).sum();
+                want += a * b * d2;
+            }
+        }
+        let got = cluster_cost(&reduced, &members);
+        // The formula subtracts two sums of size (Σa)²: f64 cancellation is relative to that.
+        let scale = norms.iter().sum::<f64>().powi(2);
+        prop_assert!((got - want).abs() <= 1e-9 * (1.0 + want) + 1e-10 * scale,
+            "formula {got}, pairs {want}");
+    }
+
+    /// A split partitions the members and never increases the cost.
+    #[test]
+    fn split_never_increases_cost(reduced in reduced_strategy(), seed in any::<u64>(), lines in 1usize..4) {
+        let members: Vec<u32> = (0..reduced.cols() as u32).collect();
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let (a, b) = split_cluster(&reduced, &members, lines, &mut rng).unwrap();
+        prop_assert!(!a.is_empty() && !b.is_empty());
+        let mut all: Vec<u32> = a.iter().chain(&b).copied().collect();
+        all.sort_unstable();
+        prop_assert_eq!(&all, &members);
+        let before = cluster_cost(&reduced, &members);
+        let after = cluster_cost(&reduced, &a) + cluster_cost(&reduced, &b);
+        prop_assert!(after <= before * (1.0 + 1e-9) + 1e-9, "{before} -> {after}");
+    }
+
+    /// A clustering covers every light once, has the requested size when possible, and more
+    /// clusters never cost more than fewer on the same rows (top-down splits only lower it).
+    #[test]
+    fn clustering_is_a_partition(reduced in reduced_strategy(), count in 1usize..40, seed in any::<u64>()) {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let clustering = cluster_columns(&reduced, count, 2, &mut rng, &NoProgress).unwrap();
+        let mut all: Vec<u32> = clustering.clusters().iter().flatten().copied().collect();
+        all.sort_unstable();
+        prop_assert_eq!(all, (0..reduced.cols() as u32).collect::<Vec<_>>());
+        prop_assert!(clustering.clusters().iter().all(|c| !c.is_empty()));
+        let has_zero = reduced.norms().contains(&0.0);
+        let has_positive = reduced.norms().iter().any(|&a| a > 0.0);
+        let floor = if has_zero && has_positive { 2 } else { 1 };
+        prop_assert_eq!(clustering.len(), count.min(reduced.cols()).max(floor));
+        // No cluster mixes zero and non-zero reduced columns.
+        for c in clustering.clusters() {
+            let zeros = c.iter().filter(|&&j| reduced.norms()[j as usize] == 0.0).count();
+            prop_assert!(zeros == 0 || zeros == c.len());
+        }
+    }
+}
+
+/// An oracle that returns NaN at one element.
+struct Poisoned {
+    inner: DenseOracle,
+    at: (usize, usize),
+    calls: AtomicU64,
+}
+
+impl MatrixOracle for Poisoned {
+    fn rows(&self) -> usize {
+        self.inner.rows()
+    }
+    fn cols(&self) -> usize {
+        self.inner.cols()
+    }
+    fn channels(&self) -> usize {
+        3
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        self.calls.fetch_add(1, Ordering::Relaxed);
+        self.inner.eval_row(i, out)?;
+        if i == self.at.0 {
+            out[self.at.1 * 3 + 1] = f32::NAN;
+        }
+        Ok(())
+    }
+    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        self.inner.eval_col(j, out)?;
+        if j == self.at.1 {
+            out[self.at.0 * 3 + 1] = f32::NAN;
+        }
+        Ok(())
+    }
+    fn elements_evaluated(&self) -> u64 {
+        self.inner.elements_evaluated()
+    }
+}
+
+#[test]
+fn bad_input_is_a_typed_error() {
+    let empty_lights = DenseOracle::new(Array2::zeros((4, 0)), 3).unwrap();
+    let empty_pixels = DenseOracle::new(Array2::zeros((0, 6)), 3).unwrap();
+    let ok = dense(10, 20, 0, 11);
+    let run = |o: &dyn MatrixOracle, r, c| {
+        row_column_sampling(o, &RowColumnConfig::new(r, c), &NoProgress)
+    };
+    assert_eq!(
+        run(&empty_lights, 1, 1),
+        Err(ManyLightError::EmptyMatrix {
+            what: "columns (lights)"
+        })
+    );
+    assert_eq!(
+        run(&empty_pixels, 1, 1),
+        Err(ManyLightError::EmptyMatrix {
+            what: "rows (pixels)"
+        })
+    );
+    assert_eq!(
+        brute_force(&empty_lights, &NoProgress),
+        Err(ManyLightError::EmptyMatrix {
+            what: "columns (lights)"
+        })
+    );
+    assert_eq!(
+        run(&ok, 0, 5),
+        Err(ManyLightError::ZeroSamples { what: "row" })
+    );
+    assert_eq!(
+        run(&ok, 5, 0),
+        Err(ManyLightError::ZeroSamples { what: "column" })
+    );
+    assert_eq!(
+        run(&ok, 11, 5),
+        Err(ManyLightError::TooMany {
+            what: "rows",
+            requested: 11,
+            available: 10
+        })
+    );
+    assert_eq!(
+        run(&ok, 5, 21),
+        Err(ManyLightError::TooMany {
+            what: "columns",
+            requested: 21,
+            available: 20
+        })
+    );
+    assert_eq!(
+        ReducedMatrix::sample(&ok, vec![3, 10], &NoProgress),
+        Err(ManyLightError::TooMany {
+            what: "rows",
+            requested: 11,
+            available: 10
+        })
+    );
+    // A NaN element met in a sampled row, in a representative column, and by brute force.
+    let poisoned = Poisoned {
+        inner: dense(10, 20, 0, 12),
+        at: (4, 6),
+        calls: AtomicU64::new(0),
+    };
+    let nan = ManyLightError::NonFinite {
+        row: 4,
+        col: 6,
+        channel: 1,
+    };
+    assert_eq!(run(&poisoned, 10, 5), Err(nan.clone()));
+    assert_eq!(brute_force(&poisoned, &NoProgress), Err(nan.clone()));
+    // With clusters = lights every column is evaluated: whether the NaN is met in the sampled
+    // row or in its column, the error names the element.
+    let by_column = row_column_sampling(
+        &poisoned,
+        &RowColumnConfig::new(1, 20).with_seed(1),
+        &NoProgress,
+    );
+    assert!(matches!(
+        by_column,
+        Err(ManyLightError::NonFinite {
+            row: 4,
+            col: 6,
+            channel: 1
+        })
+    ));
+    assert!(poisoned.calls.load(Ordering::Relaxed) > 0);
+}
+
+#[test]
+fn cancellation_stops_the_work() {
+    let oracle = SyntheticVplOracle::new(16, 16, 1000, 13);
+    let progress = AtomicProgress::new();
+    progress.cancel();
+    assert_eq!(
+        row_column_sampling(&oracle, &RowColumnConfig::new(64, 100), &progress),
+        Err(ManyLightError::Cancelled)
+    );
+    assert_eq!(
+        brute_force(&oracle, &progress),
+        Err(ManyLightError::Cancelled)
+    );
+}
