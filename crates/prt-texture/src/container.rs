@@ -456,7 +456,14 @@ fn encode_array(
     {
         dst[..array.channels].copy_from_slice(src);
     }
-    let q = quantize(&padded, padded_channels, entry.encoding)?;
+    let q = if entry.encoding == Encoding::Rgb9e5 {
+        // Shared-exponent texels hold 3 channels each and need no ranges.
+        let mut q = quantize(&padded, 3, entry.encoding)?;
+        q.ranges = vec![ChannelRange::IDENTITY; padded_channels];
+        q
+    } else {
+        quantize(&padded, padded_channels, entry.encoding)?
+    };
     let texel_bytes = entry.encoding.rgba_format().bytes_per_texel();
     let bytes = match entry.layout {
         ArrayLayout::Rows => q.bytes,
