@@ -39,8 +39,13 @@ pub struct HatGrid {
     domain: Aabb,
     /// `domain.min` in f64, so that `x - min` is exact.
     origin: [f64; 3],
-    /// Node intervals per unit length, `(n - 1) / size` (0 on single-node axes).
+    /// Node intervals per unit length, `(n - 1) / size` (0 on single-node axes, which makes the
+    /// cell lookup branch-free: their coordinate is always 0).
     scale: [f64; 3],
+    /// `n - 1` per axis: the largest cell coordinate, as f64.
+    last_node: [f64; 3],
+    /// The largest cell index per axis (`n - 2`, or 0 on single-node axes).
+    last_cell: [usize; 3],
     /// Flat-index strides of the three axes.
     strides: [usize; 3],
     /// Axes with at least two nodes, in increasing order; the first `active_len` are valid.
@@ -153,6 +158,8 @@ impl HatGrid {
             domain,
             origin,
             scale,
+            last_node: nodes.map(|n| (n - 1) as f64),
+            last_cell: nodes.map(|n| n.saturating_sub(2)),
             strides,
             active,
             active_len,
@@ -270,18 +277,20 @@ impl HatGrid {
     pub fn eval_local(&self, x: Vec3) -> Result<HatLocal, CoreError> {
         let (cell, t) = self.locate(x)?;
         let base = self.base_node(cell);
+        // Per active-axis slot, the weights of its lower and upper node; unused slots are (1, 0),
+        // so one fixed 8-corner product (unrolled by the compiler) serves every dimension.
+        let mut pair = [[1.0f32, 0.0]; 3];
+        for b in 0..self.active_len {
+            let tk = t[self.active[b]];
+            pair[b] = [1.0 - tk, tk];
+        }
         let mut indices = [0u32; 8];
         let mut weights = [0.0f32; 8];
-        let len = 1 << self.active_len;
-        for c in 0..len {
-            let mut w = 1.0f32;
-            for b in 0..self.active_len {
-                let tk = t[self.active[b]];
-                w *= if c >> b & 1 == 1 { tk } else { 1.0 - tk };
-            }
+        for c in 0..8 {
             indices[c] = base + self.corner_offsets[c];
-            weights[c] = w;
+            weights[c] = pair[0][c & 1] * pair[1][c >> 1 & 1] * pair[2][c >> 2 & 1];
         }
+        let len = 1 << self.active_len;
         Ok(HatLocal {
             cell,
             indices,
@@ -294,7 +303,8 @@ impl HatGrid {
     /// single-node axes).
     #[inline]
     fn locate(&self, x: Vec3) -> Result<([usize; 3], [f32; 3]), CoreError> {
-        if let Some(index) = (0..3).find(|&k| !x[k].is_finite()) {
+        if !x.is_finite() {
+            let index = (0..3).find(|&k| !x[k].is_finite()).unwrap_or(0);
             return Err(CoreError::NonFinite {
                 what: "query point",
                 index,
@@ -302,12 +312,12 @@ impl HatGrid {
         }
         let mut cell = [0usize; 3];
         let mut t = [0.0f32; 3];
-        for b in 0..self.active_len {
-            let k = self.active[b];
-            let last = (self.nodes[k] - 1) as f64;
+        // All three axes without branching: a single-node axis has scale 0 and lands on cell 0.
+        for k in 0..3 {
             // f64 keeps the fraction accurate on grids with millions of nodes per axis.
-            let u = ((x[k] as f64 - self.origin[k]) * self.scale[k]).clamp(0.0, last);
-            let c = (u.floor() as usize).min(self.nodes[k] - 2);
+            let u = ((x[k] as f64 - self.origin[k]) * self.scale[k]).clamp(0.0, self.last_node[k]);
+            // u >= 0, so truncation is floor.
+            let c = (u as usize).min(self.last_cell[k]);
             cell[k] = c;
             t[k] = (u - c as f64) as f32;
         }

@@ -30,9 +30,11 @@ pub fn wendland_c2(t: f64) -> f64 {
 ///   normalised weight rounds to 0 in f32 (a point within ~1e-8 R of the edge of its ball while
 ///   other balls cover it well) is left out.
 /// * **Queries** go through a uniform grid of buckets built once: each bucket lists the balls that
-///   reach it, so an evaluation tests only the balls of one bucket. The bucket size starts at
-///   the median radius and grows while the lists would exceed 64 entries per kernel (plus 4096),
-///   so memory stays linear in the number of kernels for any mix of radii.
+///   reach it, so an evaluation tests only the balls of one bucket (a sequential f32 rejection
+///   test, then the exact f64 weight). The bucket size starts at half the median radius and
+///   grows until there are at most `32 n + 4096` buckets and the lists are expected to hold at
+///   most `64 n + 4096` entries, so memory stays linear in the number `n` of kernels for any mix
+///   of radii.
 /// * **`max_support`** is the longest bucket list: an upper bound of the number of kernels
 ///   non-zero at one point, computed from the data (the true maximum overlap can be smaller).
 /// * Results are identical on every run; the weights come out sorted by kernel index.
@@ -67,6 +69,9 @@ struct Buckets {
     dims: [usize; 3],
     starts: Vec<usize>,
     items: Vec<u32>,
+    /// Per entry, the kernel's centre and a slightly enlarged squared radius, stored with the
+    /// list so that the rejection test reads memory sequentially.
+    spheres: Vec<[f32; 4]>,
 }
 
 /// The bucket grid's budget: at most this many buckets...
@@ -197,20 +202,20 @@ impl Buckets {
         let mut sorted: Vec<f32> = radii.to_vec();
         sorted.sort_unstable_by(f32::total_cmp);
         let median = sorted[sorted.len() / 2] as f64;
-        // Start at the median radius (each bucket then meets few more balls than cover one of its
-        // points), but no finer than the bucket budget allows.
+        // Start at half the median radius (a query then tests about 2x more balls than cover
+        // it), but no finer than the bucket budget allows.
         let max_buckets = MAX_BUCKETS_PER_KERNEL * n + 4096.0;
         let volume: f64 = extent.iter().product();
-        let mut size = median.max((volume / max_buckets).cbrt());
+        let mut size = (0.5 * median).max((volume / max_buckets).cbrt());
         let dims_for = |size: f64| extent.map(|e| ((e / size).ceil() as usize).max(1));
         loop {
             let dims = dims_for(size);
             let buckets: f64 = dims.iter().map(|&d| d as f64).product();
-            // Upper bound of the list entries: every bucket of each ball's bounding box.
+            // Expected list entries: the buckets met by each ball's bounding box.
             let entries: f64 = radii
                 .iter()
                 .map(|&r| {
-                    let span = (2.0 * r as f64 / size).floor() + 2.0;
+                    let span = 2.0 * r as f64 / size + 1.0;
                     dims.iter().map(|&d| span.min(d as f64)).product::<f64>()
                 })
                 .sum();
@@ -234,9 +239,15 @@ impl Buckets {
         }
         let mut fill = starts.clone();
         let mut items = vec![0u32; starts[starts.len() - 1]];
+        let mut spheres = vec![[0.0f32; 4]; items.len()];
         for (i, (&c, &r)) in centres.iter().zip(radii).enumerate() {
+            // f32 differences of f32 inputs are exact to 2^-24 relative, so a squared distance
+            // computed in f32 is within 1e-6 of the true one: 1e-5 of slack (and the smallest
+            // normal, against underflow) never rejects a covering kernel.
+            let reach = r * r * (1.0 + 1e-5) + f32::MIN_POSITIVE;
             layout.for_each_reached(c, r, |b| {
                 items[fill[b]] = i as u32;
+                spheres[fill[b]] = [c.x, c.y, c.z, reach];
                 fill[b] += 1;
             });
         }
@@ -246,19 +257,21 @@ impl Buckets {
             dims,
             starts,
             items,
+            spheres,
         }
     }
 
     /// The kernels listed in the bucket holding `x` (clamped to the grid).
     #[inline]
-    fn candidates(&self, x: [f64; 3]) -> &[u32] {
+    fn candidates(&self, x: [f64; 3]) -> (&[u32], &[[f32; 4]]) {
         let mut flat = 0;
         for k in (0..3).rev() {
             let u = ((x[k] - self.origin[k]) / self.size).floor();
             let b = (u.max(0.0) as usize).min(self.dims[k] - 1);
             flat = flat * self.dims[k] + b;
         }
-        &self.items[self.starts[flat]..self.starts[flat + 1]]
+        let range = self.starts[flat]..self.starts[flat + 1];
+        (&self.items[range.clone()], &self.spheres[range])
     }
 }
 
@@ -336,7 +349,12 @@ impl SpatialKernels for Shepard {
         // Pass 1: the covering kernels and the normaliser, in f64 (φ can be far below f32's range
         // near the edge of a ball). Pass 2 recomputes φ rather than keeping an f64 scratch buffer.
         let mut sum = 0.0f64;
-        for &i in self.buckets.candidates(p) {
+        let (items, spheres) = self.buckets.candidates(p);
+        for (&i, s) in items.iter().zip(spheres) {
+            let d2 = (x.x - s[0]).powi(2) + (x.y - s[1]).powi(2) + (x.z - s[2]).powi(2);
+            if d2 >= s[3] {
+                continue;
+            }
             let phi = self.phi(i as usize, p);
             if phi > 0.0 {
                 sum += phi;
