@@ -29,6 +29,10 @@ const CACHE_CHUNK: usize = 256;
 /// Lattice points are pulled this fraction towards the triangle's centroid so that no cache
 /// point sits exactly on an edge shared with a neighbouring wall.
 const CACHE_SHRINK: f32 = 1e-3;
+/// Largest lattice subdivision of one triangle (8385 points).
+const MAX_SUBDIV: u16 = 128;
+/// Budget of surface-cache points (about 300 MB with both sides); beyond it the spacing grows.
+const MAX_CACHE_POINTS: usize = 4_000_000;
 
 /// How the direct-to-indirect (one-bounce) part is computed.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -60,8 +64,9 @@ pub struct BakeOptions {
     pub rays_per_voxel: usize,
     /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force).
     pub cache_rays: usize,
-    /// Largest spacing between surface-cache points on a triangle; `None`: half the smallest
-    /// voxel edge.
+    /// Largest spacing between surface-cache points on a triangle; `None`: the smallest voxel
+    /// edge. A triangle gets at most 128 subdivisions per edge, and the spacing grows by steps of
+    /// 1.5x while the whole cache would exceed 4 million points.
     pub cache_spacing: Option<f32>,
     /// The validity of a voxel is decided on its first `probe_rays` directions (rounded up to a
     /// multiple of 12, at most `rays_per_voxel`): an invalid voxel costs only those.
@@ -130,7 +135,11 @@ impl BakeStats {
     /// Rays per second over the cache and voxel stages, in millions.
     pub fn mrays_per_second(&self) -> f64 {
         let t = (self.cache_time + self.voxel_time).as_secs_f64();
-        if t > 0.0 { self.rays() as f64 / t / 1e6 } else { 0.0 }
+        if t > 0.0 {
+            self.rays() as f64 / t / 1e6
+        } else {
+            0.0
+        }
     }
 }
 
@@ -160,7 +169,17 @@ pub fn constant_sky(radiance: f32) -> [f32; SH9] {
 /// `l`, by zonal convolution with the clamped cosine (A0 = π, A1 = 2π/3, A2 = π/4).
 pub fn irradiance(l: &[f32; SH9], n: Vec3) -> f32 {
     let y = sh9(n);
-    let a = [PI, 2.0 * PI / 3.0, 2.0 * PI / 3.0, 2.0 * PI / 3.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0, PI / 4.0];
+    let a = [
+        PI,
+        2.0 * PI / 3.0,
+        2.0 * PI / 3.0,
+        2.0 * PI / 3.0,
+        PI / 4.0,
+        PI / 4.0,
+        PI / 4.0,
+        PI / 4.0,
+        PI / 4.0,
+    ];
     (0..SH9).map(|i| a[i] * l[i] * y[i]).sum()
 }
 
@@ -206,6 +225,10 @@ struct SurfaceCache {
     values: Vec<[f32; SH9]>,
 }
 
+fn lattice_len(m: usize) -> usize {
+    if m == 0 { 1 } else { (m + 1) * (m + 2) / 2 }
+}
+
 fn lattice_index(m: usize, a: usize, b: usize) -> usize {
     // Row a (= 0..=m) holds the m + 1 - a points b = 0..=m - a.
     a * (m + 1) - a * a.saturating_sub(1) / 2 + b
@@ -231,7 +254,10 @@ impl SurfaceCache {
             let w0 = (1.0 - du - dv).max(0.0);
             ([(i, j), (i + 1, j), (i, j + 1)], [w0, du, dv])
         } else {
-            ([(i + 1, j + 1), (i, j + 1), (i + 1, j)], [du + dv - 1.0, 1.0 - du, 1.0 - dv])
+            (
+                [(i + 1, j + 1), (i, j + 1), (i + 1, j)],
+                [du + dv - 1.0, 1.0 - du, 1.0 - dv],
+            )
         };
         let mut out = [0.0f32; SH9];
         for (&(a, b), &w) in corners.iter().zip(&weights) {
@@ -282,24 +308,39 @@ impl<'s> TransferBaker<'s> {
     pub fn new(scene: &'s Scene, options: BakeOptions) -> Result<Self, TraceError> {
         let invalid = |what, why: String| Err(TraceError::InvalidOption { what, why });
         if options.resolution.contains(&0) {
-            return invalid("resolution", format!("{:?} has a zero axis", options.resolution));
+            return invalid(
+                "resolution",
+                format!("{:?} has a zero axis", options.resolution),
+            );
         }
         if options.rays_per_voxel == 0 {
             return invalid("rays_per_voxel", "must be positive".into());
         }
         if options.indirect != IndirectMode::Off && options.cache_rays == 0 {
-            return invalid("cache_rays", "must be positive when the indirect part is computed".into());
+            return invalid(
+                "cache_rays",
+                "must be positive when the indirect part is computed".into(),
+            );
         }
         if !(options.margin.is_finite() && options.margin >= 0.0) {
-            return invalid("margin", format!("{} is not a finite non-negative length", options.margin));
+            return invalid(
+                "margin",
+                format!("{} is not a finite non-negative length", options.margin),
+            );
         }
         if let Some(s) = options.cache_spacing
             && !(s.is_finite() && s > 0.0)
         {
-            return invalid("cache_spacing", format!("{s} is not a finite positive length"));
+            return invalid(
+                "cache_spacing",
+                format!("{s} is not a finite positive length"),
+            );
         }
         if !(0.0..=1.0).contains(&options.max_backface_fraction) {
-            return invalid("max_backface_fraction", format!("{} is outside [0, 1]", options.max_backface_fraction));
+            return invalid(
+                "max_backface_fraction",
+                format!("{} is outside [0, 1]", options.max_backface_fraction),
+            );
         }
         let scene_bounds = scene.bounds();
         let (grid, trace_box) = match (options.bounds, scene_bounds) {
@@ -321,7 +362,10 @@ impl<'s> TransferBaker<'s> {
         let materials = (0..tracer.slots() as u32)
             .map(|s| {
                 let m = scene.material_of(tracer.scene_triangle(s) as usize);
-                SlotMaterial { albedo: m.albedo.to_array(), double_sided: m.double_sided }
+                SlotMaterial {
+                    albedo: m.albedo.to_array(),
+                    double_sided: m.double_sided,
+                }
             })
             .collect();
         Ok(Self {
@@ -364,7 +408,11 @@ impl<'s> TransferBaker<'s> {
             let cell = self.grid.size() / Vec3::new(nx as f32, ny as f32, nz as f32);
             let m = cell.min_element();
             // A flat grid axis (zero extent) does not constrain the spacing.
-            0.5 * if m > 0.0 { m } else { cell.max_element().max(1e-3) }
+            if m > 0.0 {
+                m
+            } else {
+                cell.max_element().max(1e-3)
+            }
         })
     }
 
@@ -386,20 +434,52 @@ impl<'s> TransferBaker<'s> {
         acc.map(|a| a / r as f32)
     }
 
-    fn build_cache(&self, progress: &dyn Progress, cache_rays: &AtomicU64) -> Result<SurfaceCache, TraceError> {
-        let spacing = self.cache_spacing();
+    /// Lattice subdivision of every slot for a spacing (0: one point at the centroid).
+    fn subdivisions(&self, spacing: f32) -> Vec<u16> {
+        (0..self.tracer.slots() as u32)
+            .map(|s| {
+                let v = self.tracer.slot_vertices(s);
+                let longest = (v[1] - v[0])
+                    .length()
+                    .max((v[2] - v[0]).length())
+                    .max((v[2] - v[1]).length());
+                if longest <= spacing {
+                    0
+                } else {
+                    (longest / spacing).ceil().min(MAX_SUBDIV as f32) as u16
+                }
+            })
+            .collect()
+    }
+
+    fn build_cache(
+        &self,
+        progress: &dyn Progress,
+        cache_rays: &AtomicU64,
+    ) -> Result<SurfaceCache, TraceError> {
+        // Coarsen the spacing until the lattice fits the point budget (deterministically).
+        let mut spacing = self.cache_spacing();
+        let mut subdiv = self.subdivisions(spacing);
+        // (At worst one point per triangle remains, which the triangle count already paid for.)
+        while subdiv
+            .iter()
+            .map(|&m| lattice_len(m as usize))
+            .sum::<usize>()
+            > MAX_CACHE_POINTS
+            && subdiv.iter().any(|&m| m > 0)
+        {
+            spacing *= 1.5;
+            subdiv = self.subdivisions(spacing);
+        }
         let slots = self.tracer.slots();
         let mut start = Vec::with_capacity(slots);
-        let mut subdiv = Vec::with_capacity(slots);
-        // (point, normal, side count) for every lattice point.
+        // (point, normal, two-sided) for every lattice point.
         let mut points: Vec<(Vec3, Vec3, bool)> = Vec::new();
         for s in 0..slots as u32 {
             let v = self.tracer.slot_vertices(s);
             let n = self.tracer.slot_normal(s).normalize_or_zero();
-            let longest = (v[1] - v[0]).length().max((v[2] - v[0]).length()).max((v[2] - v[1]).length());
-            let m = if longest <= spacing { 0 } else { (longest / spacing).ceil().min(u16::MAX as f32 - 1.0) as usize };
+            let m = subdiv[s as usize] as usize;
             start.push(points.len() as u32);
-            subdiv.push(m as u16);
             let two_sided = self.materials[s as usize].double_sided;
             let centroid = (v[0] + v[1] + v[2]) / 3.0;
             if m == 0 {
@@ -408,45 +488,61 @@ impl<'s> TransferBaker<'s> {
             }
             for a in 0..=m {
                 for b in 0..=(m - a) {
-                    let p = v[0] + (v[1] - v[0]) * (a as f32 / m as f32) + (v[2] - v[0]) * (b as f32 / m as f32);
+                    let p = v[0]
+                        + (v[1] - v[0]) * (a as f32 / m as f32)
+                        + (v[2] - v[0]) * (b as f32 / m as f32);
                     points.push((p + (centroid - p) * CACHE_SHRINK, n, two_sided));
                 }
             }
-        }
-        if points.len() > u32::MAX as usize / 2 {
-            return Err(TraceError::InvalidOption {
-                what: "cache_spacing",
-                why: format!("{} cache points are too many", points.len()),
-            });
         }
         let r = self.options.cache_rays as u64;
         let sides: u64 = points.iter().map(|p| 1 + p.2 as u64).sum();
         progress.message("surface transfer cache");
         progress.set_len(sides * r);
         let mut values = vec![[0.0f32; SH9]; points.len() * 2];
-        values.par_chunks_mut(2 * CACHE_CHUNK).enumerate().try_for_each(|(c, out)| {
-            progress.check()?;
-            let mut rays = 0;
-            for (k, pair) in out.chunks_exact_mut(2).enumerate() {
-                let index = c * CACHE_CHUNK + k;
-                let (p, n, two_sided) = points[index];
-                pair[0] = self.hemisphere_transfer(p, n, hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64));
-                rays += r;
-                if two_sided {
-                    pair[1] =
-                        self.hemisphere_transfer(p, -n, hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64 + 1));
+        values
+            .par_chunks_mut(2 * CACHE_CHUNK)
+            .enumerate()
+            .try_for_each(|(c, out)| {
+                progress.check()?;
+                let mut rays = 0;
+                for (k, pair) in out.chunks_exact_mut(2).enumerate() {
+                    let index = c * CACHE_CHUNK + k;
+                    let (p, n, two_sided) = points[index];
+                    pair[0] = self.hemisphere_transfer(
+                        p,
+                        n,
+                        hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64),
+                    );
                     rays += r;
+                    if two_sided {
+                        pair[1] = self.hemisphere_transfer(
+                            p,
+                            -n,
+                            hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64 + 1),
+                        );
+                        rays += r;
+                    }
                 }
-            }
-            cache_rays.fetch_add(rays, Ordering::Relaxed);
-            progress.inc(rays);
-            Ok::<(), TraceError>(())
-        })?;
-        Ok(SurfaceCache { start, subdiv, values })
+                cache_rays.fetch_add(rays, Ordering::Relaxed);
+                progress.inc(rays);
+                Ok::<(), TraceError>(())
+            })?;
+        Ok(SurfaceCache {
+            start,
+            subdiv,
+            values,
+        })
     }
 
     /// Transfer vector of one voxel into `out` (324 values); returns `(valid, rays traced)`.
-    fn voxel_transfer(&self, x: Vec3, voxel: usize, cache: Option<&SurfaceCache>, out: &mut [f32]) -> (bool, u64) {
+    fn voxel_transfer(
+        &self,
+        x: Vec3,
+        voxel: usize,
+        cache: Option<&SurfaceCache>,
+        out: &mut [f32],
+    ) -> (bool, u64) {
         let dirs = icosahedron();
         let scramble = hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64);
         let mut acc = [0.0f64; TRANSFER_DIM];
@@ -479,11 +575,14 @@ impl<'s> TransferBaker<'s> {
                 }
                 let side = usize::from(!front);
                 let t = match cache {
-                    Some(c) => c.lookup(hit.slot, side, || self.tracer.slot_barycentrics(hit.slot, x, w)),
+                    Some(c) => c.lookup(hit.slot, side, || {
+                        self.tracer.slot_barycentrics(hit.slot, x, w)
+                    }),
                     None => {
                         let n = ng.normalize_or_zero() * if front { 1.0 } else { -1.0 };
                         let ray_index = (g * ICOSA + k) as u64;
-                        let s = hash_seed(self.options.seed ^ voxel as u64, STREAM_BRUTE, ray_index);
+                        let s =
+                            hash_seed(self.options.seed ^ voxel as u64, STREAM_BRUTE, ray_index);
                         rays += self.options.cache_rays as u64;
                         self.hemisphere_transfer(x + w * hit.t, n, s)
                     }
@@ -502,7 +601,8 @@ impl<'s> TransferBaker<'s> {
                 *a += gv as f64;
             }
             if g + 1 == self.probe_groups
-                && backfaces as f32 > self.options.max_backface_fraction * (self.probe_groups * ICOSA) as f32
+                && backfaces as f32
+                    > self.options.max_backface_fraction * (self.probe_groups * ICOSA) as f32
             {
                 out.fill(0.0);
                 return (false, rays);
@@ -551,7 +651,11 @@ impl<'s> TransferBaker<'s> {
                 .try_for_each(|(c, (out, ok))| {
                     progress.check()?;
                     let mut rays = 0;
-                    for (k, (o, okv)) in out.chunks_exact_mut(TRANSFER_DIM).zip(ok.iter_mut()).enumerate() {
+                    for (k, (o, okv)) in out
+                        .chunks_exact_mut(TRANSFER_DIM)
+                        .zip(ok.iter_mut())
+                        .enumerate()
+                    {
                         let v = c * VOXEL_CHUNK + k;
                         let x = centres[v];
                         if self.trace_box.is_some_and(|b| !b.contains(x)) {
@@ -582,6 +686,10 @@ impl<'s> TransferBaker<'s> {
             cache_time,
             voxel_time: t1.elapsed(),
         };
-        Ok(TransferVolume { field, valid, stats })
+        Ok(TransferVolume {
+            field,
+            valid,
+            stats,
+        })
     }
 }

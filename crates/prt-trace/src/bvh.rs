@@ -3,12 +3,12 @@
 use std::time::Duration;
 
 use glam::{Vec2, Vec3, Vec3A};
+use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
-use obvhs::BvhBuildParams;
 use rayon::prelude::*;
 
 /// BVH build quality (obvhs presets).
@@ -44,6 +44,11 @@ pub struct Hit {
 /// Closest-hit queries return distance, triangle, barycentrics, geometric normal and facing;
 /// occlusion queries stop at the first hit. Batched versions run over rayon. Rays should have
 /// unit directions (distances are then in scene units); `tmin`/`tmax` bound the accepted hits.
+///
+/// Like every CWBVH (quantised child boxes), traversal can miss a hit that a loop over all
+/// triangles finds: in the tests, never for hits farther than 1e-3 from the origin over 200k
+/// random rays, and 2 in 100k random Cornell-box rays whose origin lay within 6e-5 of a wall.
+/// Offset ray origins off surfaces (the baker does, by 1e-4 of the scene diagonal).
 #[derive(Clone)]
 pub struct RayTracer {
     bvh: Option<CwBvh>,
@@ -55,7 +60,9 @@ pub struct RayTracer {
 
 impl std::fmt::Debug for RayTracer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RayTracer").field("triangles", &self.tris.len()).finish_non_exhaustive()
+        f.debug_struct("RayTracer")
+            .field("triangles", &self.tris.len())
+            .finish_non_exhaustive()
     }
 }
 
@@ -75,11 +82,19 @@ impl RayTracer {
     /// Builds a CWBVH over `triangles`. An empty slice gives a tracer whose rays all miss.
     pub fn with_quality(triangles: &[[Vec3; 3]], quality: BuildQuality) -> Self {
         if triangles.is_empty() {
-            return Self { bvh: None, tris: Vec::new(), scene_index: Vec::new() };
+            return Self {
+                bvh: None,
+                tris: Vec::new(),
+                scene_index: Vec::new(),
+            };
         }
         let input: Vec<Triangle> = triangles
             .iter()
-            .map(|t| Triangle { v0: t[0].into(), v1: t[1].into(), v2: t[2].into() })
+            .map(|t| Triangle {
+                v0: t[0].into(),
+                v1: t[1].into(),
+                v2: t[2].into(),
+            })
             .collect();
         let params = match quality {
             BuildQuality::Fast => BvhBuildParams::fast_build(),
@@ -95,7 +110,11 @@ impl RayTracer {
                 RtTriangle::new(t.v0, t.v1, t.v2)
             })
             .collect();
-        Self { bvh: Some(bvh), tris, scene_index }
+        Self {
+            bvh: Some(bvh),
+            tris,
+            scene_index,
+        }
     }
 
     /// Number of BVH primitive slots (the triangle count, more when spatial splits duplicate).
@@ -129,13 +148,22 @@ impl RayTracer {
     }
 
     #[inline]
-    pub(crate) fn closest_slot(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<SlotHit> {
+    pub(crate) fn closest_slot(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<SlotHit> {
         let bvh = self.bvh.as_ref()?;
         let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
         let mut hit = RayHit::none();
         let tris = &self.tris;
         if bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r)) {
-            Some(SlotHit { t: hit.t, slot: hit.primitive_id })
+            Some(SlotHit {
+                t: hit.t,
+                slot: hit.primitive_id,
+            })
         } else {
             None
         }
@@ -157,7 +185,9 @@ impl RayTracer {
     /// Whether anything lies on the ray within `[tmin, tmax]` (stops at the first hit found).
     #[inline]
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> bool {
-        let Some(bvh) = self.bvh.as_ref() else { return false };
+        let Some(bvh) = self.bvh.as_ref() else {
+            return false;
+        };
         let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
         let tris = &self.tris;
         !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
@@ -165,17 +195,29 @@ impl RayTracer {
 
     /// Closest hits of a batch of rays `(origin, dir)` with `[tmin, tmax]`, in parallel.
     pub fn closest_hits(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32) -> Vec<Option<Hit>> {
-        rays.par_iter().with_min_len(256).map(|&(o, d)| self.closest_hit(o, d, tmin, tmax)).collect()
+        rays.par_iter()
+            .with_min_len(256)
+            .map(|&(o, d)| self.closest_hit(o, d, tmin, tmax))
+            .collect()
     }
 
     /// Occlusion of a batch of rays `(origin, dir)` with `[tmin, tmax]`, in parallel.
     pub fn occluded_batch(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32) -> Vec<bool> {
-        rays.par_iter().with_min_len(256).map(|&(o, d)| self.occluded(o, d, tmin, tmax)).collect()
+        rays.par_iter()
+            .with_min_len(256)
+            .map(|&(o, d)| self.occluded(o, d, tmin, tmax))
+            .collect()
     }
 }
 
 /// Closest hit by testing every triangle (the reference for the BVH's tests and sweeps).
-pub fn brute_force_closest(triangles: &[[Vec3; 3]], origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<(u32, f32)> {
+pub fn brute_force_closest(
+    triangles: &[[Vec3; 3]],
+    origin: Vec3,
+    dir: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<(u32, f32)> {
     let ray = Ray::new(origin.into(), dir.into(), tmin, tmax);
     let mut best: Option<(u32, f32)> = None;
     for (i, t) in triangles.iter().enumerate() {

@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use glam::{Mat4, Vec3, Vec4};
 use gltf::khr_lights_punctual::Kind;
 
-use crate::scene::{Camera, LightKind, Material, PunctualLight, Scene};
 use crate::TraceError;
+use crate::scene::{Camera, LightKind, Material, PunctualLight, Scene};
 
 /// Extensions whose meaning the loader honours; any other *required* extension only warns,
 /// since the baker needs geometry and diffuse colour alone.
@@ -40,11 +40,18 @@ impl Default for LoadOptions {
 }
 
 fn gltf_error(path: &Path, e: impl std::fmt::Display) -> TraceError {
-    TraceError::Gltf { path: path.to_owned(), message: e.to_string() }
+    TraceError::Gltf {
+        path: path.to_owned(),
+        message: e.to_string(),
+    }
 }
 
 fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
 }
 
 impl Scene {
@@ -59,10 +66,17 @@ impl Scene {
     /// other than triangles (naming mesh and primitive), non-finite positions, exceeded limits.
     pub fn load_gltf(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Scene, TraceError> {
         let path = path.as_ref();
-        let io = |source| TraceError::Io { path: path.to_owned(), source };
+        let io = |source| TraceError::Io {
+            path: path.to_owned(),
+            source,
+        };
         let len = std::fs::metadata(path).map_err(io)?.len();
         if len > options.max_bytes {
-            return Err(TraceError::Limit { what: "glTF file bytes", limit: options.max_bytes, got: len });
+            return Err(TraceError::Limit {
+                what: "glTF file bytes",
+                limit: options.max_bytes,
+                got: len,
+            });
         }
         let bytes = std::fs::read(path).map_err(io)?;
         let gltf::Gltf { document, mut blob } =
@@ -75,11 +89,17 @@ impl Scene {
         let mut json = document.into_json();
         for ext in std::mem::take(&mut json.extensions_required) {
             if !UNDERSTOOD_EXTENSIONS.contains(&ext.as_str()) {
-                scene.warn(format!("required extension {ext} is not supported; its data is ignored"));
+                scene.warn(format!(
+                    "required extension {ext} is not supported; its data is ignored"
+                ));
             }
         }
-        let document = gltf::Document::from_json(json).map_err(|e| gltf_error(path, format!("{e:?}")))?;
-        let base = path.parent().map(Path::to_owned).unwrap_or_else(|| PathBuf::from("."));
+        let document =
+            gltf::Document::from_json(json).map_err(|e| gltf_error(path, format!("{e:?}")))?;
+        let base = path
+            .parent()
+            .map(Path::to_owned)
+            .unwrap_or_else(|| PathBuf::from("."));
 
         let mut buffers = Vec::new();
         for buffer in document.buffers() {
@@ -94,13 +114,22 @@ impl Scene {
                     got: buffer.length() as u64,
                 });
             }
-            let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), Some(&base), &mut blob)
-                .map_err(|e| TraceError::Buffer { index: buffer.index(), uri: uri.clone(), message: e.to_string() })?;
+            let data =
+                gltf::buffer::Data::from_source_and_blob(buffer.source(), Some(&base), &mut blob)
+                    .map_err(|e| TraceError::Buffer {
+                    index: buffer.index(),
+                    uri: uri.clone(),
+                    message: e.to_string(),
+                })?;
             if data.len() < buffer.length() {
                 return Err(TraceError::Buffer {
                     index: buffer.index(),
                     uri,
-                    message: format!("{} bytes, the document declares {}", data.len(), buffer.length()),
+                    message: format!(
+                        "{} bytes, the document declares {}",
+                        data.len(),
+                        buffer.length()
+                    ),
                 });
             }
             buffers.push(data);
@@ -109,20 +138,29 @@ impl Scene {
         let material_ids = load_materials(&document, &buffers, &base, options, &mut scene)?;
         let mut default_material = None;
 
-        let Some(root) = document.default_scene().or_else(|| document.scenes().next()) else {
+        let Some(root) = document
+            .default_scene()
+            .or_else(|| document.scenes().next())
+        else {
             scene.warn("the document has no scene".to_owned());
             return Ok(scene);
         };
         // Depth-first over the hierarchy with an explicit stack; the step budget guards against
         // node cycles in a malformed file.
-        let mut stack: Vec<(gltf::Node<'_>, Mat4)> = root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+        let mut stack: Vec<(gltf::Node<'_>, Mat4)> =
+            root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
         let mut budget = 4 * document.nodes().len() + 16;
         let mut triangle_count: u64 = 0;
         while let Some((node, parent)) = stack.pop() {
-            budget = budget.checked_sub(1).ok_or_else(|| gltf_error(path, "node hierarchy has a cycle"))?;
+            budget = budget
+                .checked_sub(1)
+                .ok_or_else(|| gltf_error(path, "node hierarchy has a cycle"))?;
             let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
             if let Some(mesh) = node.mesh() {
-                let mesh_name = mesh.name().map(str::to_owned).unwrap_or_else(|| format!("#{}", mesh.index()));
+                let mesh_name = mesh
+                    .name()
+                    .map(str::to_owned)
+                    .unwrap_or_else(|| format!("#{}", mesh.index()));
                 for primitive in mesh.primitives() {
                     let pi = primitive.index();
                     if primitive.mode() != gltf::mesh::Mode::Triangles {
@@ -132,7 +170,11 @@ impl Scene {
                             mode: format!("{:?}", primitive.mode()),
                         });
                     }
-                    let bad = |why: String| TraceError::BadPrimitive { mesh: mesh_name.clone(), primitive: pi, why };
+                    let bad = |why: String| TraceError::BadPrimitive {
+                        mesh: mesh_name.clone(),
+                        primitive: pi,
+                        why,
+                    };
                     let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
                     let positions: Vec<Vec3> = reader
                         .read_positions()
@@ -143,7 +185,7 @@ impl Scene {
                         Some(ix) => ix.into_u32().collect(),
                         None => (0..positions.len() as u32).collect(),
                     };
-                    if indices.len() % 3 != 0 {
+                    if !indices.len().is_multiple_of(3) {
                         scene.warn(format!(
                             "mesh '{mesh_name}' primitive {pi}: {} indices is not a multiple of 3; the rest is ignored",
                             indices.len()
@@ -160,7 +202,8 @@ impl Scene {
                     let material = match primitive.material().index() {
                         Some(i) => material_ids[i],
                         None => *default_material.get_or_insert_with(|| {
-                            scene.push_material(Material::diffuse("default", options.default_albedo))
+                            scene
+                                .push_material(Material::diffuse("default", options.default_albedo))
                         }),
                     };
                     let what = format!("mesh '{mesh_name}' primitive {pi}");
@@ -168,7 +211,11 @@ impl Scene {
                         let mut t = [Vec3::ZERO; 3];
                         for c in 0..3 {
                             t[c] = *positions.get(tri[c] as usize).ok_or_else(|| {
-                                bad(format!("index {} past {} vertices", tri[c], positions.len()))
+                                bad(format!(
+                                    "index {} past {} vertices",
+                                    tri[c],
+                                    positions.len()
+                                ))
                             })?;
                         }
                         scene.push_triangle(t, material, &what, k)?;
@@ -179,9 +226,13 @@ impl Scene {
                 let kind = match light.kind() {
                     Kind::Directional => LightKind::Directional,
                     Kind::Point => LightKind::Point,
-                    Kind::Spot { inner_cone_angle, outer_cone_angle } => {
-                        LightKind::Spot { inner_cone_angle, outer_cone_angle }
-                    }
+                    Kind::Spot {
+                        inner_cone_angle,
+                        outer_cone_angle,
+                    } => LightKind::Spot {
+                        inner_cone_angle,
+                        outer_cone_angle,
+                    },
                 };
                 scene.push_light(PunctualLight {
                     name: light.name().map(str::to_owned),
@@ -248,7 +299,10 @@ fn load_materials(
             }
         };
         let emissive = Vec3::from_array(m.emissive_factor()) * m.emissive_strength().unwrap_or(1.0);
-        let name = m.name().map(str::to_owned).unwrap_or_else(|| format!("#{}", ids.len()));
+        let name = m
+            .name()
+            .map(str::to_owned)
+            .unwrap_or_else(|| format!("#{}", ids.len()));
         ids.push(scene.push_material(Material {
             name,
             albedo: factor * texture_mean,
@@ -284,14 +338,19 @@ fn texture_mean(
             })?
         }
         gltf::image::Source::View { view, .. } => {
-            let data = buffers.get(view.buffer().index()).map(|d| &d.0[..]).unwrap_or(&[]);
+            let data = buffers
+                .get(view.buffer().index())
+                .map(|d| &d.0[..])
+                .unwrap_or(&[]);
             match data.get(view.offset()..view.offset() + view.length()) {
                 Some(s) => s.to_vec(),
                 None => return Ok(None),
             }
         }
     };
-    let Ok(img) = image::load_from_memory(&bytes) else { return Ok(None) };
+    let Ok(img) = image::load_from_memory(&bytes) else {
+        return Ok(None);
+    };
     let rgb = img.to_rgb32f();
     let n = (rgb.width() as u64 * rgb.height() as u64).max(1) as f64;
     let mut sum = [0.0f64; 3];
@@ -300,6 +359,11 @@ fn texture_mean(
             sum[c] += srgb_to_linear(p.0[c]) as f64;
         }
     }
-    let mean = Vec4::new((sum[0] / n) as f32, (sum[1] / n) as f32, (sum[2] / n) as f32, 0.0);
+    let mean = Vec4::new(
+        (sum[0] / n) as f32,
+        (sum[1] / n) as f32,
+        (sum[2] / n) as f32,
+        0.0,
+    );
     Ok(Some(mean.truncate()))
 }

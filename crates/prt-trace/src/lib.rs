@@ -35,7 +35,7 @@
 //!   so the estimator is unbiased and stratified; the error falls at least like `1/√N`.
 //! * **Surface transfer cache.** The one-bounce term needs, at every hit, a hemisphere integral.
 //!   Instead of `rays per voxel × rays per hit`, every triangle carries a barycentric lattice of
-//!   cache points (spacing at most half a voxel by default), each with the 9-vector
+//!   cache points (spacing at most one voxel edge by default), each with the 9-vector
 //!   `t_j = (1/π) ∫_H V (n·ω) Y_j dω` for each reflecting side, estimated with cosine-weighted
 //!   scrambled Sobol' rays. A voxel-ray hit interpolates the lattice linearly and multiplies by
 //!   the albedo. [`IndirectMode::BruteForce`] traces fresh rays per hit instead, and the tests
@@ -73,7 +73,8 @@ mod scene;
 mod sh;
 
 pub use bake::{
-    BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block, constant_sky, irradiance,
+    BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
+    constant_sky, irradiance,
 };
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use error::TraceError;

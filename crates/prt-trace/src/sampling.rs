@@ -45,8 +45,13 @@ pub(crate) fn rotation_from_uniforms(u1: f32, u2: f32, u3: f32) -> Quat {
     let tau = std::f32::consts::TAU;
     let a = (1.0 - u1).max(0.0).sqrt();
     let b = u1.max(0.0).sqrt();
-    Quat::from_xyzw(a * (tau * u2).sin(), a * (tau * u2).cos(), b * (tau * u3).sin(), b * (tau * u3).cos())
-        .normalize()
+    Quat::from_xyzw(
+        a * (tau * u2).sin(),
+        a * (tau * u2).cos(),
+        b * (tau * u3).sin(),
+        b * (tau * u3).cos(),
+    )
+    .normalize()
 }
 
 /// The rotation of icosahedron `group` of a point's direction set: Owen-scrambled Sobol'
@@ -68,7 +73,10 @@ pub(crate) fn cosine_hemisphere(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     } else if a.abs() > b.abs() {
         (a, std::f32::consts::FRAC_PI_4 * (b / a))
     } else {
-        (b, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b))
+        (
+            b,
+            std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (a / b),
+        )
     };
     let (x, y) = (r * phi.cos(), r * phi.sin());
     let z = (1.0 - x * x - y * y).max(0.0).sqrt();

@@ -23,7 +23,12 @@ pub struct Material {
 impl Material {
     /// A double-sided, non-emissive diffuse material.
     pub fn diffuse(name: &str, albedo: Vec3) -> Self {
-        Self { name: name.to_owned(), albedo, emissive: Vec3::ZERO, double_sided: true }
+        Self {
+            name: name.to_owned(),
+            albedo,
+            emissive: Vec3::ZERO,
+            double_sided: true,
+        }
     }
 }
 
@@ -78,6 +83,9 @@ pub struct Camera {
     pub znear: f32,
 }
 
+/// A built-in part: name, albedo, vertices, triangle indices.
+type Part<'a> = (&'a str, Vec3, &'a [[f32; 3]], &'a [u32]);
+
 /// A scene: world-space triangles, one material index per triangle, lights, cameras.
 ///
 /// Construction drops degenerate triangles (zero area, counted in
@@ -98,8 +106,12 @@ pub(crate) fn is_degenerate(t: &[Vec3; 3]) -> bool {
     let e1 = t[1] - t[0];
     let e2 = t[2] - t[0];
     let area2 = e1.cross(e2).length();
-    let scale = e1.length_squared().max(e2.length_squared()).max((t[2] - t[1]).length_squared());
-    !(area2 > 1e-10 * scale)
+    let scale = e1
+        .length_squared()
+        .max(e2.length_squared())
+        .max((t[2] - t[1]).length_squared());
+    // Written so that a NaN area also counts as degenerate.
+    area2.partial_cmp(&(1e-10 * scale)) != Some(std::cmp::Ordering::Greater)
 }
 
 impl Scene {
@@ -113,18 +125,28 @@ impl Scene {
         material_ids: Vec<u32>,
         materials: Vec<Material>,
     ) -> Result<Self, TraceError> {
-        let mut scene = Self { materials, ..Self::default() };
+        let mut scene = Self {
+            materials,
+            ..Self::default()
+        };
         if material_ids.len() != triangles.len() {
             return Err(TraceError::InvalidOption {
                 what: "material ids",
-                why: format!("{} ids for {} triangles", material_ids.len(), triangles.len()),
+                why: format!(
+                    "{} ids for {} triangles",
+                    material_ids.len(),
+                    triangles.len()
+                ),
             });
         }
         for (i, (t, m)) in triangles.into_iter().zip(material_ids).enumerate() {
             if m as usize >= scene.materials.len() {
                 return Err(TraceError::InvalidOption {
                     what: "material ids",
-                    why: format!("triangle {i} uses material {m} of {}", scene.materials.len()),
+                    why: format!(
+                        "triangle {i} uses material {m} of {}",
+                        scene.materials.len()
+                    ),
                 });
             }
             scene.push_triangle(t, m, "triangles", i)?;
@@ -141,7 +163,10 @@ impl Scene {
         index: usize,
     ) -> Result<(), TraceError> {
         if !t.iter().all(|v| v.is_finite()) {
-            return Err(TraceError::NonFinitePosition { what: what.to_owned(), triangle: index });
+            return Err(TraceError::NonFinitePosition {
+                what: what.to_owned(),
+                triangle: index,
+            });
         }
         if is_degenerate(&t) {
             self.degenerate_dropped += 1;
@@ -180,9 +205,15 @@ impl Scene {
     pub fn cornell_box() -> Self {
         let white = Vec3::new(0.725, 0.71, 0.68);
         let quad = [0u32, 1, 2, 0, 2, 3];
-        let boxq = [0u32, 1, 2, 3, 0, 2, 4, 5, 6, 4, 6, 7, 8, 9, 10, 8, 10, 11, 12, 13, 14, 12, 14, 15, 16, 17, 18, 16, 18, 19];
+        // The file's two boxes differ only in the first quad's diagonal.
+        let short_box = [
+            0u32, 1, 2, 3, 0, 2, 4, 5, 6, 4, 6, 7, 8, 9, 10, 8, 10, 11, 12, 13, 14, 12, 14, 15, 16,
+            17, 18, 16, 18, 19,
+        ];
+        let mut tall_box = short_box;
+        tall_box[..6].copy_from_slice(&quad);
         #[rustfmt::skip]
-        let parts: [(&str, Vec3, &[[f32; 3]], &[u32]); 8] = [
+        let parts: [Part<'_>; 8] = [
             ("floor", white, &[[1.0, 0.0, 0.99], [1.0, 0.0, -1.04], [-0.99, 0.0, -1.04], [-1.01, 0.0, 0.99]], &quad),
             ("ceiling", white, &[[-1.02, 1.99, 0.99], [-1.02, 1.99, -1.04], [1.0, 1.99, -1.04], [1.0, 1.99, 0.99]], &quad),
             ("backWall", white, &[[1.0, 0.0, -1.04], [1.0, 1.99, -1.04], [-1.02, 1.99, -1.04], [-0.99, 0.0, -1.04]], &quad),
@@ -194,14 +225,14 @@ impl Scene {
                 [0.53, 0.6, 0.75], [-0.05, 0.6, 0.57], [-0.05, 0.0, 0.57], [0.53, 0.0, 0.75],
                 [0.7, 0.0, 0.17], [0.13, 0.0, 0.0], [0.13, 0.6, 0.0], [0.7, 0.6, 0.17],
                 [0.53, 0.0, 0.75], [0.7, 0.0, 0.17], [0.7, 0.6, 0.17], [0.53, 0.6, 0.75],
-            ], &boxq),
+            ], &short_box),
             ("tallBox", white, &[
                 [0.04, 1.2, -0.09], [-0.14, 1.2, -0.67], [-0.71, 1.2, -0.49], [-0.53, 1.2, 0.09],
                 [-0.53, 1.2, 0.09], [-0.71, 1.2, -0.49], [-0.71, 0.0, -0.49], [-0.53, 0.0, 0.09],
                 [-0.71, 1.2, -0.49], [-0.14, 1.2, -0.67], [-0.14, 0.0, -0.67], [-0.71, 0.0, -0.49],
                 [0.04, 0.0, -0.09], [-0.14, 0.0, -0.67], [-0.14, 1.2, -0.67], [0.04, 1.2, -0.09],
                 [-0.53, 0.0, 0.09], [0.04, 0.0, -0.09], [0.04, 1.2, -0.09], [-0.53, 1.2, 0.09],
-            ], &boxq),
+            ], &tall_box),
             ("Light", Vec3::ONE, &[[-0.24, 1.98, 0.16], [-0.24, 1.98, -0.22], [0.23, 1.98, -0.22], [0.23, 1.98, 0.16]], &quad),
         ];
         let mut scene = Self::default();
@@ -226,10 +257,21 @@ impl Scene {
     /// up, diffuse `albedo`, under open sky.
     pub fn ground_plane(half_size: f32, albedo: Vec3) -> Self {
         let h = half_size;
-        let v = [Vec3::new(-h, 0.0, -h), Vec3::new(-h, 0.0, h), Vec3::new(h, 0.0, h), Vec3::new(h, 0.0, -h)];
+        let v = [
+            Vec3::new(-h, 0.0, -h),
+            Vec3::new(-h, 0.0, h),
+            Vec3::new(h, 0.0, h),
+            Vec3::new(h, 0.0, -h),
+        ];
         let mut scene = Self::default();
-        let m = scene.push_material(Material { double_sided: false, ..Material::diffuse("ground", albedo) });
-        for (k, t) in [[v[0], v[1], v[2]], [v[0], v[2], v[3]]].into_iter().enumerate() {
+        let m = scene.push_material(Material {
+            double_sided: false,
+            ..Material::diffuse("ground", albedo)
+        });
+        for (k, t) in [[v[0], v[1], v[2]], [v[0], v[2], v[3]]]
+            .into_iter()
+            .enumerate()
+        {
             if scene.push_triangle(t, m, "ground", k).is_err() {
                 unreachable!("finite built-in plane");
             }
@@ -241,19 +283,29 @@ impl Scene {
     /// single-sided, diffuse `albedo`: no sky light reaches its inside.
     pub fn closed_box(half: f32, albedo: Vec3) -> Self {
         let mut scene = Self::default();
-        let m = scene.push_material(Material { double_sided: false, ..Material::diffuse("box", albedo) });
+        let m = scene.push_material(Material {
+            double_sided: false,
+            ..Material::diffuse("box", albedo)
+        });
         let mut k = 0;
         for axis in 0..3 {
             for sign in [-1.0f32, 1.0] {
                 // Face at coordinate `sign * half` on `axis`; its inward normal is -sign along axis.
-                let n = Vec3::from_array(std::array::from_fn(|i| if i == axis { -sign } else { 0.0 }));
-                let u = Vec3::from_array(std::array::from_fn(|i| if i == (axis + 1) % 3 { half } else { 0.0 }));
+                let n =
+                    Vec3::from_array(std::array::from_fn(|i| if i == axis { -sign } else { 0.0 }));
+                let u = Vec3::from_array(std::array::from_fn(|i| {
+                    if i == (axis + 1) % 3 { half } else { 0.0 }
+                }));
                 let w = n.cross(u).normalize() * half;
                 let c = -n * half;
                 let q = [c - u - w, c + u - w, c + u + w, c - u + w];
                 for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
                     // Orient each triangle so that its winding normal points inwards.
-                    let t = if (t[1] - t[0]).cross(t[2] - t[0]).dot(n) > 0.0 { t } else { [t[0], t[2], t[1]] };
+                    let t = if (t[1] - t[0]).cross(t[2] - t[0]).dot(n) > 0.0 {
+                        t
+                    } else {
+                        [t[0], t[2], t[1]]
+                    };
                     if scene.push_triangle(t, m, "box", k).is_err() {
                         unreachable!("finite built-in box");
                     }

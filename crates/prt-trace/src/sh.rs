@@ -86,7 +86,11 @@ mod tests {
             for b in 0..33 {
                 let theta = PI * (a as f64 + 0.5) / 17.0;
                 let phi = 2.0 * PI * b as f64 / 33.0;
-                let (xt, yt, zt) = (theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos());
+                let (xt, yt, zt) = (
+                    theta.sin() * phi.cos(),
+                    theta.sin() * phi.sin(),
+                    theta.cos(),
+                );
                 // (x_t, y_t, z_t) = (X, -Z, Y)  =>  X = x_t, Y = z_t, Z = -y_t.
                 let dir = Vec3::new(xt as f32, zt as f32, -yt as f32);
                 let y = sh9(dir);
@@ -94,7 +98,11 @@ mod tests {
                     for m in -l..=l {
                         let i = (l * (l + 1) + m) as usize;
                         let expected = textbook(l, m, theta, phi);
-                        assert!((y[i] as f64 - expected).abs() < 1e-5, "l={l} m={m}: {} vs {expected}", y[i]);
+                        assert!(
+                            (y[i] as f64 - expected).abs() < 1e-5,
+                            "l={l} m={m}: {} vs {expected}",
+                            y[i]
+                        );
                     }
                 }
             }
@@ -124,7 +132,11 @@ mod tests {
         for i in 0..SH9 {
             for j in 0..SH9 {
                 let e = if i == j { 1.0 } else { 0.0 };
-                assert!((gram[i][j] - e).abs() < 2e-4, "G[{i}][{j}] = {}", gram[i][j]);
+                assert!(
+                    (gram[i][j] - e).abs() < 2e-4,
+                    "G[{i}][{j}] = {}",
+                    gram[i][j]
+                );
             }
         }
     }

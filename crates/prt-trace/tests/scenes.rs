@@ -1,0 +1,247 @@
+//! Scene construction and glTF loading.
+mod common;
+
+use glam::Vec3;
+use prt_trace::{LoadOptions, Material, Scene, TraceError};
+
+fn write_gltf(dir: &std::path::Path, json: &str, bin: Option<&[u8]>) -> std::path::PathBuf {
+    if let Some(b) = bin {
+        std::fs::write(dir.join("data.bin"), b).expect("write bin");
+    }
+    let p = dir.join("scene.gltf");
+    std::fs::write(&p, json).expect("write gltf");
+    p
+}
+
+/// One triangle (3 f32 VEC3 positions, no indices) in `data.bin`, with a mesh `mode`,
+/// optional required extensions and a two-level node hierarchy.
+fn triangle_gltf(mode: u32, required: &str, positions: [[f32; 3]; 3]) -> (String, Vec<u8>) {
+    let bin: Vec<u8> = positions
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let json = format!(
+        r#"{{
+  "asset": {{"version": "2.0"}},
+  "extensionsUsed": ["KHR_materials_emissive_strength", "KHR_lights_punctual"{extra_used}],
+  "extensionsRequired": [{required}],
+  "extensions": {{"KHR_lights_punctual": {{"lights": [{{"type": "point", "color": [1, 0.5, 0.25], "intensity": 3}}]}}}},
+  "buffers": [{{"uri": "data.bin", "byteLength": 36}}],
+  "bufferViews": [{{"buffer": 0, "byteOffset": 0, "byteLength": 36}}],
+  "accessors": [{{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                  "min": [-10, -10, -10], "max": [10, 10, 10]}}],
+  "materials": [{{"name": "glow", "doubleSided": true, "emissiveFactor": [1, 1, 0.5],
+                  "extensions": {{"KHR_materials_emissive_strength": {{"emissiveStrength": 4}}}},
+                  "pbrMetallicRoughness": {{"baseColorFactor": [0.2, 0.4, 0.6, 1]}}}}],
+  "meshes": [{{"name": "tri", "primitives": [{{"attributes": {{"POSITION": 0}}, "material": 0, "mode": {mode}}}]}}],
+  "nodes": [{{"children": [1], "scale": [2, 2, 2]}},
+            {{"mesh": 0, "translation": [1, 0, 0]}},
+            {{"translation": [0, 5, 0], "extensions": {{"KHR_lights_punctual": {{"light": 0}}}}}}],
+  "scenes": [{{"nodes": [0, 2]}}],
+  "scene": 0
+}}"#,
+        extra_used = if required.is_empty() {
+            String::new()
+        } else {
+            format!(", {required}")
+        },
+    );
+    (json, bin)
+}
+
+#[test]
+fn gltf_hierarchy_materials_and_lights_are_applied() {
+    let dir = common::temp_dir("hierarchy");
+    let (json, bin) = triangle_gltf(4, "", [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let scene = Scene::load_gltf(write_gltf(&dir, &json, Some(&bin)), &LoadOptions::default())
+        .expect("loads");
+    assert_eq!(scene.triangles().len(), 1);
+    // World = parent scale 2 * (child translation (1, 0, 0) + p).
+    let t = scene.triangles()[0];
+    assert_eq!(t[0], Vec3::new(2.0, 0.0, 0.0));
+    assert_eq!(t[1], Vec3::new(4.0, 0.0, 0.0));
+    assert_eq!(t[2], Vec3::new(2.0, 2.0, 0.0));
+    let m = scene.material_of(0);
+    assert_eq!(m.albedo, Vec3::new(0.2, 0.4, 0.6));
+    assert_eq!(m.emissive, Vec3::new(4.0, 4.0, 2.0));
+    assert!(m.double_sided);
+    assert_eq!(scene.lights().len(), 1);
+    assert_eq!(scene.lights()[0].position, Vec3::new(0.0, 5.0, 0.0));
+    assert_eq!(scene.lights()[0].intensity, 3.0);
+    assert!(scene.warnings().is_empty(), "{:?}", scene.warnings());
+}
+
+#[test]
+fn material_only_required_extensions_only_warn() {
+    let dir = common::temp_dir("required");
+    let (json, bin) = triangle_gltf(
+        4,
+        r#""AMD_split_roughnessMetallic""#,
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    );
+    let scene = Scene::load_gltf(write_gltf(&dir, &json, Some(&bin)), &LoadOptions::default())
+        .expect("loads");
+    assert_eq!(scene.triangles().len(), 1);
+    assert!(
+        scene
+            .warnings()
+            .iter()
+            .any(|w| w.contains("AMD_split_roughnessMetallic"))
+    );
+}
+
+#[test]
+fn non_triangle_modes_are_a_typed_error_naming_mesh_and_primitive() {
+    let dir = common::temp_dir("mode");
+    let (json, bin) = triangle_gltf(0, "", [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    match Scene::load_gltf(write_gltf(&dir, &json, Some(&bin)), &LoadOptions::default()) {
+        Err(TraceError::UnsupportedMode {
+            mesh, primitive, ..
+        }) => {
+            assert_eq!(mesh, "tri");
+            assert_eq!(primitive, 0);
+        }
+        other => panic!("expected UnsupportedMode, got {other:?}"),
+    }
+}
+
+#[test]
+fn missing_buffer_is_a_typed_error_naming_the_uri() {
+    let dir = common::temp_dir("missing");
+    let (json, _) = triangle_gltf(4, "", [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    match Scene::load_gltf(write_gltf(&dir, &json, None), &LoadOptions::default()) {
+        Err(TraceError::Buffer { uri, index, .. }) => {
+            assert_eq!(uri, "data.bin");
+            assert_eq!(index, 0);
+        }
+        other => panic!("expected Buffer error, got {other:?}"),
+    }
+}
+
+#[test]
+fn non_finite_positions_are_a_typed_error() {
+    let dir = common::temp_dir("nan");
+    let (json, bin) = triangle_gltf(
+        4,
+        "",
+        [[0.0, 0.0, 0.0], [f32::NAN, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    );
+    match Scene::load_gltf(write_gltf(&dir, &json, Some(&bin)), &LoadOptions::default()) {
+        Err(TraceError::NonFinitePosition { what, triangle }) => {
+            assert!(what.contains("tri"), "{what}");
+            assert_eq!(triangle, 0);
+        }
+        other => panic!("expected NonFinitePosition, got {other:?}"),
+    }
+    let r = Scene::from_triangles(
+        vec![[Vec3::ZERO, Vec3::X, Vec3::new(0.0, f32::INFINITY, 0.0)]],
+        vec![0],
+        vec![Material::diffuse("m", Vec3::ONE)],
+    );
+    assert!(matches!(
+        r,
+        Err(TraceError::NonFinitePosition { triangle: 0, .. })
+    ));
+}
+
+#[test]
+fn degenerate_triangles_are_dropped_and_counted() {
+    let tris = vec![
+        [Vec3::ZERO, Vec3::X, Vec3::Y],
+        [Vec3::ZERO, Vec3::X, 2.0 * Vec3::X], // collinear
+        [Vec3::ONE, Vec3::ONE, Vec3::ONE],    // a point
+        [Vec3::ZERO, Vec3::Z, Vec3::Y],
+    ];
+    let scene = Scene::from_triangles(tris, vec![0; 4], vec![Material::diffuse("m", Vec3::ONE)])
+        .expect("finite");
+    assert_eq!(scene.triangles().len(), 2);
+    assert_eq!(scene.degenerate_dropped(), 2);
+    // Material indices are checked too.
+    assert!(Scene::from_triangles(vec![[Vec3::ZERO, Vec3::X, Vec3::Y]], vec![3], vec![]).is_err());
+}
+
+#[test]
+fn built_in_scenes_have_the_documented_shape() {
+    let cornell = Scene::cornell_box();
+    assert_eq!(cornell.triangles().len(), 32);
+    assert_eq!(cornell.materials().len(), 8);
+    let b = cornell.bounds().expect("non-empty");
+    assert!((b.max.y - 1.99).abs() < 1e-6 && b.min.y == 0.0);
+    assert_eq!(Scene::empty().bounds(), None);
+    let plane = Scene::ground_plane(10.0, Vec3::splat(0.3));
+    assert_eq!(plane.triangles().len(), 2);
+    for t in plane.triangles() {
+        assert!((t[1] - t[0]).cross(t[2] - t[0]).y > 0.0, "plane faces up");
+    }
+    let closed = Scene::closed_box(1.0, Vec3::ONE);
+    assert_eq!(closed.triangles().len(), 12);
+    for t in closed.triangles() {
+        let n = (t[1] - t[0]).cross(t[2] - t[0]);
+        let c = (t[0] + t[1] + t[2]) / 3.0;
+        assert!(n.dot(-c) > 0.0, "box faces point inwards");
+    }
+}
+
+#[test]
+fn built_in_cornell_box_matches_the_shared_gltf() {
+    let Some(path) = common::shared_scene("cornell_box/CornellBox-Original.gltf") else {
+        return;
+    };
+    let file = Scene::load_gltf(path, &LoadOptions::default()).expect("loads");
+    let builtin = Scene::cornell_box();
+    assert_eq!(file.triangles().len(), builtin.triangles().len());
+    for (k, (a, b)) in file.triangles().iter().zip(builtin.triangles()).enumerate() {
+        for c in 0..3 {
+            assert!(
+                (a[c] - b[c]).length() < 1e-4,
+                "triangle {k} vertex {c}: {} vs {}",
+                a[c],
+                b[c]
+            );
+        }
+        let (ma, mb) = (file.material_of(k), builtin.material_of(k));
+        assert_eq!(ma.name, mb.name);
+        assert!((ma.albedo - mb.albedo).abs().max_element() < 1e-6);
+        assert_eq!(ma.emissive, mb.emissive);
+    }
+}
+
+#[test]
+fn shared_sponza_and_gas_station_load_with_warnings() {
+    if let Some(path) = common::shared_scene("sponza/Sponza.gltf") {
+        let s = Scene::load_gltf(path, &LoadOptions::default()).expect("Sponza loads");
+        assert_eq!(s.triangles().len() + s.degenerate_dropped(), 262_087);
+        assert!(
+            s.warnings()
+                .iter()
+                .any(|w| w.contains("AMD_split_roughnessMetallic"))
+        );
+        // No textures are shipped: every material falls back to the 0.5 grey default.
+        assert!(s.materials().iter().all(|m| m.albedo == Vec3::splat(0.5)));
+        assert_eq!(s.cameras().len(), 4);
+        // Decoding textures that are missing is a typed error naming the URI.
+        let strict = LoadOptions {
+            decode_textures: true,
+            ..LoadOptions::default()
+        };
+        match Scene::load_gltf(
+            common::shared_scene("sponza/Sponza.gltf").expect("present"),
+            &strict,
+        ) {
+            Err(TraceError::Image { uri, .. }) => {
+                assert!(uri.ends_with(".png") || uri.ends_with(".dds"), "{uri}")
+            }
+            other => panic!(
+                "expected an Image error, got {:?}",
+                other.map(|s| s.triangles().len())
+            ),
+        }
+    }
+    if let Some(path) = common::shared_scene("gas_station/GasStation.gltf") {
+        let s = Scene::load_gltf(path, &LoadOptions::default()).expect("Gas station loads");
+        assert_eq!(s.triangles().len() + s.degenerate_dropped(), 99_002);
+        assert!(s.warnings().iter().any(|w| w.contains("MSFT_texture_dds")));
+        assert_eq!(s.cameras().len(), 2);
+    }
+}
