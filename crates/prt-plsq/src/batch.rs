@@ -1,0 +1,314 @@
+//! Many independent progressive encoders (one per lightmap texel or probe) in a
+//! structure-of-arrays layout, updated in parallel.
+//!
+//! Encoders are grouped in blocks of [`LANES`]; inside a block every array is
+//! `[basis function][channel][lane]`, so the update of one sample per encoder is a sequence of
+//! lane-wide vector operations, the layout a GPU compute shader would use with one thread per
+//! encoder. Blocks are independent, so results do not depend on the thread count.
+use glam::Vec3;
+use prt_core::SphericalBasis;
+use rayon::prelude::*;
+
+use crate::PlsqError;
+use crate::encoder::{Denominator, EncoderConfig, Precision, Sweep, Update, true_square_means};
+
+/// Encoders per block (the SIMD/GPU lane width of the layout).
+pub const LANES: usize = 16;
+
+/// A batch of independent progressive encoders sharing one basis and configuration.
+#[derive(Debug, Clone)]
+pub struct BatchEncoder<'b, B: SphericalBasis + ?Sized> {
+    basis: &'b B,
+    channels: usize,
+    config: EncoderConfig,
+    count: usize,
+    true_means: Vec<f32>,
+    coeffs: Vec<f32>,
+    integrals: Vec<f32>,
+    weights: Vec<f32>,
+}
+
+impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
+    /// `count` encoders of `channels` channels into `basis`.
+    pub fn new(
+        basis: &'b B,
+        channels: usize,
+        count: usize,
+        config: EncoderConfig,
+    ) -> Result<Self, PlsqError> {
+        // Validate through the single encoder (same rules).
+        crate::ProgressiveEncoder::new(basis, channels, config)?;
+        if config.precision != Precision::F32 {
+            return Err(PlsqError::invalid(
+                "precision",
+                "the batch encoder stores f32 only",
+            ));
+        }
+        let k = basis.len();
+        let blocks = count.div_ceil(LANES);
+        Ok(Self {
+            basis,
+            channels,
+            config,
+            count,
+            true_means: true_square_means(basis)?,
+            coeffs: vec![0.0; blocks * k * channels * LANES],
+            integrals: vec![0.0; blocks * k * LANES],
+            weights: vec![0.0; blocks * LANES],
+        })
+    }
+
+    /// Number of encoders.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    /// Whether the batch holds no encoder.
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The coefficients of encoder `e` (`len` rows of `channels`), or `None` out of range.
+    pub fn coefficients(&self, e: usize) -> Option<Vec<f32>> {
+        if e >= self.count {
+            return None;
+        }
+        let (k, ch) = (self.basis.len(), self.channels);
+        let (block, lane) = (e / LANES, e % LANES);
+        let base = block * k * ch * LANES;
+        Some(
+            (0..k * ch)
+                .map(|ic| self.coeffs[base + ic * LANES + lane])
+                .collect(),
+        )
+    }
+
+    /// Total weight of encoder `e`.
+    pub fn total_weight(&self, e: usize) -> Option<f32> {
+        (e < self.count).then(|| self.weights[e])
+    }
+
+    /// Adds one sample to every encoder: `dirs[e]`, `values[e·channels..]`, weight `weights[e]`
+    /// (1 when `None`; a zero weight leaves that encoder untouched). All input is validated
+    /// before any state changes.
+    pub fn add_samples(
+        &mut self,
+        dirs: &[Vec3],
+        values: &[f32],
+        weights: Option<&[f32]>,
+    ) -> Result<(), PlsqError> {
+        let (n, ch, k) = (self.count, self.channels, self.basis.len());
+        if dirs.len() != n {
+            return Err(PlsqError::LengthMismatch {
+                what: "sample directions",
+                expected: n,
+                got: dirs.len(),
+            });
+        }
+        if values.len() != n * ch {
+            return Err(PlsqError::LengthMismatch {
+                what: "sample values",
+                expected: n * ch,
+                got: values.len(),
+            });
+        }
+        PlsqError::check_finite("sample value", values)?;
+        for (i, d) in dirs.iter().enumerate() {
+            if !d.is_finite() {
+                return Err(PlsqError::NonFinite {
+                    what: "sample direction",
+                    index: i,
+                });
+            }
+        }
+        if let Some(w) = weights {
+            if w.len() != n {
+                return Err(PlsqError::LengthMismatch {
+                    what: "sample weights",
+                    expected: n,
+                    got: w.len(),
+                });
+            }
+            PlsqError::check_finite("sample weight", w)?;
+            if let Some(i) = w.iter().position(|&x| x < 0.0) {
+                return Err(PlsqError::invalid(
+                    "sample weight",
+                    format!("weight {i} is negative"),
+                ));
+            }
+        }
+        let basis = self.basis;
+        let cfg = self.config;
+        let true_means = &self.true_means;
+        self.coeffs
+            .par_chunks_mut(k * ch * LANES)
+            .zip(self.integrals.par_chunks_mut(k * LANES))
+            .zip(self.weights.par_chunks_mut(LANES))
+            .enumerate()
+            .for_each_init(
+                || Scratch::new(k, ch),
+                |scratch, (block, ((coeffs, integrals), wsum))| {
+                    let first = block * LANES;
+                    let lanes = LANES.min(n - first);
+                    let mut w = [0.0f32; LANES];
+                    for l in 0..lanes {
+                        w[l] = weights.map_or(1.0, |ws| ws[first + l]);
+                    }
+                    let mut block_dirs = [Vec3::ZERO; LANES];
+                    block_dirs[..lanes].copy_from_slice(&dirs[first..first + lanes]);
+                    let mut v = vec![0.0f32; ch * LANES];
+                    for l in 0..lanes {
+                        for c in 0..ch {
+                            v[c * LANES + l] = values[(first + l) * ch + c];
+                        }
+                    }
+                    let block = Block {
+                        coeffs,
+                        integrals,
+                        wsum,
+                    };
+                    update_block(
+                        basis,
+                        &cfg,
+                        true_means,
+                        block,
+                        scratch,
+                        &block_dirs,
+                        Some(&v),
+                        &w,
+                        lanes,
+                    );
+                    if cfg.hemisphere {
+                        let mirrored = block_dirs.map(|d| -d);
+                        let block = Block {
+                            coeffs,
+                            integrals,
+                            wsum,
+                        };
+                        update_block(
+                            basis, &cfg, true_means, block, scratch, &mirrored, None, &w, lanes,
+                        );
+                    }
+                },
+            );
+        Ok(())
+    }
+}
+
+struct Scratch {
+    eval: Vec<f32>,
+    b: Vec<f32>,
+    delta: Vec<f32>,
+}
+
+impl Scratch {
+    fn new(k: usize, ch: usize) -> Self {
+        Self {
+            eval: vec![0.0; k],
+            b: vec![0.0; k * LANES],
+            delta: vec![0.0; ch * LANES],
+        }
+    }
+}
+
+struct Block<'a> {
+    coeffs: &'a mut [f32],
+    integrals: &'a mut [f32],
+    wsum: &'a mut [f32],
+}
+
+/// One sample per lane; the same arithmetic as `ProgressiveEncoder::apply`, lane-wide.
+fn update_block<B: SphericalBasis + ?Sized>(
+    basis: &B,
+    cfg: &EncoderConfig,
+    true_means: &[f32],
+    block: Block<'_>,
+    scratch: &mut Scratch,
+    dirs: &[Vec3; LANES],
+    values: Option<&[f32]>,
+    w: &[f32; LANES],
+    lanes: usize,
+) {
+    let k = basis.len();
+    let ch = scratch.delta.len() / LANES;
+    let Block {
+        coeffs,
+        integrals,
+        wsum,
+    } = block;
+    let mut share = [0.0f32; LANES];
+    for l in 0..LANES {
+        if l < lanes && w[l] > 0.0 {
+            wsum[l] += w[l];
+            share[l] = w[l] / wsum[l];
+        }
+    }
+    for l in 0..lanes {
+        basis.eval(dirs[l], &mut scratch.eval);
+        for i in 0..k {
+            scratch.b[i * LANES + l] = scratch.eval[i];
+        }
+    }
+    for l in lanes..LANES {
+        for i in 0..k {
+            scratch.b[i * LANES + l] = 0.0;
+        }
+    }
+    let delta = &mut scratch.delta;
+    match values {
+        Some(v) => delta.copy_from_slice(v),
+        None => delta.fill(0.0),
+    }
+    for i in 0..k {
+        let b = &scratch.b[i * LANES..(i + 1) * LANES];
+        for c in 0..ch {
+            let co = &coeffs[(i * ch + c) * LANES..(i * ch + c + 1) * LANES];
+            let d = &mut delta[c * LANES..(c + 1) * LANES];
+            for l in 0..LANES {
+                d[l] -= b[l] * co[l];
+            }
+        }
+    }
+    for i in 0..k {
+        let b: [f32; LANES] = std::array::from_fn(|l| scratch.b[i * LANES + l]);
+        // Lanes whose basis value is 0 (or whose weight is 0) skip the update, as in the paper.
+        let s: [f32; LANES] = std::array::from_fn(|l| if b[l] != 0.0 { share[l] } else { 0.0 });
+        let est = &mut integrals[i * LANES..(i + 1) * LANES];
+        let mut denom = [1.0f32; LANES];
+        for l in 0..LANES {
+            est[l] += (b[l] * b[l] - est[l]) * s[l];
+            denom[l] = match cfg.denominator {
+                Denominator::Clamped { floor } => est[l].max(floor * true_means[i]),
+                Denominator::LerpFromOne => s[l] + (1.0 - s[l]) * est[l],
+                Denominator::Exact => true_means[i],
+            };
+            if denom[l] == 0.0 {
+                denom[l] = 1.0;
+            }
+        }
+        for c in 0..ch {
+            let co = &mut coeffs[(i * ch + c) * LANES..(i * ch + c + 1) * LANES];
+            let d = &mut delta[c * LANES..(c + 1) * LANES];
+            for l in 0..LANES {
+                let old = co[l];
+                let step = s[l] * b[l] / denom[l];
+                let mut new = match cfg.update {
+                    Update::Residual { acceleration } => old + acceleration * step * d[l],
+                    Update::RunningAverage => {
+                        old + (b[l] * (d[l] + old * b[l]) / denom[l] - old) * s[l]
+                    }
+                };
+                if cfg.non_negative {
+                    new = new.max(0.0);
+                }
+                co[l] = new;
+                if cfg.sweep == Sweep::GaussSeidel {
+                    match cfg.update {
+                        Update::Residual { .. } => d[l] *= 1.0 - step * b[l],
+                        Update::RunningAverage => d[l] -= (new - old) * b[l],
+                    }
+                }
+            }
+        }
+    }
+}

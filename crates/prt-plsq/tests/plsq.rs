@@ -1,0 +1,386 @@
+//! Laws of the progressive encoder, the batch encoder and the references.
+use glam::Vec3;
+use proptest::prelude::*;
+use prt_core::{AtomicProgress, NoProgress, SphericalBasis};
+use prt_plsq::{
+    BatchEncoder, Denominator, EncoderConfig, PlsqError, Precision, ProgressiveEncoder,
+    SampleOutcome, Sweep, Update, reference,
+};
+use prt_sphere::sampling::{halton_sphere, sobol_sphere};
+use prt_sphere::{SgBasis, ShBasis};
+
+/// A smooth RGB test signal: a sky gradient plus a warm lobe.
+fn signal(d: Vec3) -> [f32; 3] {
+    let sun = (8.0 * (d.dot(Vec3::new(0.6, 0.64, 0.48)) - 1.0)).exp();
+    [
+        0.2 + 0.5 * d.y.max(0.0) + 3.0 * sun,
+        0.3 + 0.3 * d.y + sun,
+        0.5 + 0.1 * d.x,
+    ]
+}
+
+fn samples(n: usize) -> (Vec<Vec3>, Vec<f32>) {
+    let dirs = halton_sphere(n);
+    let values = dirs.iter().flat_map(|d| signal(*d)).collect();
+    (dirs, values)
+}
+
+fn fit_rmse(
+    basis: &dyn SphericalBasis,
+    coeffs: &[f32],
+    channels: usize,
+    dirs: &[Vec3],
+    values: &[f32],
+) -> f64 {
+    let mut b = vec![0.0f32; basis.len()];
+    let mut sum = 0.0f64;
+    for (s, d) in dirs.iter().enumerate() {
+        basis.eval(*d, &mut b);
+        for c in 0..channels {
+            let f: f32 = (0..basis.len())
+                .map(|i| b[i] * coeffs[i * channels + c])
+                .sum();
+            sum += ((f - values[s * channels + c]) as f64).powi(2);
+        }
+    }
+    (sum / (dirs.len() * channels) as f64).sqrt()
+}
+
+fn run(
+    basis: &dyn SphericalBasis,
+    cfg: EncoderConfig,
+    dirs: &[Vec3],
+    values: &[f32],
+    ch: usize,
+) -> Vec<f32> {
+    let mut enc = ProgressiveEncoder::new(basis, ch, cfg).unwrap();
+    enc.add_samples(dirs, values, None, &NoProgress).unwrap();
+    enc.coefficients().to_vec()
+}
+
+#[test]
+fn progressive_variants_approach_least_squares() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let (dirs, values) = samples(20000);
+    let ls = reference::least_squares_samples(&basis, &dirs, &values, 3).unwrap();
+    let ls_err = fit_rmse(&basis, &ls, 3, &dirs, &values);
+    let naive = reference::naive_projection(
+        &basis,
+        &dirs,
+        &values,
+        3,
+        reference::probulator_sg_naive_scale(6.0, 12),
+    )
+    .unwrap();
+    let naive_err = fit_rmse(&basis, &naive, 3, &dirs, &values);
+    assert!(naive_err > 1.2 * ls_err, "naive {naive_err} vs LS {ls_err}");
+    // Gauss-Seidel sweeps and the running average come within 3% of LS; Jacobi residual steps
+    // with overlapping lobes stay measurably above it (but far below naive projection).
+    for (name, cfg, factor) in [
+        ("paper", EncoderConfig::paper(), 1.03),
+        (
+            "running average",
+            EncoderConfig::probulator_running_average(),
+            1.03,
+        ),
+        (
+            "accel 3",
+            EncoderConfig {
+                update: Update::Residual { acceleration: 3.0 },
+                ..EncoderConfig::paper()
+            },
+            1.03,
+        ),
+        (
+            "jacobi exact",
+            EncoderConfig {
+                sweep: Sweep::Jacobi,
+                denominator: Denominator::Exact,
+                ..EncoderConfig::paper()
+            },
+            1.15,
+        ),
+    ] {
+        let c = run(&basis, cfg, &dirs, &values, 3);
+        let err = fit_rmse(&basis, &c, 3, &dirs, &values);
+        assert!(err < factor * ls_err, "{name}: {err} vs LS {ls_err}");
+        assert!(err < naive_err, "{name}: {err} vs naive {naive_err}");
+    }
+    // LS through the exact Gram is close to LS over the samples on 20000 Halton points.
+    let lg = reference::least_squares_gram(&basis, &dirs, &values, 3).unwrap();
+    assert!(fit_rmse(&basis, &lg, 3, &dirs, &values) < 1.01 * ls_err);
+}
+
+#[test]
+fn function_in_the_span_is_recovered() {
+    let basis = SgBasis::spiral(6, 3.0).unwrap();
+    let truth = [0.5f32, 1.0, 0.25, 2.0, 0.0, 1.5];
+    let dirs = sobol_sphere(20000, 3);
+    let mut b = [0.0f32; 6];
+    let values: Vec<f32> = dirs
+        .iter()
+        .map(|d| {
+            basis.eval(*d, &mut b);
+            b.iter().zip(&truth).map(|(x, y)| x * y).sum()
+        })
+        .collect();
+    let ls = reference::least_squares_samples(&basis, &dirs, &values, 1).unwrap();
+    let nn = reference::nnls_samples(&basis, &dirs, &values, 1).unwrap();
+    for i in 0..6 {
+        assert!(
+            (ls[i] - truth[i]).abs() < 1e-3,
+            "LS {i}: {} vs {}",
+            ls[i],
+            truth[i]
+        );
+        assert!((nn[i] - truth[i]).abs() < 1e-3, "NNLS {i}");
+    }
+    let c = run(&basis, EncoderConfig::paper(), &dirs, &values, 1);
+    for i in 0..6 {
+        assert!(
+            (c[i] - truth[i]).abs() < 0.02,
+            "progressive {i}: {} vs {}",
+            c[i],
+            truth[i]
+        );
+    }
+}
+
+#[test]
+fn non_negative_and_hemisphere_modes() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    // A signal with a dark band that pulls unconstrained LS negative.
+    let dirs = halton_sphere(8000);
+    let values: Vec<f32> = dirs
+        .iter()
+        .map(|d| {
+            if d.z.abs() < 0.2 {
+                0.0
+            } else {
+                5.0 * d.z.abs()
+            }
+        })
+        .collect();
+    let cfg = EncoderConfig {
+        non_negative: true,
+        ..EncoderConfig::paper()
+    };
+    let c = run(&basis, cfg, &dirs, &values, 1);
+    assert!(c.iter().all(|&x| x >= 0.0));
+    let nn = reference::nnls_samples(&basis, &dirs, &values, 1).unwrap();
+    assert!(nn.iter().all(|&x| x >= 0.0));
+    // Hemisphere mode: only upper-hemisphere samples, the fit must vanish below.
+    let up: Vec<Vec3> = dirs
+        .iter()
+        .map(|d| Vec3::new(d.x, d.y.abs(), d.z))
+        .collect();
+    let vals: Vec<f32> = up.iter().map(|d| 1.0 + d.y).collect();
+    let cfg = EncoderConfig {
+        hemisphere: true,
+        ..EncoderConfig::paper()
+    };
+    let mut enc = ProgressiveEncoder::new(&basis, 1, cfg).unwrap();
+    enc.add_samples(&up, &vals, None, &NoProgress).unwrap();
+    assert_eq!(enc.total_weight(), 2.0 * up.len() as f32);
+    let (mut below, mut above) = ([0.0f32], [0.0f32]);
+    enc.eval(-Vec3::Y, &mut below);
+    enc.eval(Vec3::Y, &mut above);
+    assert!(
+        below[0].abs() < 0.15 && (above[0] - 2.0).abs() < 0.3,
+        "below {} above {}",
+        below[0],
+        above[0]
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(16))]
+
+    #[test]
+    fn weights_scale_invariance(scale in 0.01f32..100.0, seed in 0u32..1000) {
+        // With a clamped or exact denominator only w / W matters.
+        let basis = SgBasis::spiral(8, 5.0).unwrap();
+        let dirs = sobol_sphere(500, seed);
+        let values: Vec<f32> = dirs.iter().map(|d| signal(*d)[0]).collect();
+        let w: Vec<f32> = (0..500).map(|i| 0.5 + (i % 7) as f32).collect();
+        let ws: Vec<f32> = w.iter().map(|x| x * scale).collect();
+        let cfg = EncoderConfig { denominator: Denominator::Clamped { floor: 1.0 }, ..EncoderConfig::paper() };
+        let mut a = ProgressiveEncoder::new(&basis, 1, cfg).unwrap();
+        a.add_samples(&dirs, &values, Some(&w), &NoProgress).unwrap();
+        let mut b = ProgressiveEncoder::new(&basis, 1, cfg).unwrap();
+        b.add_samples(&dirs, &values, Some(&ws), &NoProgress).unwrap();
+        for (x, y) in a.coefficients().iter().zip(b.coefficients()) {
+            prop_assert!((x - y).abs() <= 1e-4 * x.abs().max(1.0), "{x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn batch_matches_single_encoders_on_any_thread_count(
+        count in 1usize..40,
+        accel in 1.0f32..4.0,
+        gs in any::<bool>(),
+        running in any::<bool>(),
+        hemi in any::<bool>(),
+    ) {
+        let basis = SgBasis::spiral(12, 6.0).unwrap();
+        let cfg = EncoderConfig {
+            update: if running { Update::RunningAverage } else { Update::Residual { acceleration: accel } },
+            sweep: if gs { Sweep::GaussSeidel } else { Sweep::Jacobi },
+            hemisphere: hemi,
+            ..EncoderConfig::paper()
+        };
+        let rounds = 20;
+        let all = sobol_sphere(count * rounds, 11);
+        let run_batch = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut batch = BatchEncoder::new(&basis, 3, count, cfg).unwrap();
+                for r in 0..rounds {
+                    let dirs = &all[r * count..(r + 1) * count];
+                    let values: Vec<f32> = dirs.iter().flat_map(|d| signal(*d)).collect();
+                    let w: Vec<f32> = (0..count).map(|e| if (e + r) % 5 == 0 { 0.0 } else { 1.0 + (e % 3) as f32 }).collect();
+                    batch.add_samples(dirs, &values, Some(&w)).unwrap();
+                }
+                (0..count).map(|e| batch.coefficients(e).unwrap()).collect::<Vec<_>>()
+            })
+        };
+        let one = run_batch(1);
+        let two = run_batch(2);
+        prop_assert_eq!(&one, &two);
+        for e in 0..count {
+            let mut enc = ProgressiveEncoder::new(&basis, 3, cfg).unwrap();
+            for r in 0..rounds {
+                let d = all[r * count + e];
+                let w = if (e + r) % 5 == 0 { 0.0 } else { 1.0 + (e % 3) as f32 };
+                enc.add_sample(d, &signal(d), w).unwrap();
+            }
+            for (x, y) in enc.coefficients().iter().zip(&one[e]) {
+                prop_assert!((x - y).abs() <= 1e-5 * x.abs().max(1.0), "encoder {e}: {x} vs {y}");
+            }
+        }
+    }
+}
+
+#[test]
+fn sixteen_bit_state_is_biased_and_f32_is_not() {
+    // Constant basis; samples 1 except every 10th = 10 (mean 1.9). The fit is the weighted mean.
+    let basis = ShBasis::new(1).unwrap();
+    let dirs = halton_sphere(20000);
+    let values: Vec<f32> = (0..dirs.len())
+        .map(|i| if i % 10 == 9 { 10.0 } else { 1.0 })
+        .collect();
+    let y0 = 0.5 / std::f32::consts::PI.sqrt();
+    let mean = |p: Precision| {
+        let cfg = EncoderConfig {
+            precision: p,
+            denominator: Denominator::Exact,
+            ..EncoderConfig::paper()
+        };
+        run(&basis, cfg, &dirs, &values, 1)[0] * y0
+    };
+    let f32_mean = mean(Precision::F32);
+    let f16_mean = mean(Precision::F16);
+    assert!((f32_mean - 1.9).abs() < 2e-3, "f32 {f32_mean}");
+    assert!(
+        (f16_mean - 1.9).abs() > 0.05,
+        "f16 {f16_mean} shows no bias"
+    );
+}
+
+#[test]
+fn bad_input_and_extremes() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let mut enc = ProgressiveEncoder::new(&basis, 3, EncoderConfig::paper()).unwrap();
+    assert_eq!(
+        enc.add_sample(Vec3::Y, &[1.0, 2.0, 3.0], 0.0).unwrap(),
+        SampleOutcome::ZeroWeight
+    );
+    assert!(enc.coefficients().iter().all(|&c| c == 0.0) && enc.total_weight() == 0.0);
+    assert_eq!(
+        enc.add_sample(Vec3::Y, &[1.0, f32::NAN, 3.0], 1.0),
+        Err(PlsqError::NonFinite {
+            what: "sample value",
+            index: 1
+        })
+    );
+    assert!(enc.add_sample(Vec3::Y, &[1.0, 2.0], 1.0).is_err());
+    assert!(enc.add_sample(Vec3::Y, &[1.0, 2.0, 3.0], -1.0).is_err());
+    let dirs = halton_sphere(10);
+    let mut values = vec![1.0f32; 30];
+    values[22] = f32::INFINITY;
+    assert_eq!(
+        enc.add_samples(&dirs, &values, None, &NoProgress),
+        Err(PlsqError::NonFinite {
+            what: "sample value",
+            index: 22
+        })
+    );
+    assert!(ProgressiveEncoder::new(&basis, 0, EncoderConfig::paper()).is_err());
+    let bad = EncoderConfig {
+        update: Update::Residual {
+            acceleration: f32::NAN,
+        },
+        ..EncoderConfig::paper()
+    };
+    assert!(ProgressiveEncoder::new(&basis, 1, bad).is_err());
+    // A single sample with α = 1 and Gauss-Seidel interpolates it exactly.
+    let mut one = ProgressiveEncoder::new(
+        &basis,
+        1,
+        EncoderConfig {
+            denominator: Denominator::Clamped { floor: 0.0 },
+            ..EncoderConfig::paper()
+        },
+    )
+    .unwrap();
+    let d = Vec3::new(0.3, 0.4, 0.866).normalize();
+    one.add_sample(d, &[7.0], 1.0).unwrap();
+    let mut v = [0.0f32];
+    one.eval(d, &mut v);
+    assert!((v[0] - 7.0).abs() < 1e-3, "{}", v[0]);
+    // HDR values up to 1e6 stay finite.
+    let big: Vec<f32> = dirs
+        .iter()
+        .map(|d| if d.y > 0.9 { 1e6 } else { 1e-6 })
+        .collect();
+    let c = run(&basis, EncoderConfig::paper(), &dirs, &big, 1);
+    assert!(c.iter().all(|x| x.is_finite()));
+    // References: no samples is a typed error; duplicated lobes make a singular system.
+    assert_eq!(
+        reference::least_squares_samples(&basis, &[], &[], 1),
+        Err(PlsqError::ZeroTotalWeight)
+    );
+    let dup = SgBasis::new(vec![Vec3::Y, Vec3::Y], vec![4.0, 4.0], "dup").unwrap();
+    let (dirs, values) = (halton_sphere(200), vec![1.0f32; 200]);
+    assert!(matches!(
+        reference::least_squares_samples(&dup, &dirs, &values, 1),
+        Err(PlsqError::Singular { .. })
+    ));
+    assert!(matches!(
+        reference::least_squares_gram(&dup, &dirs, &values, 1),
+        Err(PlsqError::Singular { .. })
+    ));
+    // Batch rejects bad input before touching any state.
+    let mut batch = BatchEncoder::new(&basis, 1, 3, EncoderConfig::paper()).unwrap();
+    assert!(
+        batch
+            .add_samples(&dirs[..3], &[1.0, f32::NAN, 1.0], None)
+            .is_err()
+    );
+    assert!(batch.add_samples(&dirs[..2], &[1.0, 1.0], None).is_err());
+    assert_eq!(batch.total_weight(0), Some(0.0));
+    assert_eq!(batch.coefficients(3), None);
+}
+
+#[test]
+fn cancellation_is_honoured() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let (dirs, values) = samples(20000);
+    let progress = AtomicProgress::cancel_after(4096);
+    let mut enc = ProgressiveEncoder::new(&basis, 3, EncoderConfig::paper()).unwrap();
+    assert_eq!(
+        enc.add_samples(&dirs, &values, None, &progress),
+        Err(PlsqError::Cancelled)
+    );
+    assert_eq!(enc.total_weight(), 4096.0);
+}
