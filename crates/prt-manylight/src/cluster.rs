@@ -235,7 +235,9 @@ pub fn cluster_columns(
             clusters.extend(positive.iter().map(|&j| vec![j]));
         } else {
             progress.check()?;
-            clusters.extend(sampling_clustering(reduced, &positive, initial, rng));
+            clusters.extend(sampling_clustering(
+                reduced, &positive, initial, rng, progress,
+            )?);
         }
     }
     progress.check()?;
@@ -288,7 +290,8 @@ fn sampling_clustering(
     positive: &[u32],
     centres: usize,
     rng: &mut impl Rng,
-) -> Vec<Vec<u32>> {
+    progress: &dyn Progress,
+) -> Result<Vec<Vec<u32>>, ManyLightError> {
     let dim = reduced.dim();
     let norms = reduced.norms();
     let mut total = vec![0.0f64; dim];
@@ -314,7 +317,7 @@ fn sampling_clustering(
     let alpha_sum: f64 = alpha.iter().sum();
     if alpha_sum <= 0.0 {
         // All columns point the same way: one cluster costs nothing.
-        return vec![positive.to_vec()];
+        return Ok(vec![positive.to_vec()]);
     }
     let mut cumulative = Vec::with_capacity(alpha.len());
     let mut running = 0.0;
@@ -350,9 +353,11 @@ fn sampling_clustering(
     // Assign each column to the centre of least weighted pair cost w_k (a_k a_i − ρ_k·ρ_i)
     // (the common factor a_i dropped after dividing), blocks in parallel, one sequential
     // product per block so that the result does not depend on the thread count.
-    let assignment: Vec<u32> = positive
+    progress.set_len(positive.len().div_ceil(ASSIGN_BLOCK) as u64);
+    let assignment: Vec<Vec<u32>> = positive
         .par_chunks(ASSIGN_BLOCK)
-        .flat_map_iter(|block| {
+        .map(|block| {
+            progress.check()?;
             let mut gathered = vec![0.0f32; dim * block.len()];
             for (b, &j) in block.iter().enumerate() {
                 gathered[b * dim..(b + 1) * dim].copy_from_slice(reduced.column(j as usize));
@@ -383,13 +388,14 @@ fn sampling_clustering(
                 }
                 best.push(arg);
             }
-            best
+            progress.inc(1);
+            Ok(best)
         })
-        .collect();
+        .collect::<Result<_, ManyLightError>>()?;
     let mut clusters = vec![Vec::new(); k_count];
-    for (&j, &c) in positive.iter().zip(&assignment) {
+    for (&j, &c) in positive.iter().zip(assignment.iter().flatten()) {
         clusters[c as usize].push(j);
     }
     clusters.retain(|c| !c.is_empty());
-    clusters
+    Ok(clusters)
 }

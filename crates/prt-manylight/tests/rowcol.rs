@@ -404,4 +404,22 @@ fn cancellation_stops_the_work() {
         brute_force(&oracle, &progress),
         Err(ManyLightError::Cancelled)
     );
+    // Cancelled once the reduced matrix is done (8 rows = one batch): stops in the clustering.
+    let progress = AtomicProgress::cancel_after(1);
+    assert_eq!(
+        row_column_sampling(&oracle, &RowColumnConfig::new(8, 100), &progress),
+        Err(ManyLightError::Cancelled)
+    );
+    assert_eq!(progress.last_message(), "row-column sampling: clustering");
+    // Cancelled after the first batch of 16 rows out of 64: stops in the reduced matrix.
+    let progress = AtomicProgress::cancel_after(1);
+    assert_eq!(
+        row_column_sampling(&oracle, &RowColumnConfig::new(64, 100), &progress),
+        Err(ManyLightError::Cancelled)
+    );
+    assert_eq!(
+        progress.last_message(),
+        "row-column sampling: reduced matrix"
+    );
+    assert_eq!(progress.position(), 16);
 }
