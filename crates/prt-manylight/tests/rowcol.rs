@@ -423,3 +423,75 @@ fn cancellation_stops_the_work() {
     );
     assert_eq!(progress.position(), 16);
 }
+
+fn relative_error(a: &[f32], b: &[f32]) -> f64 {
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
+        .sum();
+    let den: f64 = b.iter().map(|&y| (y as f64).powi(2)).sum();
+    (num / den).sqrt()
+}
+
+#[test]
+fn identical_lights_are_one_exact_cluster() {
+    // Every column the same: any representative times the cluster size is the exact sum.
+    let column: Vec<f32> = (0..20 * 3).map(|k| 0.1 + (k % 7) as f32).collect();
+    let data = Array2::from_shape_fn((20, 50 * 3), |(i, jc)| column[i * 3 + jc % 3]);
+    let oracle = DenseOracle::new(data, 3).unwrap();
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let estimate = row_column_sampling(&oracle, &RowColumnConfig::new(3, 10), &NoProgress).unwrap();
+    assert!(estimate.clustering_cost < 1e-6 * total(&exact).powi(2));
+    assert!(relative_error(&estimate.image, &exact) < 1e-6);
+}
+
+#[test]
+fn a_single_bright_light_among_dark_ones_is_exact() {
+    let mut data = Array2::<f32>::zeros((30, 40 * 3));
+    for i in 0..30 {
+        for c in 0..3 {
+            data[[i, 17 * 3 + c]] = 1.0 + i as f32;
+        }
+    }
+    let oracle = DenseOracle::new(data, 3).unwrap();
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    for (rows, columns) in [(1, 1), (5, 2), (30, 40)] {
+        let config = RowColumnConfig::new(rows, columns).with_seed(3);
+        let estimate = row_column_sampling(&oracle, &config, &NoProgress).unwrap();
+        assert_eq!(
+            relative_error(&estimate.image, &exact),
+            0.0,
+            "{rows} / {columns}"
+        );
+        // The dark lights are never mixed with the bright one.
+        assert!(
+            estimate
+                .clustering
+                .clusters()
+                .iter()
+                .any(|c| c == &vec![17])
+        );
+    }
+}
+
+#[test]
+fn huge_dynamic_range_stays_finite_and_exact_at_full_clustering() {
+    // Columns scaled from 1e-6 to 1e6.
+    let mut rng = Pcg64Mcg::seed_from_u64(14);
+    let data = Array2::from_shape_fn((12, 25 * 3), |(_, jc)| {
+        rng.random::<f32>() * 10f32.powi((jc / 3) as i32 % 13 - 6)
+    });
+    let oracle = DenseOracle::new(data, 3).unwrap();
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let full = row_column_sampling(&oracle, &RowColumnConfig::new(4, 25), &NoProgress).unwrap();
+    assert!(relative_error(&full.image, &exact) < 1e-6);
+    let coarse = row_column_sampling(&oracle, &RowColumnConfig::new(4, 5), &NoProgress).unwrap();
+    assert!(coarse.image.iter().all(|v| v.is_finite()));
+    assert!(
+        coarse
+            .representatives
+            .iter()
+            .all(|r| r.weight.is_finite() && r.weight >= 1.0)
+    );
+}
