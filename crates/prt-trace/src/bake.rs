@@ -1,6 +1,7 @@
 //! The 324-dimensional transfer-volume baker.
 
 use std::f32::consts::PI;
+use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
@@ -25,7 +26,6 @@ const STREAM_VOXEL: u64 = 1;
 const STREAM_CACHE: u64 = 2;
 const STREAM_BRUTE: u64 = 3;
 const VOXEL_CHUNK: usize = 32;
-const CACHE_CHUNK: usize = 256;
 /// Lattice points are pulled this fraction towards the triangle's centroid so that no cache
 /// point sits exactly on an edge shared with a neighbouring wall.
 const CACHE_SHRINK: f32 = 1e-3;
@@ -38,8 +38,9 @@ const MAX_CACHE_POINTS: usize = 4_000_000;
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum IndirectMode {
-    /// Per-surface-point transfer vectors computed once and interpolated at every voxel-ray hit
-    /// (cost: cache points x `cache_rays`, independent of the voxel count). The default.
+    /// Per-surface-point transfer vectors, each computed once (the first time a voxel ray's hit
+    /// needs it) and interpolated at every voxel-ray hit (cost: touched cache points x
+    /// `cache_rays`, independent of the voxel count). The default.
     #[default]
     SurfaceCache,
     /// `cache_rays` fresh hemisphere rays at every voxel-ray hit: the unbiased reference that
@@ -64,8 +65,7 @@ pub struct BakeOptions {
     pub rays_per_voxel: usize,
     /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force).
     pub cache_rays: usize,
-    /// Largest spacing between surface-cache points on a triangle; `None`: the smallest voxel
-    /// edge. A triangle gets at most 128 subdivisions per edge, and the spacing grows by steps of
+    /// Largest spacing between surface-cache points on a triangle; `None`: the mean voxel edge. A triangle gets at most 128 subdivisions per edge, and the spacing grows by steps of
     /// 1.5x while the whole cache would exceed 4 million points.
     pub cache_spacing: Option<f32>,
     /// The validity of a voxel is decided on its first `probe_rays` directions (rounded up to a
@@ -112,17 +112,19 @@ pub struct BakeStats {
     pub skipped_voxels: usize,
     /// Effective directions per voxel (a multiple of 12).
     pub rays_per_voxel: usize,
-    /// Surface-cache points (both sides of a double-sided point count once).
+    /// Surface-cache lattice points allocated (both sides of a point count once).
     pub cache_points: usize,
+    /// Surface-cache entries (point sides) evaluated: those some voxel ray needed.
+    pub cache_evaluated: usize,
     /// Rays traced for the surface cache.
     pub cache_rays: u64,
     /// Rays traced from voxels (plus brute-force hemisphere rays).
     pub voxel_rays: u64,
     /// BVH build time.
     pub bvh_time: Duration,
-    /// Surface-cache time.
+    /// Surface-cache lattice set-up time (its rays are traced during the voxel stage).
     pub cache_time: Duration,
-    /// Voxel tracing time.
+    /// Voxel tracing time, including the surface-cache rays.
     pub voxel_time: Duration,
 }
 
@@ -221,8 +223,11 @@ struct SurfaceCache {
     start: Vec<u32>,
     /// Lattice subdivision of each slot (0: a single point at the centroid).
     subdiv: Vec<u16>,
-    /// `[point * 2 + side]`, side 0 = front, 1 = back.
-    values: Vec<[f32; SH9]>,
+    /// Position and unit front normal of every lattice point.
+    points: Vec<(Vec3, Vec3)>,
+    /// `[point * 2 + side]`, side 0 = front, 1 = back; evaluated on first use. Each value is a
+    /// pure function of (seed, point, side), so which thread evaluates it does not matter.
+    values: Vec<OnceLock<[f32; SH9]>>,
 }
 
 fn lattice_len(m: usize) -> usize {
@@ -236,12 +241,21 @@ fn lattice_index(m: usize, a: usize, b: usize) -> usize {
 
 impl SurfaceCache {
     #[inline]
-    fn lookup(&self, slot: u32, side: usize, uv: impl FnOnce() -> Vec2) -> [f32; SH9] {
+    /// The interpolated transfer of `side` of `slot` at the barycentrics `uv()`, evaluating
+    /// missing lattice entries with `eval(point, side)`.
+    fn lookup(
+        &self,
+        slot: u32,
+        side: usize,
+        uv: impl FnOnce() -> Vec2,
+        eval: impl Fn(usize, usize) -> [f32; SH9],
+    ) -> [f32; SH9] {
         let s = slot as usize;
         let start = self.start[s] as usize;
         let m = self.subdiv[s] as usize;
+        let value = |point: usize| *self.values[point * 2 + side].get_or_init(|| eval(point, side));
         if m == 0 {
-            return self.values[start * 2 + side];
+            return value(start);
         }
         let uv = uv();
         let fu = (uv.x.clamp(0.0, 1.0)) * m as f32;
@@ -261,7 +275,7 @@ impl SurfaceCache {
         };
         let mut out = [0.0f32; SH9];
         for (&(a, b), &w) in corners.iter().zip(&weights) {
-            let v = &self.values[(start + lattice_index(m, a, b)) * 2 + side];
+            let v = value(start + lattice_index(m, a, b));
             for k in 0..SH9 {
                 out[k] += w * v[k];
             }
@@ -406,13 +420,9 @@ impl<'s> TransferBaker<'s> {
         self.options.cache_spacing.unwrap_or_else(|| {
             let [nx, ny, nz] = self.options.resolution;
             let cell = self.grid.size() / Vec3::new(nx as f32, ny as f32, nz as f32);
-            let m = cell.min_element();
-            // A flat grid axis (zero extent) does not constrain the spacing.
-            if m > 0.0 {
-                m
-            } else {
-                cell.max_element().max(1e-3)
-            }
+            // A flat grid axis (zero extent) does not count.
+            let axes = cell.cmpgt(Vec3::ZERO).bitmask().count_ones().max(1);
+            (cell.element_sum() / axes as f32).max(1e-6)
         })
     }
 
@@ -452,11 +462,7 @@ impl<'s> TransferBaker<'s> {
             .collect()
     }
 
-    fn build_cache(
-        &self,
-        progress: &dyn Progress,
-        cache_rays: &AtomicU64,
-    ) -> Result<SurfaceCache, TraceError> {
+    fn build_cache(&self) -> SurfaceCache {
         // Coarsen the spacing until the lattice fits the point budget (deterministically).
         let mut spacing = self.cache_spacing();
         let mut subdiv = self.subdivisions(spacing);
@@ -473,17 +479,16 @@ impl<'s> TransferBaker<'s> {
         }
         let slots = self.tracer.slots();
         let mut start = Vec::with_capacity(slots);
-        // (point, normal, two-sided) for every lattice point.
-        let mut points: Vec<(Vec3, Vec3, bool)> = Vec::new();
+        // (point, front normal) for every lattice point.
+        let mut points: Vec<(Vec3, Vec3)> = Vec::new();
         for s in 0..slots as u32 {
             let v = self.tracer.slot_vertices(s);
             let n = self.tracer.slot_normal(s).normalize_or_zero();
             let m = subdiv[s as usize] as usize;
             start.push(points.len() as u32);
-            let two_sided = self.materials[s as usize].double_sided;
             let centroid = (v[0] + v[1] + v[2]) / 3.0;
             if m == 0 {
-                points.push((centroid, n, two_sided));
+                points.push((centroid, n));
                 continue;
             }
             for a in 0..=m {
@@ -491,48 +496,17 @@ impl<'s> TransferBaker<'s> {
                     let p = v[0]
                         + (v[1] - v[0]) * (a as f32 / m as f32)
                         + (v[2] - v[0]) * (b as f32 / m as f32);
-                    points.push((p + (centroid - p) * CACHE_SHRINK, n, two_sided));
+                    points.push((p + (centroid - p) * CACHE_SHRINK, n));
                 }
             }
         }
-        let r = self.options.cache_rays as u64;
-        let sides: u64 = points.iter().map(|p| 1 + p.2 as u64).sum();
-        progress.message("surface transfer cache");
-        progress.set_len(sides * r);
-        let mut values = vec![[0.0f32; SH9]; points.len() * 2];
-        values
-            .par_chunks_mut(2 * CACHE_CHUNK)
-            .enumerate()
-            .try_for_each(|(c, out)| {
-                progress.check()?;
-                let mut rays = 0;
-                for (k, pair) in out.chunks_exact_mut(2).enumerate() {
-                    let index = c * CACHE_CHUNK + k;
-                    let (p, n, two_sided) = points[index];
-                    pair[0] = self.hemisphere_transfer(
-                        p,
-                        n,
-                        hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64),
-                    );
-                    rays += r;
-                    if two_sided {
-                        pair[1] = self.hemisphere_transfer(
-                            p,
-                            -n,
-                            hash_seed(self.options.seed, STREAM_CACHE, 2 * index as u64 + 1),
-                        );
-                        rays += r;
-                    }
-                }
-                cache_rays.fetch_add(rays, Ordering::Relaxed);
-                progress.inc(rays);
-                Ok::<(), TraceError>(())
-            })?;
-        Ok(SurfaceCache {
+        let values = (0..points.len() * 2).map(|_| OnceLock::new()).collect();
+        SurfaceCache {
             start,
             subdiv,
+            points,
             values,
-        })
+        }
     }
 
     /// Transfer vector of one voxel into `out` (324 values); returns `(valid, rays traced)`.
@@ -541,6 +515,7 @@ impl<'s> TransferBaker<'s> {
         x: Vec3,
         voxel: usize,
         cache: Option<&SurfaceCache>,
+        cache_rays: &AtomicU64,
         out: &mut [f32],
     ) -> (bool, u64) {
         let dirs = icosahedron();
@@ -575,9 +550,22 @@ impl<'s> TransferBaker<'s> {
                 }
                 let side = usize::from(!front);
                 let t = match cache {
-                    Some(c) => c.lookup(hit.slot, side, || {
-                        self.tracer.slot_barycentrics(hit.slot, x, w)
-                    }),
+                    Some(c) => c.lookup(
+                        hit.slot,
+                        side,
+                        || self.tracer.slot_barycentrics(hit.slot, x, w),
+                        |point, side| {
+                            let (p, n) = c.points[point];
+                            let n = if side == 0 { n } else { -n };
+                            let scramble = hash_seed(
+                                self.options.seed,
+                                STREAM_CACHE,
+                                (2 * point + side) as u64,
+                            );
+                            cache_rays.fetch_add(self.options.cache_rays as u64, Ordering::Relaxed);
+                            self.hemisphere_transfer(p, n, scramble)
+                        },
+                    ),
                     None => {
                         let n = ng.normalize_or_zero() * if front { 1.0 } else { -1.0 };
                         let ray_index = (g * ICOSA + k) as u64;
@@ -615,15 +603,16 @@ impl<'s> TransferBaker<'s> {
         (true, rays)
     }
 
-    /// Bakes the volume. Reports rays traced to `progress` (stage 1: the surface cache, stage
-    /// 2: voxels) and returns [`TraceError::Core`]`(Cancelled)` if it is cancelled.
+    /// Bakes the volume. Reports voxel directions traced to `progress` (its length is voxels x
+    /// rays per voxel; surface-cache rays are traced along the way) and returns
+    /// [`TraceError::Core`]`(Cancelled)` if it is cancelled.
     pub fn bake(&self, progress: &dyn Progress) -> Result<TransferVolume, TraceError> {
         let field = GridField::new(self.options.resolution, self.grid, TRANSFER_DIM)?;
         let voxels = field.num_voxels();
         let cache_rays = AtomicU64::new(0);
         let t0 = Instant::now();
         let cache = match self.options.indirect {
-            IndirectMode::SurfaceCache => Some(self.build_cache(progress, &cache_rays)?),
+            IndirectMode::SurfaceCache => Some(self.build_cache()),
             IndirectMode::BruteForce | IndirectMode::Off => None,
         };
         let cache_time = t0.elapsed();
@@ -662,7 +651,8 @@ impl<'s> TransferBaker<'s> {
                             skipped.fetch_add(1, Ordering::Relaxed);
                             continue;
                         }
-                        let (is_valid, r) = self.voxel_transfer(x, v, cache.as_ref(), o);
+                        let (is_valid, r) =
+                            self.voxel_transfer(x, v, cache.as_ref(), &cache_rays, o);
                         *okv = is_valid;
                         if !is_valid {
                             invalid.fetch_add(1, Ordering::Relaxed);
@@ -680,6 +670,9 @@ impl<'s> TransferBaker<'s> {
             skipped_voxels: skipped.into_inner() as usize,
             rays_per_voxel: self.rays_per_voxel(),
             cache_points,
+            cache_evaluated: cache
+                .as_ref()
+                .map_or(0, |c| c.values.iter().filter(|v| v.get().is_some()).count()),
             cache_rays: cache_rays.into_inner(),
             voxel_rays: voxel_rays.into_inner(),
             bvh_time: self.bvh_time,
