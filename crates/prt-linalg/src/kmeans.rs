@@ -169,12 +169,23 @@ fn squared_row_norms(x: &[f32], d: usize) -> Result<Vec<f64>, LinalgError> {
     Ok(norms)
 }
 
-/// Exact squared distance in f64.
+/// Exact squared distance in f64 (eight independent partial sums, so it vectorises).
 fn exact_dist(a: &[f32], b: &[f32]) -> f64 {
-    a.iter()
-        .zip(b)
+    let mut acc = [0.0f64; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f64 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
         .map(|(&p, &q)| (f64::from(p) - f64::from(q)).powi(2))
-        .sum()
+        .sum();
+    for (pa, pb) in ca.zip(cb) {
+        for l in 0..8 {
+            let diff = f64::from(pa[l]) - f64::from(pb[l]);
+            acc[l] += diff * diff;
+        }
+    }
+    acc.iter().sum::<f64>() + tail
 }
 
 /// k-means++ seeding: `k x d` row-major centroids.
@@ -260,8 +271,11 @@ fn assign(
         .chunks(d)
         .map(|c| c.iter().map(|&v| f64::from(v).powi(2)).sum())
         .collect();
-    let unit = f64::from(f32::EPSILON) / 2.0;
-    let bound = d as f64 * unit;
+    let half_norms: Vec<f64> = centroid_norms.iter().map(|c| 0.5 * c).collect();
+    let max_norm = centroid_norms.iter().fold(0.0f64, |m, &v| m.max(v));
+    // Rounding bound of an f32 dot product of length d, relative to |x|^2 + |c|^2 (gamma_d,
+    // with two extra units for the conversions).
+    let bound = (d + 2) as f64 * f64::from(f32::EPSILON) / 2.0;
     let parts: Vec<Result<AssignStep, LinalgError>> = assignments
         .par_chunks_mut(chunk)
         .zip(dists.par_chunks_mut(chunk))
@@ -276,7 +290,7 @@ fn assign(
                 counts: vec![0; k],
             };
             let mut dots = vec![0.0f32; BLOCK_ROWS * k];
-            let mut candidates = Vec::new();
+            let mut scores = vec![0.0f64; k];
             for b in (0..labels.len()).step_by(BLOCK_ROWS) {
                 let rows = BLOCK_ROWS.min(labels.len() - b);
                 let block = &x[(first + b) * d..(first + b + rows) * d];
@@ -291,27 +305,26 @@ fn assign(
                 for r in 0..rows {
                     let i = b + r;
                     let xx = row_norms[first + i];
-                    let dot_row = &dots[r * k..(r + 1) * k];
-                    // Approximate distances and their rounding bounds; keep every centroid that
-                    // could be the nearest and rank those exactly.
-                    let mut upper = f64::INFINITY;
-                    for j in 0..k {
-                        let approx = xx - 2.0 * f64::from(dot_row[j]) + centroid_norms[j];
-                        upper = upper.min(approx + bound * (xx + centroid_norms[j]));
+                    // |x - c|^2 / 2 - |x|^2 / 2 = |c|^2 / 2 - x.c, approximately; every centroid
+                    // within the rounding bound of the best is ranked by its exact distance.
+                    let mut lowest = f64::INFINITY;
+                    for ((score, &half), &dot) in scores
+                        .iter_mut()
+                        .zip(&half_norms)
+                        .zip(&dots[r * k..(r + 1) * k])
+                    {
+                        *score = half - f64::from(dot);
+                        lowest = lowest.min(*score);
                     }
-                    candidates.clear();
-                    for j in 0..k {
-                        let approx = xx - 2.0 * f64::from(dot_row[j]) + centroid_norms[j];
-                        if approx - bound * (xx + centroid_norms[j]) <= upper {
-                            candidates.push(j);
-                        }
-                    }
+                    let threshold = lowest + bound * (xx + max_norm);
                     let row = &block[r * d..(r + 1) * d];
-                    let (mut best, mut best_dist) = (candidates[0], f64::INFINITY);
-                    for &j in &candidates {
-                        let e = exact_dist(row, &centroids[j * d..(j + 1) * d]);
-                        if e < best_dist {
-                            (best, best_dist) = (j, e);
+                    let (mut best, mut best_dist) = (0, f64::INFINITY);
+                    for (j, &score) in scores.iter().enumerate() {
+                        if score <= threshold {
+                            let e = exact_dist(row, &centroids[j * d..(j + 1) * d]);
+                            if e < best_dist {
+                                (best, best_dist) = (j, e);
+                            }
                         }
                     }
                     if labels[i] != best as u32 {

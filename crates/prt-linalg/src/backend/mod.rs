@@ -25,9 +25,23 @@ pub const BACKEND_NAME: &str = if cfg!(feature = "lapack") {
 pub(crate) trait Real:
     Copy + Send + Sync + 'static + faer::traits::RealField + ndarray::LinalgScalar
 {
+    /// Zero.
+    const ZERO: Self;
+    /// Widening conversion.
+    fn to_f64(self) -> f64;
 }
-impl Real for f32 {}
-impl Real for f64 {}
+impl Real for f32 {
+    const ZERO: Self = 0.0;
+    fn to_f64(self) -> f64 {
+        f64::from(self)
+    }
+}
+impl Real for f64 {
+    const ZERO: Self = 0.0;
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
 
 /// `(u, s, vt)` of a thin SVD.
 pub(crate) type SvdParts = (ndarray::Array2<f64>, Vec<f64>, ndarray::Array2<f64>);
