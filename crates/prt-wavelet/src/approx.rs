@@ -17,11 +17,14 @@
 //! objective is the weighted L1 norm of what is left out, which for area weights bounds the
 //! area-weighted L1 lighting error (see [`crate::CubemapLayout`]).
 //!
-//! Selection is linear-time: per band and mode a partial selection (`select_nth_unstable`) of
-//! the `k` best candidates, then a `k`-way merge. Ties break towards the lower index, so results
+//! Selection is a single pass with a `k`-bounded heap per band and mode (no sort of the
+//! candidates; linear in practice, `O(n log k)` at worst), then a `k`-way merge. Ties break towards the lower index, so results
 //! are deterministic. Candidates of score 0 are never chosen, so a static lighting converges to
 //! `L̃ = L` exactly (assignment, not accumulation) after at most `⌈nnz / k⌉` frames and then stays
 //! there with no terms spent (coefficients of selection weight 0 are never chosen).
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 
 use crate::WaveletError;
 use crate::cubemap::CubemapLayout;
@@ -131,7 +134,6 @@ pub struct Approximator {
     approx: Vec<f32>,
     inc_scores: Vec<f32>,
     rep_scores: Vec<f32>,
-    work: Vec<u32>,
     update: FrameUpdate,
 }
 
@@ -184,7 +186,6 @@ impl Approximator {
             approx: vec![0.0; n * channels],
             inc_scores: vec![0.0; n],
             rep_scores: vec![0.0; n],
-            work: Vec::with_capacity(n),
             update: FrameUpdate::default(),
         })
     }
@@ -243,12 +244,7 @@ impl Approximator {
         self.score(target);
         let band_count = self.band_count();
         let k = self.terms;
-        let mut inc = Vec::with_capacity(band_count);
-        let mut rep = Vec::with_capacity(band_count);
-        for b in 0..band_count {
-            inc.push(self.candidates(b, true, k));
-            rep.push(self.candidates(b, false, k));
-        }
+        let (inc, rep) = self.candidates(k);
         let (modes, counts) = match self.policy {
             Policy::NonIncremental => (vec![BandMode::Replace; band_count], None),
             Policy::Incremental => (vec![BandMode::Incremental; band_count], None),
@@ -307,55 +303,46 @@ impl Approximator {
 
     fn score(&mut self, target: &[f32]) {
         let n = self.bands.len();
-        for i in 0..n {
-            let (mut r, mut l) = (0.0f32, 0.0f32);
-            for c in 0..self.channels {
-                let t = target[c * n + i];
-                r += (t - self.approx[c * n + i]).abs();
-                l += t.abs();
+        self.inc_scores.fill(0.0);
+        self.rep_scores.fill(0.0);
+        // Channel planes are contiguous: accumulate plane by plane so the loops vectorise.
+        for (t, a) in target.chunks_exact(n).zip(self.approx.chunks_exact(n)) {
+            for i in 0..n {
+                self.inc_scores[i] += (t[i] - a[i]).abs();
+                self.rep_scores[i] += t[i].abs();
             }
-            self.inc_scores[i] = self.weights[i] * r;
-            self.rep_scores[i] = self.weights[i] * l;
+        }
+        for i in 0..n {
+            self.inc_scores[i] *= self.weights[i];
+            self.rep_scores[i] *= self.weights[i];
         }
     }
 
-    /// The best `k` candidates of band `b` in one mode (linear-time partial selection).
-    fn candidates(&mut self, b: usize, incremental: bool, k: usize) -> Candidates {
-        let scores = if incremental {
-            &self.inc_scores
-        } else {
-            &self.rep_scores
-        };
-        self.work.clear();
-        let mut total = 0.0f64;
-        for &i in &self.band_members[b] {
-            let s = scores[i as usize];
-            total += s as f64;
-            if s > 0.0 {
-                self.work.push(i);
+    /// The best `k` candidates of every band in both modes, in one pass over the scores with a
+    /// `k`-bounded heap per band and mode (`O(n)` comparisons when few candidates displace
+    /// the heap minimum, `O(n log k)` at worst; never a full sort). NWA never looks at the
+    /// residual and BI never at the lighting itself, so they skip the other mode.
+    fn candidates(&self, k: usize) -> (Vec<Candidates>, Vec<Candidates>) {
+        let bc = self.band_count();
+        let (want_inc, want_rep) = (
+            self.policy != Policy::NonIncremental,
+            self.policy != Policy::Incremental,
+        );
+        let mut inc: Vec<TopK> = (0..bc).map(|_| TopK::new(k)).collect();
+        let mut rep: Vec<TopK> = (0..bc).map(|_| TopK::new(k)).collect();
+        for (i, &b) in self.bands.iter().enumerate() {
+            let b = b as usize;
+            if want_inc {
+                inc[b].offer(self.inc_scores[i], i as u32);
+            }
+            if want_rep {
+                rep[b].offer(self.rep_scores[i], i as u32);
             }
         }
-        let better = |a: &u32, b: &u32| {
-            scores[*b as usize]
-                .total_cmp(&scores[*a as usize])
-                .then(a.cmp(b))
-        };
-        if self.work.len() > k && k > 0 {
-            self.work.select_nth_unstable_by(k - 1, better);
-        }
-        self.work.truncate(k);
-        self.work.sort_unstable_by(better);
-        let best: Vec<(f32, u32)> = self.work.iter().map(|&i| (scores[i as usize], i)).collect();
-        let mut prefix = Vec::with_capacity(best.len() + 1);
-        prefix.push(0.0);
-        for (s, _) in &best {
-            prefix.push(prefix[prefix.len() - 1] + *s as f64);
-        }
-        Candidates {
-            best,
-            total,
-            prefix,
-        }
+        (
+            inc.into_iter().map(TopK::finish).collect(),
+            rep.into_iter().map(TopK::finish).collect(),
+        )
     }
 
     fn apply(&mut self, target: &[f32], modes: Vec<BandMode>, mut chosen: Vec<u32>, residual: f64) {
@@ -386,6 +373,67 @@ impl Approximator {
         u.modes = modes;
         u.residual = residual;
     }
+}
+
+/// The `k` best (score, index) pairs of a stream and the stream's total score.
+struct TopK {
+    k: usize,
+    heap: BinaryHeap<Reverse<u64>>,
+    total: f64,
+}
+
+impl TopK {
+    fn new(k: usize) -> Self {
+        Self {
+            k,
+            heap: BinaryHeap::with_capacity(k + 1),
+            total: 0.0,
+        }
+    }
+
+    #[inline]
+    fn offer(&mut self, score: f32, index: u32) {
+        self.total += score as f64;
+        if score <= 0.0 || self.k == 0 {
+            return;
+        }
+        let key = rank_key(score, index);
+        if self.heap.len() < self.k {
+            self.heap.push(Reverse(key));
+        } else if let Some(mut min) = self.heap.peek_mut()
+            && key > min.0
+        {
+            *min = Reverse(key);
+        }
+    }
+
+    fn finish(self) -> Candidates {
+        let mut keys: Vec<u64> = self.heap.into_iter().map(|r| r.0).collect();
+        keys.sort_unstable_by(|x, y| y.cmp(x));
+        let best: Vec<(f32, u32)> = keys.into_iter().map(unrank_key).collect();
+        let mut prefix = Vec::with_capacity(best.len() + 1);
+        prefix.push(0.0);
+        for (s, _) in &best {
+            prefix.push(prefix[prefix.len() - 1] + *s as f64);
+        }
+        Candidates {
+            best,
+            total: self.total,
+            prefix,
+        }
+    }
+}
+
+/// A sort key for a positive finite score and its index: the bit patterns of non-negative f32
+/// order like the values, and the inverted index makes ties prefer the lower index.
+#[inline]
+fn rank_key(score: f32, index: u32) -> u64 {
+    ((score.to_bits() as u64) << 32) | (!index) as u64
+}
+
+#[inline]
+fn unrank_key(key: u64) -> (f32, u32) {
+    (f32::from_bits((key >> 32) as u32), !(key as u32))
 }
 
 /// The `k` best candidates over several best-first lists.

@@ -158,16 +158,51 @@ impl SparseTransport {
             .collect()
     }
 
-    /// `out[r] += value × T(r, j)` over the stored entries of column `j`.
+    /// `partial[r·C + c] += v_c T(r, j)` and the same into `image`, for every stored entry of
+    /// column `j` and all `C` channels at once (the column is decoded once per term, and each
+    /// entry touches one pixel of each image).
     #[inline]
-    fn axpy_column(&self, j: usize, value: f32, out: &mut [f32]) {
+    fn add_column<const C: usize>(
+        &self,
+        j: usize,
+        values: &[f32],
+        partial: &mut [f32],
+        image: &mut [f32],
+    ) {
         let range = self.col_start[j]..self.col_start[j + 1];
-        let s = value * self.scale[j];
+        let mut s = [0.0f32; C];
+        for c in 0..C {
+            s[c] = values[c] * self.scale[j];
+        }
         for (&r, &q) in self.row_index[range.clone()]
             .iter()
             .zip(&self.quantised[range])
         {
-            out[r as usize] += s * q as f32;
+            let q = q as f32;
+            for c in 0..C {
+                let o = r as usize * C + c;
+                partial[o] += s[c] * q;
+                image[o] += s[c] * q;
+            }
+        }
+    }
+}
+
+impl SparseTransport {
+    /// [`Self::add_column`] for a channel count known only at run time.
+    fn add_column_any(&self, j: usize, values: &[f32], partial: &mut [f32], image: &mut [f32]) {
+        let range = self.col_start[j]..self.col_start[j + 1];
+        let channels = values.len();
+        for (&r, &q) in self.row_index[range.clone()]
+            .iter()
+            .zip(&self.quantised[range])
+        {
+            let q = q as f32 * self.scale[j];
+            for (c, v) in values.iter().enumerate() {
+                let o = r as usize * channels + c;
+                partial[o] += v * q;
+                image[o] += v * q;
+            }
         }
     }
 }
@@ -177,9 +212,9 @@ impl SparseTransport {
 pub struct Relighter {
     transport: SparseTransport,
     channels: usize,
-    /// `partial[b][c * rows + r]`.
+    /// `partial[b][r * channels + c]`.
     partial: Vec<Vec<f32>>,
-    /// `image[c * rows + r]` = Σ_b partial[b].
+    /// `image[r * channels + c]` = Σ_b partial[b].
     image: Vec<f32>,
 }
 
@@ -210,13 +245,14 @@ impl Relighter {
         &self.transport
     }
 
-    /// The image `B = T L̃` (planar: `channels × rows`).
+    /// The image `B = T L̃`, pixel-major (`image[r * channels + c]`).
     pub fn image(&self) -> &[f32] {
         &self.image
     }
 
-    /// Applies one frame's update; returns the bytes of transport columns read (for comparing
-    /// the frame's time with the memory-bandwidth bound). Errors if the update does not fit the
+    /// Applies one frame's update; returns the bytes of transport columns read (each chosen
+    /// column once, for all channels; for comparing the frame's time with the memory-bandwidth
+    /// bound). Errors if the update does not fit the
     /// engine (band count, channel count, a term's index or band out of range).
     pub fn apply(&mut self, update: &FrameUpdate) -> Result<usize, WaveletError> {
         WaveletError::check_len("update bands", self.partial.len(), update.modes.len())?;
@@ -236,7 +272,6 @@ impl Relighter {
                 ),
             });
         }
-        let rows = self.transport.rows;
         for (b, mode) in update.modes.iter().enumerate() {
             if *mode == BandMode::Replace {
                 for (img, p) in self.image.iter_mut().zip(&mut self.partial[b]) {
@@ -248,14 +283,25 @@ impl Relighter {
         let mut bytes = 0;
         for (t, term) in update.terms.iter().enumerate() {
             let j = term.index as usize;
-            bytes += self.transport.column_bytes(j) * self.channels;
+            bytes += self.transport.column_bytes(j);
             let partial = &mut self.partial[term.band as usize];
-            for c in 0..self.channels {
-                let v = update.values[t * self.channels + c];
-                self.transport
-                    .axpy_column(j, v, &mut partial[c * rows..(c + 1) * rows]);
-                self.transport
-                    .axpy_column(j, v, &mut self.image[c * rows..(c + 1) * rows]);
+            let values = &update.values[t * self.channels..(t + 1) * self.channels];
+            match self.channels {
+                1 => self
+                    .transport
+                    .add_column::<1>(j, values, partial, &mut self.image),
+                3 => self
+                    .transport
+                    .add_column::<3>(j, values, partial, &mut self.image),
+                2 => self
+                    .transport
+                    .add_column::<2>(j, values, partial, &mut self.image),
+                4 => self
+                    .transport
+                    .add_column::<4>(j, values, partial, &mut self.image),
+                _ => self
+                    .transport
+                    .add_column_any(j, values, partial, &mut self.image),
             }
         }
         Ok(bytes)

@@ -62,8 +62,14 @@ fn truncation_keeps_the_largest_per_row_and_quantisation_is_bounded() {
 
 #[test]
 fn engine_matches_the_dense_product_for_every_policy() {
+    for channels in [1, 2, 3, 5] {
+        dense_check(channels);
+    }
+}
+
+fn dense_check(channels: usize) {
     let mut rng = Pcg64::seed_from_u64(11);
-    let (rows, cols, channels) = (50, 48, 3);
+    let (rows, cols) = (50, 48);
     let oracle = DenseOracle::new(sparse_matrix(rows, cols, 0.3, &mut rng), 1).unwrap();
     let t = SparseTransport::from_oracle(&oracle, 10, &NoProgress).unwrap();
     let deq = t.to_dense();
@@ -104,7 +110,7 @@ fn engine_matches_the_dense_product_for_every_policy() {
                     let scale: f64 = (0..cols)
                         .map(|j| (deq[r * cols + j] as f64 * approx[c * cols + j] as f64).abs())
                         .sum();
-                    let got = engine.image()[c * rows + r] as f64;
+                    let got = engine.image()[r * channels + c] as f64;
                     assert!(
                         (got - exact).abs() <= 1e-4 * (1.0 + scale),
                         "{policy:?} frame {frame}: {got} vs {exact}"

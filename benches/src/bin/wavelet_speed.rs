@@ -1,0 +1,246 @@
+//! Speed of prt-wavelet's transforms side by side with PyWavelets (called in the same run when
+//! python3 with pywt is available), and the relighting engine's cost per frame against the
+//! memory-bandwidth bound of what it touches.
+//!
+//! `cargo run --release -p prt-benches --bin wavelet_speed`
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Duration;
+
+use prt_benches::{Table, fmt_duration, median_time};
+use prt_core::{CoreError, MatrixOracle, NoProgress};
+use prt_wavelet::{
+    Approximator, BandStrategy, CubemapHaar, CubemapLayout, Daubechies4, Policy, Relighter,
+    SparseTransport, Weighting,
+};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64;
+
+fn pywavelets() -> Option<serde_json::Value> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("scripts/wavelet_ref.py");
+    let out = Command::new("python3")
+        .arg(script)
+        .env("OMP_NUM_THREADS", "1")
+        .env("OPENBLAS_NUM_THREADS", "1")
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        eprintln!(
+            "PyWavelets reference unavailable: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
+}
+
+/// A synthetic wavelet-domain transport: each row holds `per_row` non-zeros, drawn with a bias
+/// towards coarse coefficients (low in-face indices), as real transport rows are.
+struct SyntheticTransport {
+    rows: usize,
+    cols: usize,
+    per_row: usize,
+}
+
+impl MatrixOracle for SyntheticTransport {
+    fn rows(&self) -> usize {
+        self.rows
+    }
+    fn cols(&self) -> usize {
+        self.cols
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        out.fill(0.0);
+        let mut rng = Pcg64::seed_from_u64(i as u64);
+        let face_len = self.cols / 6;
+        for _ in 0..self.per_row {
+            let face = rng.random_range(0..6);
+            let u: f32 = rng.random();
+            let j = face * face_len + ((u * u * face_len as f32) as usize).min(face_len - 1);
+            out[j] = rng.random_range(-1.0f32..1.0) / (1.0 + (j % face_len) as f32).sqrt();
+        }
+        Ok(())
+    }
+    fn eval_col(&self, _j: usize, _out: &mut [f32]) -> Result<(), CoreError> {
+        Err(CoreError::Invalid {
+            what: "synthetic transport",
+            why: "rows only".into(),
+        })
+    }
+    fn elements_evaluated(&self) -> u64 {
+        0
+    }
+}
+
+/// Single-thread read bandwidth (bytes/s) of summing a 256 MiB buffer with 32 independent
+/// accumulators (enough to keep the loads, not the adds, the bottleneck).
+fn read_bandwidth() -> f64 {
+    let data = vec![1.0f32; 64 << 20];
+    let t = median_time(5, || {
+        let mut acc = [0.0f32; 32];
+        for c in data.chunks_exact(32) {
+            for k in 0..32 {
+                acc[k] += c[k];
+            }
+        }
+        acc
+    });
+    (data.len() * 4) as f64 / t.as_secs_f64()
+}
+
+fn main() {
+    let reference = pywavelets();
+    let py = |key: &str| {
+        reference
+            .as_ref()
+            .and_then(|r| r[key].as_f64())
+            .map(|us| Duration::from_secs_f64(us * 1e-6))
+    };
+
+    // Transforms.
+    let mut rng = Pcg64::seed_from_u64(1);
+    let mut cube: Vec<f32> = (0..6 * 64 * 64).map(|_| rng.random()).collect();
+    let mut haar = CubemapHaar::new(64).expect("size");
+    let t_haar = median_time(5000, || {
+        haar.forward(&mut cube).expect("forward");
+        haar.inverse(&mut cube).expect("inverse");
+    });
+    let mut sig: Vec<f32> = (0..256).map(|_| rng.random()).collect();
+    let mut db2 = Daubechies4::new(256).expect("size");
+    let t_db2 = median_time(20000, || {
+        db2.forward(&mut sig).expect("forward");
+        db2.inverse(&mut sig).expect("inverse");
+    });
+    let mut table = Table::new(&[
+        "task",
+        "prt-wavelet",
+        "PyWavelets (same run)",
+        "speed-up",
+        "target",
+    ]);
+    for (task, ours, theirs, target) in [
+        (
+            "Haar cubemap 6 x 64 x 64 forward + inverse",
+            t_haar,
+            py("haar_cubemap_us"),
+            "<= 50 µs",
+        ),
+        (
+            "db2 periodization, 256 samples, forward + inverse",
+            t_db2,
+            py("db2_256_us"),
+            "<= 3 µs",
+        ),
+    ] {
+        table.row(vec![
+            task.into(),
+            fmt_duration(ours),
+            theirs.map_or("n/a".into(), fmt_duration),
+            theirs.map_or("n/a".into(), |t| {
+                format!("{:.0}x", t.as_secs_f64() / ours.as_secs_f64())
+            }),
+            target.into(),
+        ]);
+    }
+    println!("### Transform speed (one thread)\n\n{}", table.markdown());
+
+    // Approximation step and relighting cost per frame.
+    let bandwidth = read_bandwidth();
+    let size = 64;
+    let layout = CubemapLayout::new(size).expect("size");
+    let cols = layout.len();
+    let oracle = SyntheticTransport {
+        rows: 128 * 128,
+        cols,
+        per_row: 400,
+    };
+    let transport = SparseTransport::from_oracle(&oracle, 256, &NoProgress).expect("transport");
+    println!(
+        "\nSynthetic transport: {} pixels x {} coefficients, 256 kept per row, {} entries ({:.1} MB); read bandwidth here {:.1} GB/s\n",
+        transport.rows(),
+        cols,
+        transport.nnz(),
+        transport.nnz() as f64 * 6.0 / 1e6,
+        bandwidth / 1e9
+    );
+    // A smooth lighting random walk (coarse coefficients large), RGB.
+    let mut lighting: Vec<f32> = (0..3 * cols)
+        .map(|i| 1.0 / (1.0 + (i % (size * size)) as f32))
+        .collect();
+    let frames: Vec<Vec<f32>> = (0..64)
+        .map(|_| {
+            for (i, v) in lighting.iter_mut().enumerate() {
+                *v += rng.random_range(-0.05f32..0.05) / (1.0 + (i % (size * size)) as f32).sqrt();
+            }
+            lighting.clone()
+        })
+        .collect();
+    let mut relight = Table::new(&[
+        "policy",
+        "terms",
+        "approximation step",
+        "relight apply",
+        "column bytes",
+        "image bytes",
+        "bandwidth bound (all bytes)",
+        "apply / bound",
+    ]);
+    for (name, policy) in [
+        ("NWA", Policy::NonIncremental),
+        ("BI", Policy::Incremental),
+        ("PBI L1 test", Policy::PerBand(BandStrategy::L1Test)),
+        ("PBI exhaustive", Policy::PerBand(BandStrategy::Exhaustive)),
+        ("PBI dealer", Policy::PerBand(BandStrategy::Dealer)),
+    ] {
+        for terms in [30usize, 100] {
+            let mut approx = Approximator::for_cubemap(
+                &layout,
+                3,
+                Weighting::Transport(transport.column_l1_norms()),
+                terms,
+                policy,
+            )
+            .expect("config");
+            let mut engine =
+                Relighter::new(transport.clone(), 3, layout.band_count()).expect("engine");
+            let (mut t_step, mut t_apply) = (Duration::ZERO, Duration::ZERO);
+            let (mut col_bytes, mut img_bytes) = (0usize, 0usize);
+            for f in &frames {
+                let start = std::time::Instant::now();
+                let update = approx.step(f).expect("step").clone();
+                t_step += start.elapsed();
+                let start = std::time::Instant::now();
+                col_bytes += engine.apply(&update).expect("apply");
+                t_apply += start.elapsed();
+                // Each term's column is read twice (partial image and total) and its pixels
+                // written; each replaced band streams its partial image and the total.
+                let replaced = update
+                    .modes
+                    .iter()
+                    .filter(|m| **m == prt_wavelet::BandMode::Replace)
+                    .count();
+                img_bytes += replaced * 3 * transport.rows() * 4 * 3;
+            }
+            let n = frames.len() as u32;
+            let bound = Duration::from_secs_f64((col_bytes + img_bytes) as f64 / bandwidth) / n;
+            relight.row(vec![
+                name.into(),
+                terms.to_string(),
+                fmt_duration(t_step / n),
+                fmt_duration(t_apply / n),
+                format!("{:.0} KB", col_bytes as f64 / n as f64 / 1e3),
+                format!("{:.0} KB", img_bytes as f64 / n as f64 / 1e3),
+                fmt_duration(bound),
+                format!(
+                    "{:.1}",
+                    (t_apply / n).as_secs_f64() / bound.as_secs_f64().max(1e-12)
+                ),
+            ]);
+        }
+    }
+    println!(
+        "### Per-frame cost: approximation step and relighting apply (RGB, 64 frames of a lighting random walk)\n\n{}",
+        relight.markdown()
+    );
+}
