@@ -608,3 +608,80 @@ fn parse_kvd(kvd: &[u8]) -> Result<Vec<(String, Vec<u8>)>, TextureError> {
     out.sort_by(|a, b| a.0.as_bytes().cmp(b.0.as_bytes()));
     Ok(out)
 }
+
+/// A mip chain of `levels` levels (level 0 included) by 2×2(×2) box filtering, for `f32`
+/// texels with `channels` values each, laid out as in a KTX2 level (layer → face → z → y → x).
+///
+/// Each texel of level i+1 averages the texels `2x, 2x+1` (and y, z alike) of level i (only
+/// `x` along an axis of size 1; the last texel of an odd size is dropped, as a plain 2× box
+/// filter does), so constant images stay constant and, for power-of-two sizes, every level has
+/// the mean of level 0. Sums are accumulated in f64.
+/// Layers and cubemap faces are filtered independently (no filtering across faces).
+pub fn box_mip_chain(
+    shape: Shape,
+    channels: usize,
+    level0: &[f32],
+    levels: u32,
+) -> Result<Vec<Vec<f32>>, TextureError> {
+    shape.validate()?;
+    if levels == 0 || levels > shape.max_levels() {
+        return Err(TextureError::invalid(
+            "mip levels",
+            format!("{levels} for a chain of at most {}", shape.max_levels()),
+        ));
+    }
+    let expected = shape.level_texels(0)? as usize * channels;
+    if level0.len() != expected || channels == 0 {
+        return Err(TextureError::LengthMismatch {
+            what: "mip level 0 values",
+            expected,
+            got: level0.len(),
+        });
+    }
+    TextureError::check_finite("mip level 0 values", level0)?;
+    let images = (shape.layers.max(1) * shape.faces) as usize;
+    let dims = |l: u32| [shape.width, shape.height, shape.depth].map(|d| (d >> l).max(1) as usize);
+    let mut chain = vec![level0.to_vec()];
+    for l in 1..levels {
+        let [sw, sh, sd] = dims(l - 1);
+        let [w, h, d] = dims(l);
+        let src = &chain[(l - 1) as usize];
+        let mut dst = vec![0f32; images * w * h * d * channels];
+        let mut acc = vec![0f64; channels];
+        for image in 0..images {
+            for z in 0..d {
+                for y in 0..h {
+                    for x in 0..w {
+                        acc.iter_mut().for_each(|a| *a = 0.0);
+                        let (zs, ys, xs) =
+                            ([2 * z, 2 * z + 1], [2 * y, 2 * y + 1], [2 * x, 2 * x + 1]);
+                        let (nz, ny, nx) = (
+                            if sd > 1 { 2 } else { 1 },
+                            if sh > 1 { 2 } else { 1 },
+                            if sw > 1 { 2 } else { 1 },
+                        );
+                        for &zz in &zs[..nz] {
+                            for &yy in &ys[..ny] {
+                                for &xx in &xs[..nx] {
+                                    let t = ((image * sd + zz) * sh + yy) * sw + xx;
+                                    for (a, &v) in
+                                        acc.iter_mut().zip(&src[t * channels..(t + 1) * channels])
+                                    {
+                                        *a += f64::from(v);
+                                    }
+                                }
+                            }
+                        }
+                        let n = (nz * ny * nx) as f64;
+                        let t = ((image * d + z) * h + y) * w + x;
+                        for (o, a) in dst[t * channels..(t + 1) * channels].iter_mut().zip(&acc) {
+                            *o = (a / n) as f32;
+                        }
+                    }
+                }
+            }
+        }
+        chain.push(dst);
+    }
+    Ok(chain)
+}

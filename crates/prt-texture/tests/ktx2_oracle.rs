@@ -212,3 +212,63 @@ proptest! {
         prop_assert_eq!(once, twice);
     }
 }
+
+mod mips {
+    use proptest::prelude::*;
+    use prt_texture::ktx2::{Shape, box_mip_chain};
+    use prt_texture::{Ktx2Texture, PixelFormat};
+
+    fn mean(v: &[f32], channels: usize, c: usize) -> f64 {
+        let n = v.len() / channels;
+        v.iter()
+            .skip(c)
+            .step_by(channels)
+            .map(|&x| f64::from(x))
+            .sum::<f64>()
+            / n as f64
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+
+        #[test]
+        fn power_of_two_chains_keep_the_mean_and_constants_stay_constant(
+            log in prop::array::uniform3(0u32..4),
+            kind in 0usize..3,
+            seed in any::<u32>(),
+        ) {
+            let [a, b, c] = log.map(|l| 1u32 << l);
+            let shape = match kind { 0 => Shape::d2(a, b), 1 => Shape::d3(a, b, c), _ => Shape::cube(a) };
+            let n = shape.level_texels(0).unwrap() as usize * 2;
+            let values: Vec<f32> = (0..n).map(|i| ((i as u32 ^ seed).wrapping_mul(2654435761) >> 20) as f32).collect();
+            let chain = box_mip_chain(shape, 2, &values, shape.max_levels()).unwrap();
+            prop_assert_eq!(chain.len() as u32, shape.max_levels());
+            for (l, level) in chain.iter().enumerate() {
+                prop_assert_eq!(level.len(), shape.level_texels(l as u32).unwrap() as usize * 2);
+                for ch in 0..2 {
+                    let (m0, ml) = (mean(&values, 2, ch), mean(level, 2, ch));
+                    prop_assert!((m0 - ml).abs() <= 1e-5 * m0.abs().max(1.0), "level {} ch {}: {} vs {}", l, ch, m0, ml);
+                }
+            }
+            // The chain (first channel) is a valid KTX2 mip pyramid.
+            let red: Vec<Vec<f32>> = chain.iter().map(|l| l.iter().step_by(2).copied().collect()).collect();
+            Ktx2Texture::from_f32(PixelFormat::R32Sfloat, shape, &red).unwrap();
+        }
+    }
+
+    #[test]
+    fn odd_sizes_and_constants() {
+        let shape = Shape::d2(5, 3);
+        let chain = box_mip_chain(shape, 1, &[2.5; 15], 3).unwrap();
+        assert_eq!(chain[1], vec![2.5; 2]);
+        assert_eq!(chain[2], vec![2.5; 1]);
+        assert!(box_mip_chain(shape, 1, &[0.0; 15], 4).is_err());
+        assert!(box_mip_chain(shape, 1, &[0.0; 14], 1).is_err());
+        let mut nan = vec![0.0; 15];
+        nan[3] = f32::NAN;
+        assert!(matches!(
+            box_mip_chain(shape, 1, &nan, 2),
+            Err(prt_texture::TextureError::NonFinite { index: 3, .. })
+        ));
+    }
+}
