@@ -240,6 +240,20 @@ pub fn cluster_columns(
             )?);
         }
     }
+    split_until(reduced, &mut clusters, count, lines, rng, progress)?;
+    Ok(Clustering { clusters })
+}
+
+/// The top-down stage: splits the cluster of highest [`cluster_cost`] on `reduced` with
+/// [`split_cluster`] until there are `count` clusters or only singletons are left.
+pub(crate) fn split_until(
+    reduced: &ReducedMatrix,
+    clusters: &mut Vec<Vec<u32>>,
+    count: usize,
+    lines: usize,
+    rng: &mut impl Rng,
+    progress: &dyn Progress,
+) -> Result<(), ManyLightError> {
     progress.check()?;
     let costs: Vec<f64> = clusters
         .par_iter()
@@ -280,7 +294,7 @@ pub fn cluster_columns(
         clusters[top.id] = left;
         clusters.push(right);
     }
-    Ok(Clustering { clusters })
+    Ok(())
 }
 
 /// Stage 1 of [`cluster_columns`] over the non-zero columns `positive`; returns the non-empty

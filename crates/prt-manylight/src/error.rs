@@ -14,13 +14,14 @@ pub enum ManyLightError {
     /// A sample count was zero.
     #[error("at least one {what} must be sampled")]
     ZeroSamples {
-        /// "row" or "column".
+        /// "row", "column", or the LightSlice knob ("slices", "local clusters", ...).
         what: &'static str,
     },
-    /// More rows or columns were requested than the matrix has.
-    #[error("{requested} {what} requested but the matrix has only {available}")]
+    /// More rows or columns were requested than the matrix has (or, for LightSlice's global
+    /// clusters, than its local clusters).
+    #[error("{requested} {what} requested but only {available} are possible")]
     TooMany {
-        /// "rows" or "columns".
+        /// "rows", "columns", or the LightSlice knob.
         what: &'static str,
         /// The count requested.
         requested: usize,

@@ -11,6 +11,10 @@
 //!   lights are clustered by their reduced columns ([`cluster_columns`], cost [`cluster_cost`]);
 //!   one full column per cluster, drawn proportionally to its reduced norm and weighted by the
 //!   inverse probability, gives an unbiased image estimate.
+//! * [`light_slice`] — Ou and Pellacini, "LightSlice: Matrix Slice Sampling for the
+//!   Many-Lights Problem" (SIGGRAPH Asia 2011): one sampled row per slice of pixels, a global
+//!   clustering refined per slice on the rows of neighbouring slices, and per-slice
+//!   representatives evaluated on the slice's pixels only (through [`SliceOracle`]).
 //! * [`brute_force`] — the exact image, every element.
 //! * [`SyntheticVplOracle`] — a procedural VPL-like matrix (coloured walls, bright primary
 //!   lights, shadows, zero columns) to test and measure without a ray tracer.
@@ -36,12 +40,14 @@
 
 mod cluster;
 mod error;
+mod lightslice;
 mod reduced;
 mod rowcol;
 mod synthetic;
 
 pub use cluster::{Clustering, cluster_columns, cluster_cost, split_cluster};
 pub use error::ManyLightError;
+pub use lightslice::{LightSliceConfig, LightSliceEstimate, SliceOracle, light_slice};
 pub use reduced::{ReducedMatrix, stratified_rows};
 pub use rowcol::{
     Representative, RowColumnConfig, RowColumnEstimate, brute_force, row_column_sampling,

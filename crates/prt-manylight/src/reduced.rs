@@ -150,6 +150,47 @@ impl ReducedMatrix {
         })
     }
 
+    /// The reduced matrix restricted to some of its sampled rows: `positions` index
+    /// [`ReducedMatrix::rows`] (positions out of range are skipped). No oracle call.
+    pub fn select_rows(&self, positions: &[usize]) -> ReducedMatrix {
+        let positions: Vec<usize> = positions
+            .iter()
+            .copied()
+            .filter(|&p| p < self.rows.len())
+            .collect();
+        let channels = self.channels;
+        let dim = positions.len() * channels;
+        let mut data = vec![0.0f32; self.cols() * dim];
+        for (j, dst) in data
+            .chunks_exact_mut(dim.max(1))
+            .enumerate()
+            .take(self.cols())
+        {
+            let src = self.column(j);
+            for (k, &p) in positions.iter().enumerate() {
+                dst[k * channels..(k + 1) * channels]
+                    .copy_from_slice(&src[p * channels..(p + 1) * channels]);
+            }
+        }
+        let norms = data
+            .chunks_exact(dim.max(1))
+            .map(|col| col.iter().map(|&v| v as f64 * v as f64).sum::<f64>().sqrt())
+            .collect::<Vec<f64>>();
+        let norms = if dim == 0 {
+            vec![0.0; self.cols()]
+        } else {
+            norms
+        };
+        let rows = positions.iter().map(|&p| self.rows[p]).collect();
+        ReducedMatrix {
+            rows,
+            channels,
+            dim,
+            data,
+            norms,
+        }
+    }
+
     /// The sampled row indices, in the order of the reduced columns' entries.
     pub fn rows(&self) -> &[usize] {
         &self.rows

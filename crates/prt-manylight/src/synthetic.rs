@@ -1,8 +1,12 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
+use std::ops::Range;
+
 use prt_core::{CoreError, MatrixOracle};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
+
+use crate::SliceOracle;
 
 /// A procedural pixels × lights matrix with the structure of a virtual-point-light matrix, for
 /// tests and benchmarks without a ray tracer: non-negative RGB elements, columns that cluster
@@ -217,5 +221,44 @@ impl MatrixOracle for SyntheticVplOracle {
 
     fn elements_evaluated(&self) -> u64 {
         self.evaluated.load(Ordering::Relaxed)
+    }
+}
+
+impl SliceOracle for SyntheticVplOracle {
+    /// Evaluates only the requested rows (counting `rows.len()` elements).
+    fn eval_col_range(
+        &self,
+        j: usize,
+        rows: Range<usize>,
+        out: &mut [f32],
+    ) -> Result<(), CoreError> {
+        let Some(light) = self.lights.get(j) else {
+            return Err(CoreError::OutOfRange {
+                what: "oracle column",
+                index: j,
+                len: self.cols(),
+            });
+        };
+        if rows.end > self.rows() || rows.start > rows.end {
+            return Err(CoreError::OutOfRange {
+                what: "oracle row range end",
+                index: rows.end,
+                len: self.rows(),
+            });
+        }
+        if out.len() != rows.len() * 3 {
+            return Err(CoreError::LengthMismatch {
+                what: "oracle column range output",
+                expected: rows.len() * 3,
+                got: out.len(),
+            });
+        }
+        let count = rows.len() as u64;
+        for (i, element) in rows.zip(out.chunks_exact_mut(3)) {
+            let (p, albedo) = self.pixel(i);
+            Self::element(p, albedo, light, element);
+        }
+        self.evaluated.fetch_add(count, Ordering::Relaxed);
+        Ok(())
     }
 }

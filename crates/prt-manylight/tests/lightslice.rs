@@ -1,0 +1,194 @@
+//! LightSlice: exactness, unbiasedness, cost accounting, determinism and bad input.
+
+use ndarray::Array2;
+use prt_core::{DenseOracle, MatrixOracle, NoProgress};
+use prt_manylight::{
+    LightSliceConfig, ManyLightError, SliceOracle, SyntheticVplOracle, brute_force, light_slice,
+};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+fn dense(rows: usize, cols: usize, seed: u64) -> DenseOracle {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let mut data = Array2::from_shape_fn((rows, cols * 3), |_| rng.random::<f32>());
+    for j in (0..cols).step_by(5) {
+        for c in 0..3 {
+            data.column_mut(j * 3 + c).fill(0.0);
+        }
+    }
+    DenseOracle::new(data, 3).unwrap()
+}
+
+fn relative_error(a: &[f32], b: &[f32]) -> f64 {
+    let num: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
+        .sum();
+    let den: f64 = b.iter().map(|&y| (y as f64).powi(2)).sum();
+    (num / den).sqrt()
+}
+
+#[test]
+fn exact_when_every_slice_keeps_every_light_alone() {
+    let oracle = dense(30, 20, 1);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    for slices in [1, 4, 30] {
+        let config = LightSliceConfig {
+            global_clusters: 5,
+            ..LightSliceConfig::new(slices, 20)
+        };
+        let estimate = light_slice(&oracle, &config, &NoProgress).unwrap();
+        assert!(estimate.clusters_per_slice.iter().all(|&c| c == 20));
+        assert!(
+            relative_error(&estimate.image, &exact) < 1e-6,
+            "{slices} slices"
+        );
+    }
+}
+
+/// Mean over seeds within 5 standard errors of the exact total, and per pixel.
+fn check_unbiased(oracle: &dyn SliceOracle, config: LightSliceConfig, runs: u64) {
+    let exact = brute_force(oracle, &NoProgress).unwrap();
+    let len = exact.len();
+    let (mut sum, mut sum_sq) = (vec![0.0f64; len], vec![0.0f64; len]);
+    let mut totals = Vec::new();
+    for seed in 0..runs {
+        let estimate = light_slice(oracle, &config.with_seed(seed), &NoProgress).unwrap();
+        for (k, &v) in estimate.image.iter().enumerate() {
+            sum[k] += v as f64;
+            sum_sq[k] += (v as f64).powi(2);
+        }
+        totals.push(estimate.image.iter().map(|&v| v as f64).sum::<f64>());
+    }
+    let n = runs as f64;
+    let mean = totals.iter().sum::<f64>() / n;
+    let var = totals.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    let exact_total: f64 = exact.iter().map(|&v| v as f64).sum();
+    assert!(var > 0.0);
+    let z = (mean - exact_total) / (var / n).sqrt();
+    assert!(z.abs() < 5.0, "mean {mean}, exact {exact_total}, z = {z}");
+    for k in 0..len {
+        let m = sum[k] / n;
+        let v = (sum_sq[k] / n - m * m).max(0.0) * n / (n - 1.0);
+        let tolerance = 5.0 * (v / n).sqrt() + 1e-5 * (1.0 + exact[k].abs() as f64);
+        assert!(
+            (m - exact[k] as f64).abs() < tolerance,
+            "pixel value {k}: {m} vs {}",
+            exact[k]
+        );
+    }
+}
+
+#[test]
+fn unbiased_on_dense_and_vpl_like_matrices() {
+    check_unbiased(&dense(24, 50, 2), LightSliceConfig::new(6, 8), 400);
+    // 3000 runs: the weights 1/p are heavy-tailed here (a light with a small reduced norm can
+    // dominate a pixel), so the sample variance needs many runs to be trusted; at 300 runs one
+    // pixel's mean was 5.3 standard errors low, at 3000 every pixel is within 5.
+    let oracle = SyntheticVplOracle::new(8, 8, 400, 3);
+    check_unbiased(&oracle, LightSliceConfig::new(8, 24), 3000);
+}
+
+#[test]
+fn error_falls_with_more_slices_and_clusters() {
+    let oracle = SyntheticVplOracle::new(24, 24, 3000, 4);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let mean_error = |slices, clusters| {
+        (0..6u64)
+            .map(|seed| {
+                let config = LightSliceConfig::new(slices, clusters).with_seed(seed);
+                relative_error(
+                    &light_slice(&oracle, &config, &NoProgress).unwrap().image,
+                    &exact,
+                )
+            })
+            .sum::<f64>()
+            / 6.0
+    };
+    let coarse = mean_error(4, 16);
+    let fine = mean_error(32, 300);
+    assert!(fine < 0.5 * coarse, "{coarse} -> {fine}");
+}
+
+#[test]
+fn elements_are_counted_per_slice() {
+    let oracle = SyntheticVplOracle::new(10, 10, 500, 5);
+    let config = LightSliceConfig::new(7, 30);
+    let estimate = light_slice(&oracle, &config, &NoProgress).unwrap();
+    assert_eq!(estimate.rows.len(), 7);
+    assert!(estimate.clusters_per_slice.iter().all(|&c| c == 30));
+    // 7 sampled rows of 500 lights, then 30 representatives on each slice's pixels (100 in all).
+    assert_eq!(estimate.elements, 7 * 500 + 30 * 100);
+    assert_eq!(oracle.elements_evaluated(), estimate.elements);
+}
+
+#[test]
+fn same_seed_same_image_on_any_thread_count() {
+    let oracle = SyntheticVplOracle::new(16, 16, 2000, 6);
+    let config = LightSliceConfig::new(16, 40).with_seed(9);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| light_slice(&oracle, &config, &NoProgress).unwrap())
+    };
+    assert_eq!(run(1), run(3));
+}
+
+#[test]
+fn bad_input_is_a_typed_error() {
+    let oracle = dense(10, 20, 7);
+    let run = |config: LightSliceConfig| light_slice(&oracle, &config, &NoProgress);
+    assert_eq!(
+        run(LightSliceConfig::new(0, 5)),
+        Err(ManyLightError::ZeroSamples { what: "slices" })
+    );
+    assert_eq!(
+        run(LightSliceConfig::new(11, 5)),
+        Err(ManyLightError::TooMany {
+            what: "slices",
+            requested: 11,
+            available: 10
+        })
+    );
+    assert_eq!(
+        run(LightSliceConfig::new(5, 21)),
+        Err(ManyLightError::TooMany {
+            what: "local clusters",
+            requested: 21,
+            available: 20
+        })
+    );
+    assert_eq!(
+        run(LightSliceConfig {
+            global_clusters: 6,
+            ..LightSliceConfig::new(5, 5)
+        }),
+        Err(ManyLightError::TooMany {
+            what: "global clusters",
+            requested: 6,
+            available: 5
+        })
+    );
+    assert_eq!(
+        run(LightSliceConfig {
+            neighbours: 0,
+            ..LightSliceConfig::new(5, 5)
+        }),
+        Err(ManyLightError::ZeroSamples { what: "neighbours" })
+    );
+    let empty = DenseOracle::new(Array2::zeros((0, 3)), 3).unwrap();
+    assert_eq!(
+        light_slice(&empty, &LightSliceConfig::new(1, 1), &NoProgress),
+        Err(ManyLightError::EmptyMatrix {
+            what: "rows (pixels)"
+        })
+    );
+    // The default range evaluation checks its range.
+    let mut out = vec![0.0f32; 9];
+    assert!(oracle.eval_col_range(0, 8..11, &mut out).is_err());
+    assert!(oracle.eval_col_range(0, 7..10, &mut out).is_ok());
+    assert_eq!(out[0], oracle.data()[[7, 0]]);
+}
