@@ -9,8 +9,20 @@ use glam::Vec3;
 use prt_core::SphericalBasis;
 use rayon::prelude::*;
 
+use prt_sphere::SgBasis;
+
 use crate::PlsqError;
 use crate::encoder::{Denominator, EncoderConfig, Precision, Sweep, Update, true_square_means};
+use crate::fast::exp_nonpositive;
+
+/// Spherical Gaussian lobes in structure-of-arrays form, for lane-wide evaluation.
+#[derive(Debug, Clone)]
+struct SgLanes {
+    px: Vec<f32>,
+    py: Vec<f32>,
+    pz: Vec<f32>,
+    lambda: Vec<f32>,
+}
 
 /// Encoders per block (the SIMD/GPU lane width of the layout).
 pub const LANES: usize = 16;
@@ -26,6 +38,29 @@ pub struct BatchEncoder<'b, B: SphericalBasis + ?Sized> {
     coeffs: Vec<f32>,
     integrals: Vec<f32>,
     weights: Vec<f32>,
+    sg: Option<SgLanes>,
+}
+
+impl<'b> BatchEncoder<'b, SgBasis> {
+    /// `count` encoders into a set of spherical Gaussians, with the basis evaluated lane-wide
+    /// by a vectorised `exp` (the fast path; the same results as [`BatchEncoder::new`] to `exp`
+    /// rounding).
+    pub fn new_sg(
+        basis: &'b SgBasis,
+        channels: usize,
+        count: usize,
+        config: EncoderConfig,
+    ) -> Result<Self, PlsqError> {
+        let mut enc = Self::new(basis, channels, count, config)?;
+        let axes = basis.axes();
+        enc.sg = Some(SgLanes {
+            px: axes.iter().map(|a| a.x).collect(),
+            py: axes.iter().map(|a| a.y).collect(),
+            pz: axes.iter().map(|a| a.z).collect(),
+            lambda: basis.sharpness().to_vec(),
+        });
+        Ok(enc)
+    }
 }
 
 impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
@@ -55,6 +90,7 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
             coeffs: vec![0.0; blocks * k * channels * LANES],
             integrals: vec![0.0; blocks * k * LANES],
             weights: vec![0.0; blocks * LANES],
+            sg: None,
         })
     }
 
@@ -140,6 +176,7 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
         let basis = self.basis;
         let cfg = self.config;
         let true_means = &self.true_means;
+        let sg = self.sg.as_ref();
         self.coeffs
             .par_chunks_mut(k * ch * LANES)
             .zip(self.integrals.par_chunks_mut(k * LANES))
@@ -156,10 +193,10 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                     }
                     let mut block_dirs = [Vec3::ZERO; LANES];
                     block_dirs[..lanes].copy_from_slice(&dirs[first..first + lanes]);
-                    let mut v = vec![0.0f32; ch * LANES];
+                    scratch.values.fill(0.0);
                     for l in 0..lanes {
                         for c in 0..ch {
-                            v[c * LANES + l] = values[(first + l) * ch + c];
+                            scratch.values[c * LANES + l] = values[(first + l) * ch + c];
                         }
                     }
                     let block = Block {
@@ -167,17 +204,13 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                         integrals,
                         wsum,
                     };
-                    update_block(
-                        basis,
-                        &cfg,
-                        true_means,
-                        block,
-                        scratch,
-                        &block_dirs,
-                        Some(&v),
-                        &w,
-                        lanes,
-                    );
+                    let lanes_in = Lanes {
+                        dirs: &block_dirs,
+                        w: &w,
+                        count: lanes,
+                        with_values: true,
+                    };
+                    update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
                     if cfg.hemisphere {
                         let mirrored = block_dirs.map(|d| -d);
                         let block = Block {
@@ -185,9 +218,13 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                             integrals,
                             wsum,
                         };
-                        update_block(
-                            basis, &cfg, true_means, block, scratch, &mirrored, None, &w, lanes,
-                        );
+                        let lanes_in = Lanes {
+                            dirs: &mirrored,
+                            w: &w,
+                            count: lanes,
+                            with_values: false,
+                        };
+                        update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
                     }
                 },
             );
@@ -199,6 +236,7 @@ struct Scratch {
     eval: Vec<f32>,
     b: Vec<f32>,
     delta: Vec<f32>,
+    values: Vec<f32>,
 }
 
 impl Scratch {
@@ -207,8 +245,18 @@ impl Scratch {
             eval: vec![0.0; k],
             b: vec![0.0; k * LANES],
             delta: vec![0.0; ch * LANES],
+            values: vec![0.0; ch * LANES],
         }
     }
+}
+
+/// The samples of one block: a direction and weight per lane, `count` lanes in use, values in
+/// the scratch buffer (or zero for hemisphere mirror samples).
+struct Lanes<'a> {
+    dirs: &'a [Vec3; LANES],
+    w: &'a [f32; LANES],
+    count: usize,
+    with_values: bool,
 }
 
 struct Block<'a> {
@@ -220,15 +268,19 @@ struct Block<'a> {
 /// One sample per lane; the same arithmetic as `ProgressiveEncoder::apply`, lane-wide.
 fn update_block<B: SphericalBasis + ?Sized>(
     basis: &B,
+    sg: Option<&SgLanes>,
     cfg: &EncoderConfig,
     true_means: &[f32],
     block: Block<'_>,
     scratch: &mut Scratch,
-    dirs: &[Vec3; LANES],
-    values: Option<&[f32]>,
-    w: &[f32; LANES],
-    lanes: usize,
+    lanes_in: Lanes<'_>,
 ) {
+    let Lanes {
+        dirs,
+        w,
+        count: lanes,
+        with_values,
+    } = lanes_in;
     let k = basis.len();
     let ch = scratch.delta.len() / LANES;
     let Block {
@@ -243,21 +295,37 @@ fn update_block<B: SphericalBasis + ?Sized>(
             share[l] = w[l] / wsum[l];
         }
     }
-    for l in 0..lanes {
-        basis.eval(dirs[l], &mut scratch.eval);
+    if let Some(sg) = sg {
+        let dx: [f32; LANES] = std::array::from_fn(|l| dirs[l].x);
+        let dy: [f32; LANES] = std::array::from_fn(|l| dirs[l].y);
+        let dz: [f32; LANES] = std::array::from_fn(|l| dirs[l].z);
+        let live: [f32; LANES] = std::array::from_fn(|l| if l < lanes { 1.0 } else { 0.0 });
         for i in 0..k {
-            scratch.b[i * LANES + l] = scratch.eval[i];
+            let b = &mut scratch.b[i * LANES..(i + 1) * LANES];
+            let (px, py, pz, lambda) = (sg.px[i], sg.py[i], sg.pz[i], sg.lambda[i]);
+            for l in 0..LANES {
+                b[l] = live[l]
+                    * exp_nonpositive(lambda * (px * dx[l] + py * dy[l] + pz * dz[l] - 1.0));
+            }
         }
-    }
-    for l in lanes..LANES {
-        for i in 0..k {
-            scratch.b[i * LANES + l] = 0.0;
+    } else {
+        for l in 0..lanes {
+            basis.eval(dirs[l], &mut scratch.eval);
+            for i in 0..k {
+                scratch.b[i * LANES + l] = scratch.eval[i];
+            }
+        }
+        for l in lanes..LANES {
+            for i in 0..k {
+                scratch.b[i * LANES + l] = 0.0;
+            }
         }
     }
     let delta = &mut scratch.delta;
-    match values {
-        Some(v) => delta.copy_from_slice(v),
-        None => delta.fill(0.0),
+    if with_values {
+        delta.copy_from_slice(&scratch.values);
+    } else {
+        delta.fill(0.0);
     }
     for i in 0..k {
         let b = &scratch.b[i * LANES..(i + 1) * LANES];

@@ -17,6 +17,8 @@
 //! form. Options: non-negative projection, weighted samples (West's incremental weighted mean),
 //! hemisphere mode (a zero sample opposite each true sample), 16-bit state (to show its bias).
 //!
+//! [`SgEncoder`] is the same encoder specialised for spherical Gaussians (structure of arrays,
+//! vectorised `exp`, Gauss-Seidel as a prefix product); it is the one to use for speed.
 //! [`BatchEncoder`] runs many independent encoders (lightmap texels, probes) in a blocked
 //! structure-of-arrays layout in parallel; [`reference`](mod@reference) has the exact fits over the same samples.
 //!
@@ -44,6 +46,7 @@
 mod batch;
 mod encoder;
 mod error;
+mod fast;
 pub mod reference;
 
 pub use batch::{BatchEncoder, LANES};
@@ -52,3 +55,4 @@ pub use encoder::{
     true_square_means,
 };
 pub use error::PlsqError;
+pub use fast::{SgEncoder, exp_nonpositive};

@@ -384,3 +384,108 @@ fn cancellation_is_honoured() {
     );
     assert_eq!(enc.total_weight(), 4096.0);
 }
+
+#[test]
+fn fast_sg_encoder_matches_the_generic_one() {
+    use prt_plsq::{SgEncoder, exp_nonpositive};
+    for x in [0.0f32, -1e-7, -0.3, -1.0, -6.0, -12.0, -50.0, -86.0] {
+        let e = x.exp();
+        assert!((exp_nonpositive(x) - e).abs() <= 3e-7 * e, "exp({x})");
+    }
+    assert!(exp_nonpositive(-1e4) >= 0.0 && exp_nonpositive(-1e4) < 1e-37);
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let (dirs, values) = samples(3000);
+    for cfg in [
+        EncoderConfig::paper(),
+        EncoderConfig::probulator_running_average(),
+        EncoderConfig {
+            update: Update::Residual { acceleration: 3.0 },
+            non_negative: true,
+            ..EncoderConfig::paper()
+        },
+        EncoderConfig {
+            sweep: Sweep::Jacobi,
+            denominator: Denominator::Exact,
+            ..EncoderConfig::paper()
+        },
+        EncoderConfig {
+            sweep: Sweep::GaussSeidel,
+            ..EncoderConfig::probulator_running_average()
+        },
+        EncoderConfig {
+            hemisphere: true,
+            ..EncoderConfig::paper()
+        },
+    ] {
+        let generic = run(&basis, cfg, &dirs, &values, 3);
+        let mut fast = SgEncoder::<3>::new(&basis, cfg).unwrap();
+        fast.add_samples(&dirs, &values, None, &NoProgress).unwrap();
+        for (a, b) in generic.iter().zip(fast.coefficients()) {
+            assert!(
+                (a - b).abs() <= 1e-3 * a.abs().max(1.0),
+                "{cfg:?}: {a} vs {b}"
+            );
+        }
+    }
+    let mut fast = SgEncoder::<3>::new(&basis, EncoderConfig::paper()).unwrap();
+    let mut bad = values.clone();
+    bad[7000] = f32::NAN;
+    assert_eq!(
+        fast.add_samples(&dirs, &bad, None, &NoProgress),
+        Err(PlsqError::NonFinite {
+            what: "sample value",
+            index: 7000
+        })
+    );
+    assert_eq!(
+        fast.total_weight(),
+        0.0,
+        "validation happens before the chunk is applied"
+    );
+    assert_eq!(
+        fast.add_sample(Vec3::Y, [1.0; 3], 0.0).unwrap(),
+        SampleOutcome::ZeroWeight
+    );
+    assert!(
+        SgEncoder::<3>::new(
+            &basis,
+            EncoderConfig {
+                precision: Precision::F16,
+                ..EncoderConfig::paper()
+            }
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn batch_sg_fast_path_matches_the_generic_batch() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let count = 37;
+    let cfg = EncoderConfig {
+        hemisphere: true,
+        ..EncoderConfig::paper()
+    };
+    let mut generic = BatchEncoder::new(&basis, 3, count, cfg).unwrap();
+    let mut fast = BatchEncoder::new_sg(&basis, 3, count, cfg).unwrap();
+    let all = sobol_sphere(count * 30, 5);
+    for r in 0..30 {
+        let dirs = &all[r * count..(r + 1) * count];
+        let values: Vec<f32> = dirs.iter().flat_map(|d| signal(*d)).collect();
+        generic.add_samples(dirs, &values, None).unwrap();
+        fast.add_samples(dirs, &values, None).unwrap();
+    }
+    for e in 0..count {
+        for (a, b) in generic
+            .coefficients(e)
+            .unwrap()
+            .iter()
+            .zip(fast.coefficients(e).unwrap())
+        {
+            assert!(
+                (a - b).abs() <= 1e-4 * a.abs().max(1.0),
+                "encoder {e}: {a} vs {b}"
+            );
+        }
+    }
+}
