@@ -1,0 +1,643 @@
+//! The Monte Carlo estimate of MBD's loss, its gradient and its diagonal Hessian, computed cell
+//! by cell with small matrix products (paper section 3.3, eqs. 9, 11, 13, 14).
+//!
+//! With one jittered sample `x_s` per voxel (stratum) of the target grid,
+//!
+//! ```text
+//! E(c, B)        = Σ_s ‖f(x_s) − f̂(x_s)‖² + λ/2 ‖c‖²
+//! ∂E/∂c_{m,l}    = −2 Σ_s φ_m(x_s) b_l(x_s)·r_s + λ c_{m,l}        H = 2 Σ_s φ_m(x_s)² ‖b_l(x_s)‖² + λ
+//! ∂E/∂B_{n,l,d}  = −2 Σ_s ψ_n(x_s) c_l(x_s) r_{s,d}                 H = 2 Σ_s ψ_n(x_s)² c_l(x_s)²
+//! ```
+//!
+//! with `r_s = f(x_s) − f̂(x_s)`. The data term is the integral of the squared error in units of
+//! one voxel's volume, so `λ` weighs against per-voxel squared errors. The loss is quadratic in
+//! `c` for fixed `B` and in `B` for fixed `c`, so both diagonals are exact diagonals of the
+//! block Hessians of the estimate.
+//!
+//! All samples of one basis cell share the same basis nodes, so per cell, with `P[s, (j,l)] =
+//! ψ_j(x_s) c_l(x_s)` (`S × nL`) and the cell's basis rows `B_g` (`nL × D`):
+//! `R = F − P B_g`, `∇_B = −2 Pᵀ R`, `b(x_s)·r_s = ψ-contraction of R B_gᵀ`. Those three f32
+//! products carry almost all the work; per-cell sums are short, and everything summed across
+//! cells is accumulated in f64 in a fixed order, so the result does not depend on the number of
+//! threads.
+
+use glam::Vec3;
+use ndarray::{Array2, linalg::general_mat_mul};
+use prt_core::{CoreError, GridField, KernelWeights, Progress, SpatialKernels};
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+/// Samples per group when the basis kernels have no cell structure.
+const FALLBACK_GROUP: usize = 64;
+/// Groups evaluated in parallel before their results are reduced (fixed, so the reduction
+/// order does not depend on the thread count).
+const GROUP_BATCH: usize = 128;
+
+/// The fixed parts of an MBD fit: target, kernels, rank, regularisation.
+pub(crate) struct Problem<'a, C, B> {
+    pub field: &'a GridField,
+    pub coefficient_kernels: &'a C,
+    pub basis_kernels: &'a B,
+    pub rank: usize,
+    pub lambda: f32,
+    pub preconditioner: Preconditioner,
+}
+
+/// The diagonal scaling of the quasi-Newton step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum Preconditioner {
+    /// The paper's diagonal Hessian (eqs. 11, 14): `2 Σ_s φ_m(x_s)² ‖b_l(x_s)‖² + λ` and
+    /// `2 Σ_s ψ_n(x_s)² c_l(x_s)²`. Overlapping kernels make the true curvature along smooth
+    /// directions larger than the diagonal (up to 3.4× for trilinear hats), so full steps
+    /// overshoot and the line search has to halve them.
+    Diagonal,
+    /// The diagonal with each kernel's overlap lumped in (`φ_m² → φ_m Σ_m' φ_m'`, likewise ψ): the
+    /// row sums of the spatial coupling, which bound it (Gershgorin), so full steps are accepted
+    /// far more often. Equal to the diagonal for non-overlapping kernels.
+    Lumped,
+    /// The lumped diagonal extended to full `L × L` blocks per kernel:
+    /// `2 Σ_s φ_m Σφ b(x_s) b(x_s)ᵀ + λ I` for the coefficients of kernel `m` and
+    /// `2 Σ_s ψ_n Σψ c(x_s) c(x_s)ᵀ` for the basis vectors of node `n`. It accounts for the coupling between the L basis vectors (which the
+    /// diagonals ignore) and, being a block Gershgorin bound, still dominates each block's
+    /// Hessian, so a full step never increases the loss in either block alone.
+    #[default]
+    Block,
+}
+
+impl Preconditioner {
+    /// Entries per (kernel, l) row of the curvature: L for [`Preconditioner::Block`], else 1.
+    pub(crate) fn width(self, rank: usize) -> usize {
+        if self == Preconditioner::Block {
+            rank
+        } else {
+            1
+        }
+    }
+}
+
+/// One jittered sample per voxel, grouped by basis cell.
+pub(crate) struct Samples {
+    points: Vec<Vec3>,
+    /// Sample indices ordered by group.
+    order: Vec<u32>,
+    /// Group boundaries into `order`.
+    groups: Vec<(usize, usize)>,
+}
+
+impl Samples {
+    /// Stratified jittered samples for `iteration`, reproducible from `seed`. With
+    /// `jitter = false` the samples sit at the voxel centres.
+    pub fn draw<B: SpatialKernels>(
+        field: &GridField,
+        basis: &B,
+        seed: u64,
+        iteration: u64,
+        jitter: bool,
+    ) -> Self {
+        let size = field.voxel_size();
+        let mut rng = Pcg64Mcg::seed_from_u64(mix(seed, iteration));
+        let points: Vec<Vec3> = (0..field.num_voxels())
+            .map(|v| {
+                let centre = field.centre_of(v);
+                if jitter {
+                    let u = Vec3::new(
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                    );
+                    centre + (u - 0.5) * size
+                } else {
+                    centre
+                }
+            })
+            .collect();
+        Self::group(points, basis)
+    }
+
+    /// Groups arbitrary points by basis cell.
+    pub fn group<B: SpatialKernels>(points: Vec<Vec3>, basis: &B) -> Self {
+        let cells = basis.num_support_cells();
+        let keys: Option<Vec<u32>> = if cells > 0 {
+            points
+                .par_iter()
+                .map(|&x| {
+                    basis
+                        .support_cell(x)
+                        .filter(|&c| c < cells)
+                        .map(|c| c as u32)
+                })
+                .collect()
+        } else {
+            None
+        };
+        let (order, groups) = match keys {
+            Some(keys) => {
+                // Counting sort: stable, so samples stay in stratum order inside a cell.
+                let mut counts = vec![0usize; cells + 1];
+                for &k in &keys {
+                    counts[k as usize + 1] += 1;
+                }
+                for i in 0..cells {
+                    counts[i + 1] += counts[i];
+                }
+                let mut next = counts.clone();
+                let mut order = vec![0u32; keys.len()];
+                for (s, &k) in keys.iter().enumerate() {
+                    order[next[k as usize]] = s as u32;
+                    next[k as usize] += 1;
+                }
+                let groups = (0..cells)
+                    .map(|c| (counts[c], counts[c + 1]))
+                    .filter(|(a, b)| b > a)
+                    .collect();
+                (order, groups)
+            }
+            None => {
+                let n = points.len();
+                let order = (0..n as u32).collect();
+                let groups = (0..n)
+                    .step_by(FALLBACK_GROUP)
+                    .map(|a| (a, (a + FALLBACK_GROUP).min(n)))
+                    .collect();
+                (order, groups)
+            }
+        };
+        Self {
+            points,
+            order,
+            groups,
+        }
+    }
+}
+
+/// SplitMix64-style mixing of a seed and a stream number.
+pub(crate) fn mix(seed: u64, stream: u64) -> u64 {
+    let mut z = seed
+        ^ stream
+            .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            .wrapping_add(0x6A09_E667_F3BC_C909);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Loss and (optionally) gradient and diagonal Hessian of the estimate.
+pub(crate) struct Evaluation {
+    /// Data term `Σ_s ‖r_s‖²`.
+    pub data_loss: f64,
+    /// Regularisation `λ/2 ‖c‖²`.
+    pub reg_loss: f64,
+    /// `∂E/∂c` (`M × L`) and its curvature (`M × L × w`, `w` = [`Preconditioner::width`]);
+    /// empty when not requested.
+    pub grad_c: Vec<f64>,
+    pub hess_c: Vec<f64>,
+    /// `∂E/∂B` (`N × L × D`), curvature per (node, l) (`N × L × w`, the same for every d).
+    pub grad_b: Vec<f64>,
+    pub hess_b: Vec<f64>,
+}
+
+impl Evaluation {
+    pub fn loss(&self) -> f64 {
+        self.data_loss + self.reg_loss
+    }
+}
+
+/// What one group (basis cell) contributes.
+struct GroupOut {
+    loss: f64,
+    basis_nodes: Vec<u32>,
+    grad_b: Array2<f32>,
+    hess_b: Vec<f64>,
+    coef_nodes: Vec<u32>,
+    grad_c: Vec<f64>,
+    hess_c: Vec<f64>,
+}
+
+impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
+    pub fn dim(&self) -> usize {
+        self.field.dim()
+    }
+
+    /// Evaluates the estimate on `samples` at parameters `coefficients` (`M × L`) and `basis`
+    /// (`N × L × D`, flat).
+    pub fn evaluate(
+        &self,
+        samples: &Samples,
+        coefficients: &[f32],
+        basis: &[f32],
+        want_gradient: bool,
+        progress: &dyn Progress,
+    ) -> Result<Evaluation, CoreError> {
+        let (l, d) = (self.rank, self.dim());
+        let m = self.coefficient_kernels.len();
+        let n = self.basis_kernels.len();
+        let mut eval = Evaluation {
+            data_loss: 0.0,
+            reg_loss: 0.5
+                * self.lambda as f64
+                * coefficients
+                    .iter()
+                    .map(|&c| (c as f64) * (c as f64))
+                    .sum::<f64>(),
+            grad_c: Vec::new(),
+            hess_c: Vec::new(),
+            grad_b: Vec::new(),
+            hess_b: Vec::new(),
+        };
+        let w = self.preconditioner.width(l);
+        if want_gradient {
+            let lambda = self.lambda as f64;
+            eval.grad_c = coefficients.iter().map(|&c| lambda * c as f64).collect();
+            eval.hess_c = vec![0.0; m * l * w];
+            for (k, h) in eval.hess_c.chunks_exact_mut(w).enumerate() {
+                h[if w == 1 { 0 } else { k % l }] = lambda;
+            }
+            eval.grad_b = vec![0.0; n * l * d];
+            eval.hess_b = vec![0.0; n * l * w];
+        }
+        for batch in samples.groups.chunks(GROUP_BATCH) {
+            progress.check()?;
+            let outs: Vec<GroupOut> = batch
+                .par_iter()
+                .map(|&(a, b)| {
+                    self.evaluate_group(
+                        samples,
+                        &samples.order[a..b],
+                        coefficients,
+                        basis,
+                        want_gradient,
+                    )
+                })
+                .collect::<Result<_, _>>()?;
+            for out in outs {
+                eval.data_loss += out.loss;
+                if !want_gradient {
+                    continue;
+                }
+                for (j, &node) in out.basis_nodes.iter().enumerate() {
+                    let node = node as usize;
+                    for li in 0..l {
+                        let row = out.grad_b.row(j * l + li);
+                        let dst = &mut eval.grad_b[(node * l + li) * d..(node * l + li + 1) * d];
+                        for (g, &v) in dst.iter_mut().zip(row.iter()) {
+                            *g += v as f64;
+                        }
+                        for k in 0..w {
+                            eval.hess_b[(node * l + li) * w + k] +=
+                                out.hess_b[(j * l + li) * w + k];
+                        }
+                    }
+                }
+                for (j, &node) in out.coef_nodes.iter().enumerate() {
+                    let node = node as usize;
+                    for li in 0..l {
+                        eval.grad_c[node * l + li] += out.grad_c[j * l + li];
+                        for k in 0..w {
+                            eval.hess_c[(node * l + li) * w + k] +=
+                                out.hess_c[(j * l + li) * w + k];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(eval)
+    }
+
+    fn evaluate_group(
+        &self,
+        samples: &Samples,
+        ids: &[u32],
+        coefficients: &[f32],
+        basis: &[f32],
+        want_gradient: bool,
+    ) -> Result<GroupOut, CoreError> {
+        let (l, d) = (self.rank, self.dim());
+        let s_len = ids.len();
+        let mut phi = KernelWeights::with_capacity(self.coefficient_kernels.max_support());
+        let mut psi = KernelWeights::with_capacity(self.basis_kernels.max_support());
+        // Kernel weights of every sample, flattened with offsets.
+        let mut phi_off = Vec::with_capacity(s_len + 1);
+        let mut phi_idx = Vec::new();
+        let mut phi_w = Vec::new();
+        let mut psi_off = Vec::with_capacity(s_len + 1);
+        let mut psi_idx = Vec::new();
+        let mut psi_w = Vec::new();
+        phi_off.push(0);
+        psi_off.push(0);
+        for &s in ids {
+            let x = samples.points[s as usize];
+            self.coefficient_kernels.eval(x, &mut phi)?;
+            self.basis_kernels.eval(x, &mut psi)?;
+            phi_idx.extend_from_slice(&phi.indices);
+            phi_w.extend_from_slice(&phi.weights);
+            phi_off.push(phi_idx.len());
+            psi_idx.extend_from_slice(&psi.indices);
+            psi_w.extend_from_slice(&psi.weights);
+            psi_off.push(psi_idx.len());
+        }
+        let basis_nodes = sorted_unique(&psi_idx);
+        let nb = basis_nodes.len();
+        let local_psi: Vec<usize> = psi_idx
+            .iter()
+            .map(|i| basis_nodes.binary_search(i).unwrap_or(0))
+            .collect();
+
+        // Dense ψ (S × nb) and c(x_s) (S × L).
+        let mut psi_dense = Array2::<f32>::zeros((s_len, nb));
+        let mut c_at = Array2::<f32>::zeros((s_len, l));
+        for s in 0..s_len {
+            for k in psi_off[s]..psi_off[s + 1] {
+                psi_dense[[s, local_psi[k]]] += psi_w[k];
+            }
+            let mut row = c_at.row_mut(s);
+            for k in phi_off[s]..phi_off[s + 1] {
+                let w = phi_w[k];
+                let src = &coefficients[phi_idx[k] as usize * l..(phi_idx[k] as usize + 1) * l];
+                for (o, &c) in row.iter_mut().zip(src) {
+                    *o += w * c;
+                }
+            }
+        }
+        // P[s, j L + l] = ψ_j(x_s) c_l(x_s).
+        let mut p = Array2::<f32>::zeros((s_len, nb * l));
+        for s in 0..s_len {
+            for j in 0..nb {
+                let w = psi_dense[[s, j]];
+                if w == 0.0 {
+                    continue;
+                }
+                for li in 0..l {
+                    p[[s, j * l + li]] = w * c_at[[s, li]];
+                }
+            }
+        }
+        // The cell's basis rows B_g (nb L × D).
+        let mut bg = Array2::<f32>::zeros((nb * l, d));
+        for (j, &node) in basis_nodes.iter().enumerate() {
+            let src = &basis[node as usize * l * d..(node as usize + 1) * l * d];
+            if let Some(dst) = bg
+                .slice_mut(ndarray::s![j * l..(j + 1) * l, ..])
+                .as_slice_mut()
+            {
+                dst.copy_from_slice(src);
+            }
+        }
+        // Residual R = F − P B_g.
+        let mut r = Array2::<f32>::zeros((s_len, d));
+        for (s, &id) in ids.iter().enumerate() {
+            let tw = self.field.trilinear_weights(samples.points[id as usize])?;
+            let mut row = r.row_mut(s);
+            for (&v, &w) in tw.indices.iter().zip(&tw.weights) {
+                if w != 0.0 {
+                    row.scaled_add(w, &ndarray::aview1(self.field.voxel(v)));
+                }
+            }
+        }
+        general_mat_mul(-1.0, &p, &bg, 1.0, &mut r);
+        let loss = r.iter().map(|&v| (v as f64) * (v as f64)).sum();
+        if !want_gradient {
+            return Ok(GroupOut {
+                loss,
+                basis_nodes,
+                grad_b: Array2::zeros((0, 0)),
+                hess_b: Vec::new(),
+                coef_nodes: Vec::new(),
+                grad_c: Vec::new(),
+                hess_c: Vec::new(),
+            });
+        }
+        // ∇_B = −2 Pᵀ R; diagonal Hessian 2 Σ_s P².
+        let mut grad_b = Array2::<f32>::zeros((nb * l, d));
+        general_mat_mul(-2.0, &p.t(), &r, 0.0, &mut grad_b);
+        let lumped = self.preconditioner != Preconditioner::Diagonal;
+        let w = self.preconditioner.width(l);
+        let mut hess_b = vec![0.0f64; nb * l * w];
+        for s in 0..s_len {
+            let overlap = if lumped {
+                psi_dense.row(s).sum() as f64
+            } else {
+                0.0
+            };
+            for j in 0..nb {
+                let weight = psi_dense[[s, j]] as f64;
+                if weight == 0.0 {
+                    continue;
+                }
+                let scale = if lumped {
+                    2.0 * weight * overlap
+                } else {
+                    2.0 * weight * weight
+                };
+                for li in 0..l {
+                    let ci = c_at[[s, li]] as f64;
+                    if w == 1 {
+                        hess_b[j * l + li] += scale * ci * ci;
+                    } else {
+                        for lj in 0..l {
+                            hess_b[(j * l + li) * l + lj] += scale * ci * c_at[[s, lj]] as f64;
+                        }
+                    }
+                }
+            }
+        }
+        // b(x_s)·r_s through Q = R B_gᵀ, and ‖b_l(x_s)‖² through the cell Gram G = B_g B_gᵀ.
+        let mut q = Array2::<f32>::zeros((s_len, nb * l));
+        general_mat_mul(1.0, &r, &bg.t(), 0.0, &mut q);
+        let mut gram = Array2::<f32>::zeros((nb * l, nb * l));
+        general_mat_mul(1.0, &bg, &bg.t(), 0.0, &mut gram);
+
+        let coef_nodes = sorted_unique(&phi_idx);
+        let nc = coef_nodes.len();
+        let mut grad_c = vec![0.0f64; nc * l];
+        let mut hess_c = vec![0.0f64; nc * l * w];
+        let mut br = vec![0.0f64; l];
+        // b(x_s) b(x_s)ᵀ (L × w): the full Gram for blocks, its diagonal otherwise.
+        let mut bb = vec![0.0f64; l * w];
+        for s in 0..s_len {
+            br.fill(0.0);
+            bb.fill(0.0);
+            for j in 0..nb {
+                let wj = psi_dense[[s, j]] as f64;
+                if wj == 0.0 {
+                    continue;
+                }
+                for li in 0..l {
+                    br[li] += wj * q[[s, j * l + li]] as f64;
+                }
+                for k in 0..nb {
+                    let wk = psi_dense[[s, k]] as f64;
+                    if wk == 0.0 {
+                        continue;
+                    }
+                    for li in 0..l {
+                        if w == 1 {
+                            bb[li] += wj * wk * gram[[j * l + li, k * l + li]] as f64;
+                        } else {
+                            let g = gram.row(j * l + li);
+                            for lj in 0..l {
+                                bb[li * l + lj] += wj * wk * g[k * l + lj] as f64;
+                            }
+                        }
+                    }
+                }
+            }
+            let overlap: f64 = if lumped {
+                phi_w[phi_off[s]..phi_off[s + 1]]
+                    .iter()
+                    .map(|&v| v as f64)
+                    .sum()
+            } else {
+                0.0
+            };
+            for k in phi_off[s]..phi_off[s + 1] {
+                let local = coef_nodes.binary_search(&phi_idx[k]).unwrap_or(0);
+                let weight = phi_w[k] as f64;
+                let scale = if lumped {
+                    2.0 * weight * overlap
+                } else {
+                    2.0 * weight * weight
+                };
+                for li in 0..l {
+                    grad_c[local * l + li] -= 2.0 * weight * br[li];
+                }
+                for (h, &v) in hess_c[local * l * w..(local + 1) * l * w]
+                    .iter_mut()
+                    .zip(&bb)
+                {
+                    *h += scale * v;
+                }
+            }
+        }
+        Ok(GroupOut {
+            loss,
+            basis_nodes,
+            grad_b,
+            hess_b,
+            coef_nodes,
+            grad_c,
+            hess_c,
+        })
+    }
+}
+
+fn sorted_unique(indices: &[u32]) -> Vec<u32> {
+    let mut v = indices.to_vec();
+    v.sort_unstable();
+    v.dedup();
+    v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+    use prt_core::{Aabb, NoProgress};
+    use prt_kernels::HatGrid;
+    use rand::Rng;
+
+    /// A random problem: field 5×4×3 of 4-vectors, coefficient nodes at the voxel centres, a
+    /// 3×2×2 basis grid, rank 2, and random parameters.
+    fn setup(seed: u64) -> (GridField, HatGrid, HatGrid, Vec<f32>, Vec<f32>) {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let field = GridField::from_fn([5, 4, 3], Aabb::UNIT, 4, |_, out| {
+            out.iter_mut()
+                .for_each(|o| *o = rng.random::<f32>() * 2.0 - 1.0)
+        })
+        .unwrap();
+        let coef = HatGrid::new([5, 4, 3], crate::voxel_centre_box(&field)).unwrap();
+        let basis = HatGrid::new([3, 2, 2], Aabb::UNIT).unwrap();
+        let c = (0..coef.len() * 2)
+            .map(|_| rng.random::<f32>() * 2.0 - 1.0)
+            .collect();
+        let b = (0..basis.len() * 2 * 4)
+            .map(|_| rng.random::<f32>() * 2.0 - 1.0)
+            .collect();
+        (field, coef, basis, c, b)
+    }
+
+    fn loss(p: &Problem<'_, HatGrid, HatGrid>, s: &Samples, c: &[f32], b: &[f32]) -> f64 {
+        p.evaluate(s, c, b, false, &NoProgress).unwrap().loss()
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(12))]
+
+        /// The loss is quadratic in every single parameter, so central differences are exact up
+        /// to rounding: `(E(θ+h) − E(θ−h)) / 2h = g` and `E(θ+h) + E(θ−h) − 2E(θ) = h² H`.
+        #[test]
+        fn gradient_and_diagonal_hessian_match_finite_differences(seed in 0u64..1000, pick in 0usize..1000) {
+            let (field, coef, basis, c, b) = setup(seed);
+            let p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.3, preconditioner: Preconditioner::Diagonal };
+            let samples = Samples::draw(&field, &basis, seed, 3, true);
+            let e = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
+            let e0 = e.loss();
+            let h = 0.125f32;
+            // One coefficient and one basis entry.
+            let i = pick % c.len();
+            let (mut cp, mut cm) = (c.clone(), c.clone());
+            cp[i] += h;
+            cm[i] -= h;
+            let (lp, lm) = (loss(&p, &samples, &cp, &b), loss(&p, &samples, &cm, &b));
+            let scale = e0.abs().max(1.0);
+            prop_assert!(((lp - lm) / (2.0 * h as f64) - e.grad_c[i]).abs() < 1e-4 * scale, "grad c {} vs {}", (lp - lm) / (2.0 * h as f64), e.grad_c[i]);
+            prop_assert!(((lp + lm - 2.0 * e0) / (h as f64 * h as f64) - e.hess_c[i]).abs() < 1e-3 * scale, "hess c");
+            let k = pick % b.len();
+            let (mut bp, mut bm) = (b.clone(), b.clone());
+            bp[k] += h;
+            bm[k] -= h;
+            let (lp, lm) = (loss(&p, &samples, &c, &bp), loss(&p, &samples, &c, &bm));
+            prop_assert!(((lp - lm) / (2.0 * h as f64) - e.grad_b[k]).abs() < 1e-4 * scale, "grad B {} vs {}", (lp - lm) / (2.0 * h as f64), e.grad_b[k]);
+            prop_assert!(((lp + lm - 2.0 * e0) / (h as f64 * h as f64) - e.hess_b[k / 4]).abs() < 1e-3 * scale, "hess B");
+        }
+
+        /// The lumped diagonal dominates the exact one (the weights are a partition of unity).
+        #[test]
+        fn lumped_diagonal_dominates_the_hessian_diagonal(seed in 0u64..1000) {
+            let (field, coef, basis, c, b) = setup(seed);
+            let mut p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.0, preconditioner: Preconditioner::Diagonal };
+            let samples = Samples::draw(&field, &basis, seed, 0, true);
+            let exact = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
+            p.preconditioner = Preconditioner::Lumped;
+            let lumped = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
+            for (l, e) in lumped.hess_c.iter().zip(&exact.hess_c).chain(lumped.hess_b.iter().zip(&exact.hess_b)) {
+                prop_assert!(*l >= *e * (1.0 - 1e-6));
+            }
+            prop_assert_eq!(&lumped.grad_c, &exact.grad_c);
+            // The block preconditioner's diagonal is the lumped diagonal, its blocks symmetric.
+            p.preconditioner = Preconditioner::Block;
+            let block = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
+            for (blocks, diag) in [(&block.hess_c, &lumped.hess_c), (&block.hess_b, &lumped.hess_b)] {
+                for (k, &dv) in diag.iter().enumerate() {
+                    let (node, li) = (k / 2, k % 2);
+                    let at = |i: usize, j: usize| blocks[(node * 2 + i) * 2 + j];
+                    prop_assert!((at(li, li) - dv).abs() <= 1e-9 * dv.abs().max(1.0));
+                    prop_assert!((at(0, 1) - at(1, 0)).abs() <= 1e-9 * at(0, 0).abs().max(1.0));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn samples_are_grouped_by_basis_cell_and_cover_every_voxel_once() {
+        let (field, _, basis, _, _) = setup(1);
+        let s = Samples::draw(&field, &basis, 7, 0, true);
+        let mut seen = s.order.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..field.num_voxels() as u32).collect::<Vec<_>>());
+        for &(a, b) in &s.groups {
+            let cell = basis.support_cell(s.points[s.order[a] as usize]);
+            assert!(
+                s.order[a..b]
+                    .iter()
+                    .all(|&i| basis.support_cell(s.points[i as usize]) == cell)
+            );
+        }
+        // Every sample stays inside its voxel.
+        let size = field.voxel_size();
+        for (v, p) in s.points.iter().enumerate() {
+            assert!(((*p - field.centre_of(v)).abs() - 0.5 * size).max_element() <= 1e-6);
+        }
+    }
+}

@@ -1,0 +1,497 @@
+//! The stochastic quasi-Newton solver of the MBD paper (section 3.3) and its initialisation.
+
+use std::time::Instant;
+
+use glam::Vec3;
+use ndarray::{Array2, Array3, ArrayView2};
+use prt_core::{Aabb, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+use rayon::prelude::*;
+
+pub use crate::objective::Preconditioner;
+use crate::objective::{Evaluation, Problem, Samples, mix};
+use crate::subspace::{cholesky_in_place, cholesky_solve_in_place, principal_subspace};
+use crate::synthetic::standard_normal;
+use crate::{MbdError, MbdModel};
+
+/// How the basis is initialised before the first iteration. In every case the coefficients are
+/// then set by a ridge least-squares fit with the basis fixed, at each coefficient kernel's centre.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum Init {
+    /// The paper's default: every basis node starts with the uncentred rank-L principal subspace
+    /// of the whole field, so the first model is a global PCA.
+    #[default]
+    GlobalPca,
+    /// Each basis node starts with the principal subspace of the voxels in its kernel's support,
+    /// signs aligned with the global subspace.
+    LocalPca,
+    /// Gaussian random basis vectors (seeded).
+    Random,
+}
+
+/// Options of [`solve`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct MbdOptions {
+    /// Number of moving basis vectors L (1..=D).
+    pub rank: usize,
+    /// Ridge weight λ on the coefficients (`λ/2 ‖c‖²`), default 1e-4. It removes the scale
+    /// ambiguity `c_l b_l = (s c_l)(b_l / s)`.
+    pub lambda: f32,
+    /// Iteration cap (default 128).
+    pub max_iterations: usize,
+    /// Stop when the relative loss decrease of an iteration (measured on common random numbers)
+    /// stays below this for `patience` consecutive iterations (default 1e-4).
+    pub tolerance: f64,
+    /// See `tolerance` (default 3).
+    pub patience: usize,
+    /// Step halvings tried by the backtracking line search before an iteration is rejected
+    /// (default 12).
+    pub max_halvings: usize,
+    /// Basis initialisation.
+    pub init: Init,
+    /// Seed of the sample positions (and of the random initialisation).
+    pub seed: u64,
+    /// Diagonal scaling of the step (default [`Preconditioner::Block`]; the paper's is
+    /// [`Preconditioner::Diagonal`]).
+    pub preconditioner: Preconditioner,
+    /// Jitter the samples inside their voxels (default true). Without jitter every iteration
+    /// uses the voxel centres, which fits the grid values only.
+    pub jitter: bool,
+}
+
+impl Default for MbdOptions {
+    fn default() -> Self {
+        Self {
+            rank: 8,
+            lambda: 1e-4,
+            max_iterations: 128,
+            tolerance: 1e-4,
+            patience: 3,
+            max_halvings: 12,
+            init: Init::GlobalPca,
+            seed: 0x5EED,
+            preconditioner: Preconditioner::Block,
+            jitter: true,
+        }
+    }
+}
+
+/// One iteration of the solver.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IterationRecord {
+    /// Loss estimate at the start of the iteration.
+    pub loss_before: f64,
+    /// Loss estimate after the accepted step, on the same samples (equal to `loss_before` when
+    /// no step was accepted).
+    pub loss_after: f64,
+    /// The accepted step length (1 = the full quasi-Newton step, 0 = rejected).
+    pub step: f32,
+    /// Seconds since the solve started (initialisation included).
+    pub elapsed: f64,
+}
+
+/// What happened during a solve.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SolveReport {
+    /// Seconds spent in the initialisation.
+    pub init_seconds: f64,
+    /// One record per iteration.
+    pub history: Vec<IterationRecord>,
+    /// Whether the stopping rule fired before the iteration cap.
+    pub converged: bool,
+}
+
+/// Fits a rank-L MBD with the given kernels to `field` (the target `f(x)` is the field's
+/// trilinear interpolation), by the stochastic quasi-Newton method of the paper:
+///
+/// 1. initialise (global PCA by default), coefficients by least squares;
+/// 2. each iteration draw one jittered sample per voxel, estimate loss, gradient and diagonal
+///    Hessian ([`crate::objective`] explains the formulas), take the diagonal Newton step
+///    `Δ = −g / h` for coefficients and basis together, and halve it while the loss on the same
+///    samples (common random numbers) is above the starting loss;
+/// 3. stop when the accepted relative decrease stays below `tolerance` for `patience`
+///    iterations, or at `max_iterations`.
+///
+/// Deterministic for a seed on any number of threads. Progress reports one unit per iteration
+/// and the loss as message; cancellation is checked every few cells.
+///
+/// # Errors
+/// [`MbdError::InvalidRank`] (rank 0 or > D), [`MbdError::InvalidKernels`] (an empty family),
+/// [`MbdError::KernelsDoNotCover`] (a point of the field's box without kernel support),
+/// [`MbdError::InvalidOption`], cancellation, and [`MbdError::Diverged`] if a non-finite value
+/// appears.
+pub fn solve<C: SpatialKernels, B: SpatialKernels>(
+    field: &GridField,
+    coefficient_kernels: C,
+    basis_kernels: B,
+    options: &MbdOptions,
+    progress: &dyn Progress,
+) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
+    let start = Instant::now();
+    validate(field, &coefficient_kernels, &basis_kernels, options)?;
+    let problem = Problem {
+        field,
+        coefficient_kernels: &coefficient_kernels,
+        basis_kernels: &basis_kernels,
+        rank: options.rank,
+        lambda: options.lambda,
+        preconditioner: options.preconditioner,
+    };
+    let (mut coefficients, mut basis) = initialise(&problem, options)?;
+    let mut report = SolveReport {
+        init_seconds: start.elapsed().as_secs_f64(),
+        ..SolveReport::default()
+    };
+    progress.set_len(options.max_iterations as u64);
+    let mut calm = 0;
+    let mut trial_c = vec![0.0f32; coefficients.len()];
+    let mut trial_b = vec![0.0f32; basis.len()];
+    for iteration in 0..options.max_iterations {
+        progress.check()?;
+        let samples = Samples::draw(
+            field,
+            &basis_kernels,
+            options.seed,
+            iteration as u64,
+            options.jitter,
+        );
+        let eval = problem.evaluate(&samples, &coefficients, &basis, true, progress)?;
+        let loss_before = eval.loss();
+        if !loss_before.is_finite() {
+            return Err(MbdError::Diverged {
+                what: "loss",
+                iteration,
+            });
+        }
+        let (dir_c, dir_b) =
+            newton_directions(&eval, options.rank, field.dim(), options.preconditioner);
+        let mut step = 1.0f32;
+        let mut accepted = None;
+        if loss_before > 0.0 {
+            for _ in 0..=options.max_halvings {
+                for ((t, &x), &dx) in trial_c.iter_mut().zip(&coefficients).zip(&dir_c) {
+                    *t = x - (step as f64 * dx) as f32;
+                }
+                for ((t, &x), &dx) in trial_b.iter_mut().zip(&basis).zip(&dir_b) {
+                    *t = x - (step as f64 * dx) as f32;
+                }
+                let trial = problem.evaluate(&samples, &trial_c, &trial_b, false, progress)?;
+                if trial.loss() <= loss_before {
+                    accepted = Some(trial.loss());
+                    break;
+                }
+                step *= 0.5;
+            }
+        }
+        let loss_after = match accepted {
+            Some(loss) => {
+                std::mem::swap(&mut coefficients, &mut trial_c);
+                std::mem::swap(&mut basis, &mut trial_b);
+                loss
+            }
+            None => {
+                step = 0.0;
+                loss_before
+            }
+        };
+        report.history.push(IterationRecord {
+            loss_before,
+            loss_after,
+            step,
+            elapsed: start.elapsed().as_secs_f64(),
+        });
+        progress.inc(1);
+        progress.message(&format!("iteration {iteration}: loss {loss_after:.6e}"));
+        let decrease = if loss_before > 0.0 {
+            (loss_before - loss_after) / loss_before
+        } else {
+            0.0
+        };
+        calm = if decrease < options.tolerance {
+            calm + 1
+        } else {
+            0
+        };
+        if calm >= options.patience.max(1) || loss_after == 0.0 {
+            report.converged = true;
+            break;
+        }
+    }
+    let (m, l) = (coefficient_kernels.len(), options.rank);
+    let n = basis_kernels.len();
+    let coefficients = Array2::from_shape_vec((m, l), coefficients).map_err(shape_error)?;
+    let basis = Array3::from_shape_vec((n, l, field.dim()), basis).map_err(shape_error)?;
+    let model = MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)?;
+    Ok((model, report))
+}
+
+/// The quasi-Newton directions `H⁻¹ g` for the coefficients (`M × L`) and the basis
+/// (`N × L × D`), with `H` the preconditioner's curvature. Kernels that no sample touched (zero
+/// curvature) do not move.
+fn newton_directions(
+    eval: &Evaluation,
+    l: usize,
+    d: usize,
+    preconditioner: Preconditioner,
+) -> (Vec<f64>, Vec<f64>) {
+    let w = preconditioner.width(l);
+    let mut dir_c = eval.grad_c.clone();
+    let mut dir_b = eval.grad_b.clone();
+    if w == 1 {
+        for (g, &h) in dir_c.iter_mut().zip(&eval.hess_c) {
+            *g = if h > 0.0 { *g / h } else { 0.0 };
+        }
+        for (k, g) in dir_b.iter_mut().enumerate() {
+            let h = eval.hess_b[k / d];
+            *g = if h > 0.0 { *g / h } else { 0.0 };
+        }
+        return (dir_c, dir_b);
+    }
+    // One L × L system per kernel: the coefficient gradient is one right-hand side, the basis
+    // gradient D of them (node n's `L × D` block, row l = basis vector l).
+    dir_c
+        .par_chunks_mut(l)
+        .zip(eval.hess_c.par_chunks(l * l))
+        .for_each_init(
+            || vec![0.0f64; l * l],
+            |a, (g, h)| {
+                a.copy_from_slice(h);
+                if !cholesky_in_place(a, l) {
+                    g.fill(0.0);
+                    return;
+                }
+                cholesky_solve_in_place(a, g, l, 1);
+            },
+        );
+    dir_b
+        .par_chunks_mut(l * d)
+        .zip(eval.hess_b.par_chunks(l * l))
+        .for_each_init(
+            || vec![0.0f64; l * l],
+            |a, (g, h)| {
+                a.copy_from_slice(h);
+                // Relative ridge: a node whose samples have rank-deficient coefficients still gets a
+                // step in the directions it can see.
+                let trace: f64 = (0..l).map(|i| a[i * l + i]).sum();
+                for i in 0..l {
+                    a[i * l + i] += 1e-9 * trace / l as f64;
+                }
+                if trace <= 0.0 || !cholesky_in_place(a, l) {
+                    g.fill(0.0);
+                    return;
+                }
+                cholesky_solve_in_place(a, g, l, d);
+            },
+        );
+    (dir_c, dir_b)
+}
+
+fn shape_error(e: ndarray::ShapeError) -> MbdError {
+    MbdError::InvalidOption {
+        what: "tensor shape",
+        why: e.to_string(),
+    }
+}
+
+/// Checks rank, kernels and options against the field.
+pub(crate) fn validate<C: SpatialKernels, B: SpatialKernels>(
+    field: &GridField,
+    coefficient_kernels: &C,
+    basis_kernels: &B,
+    options: &MbdOptions,
+) -> Result<(), MbdError> {
+    field.check_finite()?;
+    let dim = field.dim();
+    if options.rank == 0 || options.rank > dim {
+        return Err(MbdError::InvalidRank {
+            rank: options.rank,
+            dim,
+        });
+    }
+    if !(options.lambda >= 0.0 && options.lambda.is_finite()) {
+        return Err(MbdError::InvalidOption {
+            what: "lambda",
+            why: format!("{} is not a finite non-negative number", options.lambda),
+        });
+    }
+    if options.tolerance.is_nan() || options.tolerance < 0.0 {
+        return Err(MbdError::InvalidOption {
+            what: "tolerance",
+            why: format!("{} is not non-negative", options.tolerance),
+        });
+    }
+    check_kernels("coefficient", coefficient_kernels, field.bounds())?;
+    check_kernels("basis", basis_kernels, field.bounds())?;
+    Ok(())
+}
+
+/// A family must be non-empty and have support at the corners, face centres and centre of the
+/// field's box (for hat grids and any family whose support is a union of boxes, this is where
+/// coverage fails first).
+pub(crate) fn check_kernels<K: SpatialKernels>(
+    which: &'static str,
+    kernels: &K,
+    bounds: Aabb,
+) -> Result<(), MbdError> {
+    if kernels.is_empty() || kernels.max_support() == 0 {
+        return Err(MbdError::InvalidKernels {
+            which,
+            why: "the family has no kernels".into(),
+        });
+    }
+    let mut weights = KernelWeights::default();
+    for i in 0..27 {
+        let t = Vec3::new((i % 3) as f32, ((i / 3) % 3) as f32, (i / 9) as f32) * 0.5;
+        let x = bounds.min + t * bounds.size();
+        let covered = match kernels.eval(x, &mut weights) {
+            Ok(()) => weights.sum() > 0.0,
+            Err(CoreError::Uncovered { .. }) => false,
+            Err(e) => return Err(e.into()),
+        };
+        if !covered {
+            return Err(MbdError::KernelsDoNotCover {
+                which,
+                point: x.to_array(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Initial `(coefficients M × L, basis N × L × D)`, flat.
+fn initialise<C: SpatialKernels, B: SpatialKernels>(
+    problem: &Problem<'_, C, B>,
+    options: &MbdOptions,
+) -> Result<(Vec<f32>, Vec<f32>), MbdError> {
+    let field = problem.field;
+    let (l, d) = (options.rank, field.dim());
+    let n = problem.basis_kernels.len();
+    let global = principal_subspace(field.data().view(), l)?;
+    let mut basis = vec![0.0f32; n * l * d];
+    match options.init {
+        Init::GlobalPca => {
+            let flat = global.as_slice().unwrap_or(&[]);
+            for node in basis.chunks_exact_mut(l * d) {
+                node.copy_from_slice(flat);
+            }
+        }
+        Init::Random => {
+            let mut rng = Pcg64Mcg::seed_from_u64(mix(options.seed, u64::MAX));
+            let scale = 1.0 / (d as f32).sqrt();
+            basis
+                .iter_mut()
+                .for_each(|b| *b = standard_normal(&mut rng) * scale);
+        }
+        Init::LocalPca => {
+            let members = node_members(field, problem.basis_kernels)?;
+            let locals: Vec<Result<Array2<f32>, MbdError>> = members
+                .par_iter()
+                .map(|voxels| {
+                    if voxels.is_empty() {
+                        return Ok(global.clone());
+                    }
+                    let rows = field.data().select(ndarray::Axis(0), voxels);
+                    let mut local = principal_subspace(rows.view(), l)?;
+                    for (mut row, g) in local.rows_mut().into_iter().zip(global.rows()) {
+                        if row.dot(&g) < 0.0 {
+                            row.mapv_inplace(|v| -v);
+                        }
+                    }
+                    Ok(local)
+                })
+                .collect();
+            for (node, local) in basis.chunks_exact_mut(l * d).zip(locals) {
+                node.copy_from_slice(local?.as_slice().unwrap_or(&[]));
+            }
+        }
+    }
+    let coefficients = fit_coefficients(problem, &basis)?;
+    Ok((coefficients, basis))
+}
+
+/// Voxels whose centre lies in the support of each basis kernel.
+fn node_members<B: SpatialKernels>(
+    field: &GridField,
+    kernels: &B,
+) -> Result<Vec<Vec<usize>>, MbdError> {
+    let mut members = vec![Vec::new(); kernels.len()];
+    let mut w = KernelWeights::default();
+    for v in 0..field.num_voxels() {
+        kernels.eval(field.centre_of(v), &mut w)?;
+        for (i, _) in w.iter() {
+            members[i as usize].push(v);
+        }
+    }
+    Ok(members)
+}
+
+/// Coefficients by ridge least squares with the basis fixed: at each coefficient kernel's centre
+/// `x_m`, `c_m = argmin ‖f(x_m) − b(x_m)ᵀ c‖² + λ‖c‖²`. Kernels without a centre start at zero
+/// (the first iteration then moves only the coefficients, since the basis gradient vanishes).
+fn fit_coefficients<C: SpatialKernels, B: SpatialKernels>(
+    problem: &Problem<'_, C, B>,
+    basis: &[f32],
+) -> Result<Vec<f32>, MbdError> {
+    let field = problem.field;
+    let (l, d) = (problem.rank, field.dim());
+    let m = problem.coefficient_kernels.len();
+    let lambda = (problem.lambda as f64).max(1e-12);
+    let mut coefficients = vec![0.0f32; m * l];
+    coefficients
+        .par_chunks_mut(l)
+        .enumerate()
+        .try_for_each_init(
+            || {
+                (
+                    KernelWeights::default(),
+                    vec![0.0f32; d],
+                    vec![0.0f32; l * d],
+                    vec![0.0f64; l * l],
+                    vec![0.0f64; l],
+                )
+            },
+            |(psi, f, b, a, rhs), (index, out)| -> Result<(), MbdError> {
+                let Some(x) = problem.coefficient_kernels.centre(index) else {
+                    return Ok(());
+                };
+                field.sample(x, f)?;
+                problem.basis_kernels.eval(x, psi)?;
+                b.fill(0.0);
+                for (n, w) in psi.iter() {
+                    let node = &basis[n as usize * l * d..(n as usize + 1) * l * d];
+                    for (o, &v) in b.iter_mut().zip(node) {
+                        *o += w * v;
+                    }
+                }
+                let bm = ArrayView2::from_shape((l, d), &b[..]).map_err(shape_error)?;
+                for i in 0..l {
+                    let bi = bm.row(i);
+                    rhs[i] = bi
+                        .iter()
+                        .zip(f.iter())
+                        .map(|(&x, &y)| x as f64 * y as f64)
+                        .sum();
+                    for j in 0..=i {
+                        let v: f64 = bi
+                            .iter()
+                            .zip(bm.row(j).iter())
+                            .map(|(&x, &y)| x as f64 * y as f64)
+                            .sum();
+                        a[i * l + j] = v;
+                        a[j * l + i] = v;
+                    }
+                    a[i * l + i] += lambda;
+                }
+                if cholesky_in_place(a, l) {
+                    cholesky_solve_in_place(a, rhs, l, 1);
+                    for (o, &v) in out.iter_mut().zip(rhs.iter()) {
+                        *o = v as f32;
+                    }
+                }
+                Ok(())
+            },
+        )?;
+    Ok(coefficients)
+}

@@ -1,0 +1,145 @@
+//! Uncentred principal subspaces (truncated SVD of a block of rows), shared by MBD's
+//! initialisation and the PCA-family baselines.
+
+use ndarray::{Array2, ArrayView2, Axis, linalg::general_mat_mul, s};
+use prt_linalg::sym_eig;
+
+use crate::MbdError;
+
+/// Rows per f32 Gram block before it is added to the f64 total: short enough that f32 rounding
+/// stays at the level of one product, long enough for an efficient matrix product.
+const GRAM_BLOCK: usize = 256;
+
+/// `XᵀX` (`d × d`) accumulated in f64 from f32 products of `GRAM_BLOCK`-row blocks.
+pub(crate) fn gram_columns(x: ArrayView2<'_, f32>) -> Array2<f64> {
+    let d = x.ncols();
+    let mut total = Array2::<f64>::zeros((d, d));
+    let mut block = Array2::<f32>::zeros((d, d));
+    for chunk in x.axis_chunks_iter(Axis(0), GRAM_BLOCK) {
+        general_mat_mul(1.0, &chunk.t(), &chunk, 0.0, &mut block);
+        total.zip_mut_with(&block, |t, &b| *t += b as f64);
+    }
+    total
+}
+
+/// The `rank` leading right singular vectors of `x` (rows of the result, `rank × d`,
+/// orthonormal): the uncentred rank-`rank` principal subspace, i.e. the basis of the best
+/// rank-`rank` approximation of the rows (Eckart-Young).
+///
+/// Works through the smaller of the two Gram matrices (`d × d`, or `n × n` when there are fewer
+/// rows than columns), accumulated in f64. When the rows span fewer than `rank` dimensions
+/// (a zero block, fewer rows than `rank`), the remaining vectors are completed from the
+/// eigenvectors of the Gram matrix's null space, so the result is always orthonormal.
+pub(crate) fn principal_subspace(
+    x: ArrayView2<'_, f32>,
+    rank: usize,
+) -> Result<Array2<f32>, MbdError> {
+    let (n, d) = x.dim();
+    if rank == 0 || rank > d {
+        return Err(MbdError::InvalidRank { rank, dim: d });
+    }
+    if n >= d || n == 0 {
+        let gram = gram_columns(x);
+        let eig = sym_eig(gram.view()).map_err(|e| linalg_error("principal subspace", e))?;
+        Ok(eig.vectors.slice(s![.., ..rank]).t().mapv(|v| v as f32))
+    } else {
+        // Gram of the rows: X Xᵀ = U Σ² Uᵀ, and the right singular vectors are Xᵀ U / σ.
+        let xd = x.mapv(|v| v as f64);
+        let gram = xd.dot(&xd.t());
+        let eig = sym_eig(gram.view()).map_err(|e| linalg_error("principal subspace", e))?;
+        let mut out = Array2::<f64>::zeros((rank, d));
+        let mut filled = 0;
+        let s_max = eig.values.first().copied().unwrap_or(0.0).max(0.0);
+        for (k, &value) in eig.values.iter().enumerate() {
+            if filled == rank || value <= s_max * 1e-12 || value <= 0.0 {
+                break;
+            }
+            let v = xd.t().dot(&eig.vectors.column(k)) / value.sqrt();
+            out.row_mut(filled).assign(&v);
+            filled += 1;
+        }
+        complete_orthonormal(&mut out, filled);
+        Ok(out.mapv(|v| v as f32))
+    }
+}
+
+/// Fills rows `filled..` of `basis` (whose first `filled` rows are orthonormal) with unit
+/// vectors orthogonal to all previous rows, by Gram-Schmidt on the standard basis.
+fn complete_orthonormal(basis: &mut Array2<f64>, mut filled: usize) {
+    let (rank, d) = basis.dim();
+    let mut e = 0;
+    while filled < rank && e < d {
+        let mut v = ndarray::Array1::<f64>::zeros(d);
+        v[e] = 1.0;
+        for _ in 0..2 {
+            for k in 0..filled {
+                let row = basis.row(k);
+                let p = row.dot(&v);
+                v.scaled_add(-p, &row);
+            }
+        }
+        let norm = v.dot(&v).sqrt();
+        if norm > 1e-6 {
+            basis.row_mut(filled).assign(&(v / norm));
+            filled += 1;
+        }
+        e += 1;
+    }
+}
+
+pub(crate) fn linalg_error(what: &'static str, e: prt_linalg::LinalgError) -> MbdError {
+    MbdError::InvalidOption {
+        what,
+        why: e.to_string(),
+    }
+}
+
+/// Cholesky factorisation in place of the small symmetric positive definite `n × n` row-major
+/// matrix `a` (lower factor written over the lower triangle). Returns false if a pivot is not
+/// positive. Used per kernel in hot loops, where a general solver's allocations would dominate.
+pub(crate) fn cholesky_in_place(a: &mut [f64], n: usize) -> bool {
+    for j in 0..n {
+        let mut diag = a[j * n + j];
+        for k in 0..j {
+            diag -= a[j * n + k] * a[j * n + k];
+        }
+        if diag <= 0.0 || !diag.is_finite() {
+            return false;
+        }
+        let diag = diag.sqrt();
+        a[j * n + j] = diag;
+        for i in j + 1..n {
+            let mut v = a[i * n + j];
+            for k in 0..j {
+                v -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = v / diag;
+        }
+    }
+    true
+}
+
+/// Solves `L Lᵀ x = b` in place for `cols` right-hand sides stored as the columns of the
+/// `n × cols` row-major `b`, with `a` from [`cholesky_in_place`].
+pub(crate) fn cholesky_solve_in_place(a: &[f64], b: &mut [f64], n: usize, cols: usize) {
+    for i in 0..n {
+        for k in 0..i {
+            let f = a[i * n + k];
+            for c in 0..cols {
+                b[i * cols + c] -= f * b[k * cols + c];
+            }
+        }
+        let d = a[i * n + i];
+        b[i * cols..(i + 1) * cols].iter_mut().for_each(|v| *v /= d);
+    }
+    for i in (0..n).rev() {
+        for k in i + 1..n {
+            let f = a[k * n + i];
+            for c in 0..cols {
+                b[i * cols + c] -= f * b[k * cols + c];
+            }
+        }
+        let d = a[i * n + i];
+        b[i * cols..(i + 1) * cols].iter_mut().for_each(|v| *v /= d);
+    }
+}
