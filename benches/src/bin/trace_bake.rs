@@ -1,7 +1,7 @@
 //! Bakes the Cornell box (32³) and Sponza (64³) transfer volumes, prints timings, Mrays/s and
 //! peak RSS, and writes the horizontal-slice pictures of docs/images/trace_*.png.
 //!
-//! `cargo run --release -p prt-benches --bin trace_bake [cornell|sponza|sponza128|all] [rays]`
+//! `cargo run --release -p prt-benches --bin trace_bake [cornell|sponza|sponza128|all] [rays] [cache rays]`
 use std::path::Path;
 use std::time::Instant;
 
@@ -16,6 +16,21 @@ fn peak_rss_mib() -> f64 {
         .find_map(|l| l.strip_prefix("VmHWM:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`,
+/// 100 ticks per second): on a shared machine, CPU time / 2 is the wall time 2 free cores need.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(f64::NAN)
+    };
+    (ticks(11) + ticks(12)) / 100.0
 }
 
 /// Two panels side by side: sky visibility (grey) and mean indirect radiance under a unit
@@ -55,11 +70,28 @@ fn write_slice(volume: &TransferVolume, iy: usize, path: &Path) {
 
 fn main() {
     let which = std::env::args().nth(1).unwrap_or_else(|| "all".into());
-    let rays: usize = std::env::args().nth(2).and_then(|s| s.parse().ok()).unwrap_or(256);
+    let rays: usize = std::env::args()
+        .nth(2)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(256);
+    let cache_rays: usize = std::env::args()
+        .nth(3)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(64);
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
     let images = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/images");
     let mut table = Table::new(&[
-        "scene", "triangles", "grid", "rays/voxel", "BVH", "cache (points)", "voxels", "total", "Mrays/s", "invalid",
+        "scene",
+        "triangles",
+        "grid",
+        "rays/voxel",
+        "BVH",
+        "cache points (evaluated sides)",
+        "tracing",
+        "total (wall)",
+        "total (CPU)",
+        "Mrays/s",
+        "invalid",
         "peak RSS",
     ]);
     let mut jobs: Vec<(&str, usize, f32)> = Vec::new();
@@ -76,7 +108,8 @@ fn main() {
         let t_load = Instant::now();
         let scene = match name {
             "cornell" => Scene::cornell_box(),
-            _ => match Scene::load_gltf(scenes.join("sponza/Sponza.gltf"), &LoadOptions::default()) {
+            _ => match Scene::load_gltf(scenes.join("sponza/Sponza.gltf"), &LoadOptions::default())
+            {
                 Ok(s) => s,
                 Err(e) => {
                     eprintln!("skipping Sponza: {e}");
@@ -84,9 +117,21 @@ fn main() {
                 }
             },
         };
-        eprintln!("{name}: {} triangles loaded in {}", scene.triangles().len(), fmt_duration(t_load.elapsed()));
-        let options = BakeOptions { resolution: [res; 3], margin, rays_per_voxel: rays, seed: 1, ..Default::default() };
+        eprintln!(
+            "{name}: {} triangles loaded in {}",
+            scene.triangles().len(),
+            fmt_duration(t_load.elapsed())
+        );
+        let options = BakeOptions {
+            resolution: [res; 3],
+            margin,
+            rays_per_voxel: rays,
+            cache_rays,
+            seed: 1,
+            ..Default::default()
+        };
         let t = Instant::now();
+        let cpu0 = cpu_seconds();
         let volume = match TransferBaker::new(&scene, options).and_then(|b| b.bake(&NoProgress)) {
             Ok(v) => v,
             Err(e) => {
@@ -95,6 +140,7 @@ fn main() {
             }
         };
         let total = t.elapsed();
+        let cpu = cpu_seconds() - cpu0;
         let s = &volume.stats;
         table.row(vec![
             name.into(),
@@ -102,9 +148,10 @@ fn main() {
             format!("{res}³"),
             s.rays_per_voxel.to_string(),
             fmt_duration(s.bvh_time),
-            format!("{} ({})", fmt_duration(s.cache_time), s.cache_points),
+            format!("{} ({})", s.cache_points, s.cache_evaluated),
             fmt_duration(s.voxel_time),
             fmt_duration(total),
+            format!("{cpu:.2} s"),
             format!("{:.2}", s.mrays_per_second()),
             s.invalid_voxels.to_string(),
             format!("{:.0} MiB", peak_rss_mib()),

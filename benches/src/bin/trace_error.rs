@@ -1,0 +1,122 @@
+//! Speed/accuracy trade of the transfer baker: relative error against a high-sample reference
+//! versus directions per voxel (and time), and versus surface-cache rays, on the Cornell box.
+//!
+//! `cargo run --release -p prt-benches --bin trace_error [resolution]`
+use std::time::Instant;
+
+use prt_benches::{Table, fmt_duration};
+use prt_core::NoProgress;
+use prt_trace::{BakeOptions, Scene, TransferBaker, TransferVolume, block};
+
+fn bake(scene: &Scene, options: BakeOptions) -> (TransferVolume, std::time::Duration) {
+    let t = Instant::now();
+    let v = TransferBaker::new(scene, options)
+        .and_then(|b| b.bake(&NoProgress))
+        .expect("Cornell bakes");
+    (v, t.elapsed())
+}
+
+/// Relative Frobenius error `‖x - ref‖ / ‖ref‖` over voxels valid in both, for the direct block
+/// and the three indirect blocks.
+fn rel_error(x: &TransferVolume, reference: &TransferVolume) -> (f64, f64) {
+    let (mut dd, mut dr, mut id, mut ir) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for v in 0..x.field.num_voxels() {
+        if !(x.valid[v] && reference.valid[v]) {
+            continue;
+        }
+        let (a, b) = (x.field.voxel(v), reference.field.voxel(v));
+        for k in 0..a.len() {
+            let (e, r) = ((a[k] - b[k]) as f64, b[k] as f64);
+            if block(0).contains(&k) {
+                dd += e * e;
+                dr += r * r;
+            } else {
+                id += e * e;
+                ir += r * r;
+            }
+        }
+    }
+    ((dd / dr).sqrt(), (id / ir).sqrt())
+}
+
+fn main() {
+    let res: usize = std::env::args()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(16);
+    let scene = Scene::cornell_box();
+    let base = BakeOptions {
+        resolution: [res; 3],
+        ..Default::default()
+    };
+    let (reference, t_ref) = bake(
+        &scene,
+        BakeOptions {
+            rays_per_voxel: 4096,
+            cache_rays: 512,
+            seed: 1000,
+            ..base.clone()
+        },
+    );
+    eprintln!(
+        "reference: {res}³, 4104 rays/voxel, 512 cache rays, {}",
+        fmt_duration(t_ref)
+    );
+
+    let mut table = Table::new(&[
+        "rays/voxel",
+        "time",
+        "direct rel. error",
+        "indirect rel. error",
+        "Mrays/s",
+    ]);
+    for rays in [12, 24, 48, 96, 192, 384, 768, 1536] {
+        let (v, t) = bake(
+            &scene,
+            BakeOptions {
+                rays_per_voxel: rays,
+                seed: 1,
+                ..base.clone()
+            },
+        );
+        let (ed, ei) = rel_error(&v, &reference);
+        table.row(vec![
+            v.stats.rays_per_voxel.to_string(),
+            fmt_duration(t),
+            format!("{ed:.4}"),
+            format!("{ei:.4}"),
+            format!("{:.2}", v.stats.mrays_per_second()),
+        ]);
+    }
+    println!("Cornell box {res}³, cache rays 64 (default), reference seed differs\n");
+    println!("{}", table.markdown());
+    let _ = table.write_csv_if_requested("trace_error_rays");
+
+    let mut table = Table::new(&[
+        "cache rays",
+        "cache sides evaluated",
+        "total time",
+        "indirect rel. error",
+    ]);
+    for cache_rays in [8, 16, 32, 64, 128, 256] {
+        let (v, t) = bake(
+            &scene,
+            BakeOptions {
+                rays_per_voxel: 768,
+                cache_rays,
+                seed: 1,
+                ..base.clone()
+            },
+        );
+        let (_, ei) = rel_error(&v, &reference);
+        table.row(vec![
+            cache_rays.to_string(),
+            v.stats.cache_evaluated.to_string(),
+            fmt_duration(t),
+            format!("{ei:.4}"),
+        ]);
+    }
+    println!("Cornell box {res}³, 768 rays per voxel\n");
+    println!("{}", table.markdown());
+    let _ = table.write_csv_if_requested("trace_error_cache");
+}
