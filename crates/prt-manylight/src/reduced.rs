@@ -25,8 +25,12 @@ pub struct ReducedMatrix {
 
 /// One row index drawn uniformly from each of `count` contiguous strata of `0..total`
 /// (stratum `s` is `[s·total/count, (s+1)·total/count)`), so the sampled pixels spread over the
-/// image. Requires `1 <= count <= total`.
+/// image. With `count > total` some strata are empty and their rows repeat a neighbour's; with
+/// `total == 0` the result is empty.
 pub fn stratified_rows(total: usize, count: usize, rng: &mut impl Rng) -> Vec<usize> {
+    if total == 0 {
+        return Vec::new();
+    }
     (0..count)
         .map(|s| {
             let lo = (s as u128 * total as u128 / count as u128) as usize;

@@ -7,7 +7,7 @@ use proptest::prelude::*;
 use prt_core::{AtomicProgress, CoreError, DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
     ManyLightError, ReducedMatrix, RowColumnConfig, SyntheticVplOracle, brute_force,
-    cluster_columns, cluster_cost, row_column_sampling, split_cluster,
+    cluster_columns, cluster_cost, row_column_sampling, split_cluster, stratified_rows,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -203,6 +203,18 @@ fn reduced_strategy() -> impl Strategy<Value = ReducedMatrix> {
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// One row per stratum, inside it: sorted, distinct, in range.
+    #[test]
+    fn stratified_rows_fall_in_their_strata(total in 1usize..5000, frac in 0.0f64..1.0, seed in any::<u64>()) {
+        let count = 1 + ((total - 1) as f64 * frac) as usize;
+        let rows = stratified_rows(total, count, &mut Pcg64Mcg::seed_from_u64(seed));
+        prop_assert_eq!(rows.len(), count);
+        for (s, &r) in rows.iter().enumerate() {
+            prop_assert!(r >= s * total / count && r < (s + 1) * total / count, "row {r} stratum {s}");
+        }
+        prop_assert!(stratified_rows(0, 3, &mut Pcg64Mcg::seed_from_u64(seed)).is_empty());
+    }
 
     /// The O(n) cost formula equals the definition over pairs.
     #[test]
