@@ -1,6 +1,7 @@
-//! Row-column sampling (prt-manylight) against brute force on a synthetic VPL matrix:
-//! relative RMS image error vs elements evaluated and time, for the paper's rows/columns
-//! settings (100/200 .. 900/1800).
+//! Row-column sampling and LightSlice (prt-manylight) against brute force on a synthetic VPL
+//! matrix: relative RMS image error vs elements evaluated and time, for the paper's
+//! rows/columns settings (100/200 .. 900/1800). LightSlice runs with slices = rows and
+//! local clusters = columns, the same element budget.
 //!
 //! `cargo run --release -p prt-benches --bin manylight_sweep [-- WIDTH LIGHTS SEEDS]`
 //! (defaults 256 × 256 pixels, 100000 lights, 2 seeds per setting).
@@ -9,7 +10,10 @@ use std::time::{Duration, Instant};
 
 use prt_benches::{Table, fmt_duration};
 use prt_core::{MatrixOracle, NoProgress, Progress};
-use prt_manylight::{RowColumnConfig, SyntheticVplOracle, brute_force, row_column_sampling};
+use prt_manylight::{
+    LightSliceConfig, RowColumnConfig, SyntheticVplOracle, brute_force, light_slice,
+    row_column_sampling,
+};
 
 /// A progress handle that records when each stage message arrives, to split the time into
 /// reduced matrix / clustering / columns.
@@ -32,14 +36,20 @@ impl Progress for PhaseTimes {
 }
 
 fn relative_rms(estimate: &[f32], reference: &[f32]) -> f64 {
-    let num: f64 =
-        estimate.iter().zip(reference).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum();
+    let num: f64 = estimate
+        .iter()
+        .zip(reference)
+        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+        .sum();
     let den: f64 = reference.iter().map(|&b| (b as f64).powi(2)).sum();
     (num / den).sqrt()
 }
 
 fn main() {
-    let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
+    let args: Vec<usize> = std::env::args()
+        .skip(1)
+        .filter_map(|a| a.parse().ok())
+        .collect();
     let width = args.first().copied().unwrap_or(256);
     let lights = args.get(1).copied().unwrap_or(100_000);
     let seeds = args.get(2).copied().unwrap_or(2).max(1) as u64;
@@ -54,13 +64,17 @@ fn main() {
     let reference = brute_force(&oracle, &NoProgress).expect("finite synthetic matrix");
     let brute_time = start.elapsed();
     let brute_elements = (n * m) as f64;
-    println!("brute force: {} ({brute_elements:.3e} elements)\n", fmt_duration(brute_time));
+    println!(
+        "brute force: {} ({brute_elements:.3e} elements)\n",
+        fmt_duration(brute_time)
+    );
 
     let mut table = Table::new(&[
+        "method",
         "rows / columns",
         "elements",
         "fewer elements than brute force",
-        "time (reduced / cluster / columns)",
+        "time (reduced / clustering / columns or slices)",
         "speed-up (time)",
         "relative RMS error (mean of seeds)",
         "max over seeds",
@@ -69,45 +83,58 @@ fn main() {
         if rows > n || columns > m {
             continue;
         }
-        let mut errors = Vec::new();
-        let mut total = Duration::ZERO;
-        let mut phases = [Duration::ZERO; 3];
-        let mut elements = 0;
-        for seed in 0..seeds {
-            let config = RowColumnConfig::new(rows, columns).with_seed(seed);
-            let times = PhaseTimes::default();
-            let start = Instant::now();
-            let estimate = row_column_sampling(&oracle, &config, &times).expect("valid config");
-            let end = Instant::now();
-            total += end - start;
-            let marks = times.marks.lock().map(|m| m.clone()).unwrap_or_default();
-            if let [reduced, cluster, columns] = marks[..] {
-                phases[0] += cluster - reduced;
-                phases[1] += columns - cluster;
-                phases[2] += end - columns;
+        for method in ["row-column", "LightSlice"] {
+            let mut errors = Vec::new();
+            let mut total = Duration::ZERO;
+            let mut phases = [Duration::ZERO; 3];
+            let mut elements = 0;
+            for seed in 0..seeds {
+                let times = PhaseTimes::default();
+                let start = Instant::now();
+                let (image, evaluated) = if method == "row-column" {
+                    let config = RowColumnConfig::new(rows, columns).with_seed(seed);
+                    let e = row_column_sampling(&oracle, &config, &times).expect("valid config");
+                    (e.image, e.elements)
+                } else {
+                    let config = LightSliceConfig::new(rows, columns).with_seed(seed);
+                    let e = light_slice(&oracle, &config, &times).expect("valid config");
+                    (e.image, e.elements)
+                };
+                let end = Instant::now();
+                total += end - start;
+                let marks = times.marks.lock().map(|m| m.clone()).unwrap_or_default();
+                if let [reduced, cluster, columns] = marks[..] {
+                    phases[0] += cluster - reduced;
+                    phases[1] += columns - cluster;
+                    phases[2] += end - columns;
+                }
+                elements = evaluated;
+                errors.push(relative_rms(&image, &reference));
             }
-            elements = estimate.elements;
-            errors.push(relative_rms(&estimate.image, &reference));
+            let k = seeds as u32;
+            let mean_error = errors.iter().sum::<f64>() / errors.len() as f64;
+            let max_error = errors.iter().copied().fold(0.0, f64::max);
+            table.row(vec![
+                method.to_string(),
+                format!("{rows} / {columns}"),
+                format!("{elements:.3e}", elements = elements as f64),
+                format!("{:.1}x", brute_elements / elements as f64),
+                format!(
+                    "{} ({} / {} / {})",
+                    fmt_duration(total / k),
+                    fmt_duration(phases[0] / k),
+                    fmt_duration(phases[1] / k),
+                    fmt_duration(phases[2] / k)
+                ),
+                format!(
+                    "{:.1}x",
+                    brute_time.as_secs_f64() / (total / k).as_secs_f64()
+                ),
+                format!("{:.2}%", 100.0 * mean_error),
+                format!("{:.2}%", 100.0 * max_error),
+            ]);
+            eprintln!("done {method} {rows} / {columns}");
         }
-        let k = seeds as u32;
-        let mean_error = errors.iter().sum::<f64>() / errors.len() as f64;
-        let max_error = errors.iter().copied().fold(0.0, f64::max);
-        table.row(vec![
-            format!("{rows} / {columns}"),
-            format!("{elements:.3e}", elements = elements as f64),
-            format!("{:.1}x", brute_elements / elements as f64),
-            format!(
-                "{} ({} / {} / {})",
-                fmt_duration(total / k),
-                fmt_duration(phases[0] / k),
-                fmt_duration(phases[1] / k),
-                fmt_duration(phases[2] / k)
-            ),
-            format!("{:.1}x", brute_time.as_secs_f64() / (total / k).as_secs_f64()),
-            format!("{:.2}%", 100.0 * mean_error),
-            format!("{:.2}%", 100.0 * max_error),
-        ]);
-        eprintln!("done {rows} / {columns}");
     }
     print!("{}", table.markdown());
     if let Err(e) = table.write_csv_if_requested("manylight_sweep") {
