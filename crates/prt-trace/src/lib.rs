@@ -11,7 +11,7 @@
 //!   with the triangles reordered into BVH order; closest hits and occlusion (stopping at the
 //!   first hit), single or batched over rayon.
 //! * **The baker** ([`TransferBaker`]): for every voxel centre `x` of a grid, with real SH of
-//!   order 3 (9 coefficients, [`sh9`]) for distant sky light,
+//!   order 3 (9 coefficients, [`sh9`], evaluated by `prt-sphere`) for distant sky light,
 //!   - direct transfer `D_ij = ∫ V(x, ω) Y_i(ω) Y_j(ω) dω` (sky visibility), and
 //!   - one-bounce direct-to-indirect transfer per colour channel
 //!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and

@@ -1,10 +1,9 @@
-//! Real spherical harmonics of order 3 (bands 0..=2, nine functions), prt's private copy until
-//! `prt-sphere` is used here.
+//! Real spherical harmonics of order 3 (bands 0..=2, nine functions), evaluated by `prt-sphere`.
 //!
 //! Orthonormal over the sphere, Condon–Shortley phase included (Sloan, "Stupid Spherical
-//! Harmonics (SH) Tricks", 2008). The textbook frame `(x_t, y_t, z_t)`, whose polar axis is
-//! `z_t`, maps to prt's +Y-up frame as `(x_t, y_t, z_t) = (X, -Z, Y)`: the same rotation a
-//! Z-up to Y-up glTF exporter applies, so the polar axis is +Y. Flat index `i = l (l + 1) + m`:
+//! Harmonics (SH) Tricks", 2008). prt's convention (prt-sphere's docs): the textbook frame
+//! `(x_t, y_t, z_t)`, whose polar axis is `z_t`, is prt's `(Z, X, Y)`, so the polar axis is +Y.
+//! Flat index `i = l (l + 1) + m`:
 //!
 //! | i | (l, m) | Y_i |
 //! |---|---|---|
@@ -23,27 +22,14 @@ use glam::Vec3;
 /// Number of SH coefficients of order 3 (bands 0, 1, 2).
 pub const SH9: usize = 9;
 
-const C0: f32 = 0.282_094_8; // 1 / (2 sqrt(pi))
-const C1: f32 = 0.488_602_5; // sqrt(3 / (4 pi))
-const C2: f32 = 1.092_548_4; // sqrt(15 / (4 pi))
-const C20: f32 = 0.315_391_57; // sqrt(5 / (16 pi))
-const C22: f32 = 0.546_274_2; // sqrt(15 / (16 pi))
-
-/// The nine real SH functions of order 3 at unit direction `dir` (prt frame, +Y up).
+/// The nine real SH functions of order 3 at unit direction `dir` (prt frame, +Y up), exactly
+/// `prt_sphere::eval_sh(3, dir, ..)`, so that transfer matrices and prt-sphere's projections
+/// (environment maps, PLSQ fits) share one basis.
 #[inline]
 pub fn sh9(dir: Vec3) -> [f32; SH9] {
-    let (x, y, z) = (dir.x, -dir.z, dir.y);
-    [
-        C0,
-        -C1 * y,
-        C1 * z,
-        -C1 * x,
-        C2 * x * y,
-        -C2 * y * z,
-        C20 * (3.0 * z * z - 1.0),
-        -C2 * x * z,
-        C22 * (x * x - y * y),
-    ]
+    let mut y = [0.0; SH9];
+    prt_sphere::eval_sh(3, dir, &mut y);
+    y
 }
 
 #[cfg(test)]
@@ -75,7 +61,6 @@ mod tests {
         } else if m > 0 {
             2f64.sqrt() * k * (m as f64 * phi).cos() * p(l, m)
         } else {
-            // Condon–Shortley sign convention of Sloan's table: (-1)^m on both signs of m.
             2f64.sqrt() * k * (am as f64 * phi).sin() * p(l, am)
         }
     }
@@ -91,8 +76,8 @@ mod tests {
                     theta.sin() * phi.sin(),
                     theta.cos(),
                 );
-                // (x_t, y_t, z_t) = (X, -Z, Y)  =>  X = x_t, Y = z_t, Z = -y_t.
-                let dir = Vec3::new(xt as f32, zt as f32, -yt as f32);
+                // (x_t, y_t, z_t) = (Z, X, Y)  =>  X = y_t, Y = z_t, Z = x_t.
+                let dir = Vec3::new(yt as f32, zt as f32, xt as f32);
                 let y = sh9(dir);
                 for l in 0..3 {
                     for m in -l..=l {
