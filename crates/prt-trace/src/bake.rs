@@ -686,3 +686,75 @@ impl<'s> TransferBaker<'s> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A one-triangle cache with subdivision `m` whose entries hold an affine function of the
+    /// lattice's barycentrics, `f(u, v) = 1 + 2u - 3v` (first component) and `u + v` (second).
+    fn affine_cache(m: usize) -> SurfaceCache {
+        let n = if m == 0 { 1 } else { (m + 1) * (m + 2) / 2 };
+        let values: Vec<OnceLock<[f32; SH9]>> = (0..2 * n).map(|_| OnceLock::new()).collect();
+        if m > 0 {
+            for a in 0..=m {
+                for b in 0..=(m - a) {
+                    let (u, v) = (a as f32 / m as f32, b as f32 / m as f32);
+                    let mut x = [0.0; SH9];
+                    x[0] = 1.0 + 2.0 * u - 3.0 * v;
+                    x[1] = u + v;
+                    let _ = values[2 * lattice_index(m, a, b)].set(x);
+                }
+            }
+        }
+        SurfaceCache {
+            start: vec![0],
+            subdiv: vec![m as u16],
+            points: vec![(Vec3::ZERO, Vec3::Y); n],
+            values,
+        }
+    }
+
+    #[test]
+    fn lattice_indices_enumerate_the_lattice_in_order() {
+        for m in 1..9 {
+            let mut k = 0;
+            for a in 0..=m {
+                for b in 0..=(m - a) {
+                    assert_eq!(lattice_index(m, a, b), k);
+                    k += 1;
+                }
+            }
+            assert_eq!(k, lattice_len(m));
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        /// Linear interpolation on the lattice reproduces affine functions exactly, anywhere in
+        /// the triangle (including its edges), for every subdivision.
+        #[test]
+        fn cache_interpolation_reproduces_affine_functions(m in 1usize..12, u in 0f32..1.0, t in 0f32..1.0) {
+            let v = (1.0 - u) * t;
+            let cache = affine_cache(m);
+            let x = cache.lookup(0, 0, || Vec2::new(u, v), |_, _| unreachable!("every entry is set"));
+            prop_assert!((x[0] - (1.0 + 2.0 * u - 3.0 * v)).abs() < 1e-4, "{} vs {}", x[0], 1.0 + 2.0 * u - 3.0 * v);
+            prop_assert!((x[1] - (u + v)).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn a_single_point_cache_evaluates_once() {
+        let cache = affine_cache(0);
+        let calls = AtomicU64::new(0);
+        let eval = |_: usize, _: usize| {
+            calls.fetch_add(1, Ordering::Relaxed);
+            [0.5; SH9]
+        };
+        for _ in 0..3 {
+            assert_eq!(cache.lookup(0, 1, || Vec2::ZERO, eval), [0.5; SH9]);
+        }
+        assert_eq!(calls.into_inner(), 1);
+    }
+}

@@ -245,3 +245,49 @@ fn shared_sponza_and_gas_station_load_with_warnings() {
         assert_eq!(s.cameras().len(), 2);
     }
 }
+
+#[test]
+fn decoded_textures_contribute_their_mean_linear_colour() {
+    let dir = common::temp_dir("texture");
+    // 2x1 sRGB image: pure white and sRGB 0.5 grey in red only.
+    let mut img = image::RgbImage::new(2, 1);
+    img.put_pixel(0, 0, image::Rgb([255, 255, 255]));
+    img.put_pixel(1, 0, image::Rgb([128, 0, 0]));
+    img.save(dir.join("albedo.png")).expect("write png");
+    let (json, bin) = triangle_gltf(4, "", [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let json = json
+        .replace(
+            r#""pbrMetallicRoughness": {"baseColorFactor": [0.2, 0.4, 0.6, 1]}"#,
+            r#""pbrMetallicRoughness": {"baseColorFactor": [0.5, 1, 1, 1], "baseColorTexture": {"index": 0}}"#,
+        )
+        .replace(r#""meshes":"#, r#""images": [{"uri": "albedo.png"}], "textures": [{"source": 0}], "meshes":"#);
+    let path = write_gltf(&dir, &json, Some(&bin));
+    let decoded = LoadOptions {
+        decode_textures: true,
+        ..LoadOptions::default()
+    };
+    let scene = Scene::load_gltf(&path, &decoded).expect("loads with its texture");
+    let srgb = |c: f32| {
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let mean_r = 0.5 * (1.0 + srgb(128.0 / 255.0));
+    let expected = Vec3::new(0.5 * mean_r, 0.5, 0.5);
+    let got = scene.material_of(0).albedo;
+    assert!(
+        (got - expected).abs().max_element() < 1e-4,
+        "{got} vs {expected}"
+    );
+    // Not decoding: the default albedo stands in for the texture, with a warning.
+    let scene = Scene::load_gltf(&path, &LoadOptions::default()).expect("loads");
+    assert_eq!(scene.material_of(0).albedo, Vec3::new(0.25, 0.5, 0.5));
+    assert!(scene.warnings().iter().any(|w| w.contains("texture")));
+    // A missing image is a typed error naming its URI when textures are decoded.
+    std::fs::remove_file(dir.join("albedo.png")).expect("remove");
+    assert!(
+        matches!(Scene::load_gltf(&path, &decoded), Err(TraceError::Image { uri, .. }) if uri == "albedo.png")
+    );
+}
