@@ -12,7 +12,9 @@ fn sampling(c: &mut Criterion) {
     })
     .expect("finite synthetic field");
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
-    let points: Vec<Vec3> = (0..1024).map(|_| Vec3::new(rng.random(), rng.random(), rng.random())).collect();
+    let points: Vec<Vec3> = (0..1024)
+        .map(|_| Vec3::new(rng.random(), rng.random(), rng.random()))
+        .collect();
     let mut out = vec![0.0f32; 324];
     let mut group = c.benchmark_group("grid_field");
     group.throughput(Throughput::Elements(points.len() as u64));

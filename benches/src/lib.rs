@@ -46,7 +46,10 @@ pub struct Table {
 impl Table {
     /// A table with the given column names.
     pub fn new(header: &[&str]) -> Self {
-        Self { header: header.iter().map(|s| s.to_string()).collect(), rows: Vec::new() }
+        Self {
+            header: header.iter().map(|s| s.to_string()).collect(),
+            rows: Vec::new(),
+        }
     }
 
     /// Appends a row (as many cells as columns).
@@ -77,7 +80,10 @@ impl Table {
     pub fn write_csv_if_requested(&self, name: &str) -> std::io::Result<()> {
         if let Ok(dir) = std::env::var("PRT_CSV_DIR") {
             std::fs::create_dir_all(&dir)?;
-            std::fs::write(std::path::Path::new(&dir).join(format!("{name}.csv")), self.csv())?;
+            std::fs::write(
+                std::path::Path::new(&dir).join(format!("{name}.csv")),
+                self.csv(),
+            )?;
         }
         Ok(())
     }
