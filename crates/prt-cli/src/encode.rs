@@ -1,0 +1,232 @@
+//! `prt encode ENVMAP`: fit an environment map into a sphere basis (Roughton's progressive least
+//! squares, or the least-squares / NNLS / projection references) and report the radiance RMSE.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail, ensure};
+use clap::ValueEnum;
+use glam::Vec3;
+use prt_core::SphericalBasis;
+use prt_plsq::{EncoderConfig, ProgressiveEncoder, reference};
+use prt_sphere::{AmbientCube, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, sampling};
+use prt_texture::Limits;
+use serde_json::json;
+
+/// How the coefficients are fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Method {
+    /// Least squares over the samples (normal equations in f64).
+    Ls,
+    /// Non-negative least squares over the samples (Lawson-Hanson).
+    Nnls,
+    /// Roughton's progressive least squares (residual update, lerped denominator, Gauss-Seidel).
+    Progressive,
+    /// Monte Carlo projection (exact for orthonormal bases such as SH).
+    Projection,
+}
+
+/// Options of `prt encode`.
+#[derive(Debug, clap::Args)]
+pub struct EncodeArgs {
+    /// Lat-long environment map (.hdr or .exr).
+    pub envmap: PathBuf,
+    /// Basis: `sh:N` (order N, N² functions), `sg:N` (N lobes on Probulator's spiral),
+    /// `ambient-cube`, or `ambient-dice`.
+    #[arg(long, default_value = "sg:12")]
+    pub basis: String,
+    /// Spherical Gaussian sharpness λ (for `sg:N`).
+    #[arg(long, default_value_t = 6.0)]
+    pub lambda: f32,
+    /// Fitting method.
+    #[arg(long, value_enum, default_value_t = Method::Progressive)]
+    pub method: Method,
+    /// Fit samples (Halton(2,3) directions, nearest texel).
+    #[arg(long, default_value_t = 20000)]
+    pub samples: usize,
+    /// Write the reconstruction as a tone-mapped lat-long PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+}
+
+pub fn run(args: &EncodeArgs) -> Result<()> {
+    ensure!(args.samples >= 1, "--samples must be at least 1");
+    let map = read_envmap(&args.envmap)?;
+    let (basis, clamp): (Box<dyn SphericalBasis>, bool) = parse_basis(&args.basis, args.lambda)?;
+    let dirs = sampling::halton_sphere(args.samples);
+    let mut values = Vec::with_capacity(dirs.len() * 3);
+    for &d in &dirs {
+        values.extend_from_slice(&map.nearest(d).to_array());
+    }
+    let coefficients = fit(basis.as_ref(), args.method, &dirs, &values)?;
+    let rmse = radiance_rmse(&map, basis.as_ref(), &coefficients, clamp);
+    let doc = json!({
+        "envmap": args.envmap.display().to_string(),
+        "basis": basis.name(),
+        "method": format!("{:?}", args.method).to_lowercase(),
+        "samples": args.samples,
+        "rmse": rmse,
+        "rmse_definition": "sqrt(mean over pixel centres of the per-pixel MSE averaged over RGB); SH and ambient dice clamped at 0",
+        "coefficients_rgb": coefficients.chunks_exact(3).map(|c| c.to_vec()).collect::<Vec<_>>(),
+    });
+    println!("{}", serde_json::to_string_pretty(&doc)?);
+    if let Some(png) = &args.png {
+        write_png(png, &map, basis.as_ref(), &coefficients, clamp)?;
+        eprintln!("wrote {}", png.display());
+    }
+    Ok(())
+}
+
+fn parse_basis(spec: &str, lambda: f32) -> Result<(Box<dyn SphericalBasis>, bool)> {
+    let (kind, n) = match spec.split_once(':') {
+        Some((k, n)) => (
+            k,
+            Some(
+                n.parse::<usize>()
+                    .with_context(|| format!("bad basis size in {spec:?}"))?,
+            ),
+        ),
+        None => (spec, None),
+    };
+    Ok(match (kind, n) {
+        ("sh", Some(order)) => (Box::new(ShBasis::new(order)?), true),
+        ("sg", Some(lobes)) => (Box::new(SgBasis::spiral(lobes, lambda)?), false),
+        ("ambient-cube", None) => (Box::new(AmbientCube), false),
+        ("ambient-dice", None) => (Box::new(AmbientDiceSrbf), true),
+        _ => bail!("unknown basis {spec:?} (expected sh:N, sg:N, ambient-cube or ambient-dice)"),
+    })
+}
+
+fn read_envmap(path: &Path) -> Result<LatLongMap> {
+    if !path.exists() {
+        bail!("environment map {} does not exist", path.display());
+    }
+    let limits = Limits::default();
+    let extension = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let (w, h, rgb) = match extension.as_str() {
+        "hdr" | "pic" => {
+            let img = prt_texture::hdr::read_hdr(path, &limits)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            (img.width as usize, img.height as usize, img.data)
+        }
+        "exr" => {
+            let layers = prt_texture::exr_io::read_exr(path, &limits)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            let layer = layers
+                .into_iter()
+                .next()
+                .context("the EXR file has no RGB layer")?;
+            let rgb = layer
+                .data
+                .chunks_exact(layer.channels)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .collect();
+            (layer.width as usize, layer.height as usize, rgb)
+        }
+        _ => bail!("{}: expected a .hdr or .exr lat-long map", path.display()),
+    };
+    Ok(LatLongMap::new(w, h, rgb)?)
+}
+
+fn fit(
+    basis: &dyn SphericalBasis,
+    method: Method,
+    dirs: &[Vec3],
+    values: &[f32],
+) -> Result<Vec<f32>> {
+    Ok(match method {
+        Method::Ls => reference::least_squares_samples(basis, dirs, values, 3)?,
+        Method::Nnls => reference::nnls_samples(basis, dirs, values, 3)?,
+        Method::Projection => {
+            reference::naive_projection(basis, dirs, values, 3, 4.0 * std::f64::consts::PI)?
+        }
+        Method::Progressive => {
+            let mut encoder = ProgressiveEncoder::new(basis, 3, EncoderConfig::paper())?;
+            for (d, v) in dirs.iter().zip(values.chunks_exact(3)) {
+                encoder.add_sample(*d, v, 1.0)?;
+            }
+            encoder.coefficients().to_vec()
+        }
+    })
+}
+
+fn reconstruct(
+    basis: &dyn SphericalBasis,
+    coefficients: &[f32],
+    dir: Vec3,
+    clamp: bool,
+    scratch: &mut [f32],
+) -> [f32; 3] {
+    basis.eval(dir, scratch);
+    let mut rgb = [0.0f32; 3];
+    for (i, &b) in scratch.iter().enumerate() {
+        for (c, out) in rgb.iter_mut().enumerate() {
+            *out += coefficients[i * 3 + c] * b;
+        }
+    }
+    if clamp { rgb.map(|v| v.max(0.0)) } else { rgb }
+}
+
+/// Probulator's radiance RMSE: at every pixel centre, the squared error averaged over RGB; the
+/// square root of the mean over pixels (unweighted by solid angle).
+fn radiance_rmse(
+    map: &LatLongMap,
+    basis: &dyn SphericalBasis,
+    coefficients: &[f32],
+    clamp: bool,
+) -> f64 {
+    let mut scratch = vec![0.0f32; basis.len()];
+    let mut sum = 0.0f64;
+    for y in 0..map.height() {
+        for x in 0..map.width() {
+            let got = reconstruct(
+                basis,
+                coefficients,
+                map.direction(x, y),
+                clamp,
+                &mut scratch,
+            );
+            let want = map.texel(x, y).to_array();
+            sum += (0..3)
+                .map(|c| ((got[c] - want[c]) as f64).powi(2))
+                .sum::<f64>()
+                / 3.0;
+        }
+    }
+    (sum / (map.width() * map.height()) as f64).sqrt()
+}
+
+fn write_png(
+    path: &Path,
+    map: &LatLongMap,
+    basis: &dyn SphericalBasis,
+    coefficients: &[f32],
+    clamp: bool,
+) -> Result<()> {
+    let mut scratch = vec![0.0f32; basis.len()];
+    let (w, h) = (map.width(), map.height());
+    let mean = map.data().iter().map(|&v| v as f64).sum::<f64>() / map.data().len().max(1) as f64;
+    let exposure = if mean > 0.0 { (0.5 / mean) as f32 } else { 1.0 };
+    let img = image::RgbImage::from_fn(w as u32, h as u32, |x, y| {
+        let rgb = reconstruct(
+            basis,
+            coefficients,
+            map.direction(x as usize, y as usize),
+            clamp,
+            &mut scratch,
+        );
+        image::Rgb(rgb.map(|v| {
+            let t = (v * exposure).max(0.0);
+            ((t / (1.0 + t)).powf(1.0 / 2.2) * 255.0).round() as u8
+        }))
+    });
+    let mut bytes = Vec::new();
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )?;
+    prt_texture::write_atomic(path, &bytes)
+        .with_context(|| format!("cannot write {}", path.display()))
+}

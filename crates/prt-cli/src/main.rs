@@ -1,0 +1,59 @@
+//! `prt` — the command line of the prt toolkit.
+//!
+//! * `prt bake [SCENE.gltf]` traces a scene's 324-D light-transport volume (the built-in Cornell
+//!   box by default), compresses it with Moving Basis Decomposition, compares it with blockwise
+//!   and clustered PCA at equal basis count, writes the MBD container (KTX2 volumes + JSON
+//!   manifest) and a report (`report.md`, images, loss plot) to an output folder.
+//! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
+//! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD manifest holds.
+//!
+//! Errors are one line on stderr and a non-zero exit code; Ctrl-C cancels the running stage and
+//! leaves no half-written file under a final name.
+
+mod bake;
+mod encode;
+mod inspect;
+mod progress;
+mod report;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "prt",
+    version,
+    about = "Precomputed light transport: bake, compress, encode, inspect"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Trace a scene's transfer volume, compress it with MBD, write textures and a report.
+    Bake(bake::BakeArgs),
+    /// Fit an environment map (.hdr / .exr) into a sphere basis.
+    Encode(encode::EncodeArgs),
+    /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
+    Inspect(inspect::InspectArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    progress::install_ctrlc_handler();
+    let result = match cli.command {
+        Command::Bake(args) => bake::run(&args),
+        Command::Encode(args) => encode::run(&args),
+        Command::Inspect(args) => inspect::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,202 @@
+//! End-to-end tests of the `prt` binary: a small bake whose report must show a working pipeline,
+//! and the one-line errors of bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn prt(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_prt"))
+        .args(args)
+        .output()
+        .expect("the prt binary runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prt-cli-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The error is one line starting with `error:` and the exit code is non-zero.
+fn assert_clean_failure(out: &Output, needle: &str) {
+    assert!(!out.status.success(), "expected failure, got success");
+    let err = stderr(out);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .unwrap_or_else(|| panic!("no error line in {err:?}"));
+    assert!(
+        line.contains(needle),
+        "error line {line:?} does not mention {needle:?}"
+    );
+    assert!(!err.contains("panicked"), "panic in {err}");
+}
+
+#[test]
+fn small_cornell_bake_writes_a_consistent_report() {
+    let out_dir = scratch("bake");
+    let out = prt(&[
+        "bake",
+        "--res",
+        "12",
+        "--rays",
+        "96",
+        "--cache-rays",
+        "32",
+        "--rank",
+        "4",
+        "--basis-nodes",
+        "3",
+        "--iterations",
+        "24",
+        "--out",
+        out_dir.to_str().expect("utf-8 temp path"),
+    ]);
+    assert!(out.status.success(), "bake failed: {}", stderr(&out));
+    for file in [
+        "report.md",
+        "report.json",
+        "loss.png",
+        "comparison.png",
+        "mbd/manifest.json",
+        "mbd/coefficients.ktx2",
+        "mbd/basis.ktx2",
+    ] {
+        assert!(out_dir.join(file).is_file(), "missing {file}");
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out_dir.join("report.json")).expect("report.json"))
+            .expect("valid JSON");
+    let methods = report["methods"].as_array().expect("methods");
+    let get = |name: &str| {
+        methods
+            .iter()
+            .find(|m| m["method"].as_str().is_some_and(|n| n.starts_with(name)))
+            .unwrap_or_else(|| panic!("no {name} row"))
+    };
+    let (mbd, written, bpca) = (get("MBD"), get("MBD as written"), get("BPCA"));
+    let rel = |m: &serde_json::Value| m["relative_mse"].as_f64().expect("relative_mse");
+    // A broken tracer, solver or writer shows up as a large error; these bounds hold with margin.
+    assert!(rel(mbd) < 0.05, "MBD relative MSE {}", rel(mbd));
+    assert!(
+        rel(written) < rel(mbd) * 1.5 + 1e-4,
+        "quantisation lost too much: {} vs {}",
+        rel(written),
+        rel(mbd)
+    );
+    // At this tiny size Monte Carlo noise dominates every method's error, so the comparison with
+    // BPCA is loose; a broken solver is far outside it.
+    assert!(
+        rel(mbd) <= rel(bpca) * 1.5,
+        "MBD {} much worse than BPCA {}",
+        rel(mbd),
+        rel(bpca)
+    );
+    // MBD is continuous: its error does not jump at basis-cell boundaries.
+    let seam = |m: &serde_json::Value| m["seam_ratio"].as_f64().expect("seam_ratio");
+    assert!(
+        (0.8..1.2).contains(&seam(mbd)),
+        "MBD seam ratio {}",
+        seam(mbd)
+    );
+    assert!(written["bytes_per_voxel"].as_f64().expect("bytes") > 0.0);
+    let losses = report["mbd"]["loss"].as_array().expect("loss history");
+    assert!(!losses.is_empty());
+    // The inspect command reads back what bake wrote.
+    let inspect = prt(&["inspect", out_dir.join("mbd").to_str().expect("utf-8")]);
+    assert!(inspect.status.success(), "{}", stderr(&inspect));
+    assert!(String::from_utf8_lossy(&inspect.stdout).contains("array coefficients"));
+    let inspect = prt(&[
+        "inspect",
+        out_dir.join("mbd/basis.ktx2").to_str().expect("utf-8"),
+    ]);
+    assert!(inspect.status.success(), "{}", stderr(&inspect));
+    let _ = std::fs::remove_dir_all(out_dir);
+}
+
+#[test]
+fn bad_input_gives_one_line_errors() {
+    let dir = scratch("bad");
+    let path = |name: &str| dir.join(name).to_str().expect("utf-8").to_string();
+    assert_clean_failure(&prt(&["bake", &path("missing.gltf")]), "does not exist");
+
+    std::fs::write(dir.join("not.gltf"), "this is not glTF").expect("write");
+    assert_clean_failure(
+        &prt(&["bake", &path("not.gltf"), "--out", &path("o1")]),
+        "cannot load",
+    );
+
+    std::fs::write(
+        dir.join("empty.gltf"),
+        r#"{"asset":{"version":"2.0"},"scenes":[{"nodes":[]}],"scene":0}"#,
+    )
+    .expect("write");
+    assert_clean_failure(
+        &prt(&["bake", &path("empty.gltf"), "--out", &path("o2")]),
+        "no triangles",
+    );
+
+    write_points_gltf(&dir.join("points.gltf"));
+    assert_clean_failure(
+        &prt(&["bake", &path("points.gltf"), "--out", &path("o3")]),
+        "cannot load",
+    );
+
+    assert_clean_failure(&prt(&["bake", "--res", "0"]), "--res");
+    assert_clean_failure(&prt(&["bake", "--rank", "400"]), "--rank");
+    std::fs::write(dir.join("a-file"), "").expect("write");
+    assert_clean_failure(
+        &prt(&["bake", "--res", "4", "--out", &path("a-file/sub")]),
+        "output folder",
+    );
+
+    assert_clean_failure(&prt(&["encode", &path("missing.hdr")]), "does not exist");
+    assert_clean_failure(&prt(&["inspect", &path("not.gltf")]), "unknown file type");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A one-triangle glTF whose primitive is drawn as points (mode 0): not bakeable.
+fn write_points_gltf(path: &Path) {
+    let positions: Vec<u8> = [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let uri = format!(
+        "data:application/octet-stream;base64,{}",
+        base64(&positions)
+    );
+    let doc = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0}}],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"mode":0}}]}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}}],
+        "bufferViews":[{{"buffer":0,"byteLength":36}}],
+        "buffers":[{{"byteLength":36,"uri":"{uri}"}}]}}"#
+    );
+    std::fs::write(path, doc).expect("write glTF");
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const TABLE: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (b[0] as u32) << 16 | (b[1] as u32) << 8 | b[2] as u32;
+        for i in 0..4 {
+            if i <= chunk.len() {
+                s.push(TABLE[(n >> (18 - 6 * i) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
