@@ -341,9 +341,21 @@ impl CubemapLayout {
         &self.area_weights
     }
 
-    /// Band of the coefficient at `(face, x, y)`.
+    /// Band of the coefficient at `(x, y)` of any face.
     pub fn band_at(&self, x: usize, y: usize) -> usize {
         band_of_2d(x, y)
+    }
+
+    /// Finer bands: wavelet level × face (`6 × level + face`, `6 × band_count()` bands), so that
+    /// a per-band update policy can treat the faces of one level differently (under rotation
+    /// about +Y the ±Y faces spin in place while the side faces translate).
+    pub fn level_face_bands(&self) -> Vec<u8> {
+        let face_len = self.size * self.size;
+        self.bands
+            .iter()
+            .enumerate()
+            .map(|(i, &b)| 6 * b + (i / face_len) as u8)
+            .collect()
     }
 }
 

@@ -191,6 +191,12 @@ fn layout_bands_and_area_weights() {
         })
         .collect();
     assert_eq!(per_band, vec![1, 3, 12, 48]);
+    let fine = layout.level_face_bands();
+    assert_eq!(fine.len(), layout.len());
+    for (i, &b) in fine.iter().enumerate() {
+        assert_eq!(b as usize, 6 * layout.bands()[i] as usize + i / 64);
+    }
+    assert_eq!(*fine.iter().max().unwrap() as usize, 6 * 4 - 1);
     // Area weights are the basis functions' L1 norms on the sphere: computed directly here from
     // the texel solid angles and the inverse transform of a unit coefficient.
     let omega = texel_solid_angles(n);
