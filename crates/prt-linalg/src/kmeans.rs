@@ -169,6 +169,29 @@ fn squared_row_norms(x: &[f32], d: usize) -> Result<Vec<f64>, LinalgError> {
     Ok(norms)
 }
 
+/// Writes `half_norms - dots` into `scores` and returns its minimum (eight lanes, so the loop
+/// vectorises).
+fn scores_and_min(half_norms: &[f32], dots: &[f32], scores: &mut [f32]) -> f32 {
+    let mut lanes = [f32::INFINITY; 8];
+    let lanes_of = scores
+        .chunks_exact_mut(8)
+        .zip(half_norms.chunks_exact(8))
+        .zip(dots.chunks_exact(8));
+    for ((s, h), p) in lanes_of {
+        for l in 0..8 {
+            s[l] = h[l] - p[l];
+            lanes[l] = lanes[l].min(s[l]);
+        }
+    }
+    let done = scores.len() / 8 * 8;
+    let mut lowest = lanes.iter().fold(f32::INFINITY, |m, &v| m.min(v));
+    for j in done..scores.len() {
+        scores[j] = half_norms[j] - dots[j];
+        lowest = lowest.min(scores[j]);
+    }
+    lowest
+}
+
 /// Exact squared distance in f64 (eight independent partial sums, so it vectorises).
 fn exact_dist(a: &[f32], b: &[f32]) -> f64 {
     let mut acc = [0.0f64; 8];
@@ -271,11 +294,11 @@ fn assign(
         .chunks(d)
         .map(|c| c.iter().map(|&v| f64::from(v).powi(2)).sum())
         .collect();
-    let half_norms: Vec<f64> = centroid_norms.iter().map(|c| 0.5 * c).collect();
+    let half_norms: Vec<f32> = centroid_norms.iter().map(|c| (0.5 * c) as f32).collect();
     let max_norm = centroid_norms.iter().fold(0.0f64, |m, &v| m.max(v));
-    // Rounding bound of an f32 dot product of length d, relative to |x|^2 + |c|^2 (gamma_d,
-    // with two extra units for the conversions).
-    let bound = (d + 2) as f64 * f64::from(f32::EPSILON) / 2.0;
+    // Rounding bound of the f32 score |c|^2/2 - x.c, relative to |x|^2 + |c|^2: gamma_d for the
+    // dot product of length d, plus a few units for the conversions and the subtraction.
+    let bound = (d + 8) as f64 * f64::from(f32::EPSILON) / 2.0;
     let parts: Vec<Result<AssignStep, LinalgError>> = assignments
         .par_chunks_mut(chunk)
         .zip(dists.par_chunks_mut(chunk))
@@ -290,7 +313,7 @@ fn assign(
                 counts: vec![0; k],
             };
             let mut dots = vec![0.0f32; BLOCK_ROWS * k];
-            let mut scores = vec![0.0f64; k];
+            let mut scores = vec![0.0f32; k];
             for b in (0..labels.len()).step_by(BLOCK_ROWS) {
                 let rows = BLOCK_ROWS.min(labels.len() - b);
                 let block = &x[(first + b) * d..(first + b + rows) * d];
@@ -307,20 +330,13 @@ fn assign(
                     let xx = row_norms[first + i];
                     // |x - c|^2 / 2 - |x|^2 / 2 = |c|^2 / 2 - x.c, approximately; every centroid
                     // within the rounding bound of the best is ranked by its exact distance.
-                    let mut lowest = f64::INFINITY;
-                    for ((score, &half), &dot) in scores
-                        .iter_mut()
-                        .zip(&half_norms)
-                        .zip(&dots[r * k..(r + 1) * k])
-                    {
-                        *score = half - f64::from(dot);
-                        lowest = lowest.min(*score);
-                    }
-                    let threshold = lowest + bound * (xx + max_norm);
+                    let lowest =
+                        scores_and_min(&half_norms, &dots[r * k..(r + 1) * k], &mut scores);
+                    let threshold = f64::from(lowest) + bound * (xx + max_norm);
                     let row = &block[r * d..(r + 1) * d];
                     let (mut best, mut best_dist) = (0, f64::INFINITY);
                     for (j, &score) in scores.iter().enumerate() {
-                        if score <= threshold {
+                        if f64::from(score) <= threshold {
                             let e = exact_dist(row, &centroids[j * d..(j + 1) * d]);
                             if e < best_dist {
                                 (best, best_dist) = (j, e);

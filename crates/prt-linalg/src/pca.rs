@@ -134,8 +134,7 @@ impl Pca {
     /// # Errors
     /// [`LinalgError::Empty`] if `data` has no rows or columns, [`LinalgError::InvalidRank`] if
     /// `rank` is 0 or above `d`, [`LinalgError::NonFinite`] naming the first NaN/Inf of `data`,
-    /// [`LinalgError::InvalidParameter`] for a randomized sketch of zero extra width when
-    /// `rank < d` is not reachable, [`LinalgError::Cancelled`].
+    /// [`LinalgError::Cancelled`].
     pub fn fit(
         data: ArrayView2<'_, f32>,
         rank: usize,

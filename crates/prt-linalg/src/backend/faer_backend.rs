@@ -120,6 +120,12 @@ pub(crate) fn lblt_solve(
 
 /// The thin `Q` factor (`rows x min(rows, cols)`, orthonormal columns) of a row-major matrix.
 pub(crate) fn thin_q(a: ArrayView2<'_, f64>) -> Array2<f64> {
-    let qr = to_faer(a).qr();
-    to_ndarray(qr.compute_thin_Q().as_ref())
+    let run = || to_ndarray(to_faer(a).qr().compute_thin_Q().as_ref());
+    // faer's QR takes its parallelism from the current rayon pool, and on tall, skinny sketches
+    // (262144 x 26) its parallel path was 5x slower than the sequential one on 2 threads:
+    // run it in a one-thread pool.
+    match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+        Ok(pool) => pool.install(run),
+        Err(_) => run(),
+    }
 }
