@@ -190,7 +190,21 @@ impl<const C: usize> SgEncoder<C> {
     }
 
     fn apply(&mut self, dir: Vec3, value: [f32; C], weight: f32) {
-        let k = self.lambda.len();
+        // Common lobe counts get a copy of the body with a constant trip count (fully unrolled,
+        // no remainder loops); `apply_with` is inlined into each arm.
+        match self.lambda.len() {
+            4 => self.apply_with(4, dir, value, weight),
+            6 => self.apply_with(6, dir, value, weight),
+            8 => self.apply_with(8, dir, value, weight),
+            9 => self.apply_with(9, dir, value, weight),
+            12 => self.apply_with(12, dir, value, weight),
+            16 => self.apply_with(16, dir, value, weight),
+            k => self.apply_with(k, dir, value, weight),
+        }
+    }
+
+    #[inline(always)]
+    fn apply_with(&mut self, k: usize, dir: Vec3, value: [f32; C], weight: f32) {
         let cfg = self.config;
         self.total_weight += weight;
         let share = weight / self.total_weight;
@@ -216,18 +230,26 @@ impl<const C: usize> SgEncoder<C> {
             delta[c] -= s;
         }
         let (integrals, true_means) = (&mut self.integrals[..k], &self.true_means[..k]);
+        let share_of = |b: f32| if b != 0.0 { share } else { 0.0 };
         for i in 0..k {
             // A lobe that evaluates to exactly 0 is skipped, as in the generic encoder.
-            let s = if b[i] != 0.0 { share } else { 0.0 };
-            let est = integrals[i] + (b[i] * b[i] - integrals[i]) * s;
-            integrals[i] = est;
-            let denom = match cfg.denominator {
-                Denominator::Clamped { floor } => est.max(floor * true_means[i]),
-                Denominator::LerpFromOne => share + (1.0 - share) * est,
-                Denominator::Exact => true_means[i],
-            };
-            denoms[i] = denom;
-            step[i] = s * b[i] / denom;
+            integrals[i] += (b[i] * b[i] - integrals[i]) * share_of(b[i]);
+        }
+        match cfg.denominator {
+            Denominator::Clamped { floor } => {
+                for i in 0..k {
+                    denoms[i] = integrals[i].max(floor * true_means[i]);
+                }
+            }
+            Denominator::LerpFromOne => {
+                for i in 0..k {
+                    denoms[i] = share + (1.0 - share) * integrals[i];
+                }
+            }
+            Denominator::Exact => denoms.copy_from_slice(true_means),
+        }
+        for i in 0..k {
+            step[i] = share_of(b[i]) * b[i] / denoms[i];
         }
         match cfg.update {
             Update::Residual { acceleration } => {
