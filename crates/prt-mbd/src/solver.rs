@@ -361,7 +361,7 @@ pub(crate) fn check_kernels<K: SpatialKernels>(
 }
 
 /// Initial `(coefficients M × L, basis N × L × D)`, flat.
-fn initialise<C: SpatialKernels, B: SpatialKernels>(
+pub(crate) fn initialise<C: SpatialKernels, B: SpatialKernels>(
     problem: &Problem<'_, C, B>,
     options: &MbdOptions,
 ) -> Result<(Vec<f32>, Vec<f32>), MbdError> {
