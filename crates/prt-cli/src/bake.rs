@@ -30,7 +30,7 @@ pub enum EncodingArg {
 pub struct BakeArgs {
     /// glTF 2.0 scene to bake; the built-in Cornell box when omitted.
     pub scene: Option<PathBuf>,
-    /// Output folder [default: ./prt-out/<scene name>/].
+    /// Output folder [default: ./prt-out/SCENE/, SCENE being the scene file's name].
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Voxels along the longest axis of the scene box (the other axes in proportion).
