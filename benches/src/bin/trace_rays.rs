@@ -2,13 +2,13 @@
 //! directions uniform on the sphere), closest hit and shadow (first hit), on 2 threads, for the
 //! scenes of ../shared/design/anchors.md, next to the anchor figures (obvhs and Embree).
 //!
-//! `cargo run --release -p prt-benches --bin trace_rays [rays]`
+//! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow]`
 use std::path::Path;
 use std::time::Instant;
 
 use glam::Vec3;
 use prt_benches::{Table, fmt_duration};
-use prt_trace::{LoadOptions, RayTracer, Scene};
+use prt_trace::{BuildQuality, LoadOptions, RayTracer, Scene};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
@@ -47,6 +47,11 @@ fn main() {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(10_000_000);
+    let quality = match std::env::args().nth(2).as_deref() {
+        Some("fast") => BuildQuality::Fast,
+        Some("slow") => BuildQuality::Slow,
+        _ => BuildQuality::Medium,
+    };
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
     // (name, loader, anchor obvhs closest/shadow, anchor Embree closest/shadow) in Mrays/s.
     let anchors: [(&str, Option<&str>, [f64; 4]); 3] = [
@@ -84,7 +89,7 @@ fn main() {
             },
         };
         let t = Instant::now();
-        let tracer = RayTracer::new(scene.triangles());
+        let tracer = RayTracer::with_quality(scene.triangles(), quality);
         let build = t.elapsed();
         let rays = random_rays(&scene, count, 7);
         let threads = rayon::current_num_threads() as f64;
@@ -118,7 +123,7 @@ fn main() {
             format!("{:.2} / {:.2}", closest_cpu / a[2], shadow_cpu / a[3]),
         ]);
     }
-    println!("threads: {}, rays: {count}\n", rayon::current_num_threads());
+    println!("threads: {}, rays: {count}, BVH quality: {quality:?}\n", rayon::current_num_threads());
     println!("{}", table.markdown());
     if let Err(e) = table.write_csv_if_requested("trace_rays") {
         eprintln!("csv: {e}");

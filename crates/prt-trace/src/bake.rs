@@ -189,6 +189,9 @@ impl TransferVolume {
     /// Incident-radiance SH at voxel `v`, `[direct, indirect R, indirect G, indirect B]`, for a
     /// sky with per-channel SH `sky` (R, G, B). The direct part is the same matrix for every
     /// channel; it is returned for channel R's sky (pass a grey sky for a single direct image).
+    ///
+    /// # Panics
+    /// If `v` is not a voxel index of the field.
     pub fn incident(&self, v: usize, sky: &[[f32; SH9]; 3]) -> [[f32; SH9]; 4] {
         let t = self.field.voxel(v);
         let mut out = [[0.0; SH9]; 4];
@@ -203,6 +206,9 @@ impl TransferVolume {
     }
 
     /// Fraction of the sphere of directions from voxel `v` that reaches the sky (`D_00`).
+    ///
+    /// # Panics
+    /// If `v` is not a voxel index of the field.
     pub fn sky_visibility(&self, v: usize) -> f32 {
         self.field.voxel(v)[0]
     }
