@@ -123,7 +123,10 @@ fn main() {
             format!("{:.2} / {:.2}", closest_cpu / a[2], shadow_cpu / a[3]),
         ]);
     }
-    println!("threads: {}, rays: {count}, BVH quality: {quality:?}\n", rayon::current_num_threads());
+    println!(
+        "threads: {}, rays: {count}, BVH quality: {quality:?}\n",
+        rayon::current_num_threads()
+    );
     println!("{}", table.markdown());
     if let Err(e) = table.write_csv_if_requested("trace_rays") {
         eprintln!("csv: {e}");
