@@ -61,9 +61,11 @@ pub struct BakeOptions {
     /// Explicit grid box. Voxels whose centre lies outside the scene bounds grown by `margin`
     /// are then not traced: they are zero and invalid.
     pub bounds: Option<Aabb>,
-    /// Directions per voxel, rounded up to a multiple of 12 (whole rotated icosahedra).
+    /// Directions per voxel, rounded up to a multiple of 12 (whole rotated icosahedra); at most
+    /// 12 x 2^16.
     pub rays_per_voxel: usize,
-    /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force).
+    /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force); at
+    /// most 2^16.
     pub cache_rays: usize,
     /// Largest spacing between surface-cache points on a triangle; `None`: the mean voxel edge. A triangle gets at most 128 subdivisions per edge, and the spacing grows by steps of
     /// 1.5x while the whole cache would exceed 4 million points.
@@ -335,6 +337,19 @@ impl<'s> TransferBaker<'s> {
         }
         if options.rays_per_voxel == 0 {
             return invalid("rays_per_voxel", "must be positive".into());
+        }
+        // Sobol' sample indices (icosahedra per voxel, cache rays per point) must stay below 2^16.
+        if options.rays_per_voxel > ICOSA << 16 {
+            return invalid(
+                "rays_per_voxel",
+                format!("{} exceeds {}", options.rays_per_voxel, ICOSA << 16),
+            );
+        }
+        if options.cache_rays > 1 << 16 {
+            return invalid(
+                "cache_rays",
+                format!("{} exceeds {}", options.cache_rays, 1 << 16),
+            );
         }
         if options.indirect != IndirectMode::Off && options.cache_rays == 0 {
             return invalid(
