@@ -291,3 +291,29 @@ fn decoded_textures_contribute_their_mean_linear_colour() {
         matches!(Scene::load_gltf(&path, &decoded), Err(TraceError::Image { uri, .. }) if uri == "albedo.png")
     );
 }
+
+mod malformed {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// A damaged glTF (truncated, or with a byte replaced) loads or fails with a typed error:
+        /// it never panics.
+        #[test]
+        fn damaged_gltf_never_panics(cut in 0usize..2000, at in 0usize..2000, byte in any::<u8>()) {
+            let dir = common::temp_dir(&format!("damaged-{cut}-{at}-{byte}"));
+            let (json, bin) = triangle_gltf(4, "", [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+            let mut bytes = json.into_bytes();
+            if at < bytes.len() {
+                bytes[at] = byte;
+            }
+            bytes.truncate(cut.max(1).min(bytes.len()));
+            std::fs::write(dir.join("data.bin"), &bin).expect("write bin");
+            let path = dir.join("scene.gltf");
+            std::fs::write(&path, &bytes).expect("write gltf");
+            let _ = Scene::load_gltf(&path, &LoadOptions::default());
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+}
