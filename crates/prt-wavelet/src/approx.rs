@@ -49,7 +49,9 @@ pub enum BandStrategy {
     L1Test,
     /// Deal the `k` terms one at a time to the band whose error drops most by one more term,
     /// the error of a band holding `n` terms being the better of its two modes; each band then
-    /// takes its dealt number of terms in its better mode.
+    /// takes its dealt number of terms in its better mode. (Our greedy reading of the thesis'
+    /// dealer; unlike [`BandStrategy::Exhaustive`] it scales to many bands, e.g.
+    /// [`crate::CubemapLayout::level_face_bands`].)
     Dealer,
 }
 
