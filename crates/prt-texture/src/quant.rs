@@ -235,19 +235,28 @@ pub fn quantize(
             let max = encoding.int_max();
             let wide = matches!(encoding, Encoding::Unorm16 | Encoding::Snorm16);
             let mut out = Vec::with_capacity(values.len() * if wide { 2 } else { 1 });
-            for (i, &v) in values.iter().enumerate() {
-                let r = ranges[i % channels];
-                let n = if r.scale == 0.0 {
-                    0.0
-                } else {
-                    ((f64::from(v) - f64::from(r.bias)) / f64::from(r.scale))
-                        .clamp(if encoding.is_signed() { -1.0 } else { 0.0 }, 1.0)
-                };
-                let q = (n * max).round() as i32;
-                if wide {
-                    out.extend_from_slice(&(q as u16).to_le_bytes());
-                } else {
-                    out.push(q as u8);
+            // value → texel: (v - bias) · (M / scale), clamped to the integer range; a
+            // constant channel (scale 0) stores 0.
+            let lowest = if encoding.is_signed() { -max } else { 0.0 };
+            let factors: Vec<(f64, f64)> = ranges
+                .iter()
+                .map(|r| {
+                    let factor = if r.scale == 0.0 {
+                        0.0
+                    } else {
+                        max / f64::from(r.scale)
+                    };
+                    (f64::from(r.bias), factor)
+                })
+                .collect();
+            for element in values.chunks_exact(channels) {
+                for (&v, &(bias, factor)) in element.iter().zip(&factors) {
+                    let q = ((f64::from(v) - bias) * factor).clamp(lowest, max).round() as i32;
+                    if wide {
+                        out.extend_from_slice(&(q as u16).to_le_bytes());
+                    } else {
+                        out.push(q as u8);
+                    }
                 }
             }
             out
@@ -264,10 +273,11 @@ pub fn quantize(
 fn fit_ranges(values: &[f32], channels: usize, encoding: Encoding) -> Vec<ChannelRange> {
     let mut lo = vec![f64::INFINITY; channels];
     let mut hi = vec![f64::NEG_INFINITY; channels];
-    for (i, &v) in values.iter().enumerate() {
-        let c = i % channels;
-        lo[c] = lo[c].min(f64::from(v));
-        hi[c] = hi[c].max(f64::from(v));
+    for element in values.chunks_exact(channels) {
+        for (c, &v) in element.iter().enumerate() {
+            lo[c] = lo[c].min(f64::from(v));
+            hi[c] = hi[c].max(f64::from(v));
+        }
     }
     (0..channels)
         .map(|c| {
@@ -351,13 +361,18 @@ pub fn dequantize(q: &Quantized) -> Result<Vec<f32>, TextureError> {
         return Ok(normalized);
     }
     let max = q.encoding.int_max();
-    Ok(normalized
+    let maps: Vec<(f64, f64)> = q
+        .ranges
         .iter()
-        .enumerate()
-        .map(|(i, &n)| {
-            let r = q.ranges[i % q.channels];
-            let unit = (f64::from(n) / max).max(-1.0);
-            (f64::from(r.bias) + f64::from(r.scale) * unit) as f32
-        })
-        .collect())
+        .map(|r| (f64::from(r.bias), f64::from(r.scale) / max))
+        .collect();
+    let mut out = normalized;
+    for element in out.chunks_exact_mut(q.channels) {
+        for (v, &(bias, step)) in element.iter_mut().zip(&maps) {
+            // Snorm's most negative integer decodes to -1 as in Vulkan.
+            let n = f64::from(*v).max(-max);
+            *v = (bias + step * n) as f32;
+        }
+    }
+    Ok(out)
 }
