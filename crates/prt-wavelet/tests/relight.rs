@@ -122,6 +122,44 @@ fn dense_check(channels: usize) {
 }
 
 #[test]
+fn level_face_bands_drive_the_engine() {
+    // 42 bands (level × face) of a 4 × 4 cube map: the dealer scales to them and the engine's
+    // partial images stay consistent with the dense product.
+    let layout = prt_wavelet::CubemapLayout::new(4).unwrap();
+    let bands = layout.level_face_bands();
+    let band_count = 6 * layout.band_count();
+    let cols = layout.len();
+    let mut rng = Pcg64::seed_from_u64(5);
+    let oracle = DenseOracle::new(sparse_matrix(20, cols, 0.5, &mut rng), 1).unwrap();
+    let t = SparseTransport::from_oracle(&oracle, 30, &NoProgress).unwrap();
+    let deq = t.to_dense();
+    let mut a = Approximator::new(
+        bands,
+        layout.area_weights().to_vec(),
+        1,
+        9,
+        Policy::PerBand(BandStrategy::Dealer),
+    )
+    .unwrap();
+    let mut engine = Relighter::new(t, 1, band_count).unwrap();
+    let mut lighting: Vec<f32> = (0..cols).map(|_| rng.random_range(0.0f32..4.0)).collect();
+    for _ in 0..30 {
+        for v in &mut lighting {
+            *v = (*v + rng.random_range(-0.3f32..0.3)).max(0.0);
+        }
+        let update = a.step(&lighting).unwrap().clone();
+        assert_eq!(update.modes.len(), band_count);
+        engine.apply(&update).unwrap();
+        for r in 0..20 {
+            let exact: f64 = (0..cols)
+                .map(|j| deq[r * cols + j] as f64 * a.approximation()[j] as f64)
+                .sum();
+            assert!((engine.image()[r] as f64 - exact).abs() <= 1e-3 * (1.0 + exact.abs()));
+        }
+    }
+}
+
+#[test]
 fn bad_input_and_cancellation() {
     let rgb = DenseOracle::new(Array2::zeros((4, 6)), 3).unwrap();
     assert!(matches!(

@@ -297,3 +297,20 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn one_texel_faces_are_the_identity() {
+    let layout = CubemapLayout::new(1).unwrap();
+    assert_eq!(layout.band_count(), 1);
+    assert_eq!(layout.bands(), &[0u8; 6]);
+    for &w in layout.area_weights() {
+        assert!((w as f64 - 4.0 * std::f64::consts::PI / 6.0).abs() < 1e-6);
+    }
+    let mut data = vec![1.0f32, -2.0, 3.0, 4.0, 5.0, 6.0];
+    CubemapHaar::new(1).unwrap().forward(&mut data).unwrap();
+    assert_eq!(data, vec![1.0, -2.0, 3.0, 4.0, 5.0, 6.0]);
+    assert!(matches!(
+        CubemapHaar::new(4).unwrap().forward(&mut [0.0; 95]),
+        Err(WaveletError::LengthMismatch { .. })
+    ));
+}
