@@ -85,6 +85,7 @@ mod gltf_load;
 mod sampling;
 mod scene;
 mod sh;
+mod vpl;
 
 pub use bake::{
     BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
@@ -95,3 +96,7 @@ pub use error::TraceError;
 pub use gltf_load::LoadOptions;
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, sh9};
+pub use vpl::{
+    GBuffer, GatherPoint, PinholeView, SunSky, Vpl, VplOptions, VplOracle, emitted_power,
+    trace_vpls,
+};

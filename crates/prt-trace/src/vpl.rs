@@ -1,0 +1,768 @@
+//! The many-light scene side: virtual point lights by particle tracing, a pinhole view with a
+//! G-buffer of gather points, and the pixel × light matrix as a [`MatrixOracle`].
+//!
+//! Instant radiosity (Keller 1997) as used by matrix row-column sampling (Hašan et al. 2007):
+//! particles leave the emitters carrying `Φ / (N p)` of their power, and every surface they
+//! reach stores a VPL with the *reflected* flux `ρ Φ`; the particle continues along a
+//! cosine-distributed direction with that flux. A VPL radiates as a Lambertian emitter of flux
+//! `Φ_j` (radiant intensity `Φ_j cos θ / π`), so element `(i, j)` is
+//!
+//! `ρ_i/π · Φ_j/π · max(0, n_i·ω) · max(0, -n_j·ω) / max(d², c²) · V(x_i, y_j)`
+//!
+//! with `ω = (y_j - x_i)/d`, the clamp distance `c` bounding the `1/d²` singularity, and `V` a
+//! shadow ray. (Hašan's notes fold the second `1/π` into the VPL's flux; here the stored flux is
+//! the physical one, so the emitter VPLs sum to the emitters' power.)
+
+use std::f32::consts::{PI, TAU};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::Vec3;
+use prt_core::{Aabb, CoreError, MatrixOracle, Progress};
+use rayon::prelude::*;
+
+use crate::sampling::{cosine_hemisphere, hash_seed};
+use crate::{Camera, LightKind, RayTracer, Scene, TraceError};
+
+/// A virtual point light: an oriented point that radiates its flux like a Lambertian emitter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Vpl {
+    /// World-space position.
+    pub position: Vec3,
+    /// Unit normal of the side it radiates from (zero for an isotropic point light's VPL).
+    pub normal: Vec3,
+    /// Radiated flux (linear RGB).
+    pub flux: Vec3,
+    /// Diffuse albedo of the surface it lies on (zero for punctual lights).
+    pub albedo: Vec3,
+    /// Number of bounces before it (0: on an emitter).
+    pub bounce: u32,
+}
+
+/// Sun and sky that light scenes without emitters or punctual lights.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SunSky {
+    /// Unit direction the sunlight travels (from the sun into the scene).
+    pub sun_direction: Vec3,
+    /// Irradiance on a surface facing the sun (linear RGB).
+    pub sun_irradiance: Vec3,
+    /// Constant radiance of the upper (+Y) sky hemisphere (linear RGB).
+    pub sky_radiance: Vec3,
+}
+
+impl Default for SunSky {
+    fn default() -> Self {
+        Self {
+            sun_direction: Vec3::new(0.3, -1.0, 0.2).normalize(),
+            sun_irradiance: Vec3::new(3.0, 2.9, 2.6),
+            sky_radiance: Vec3::new(0.15, 0.2, 0.3),
+        }
+    }
+}
+
+/// Options of [`trace_vpls`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VplOptions {
+    /// Number of particles (light paths) emitted; each yields up to `max_bounces + 1` VPLs.
+    pub particles: usize,
+    /// Surface hits a particle may make after leaving its source (0: emitter VPLs only).
+    pub max_bounces: u32,
+    /// Seed: the same seed gives the same VPLs on any thread count.
+    pub seed: u64,
+    /// Light used when the scene has neither emissive triangles nor punctual lights.
+    pub sun_sky: SunSky,
+}
+
+impl Default for VplOptions {
+    fn default() -> Self {
+        Self {
+            particles: 10_000,
+            max_bounces: 2,
+            seed: 0,
+            sun_sky: SunSky::default(),
+        }
+    }
+}
+
+/// One light source with its total power (linear RGB).
+#[derive(Debug, Clone, Copy)]
+enum Source {
+    /// An emissive triangle radiating from its front face.
+    Triangle { index: usize, power: Vec3 },
+    /// A point or spot light (cone half-angle `cos_outer`, -1 for a point light).
+    Point {
+        position: Vec3,
+        direction: Vec3,
+        cos_outer: f32,
+        power: Vec3,
+    },
+    /// Parallel light of direction `direction` crossing the scene's bounding sphere.
+    Directional { direction: Vec3, power: Vec3 },
+    /// A constant upper-hemisphere sky crossing the scene's bounding sphere.
+    Sky { power: Vec3 },
+}
+
+impl Source {
+    fn power(&self) -> Vec3 {
+        match *self {
+            Source::Triangle { power, .. }
+            | Source::Point { power, .. }
+            | Source::Directional { power, .. }
+            | Source::Sky { power } => power,
+        }
+    }
+}
+
+fn luminance(c: Vec3) -> f64 {
+    f64::from(0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z)
+}
+
+fn triangle_area(t: &[Vec3; 3]) -> f32 {
+    0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
+}
+
+/// Uniform in `[0, 1)` from `(seed, particle, dimension)`: a pure function, so particles can be
+/// traced in any order on any number of threads.
+fn uniform(seed: u64, particle: u64, dim: u64) -> f32 {
+    (hash_seed(seed, particle, dim) >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
+    let z = 1.0 - 2.0 * u1;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    Vec3::new(r * (TAU * u2).cos(), z, r * (TAU * u2).sin())
+}
+
+/// The scene's light sources: emissive triangles (front face, power `π A L_e`), punctual lights
+/// (point `4π I`, spot `2π (1 - cos outer) I`, directional `E π R²` over the bounding sphere of
+/// radius `R`), or, when there are none, the sun and sky of `sun_sky`.
+fn sources(scene: &Scene, bounds: &Aabb, sun_sky: &SunSky) -> Vec<Source> {
+    let radius = 0.5 * (bounds.max - bounds.min).length();
+    let disk = PI * radius * radius;
+    let mut out = Vec::new();
+    for (index, t) in scene.triangles().iter().enumerate() {
+        let e = scene.material_of(index).emissive;
+        if e.max_element() > 0.0 && e.is_finite() {
+            out.push(Source::Triangle {
+                index,
+                power: e * (PI * triangle_area(t)),
+            });
+        }
+    }
+    for l in scene.lights() {
+        let intensity = l.color * l.intensity;
+        if !intensity.is_finite() || intensity.max_element() <= 0.0 {
+            continue;
+        }
+        let direction = l.direction.normalize_or(Vec3::NEG_Y);
+        out.push(match l.kind {
+            LightKind::Directional => Source::Directional {
+                direction,
+                power: intensity * disk,
+            },
+            LightKind::Spot {
+                outer_cone_angle, ..
+            } => {
+                let cos_outer = outer_cone_angle.cos();
+                Source::Point {
+                    position: l.position,
+                    direction,
+                    cos_outer,
+                    power: intensity * (TAU * (1.0 - cos_outer)),
+                }
+            }
+            _ => Source::Point {
+                position: l.position,
+                direction,
+                cos_outer: -1.0,
+                power: intensity * (4.0 * PI),
+            },
+        });
+    }
+    if out.is_empty() {
+        let d = sun_sky.sun_direction.normalize_or(Vec3::NEG_Y);
+        if sun_sky.sun_irradiance.max_element() > 0.0 {
+            out.push(Source::Directional {
+                direction: d,
+                power: sun_sky.sun_irradiance * disk,
+            });
+        }
+        if sun_sky.sky_radiance.max_element() > 0.0 {
+            // Radiance L over the upper hemisphere through a disk of area πR² facing each ω.
+            out.push(Source::Sky {
+                power: sun_sky.sky_radiance * (disk * TAU),
+            });
+        }
+    }
+    out
+}
+
+/// Total power of the light sources [`trace_vpls`] emits from (linear RGB), for energy checks.
+///
+/// Errors: [`TraceError::EmptyScene`] for a scene without triangles.
+pub fn emitted_power(scene: &Scene, sun_sky: &SunSky) -> Result<Vec3, TraceError> {
+    let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
+    Ok(sources(scene, &bounds, sun_sky)
+        .iter()
+        .map(Source::power)
+        .sum())
+}
+
+/// Traces `options.particles` particles from the scene's emitters and returns the VPLs they
+/// leave, in particle order (so a seed gives identical VPLs on any thread count).
+///
+/// Emitter VPLs (bounce 0) lie on emissive triangles and point lights; their fluxes sum to the
+/// emitted power in expectation (exactly for a single emitter). Directional and sky light have no
+/// position and a spot's cone is not a Lambertian or isotropic lobe, so they give no bounce-0 VPL: their first surface hit is the first VPL (their direct
+/// light is then represented only through one bounce). A particle that hits the back of a
+/// single-sided surface or leaves the scene stops.
+///
+/// Errors: [`TraceError::EmptyScene`] without triangles, [`TraceError::InvalidOption`] for zero
+/// particles or a scene with no light at all (zero sun and sky and no emitters),
+/// [`TraceError::Core`] when cancelled.
+pub fn trace_vpls(
+    scene: &Scene,
+    tracer: &RayTracer,
+    options: &VplOptions,
+    progress: &dyn Progress,
+) -> Result<Vec<Vpl>, TraceError> {
+    let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
+    if options.particles == 0 {
+        return Err(TraceError::InvalidOption {
+            what: "particles",
+            why: "zero particles".into(),
+        });
+    }
+    let sources = sources(scene, &bounds, &options.sun_sky);
+    let weights: Vec<f64> = sources.iter().map(|s| luminance(s.power())).collect();
+    let total: f64 = weights.iter().sum();
+    if !(total > 0.0 && total.is_finite()) {
+        return Err(TraceError::InvalidOption {
+            what: "light sources",
+            why: format!("total emitted luminance is {total}"),
+        });
+    }
+    let mut cdf = Vec::with_capacity(weights.len());
+    let mut acc = 0.0;
+    for w in &weights {
+        acc += w / total;
+        cdf.push(acc);
+    }
+    let centre = 0.5 * (bounds.min + bounds.max);
+    let radius = (0.5 * (bounds.max - bounds.min).length()).max(1e-6);
+    let eps = 1e-4 * 2.0 * radius;
+    let n = options.particles;
+    let tracer_ctx = ParticleContext {
+        scene,
+        tracer,
+        sources: &sources,
+        probabilities: &weights,
+        total,
+        cdf: &cdf,
+        centre,
+        radius,
+        eps,
+        particles: n as f32,
+        options,
+    };
+    progress.set_len(n as u64);
+    const CHUNK: usize = 1024;
+    let chunks: Result<Vec<Vec<Vpl>>, TraceError> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            progress.check()?;
+            let mut out = Vec::new();
+            let end = ((c + 1) * CHUNK).min(n);
+            for k in c * CHUNK..end {
+                tracer_ctx.trace(k as u64, &mut out);
+            }
+            progress.inc((end - c * CHUNK) as u64);
+            Ok(out)
+        })
+        .collect();
+    Ok(chunks?.into_iter().flatten().collect())
+}
+
+struct ParticleContext<'a> {
+    scene: &'a Scene,
+    tracer: &'a RayTracer,
+    sources: &'a [Source],
+    probabilities: &'a [f64],
+    total: f64,
+    cdf: &'a [f64],
+    centre: Vec3,
+    radius: f32,
+    eps: f32,
+    particles: f32,
+    options: &'a VplOptions,
+}
+
+impl ParticleContext<'_> {
+    fn trace(&self, k: u64, out: &mut Vec<Vpl>) {
+        let seed = self.options.seed;
+        let u = |dim: u64| uniform(seed, k, dim);
+        let pick = f64::from(u(0));
+        let s = self
+            .cdf
+            .partition_point(|&c| c <= pick)
+            .min(self.sources.len() - 1);
+        let p = self.probabilities[s] / self.total;
+        let flux = self.sources[s].power() / (self.particles * p as f32);
+        let (origin, dir) = match self.sources[s] {
+            Source::Triangle { index, .. } => {
+                let t = &self.scene.triangles()[index];
+                let (mut b1, mut b2) = (u(1), u(2));
+                if b1 + b2 > 1.0 {
+                    (b1, b2) = (1.0 - b1, 1.0 - b2);
+                }
+                let pos = t[0] + b1 * (t[1] - t[0]) + b2 * (t[2] - t[0]);
+                let normal = (t[1] - t[0]).cross(t[2] - t[0]).normalize();
+                let material = self.scene.material_of(index);
+                out.push(Vpl {
+                    position: pos,
+                    normal,
+                    flux,
+                    albedo: material.albedo,
+                    bounce: 0,
+                });
+                (
+                    pos + normal * self.eps,
+                    cosine_hemisphere(normal, u(3), u(4)),
+                )
+            }
+            Source::Point {
+                position,
+                direction,
+                cos_outer,
+                ..
+            } => {
+                // Uniform in the cone (the whole sphere for a point light).
+                let z = 1.0 - u(3) * (1.0 - cos_outer);
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let (a, b) = direction.any_orthonormal_pair();
+                let phi = TAU * u(4);
+                let dir = (a * (r * phi.cos()) + b * (r * phi.sin()) + direction * z).normalize();
+                // An isotropic point VPL represents a point light exactly; a spot's cone is not
+                // representable by one, so spots only seed bounces.
+                if cos_outer <= -1.0 {
+                    out.push(Vpl {
+                        position,
+                        normal: Vec3::ZERO,
+                        flux,
+                        albedo: Vec3::ZERO,
+                        bounce: 0,
+                    });
+                }
+                (position, dir)
+            }
+            Source::Directional { direction, .. } => {
+                (self.disk_origin(direction, u(3), u(4)), direction)
+            }
+            Source::Sky { .. } => {
+                // Uniform over the upper hemisphere of directions the sky light comes from.
+                let from = uniform_sphere(u(1), u(2));
+                let dir = -Vec3::new(from.x, from.y.abs(), from.z);
+                (self.disk_origin(dir, u(3), u(4)), dir)
+            }
+        };
+        self.bounce(origin, dir, flux, k, out);
+    }
+
+    /// A uniform point on the disk of the bounding sphere's radius facing `dir`, behind the sphere.
+    fn disk_origin(&self, dir: Vec3, u1: f32, u2: f32) -> Vec3 {
+        let (a, b) = dir.any_orthonormal_pair();
+        let r = self.radius * u1.sqrt();
+        let phi = TAU * u2;
+        self.centre - dir * (1.01 * self.radius) + a * (r * phi.cos()) + b * (r * phi.sin())
+    }
+
+    fn bounce(&self, mut origin: Vec3, mut dir: Vec3, mut flux: Vec3, k: u64, out: &mut Vec<Vpl>) {
+        let seed = self.options.seed;
+        for b in 0..self.options.max_bounces {
+            let Some(hit) = self.tracer.closest_hit(origin, dir, 0.0, f32::INFINITY) else {
+                return;
+            };
+            let material = self.scene.material_of(hit.triangle as usize);
+            if !hit.front_face && !material.double_sided {
+                return;
+            }
+            let normal = if hit.front_face {
+                hit.normal
+            } else {
+                -hit.normal
+            };
+            let position = origin + dir * hit.t;
+            flux *= material.albedo;
+            if flux.max_element() <= 0.0 {
+                return;
+            }
+            out.push(Vpl {
+                position,
+                normal,
+                flux,
+                albedo: material.albedo,
+                bounce: b + 1,
+            });
+            let dim = 5 + 2 * u64::from(b);
+            origin = position + normal * self.eps;
+            dir = cosine_hemisphere(normal, uniform(seed, k, dim), uniform(seed, k, dim + 1));
+        }
+    }
+}
+
+/// A pinhole view: where the camera is, where it looks, its vertical field of view.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PinholeView {
+    /// Eye position.
+    pub position: Vec3,
+    /// Unit viewing direction.
+    pub forward: Vec3,
+    /// Unit up vector (orthogonal to `forward`).
+    pub up: Vec3,
+    /// Vertical field of view (radians).
+    pub yfov: f32,
+}
+
+impl PinholeView {
+    /// The view of a glTF camera (looking down its local -Z, +Y up).
+    pub fn from_camera(camera: &Camera) -> Self {
+        let forward = camera.to_world.transform_vector3(Vec3::NEG_Z).normalize();
+        let up = camera.to_world.transform_vector3(Vec3::Y);
+        let up = (up - forward * up.dot(forward)).normalize_or(Vec3::Y);
+        Self {
+            position: camera.to_world.transform_point3(Vec3::ZERO),
+            forward,
+            up,
+            yfov: camera.yfov,
+        }
+    }
+
+    /// Looks along -Z at the centre of `bounds` from far enough in +Z that the box's front face
+    /// (its x-y extent) fills the vertical field of view `yfov`. For the Cornell box this is the
+    /// classic view through the open side.
+    pub fn framing(bounds: &Aabb, yfov: f32) -> Self {
+        let centre = 0.5 * (bounds.min + bounds.max);
+        let half = 0.5 * (bounds.max - bounds.min);
+        let fit = half.x.max(half.y).max(1e-6) / (0.5 * yfov).tan();
+        Self {
+            position: Vec3::new(centre.x, centre.y, bounds.max.z + fit),
+            forward: Vec3::NEG_Z,
+            up: Vec3::Y,
+            yfov,
+        }
+    }
+
+    /// The scene's first glTF camera, else [`PinholeView::framing`] of its bounds with a 40°
+    /// field of view. Errors: [`TraceError::EmptyScene`] when neither exists.
+    pub fn for_scene(scene: &Scene) -> Result<Self, TraceError> {
+        if let Some(c) = scene.cameras().first() {
+            return Ok(Self::from_camera(c));
+        }
+        let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
+        Ok(Self::framing(&bounds, 40f32.to_radians()))
+    }
+
+    /// The unit ray direction through the centre of pixel `(x, y)` of a `width × height` image
+    /// (row 0 at the top).
+    pub fn ray(&self, x: usize, y: usize, width: usize, height: usize) -> Vec3 {
+        let right = self.forward.cross(self.up);
+        let t = (0.5 * self.yfov).tan();
+        let aspect = width as f32 / height.max(1) as f32;
+        let sx = ((x as f32 + 0.5) / width as f32 * 2.0 - 1.0) * t * aspect;
+        let sy = (1.0 - (y as f32 + 0.5) / height as f32 * 2.0) * t;
+        (self.forward + right * sx + self.up * sy).normalize()
+    }
+}
+
+/// A surface point seen through a pixel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GatherPoint {
+    /// World-space position.
+    pub position: Vec3,
+    /// Unit normal facing the camera.
+    pub normal: Vec3,
+    /// Diffuse albedo (zero on the back of a single-sided surface).
+    pub albedo: Vec3,
+}
+
+/// Gather points per pixel, row-major from the top-left; `None` where the primary ray misses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GBuffer {
+    /// Image width.
+    pub width: usize,
+    /// Image height.
+    pub height: usize,
+    /// One entry per pixel.
+    pub points: Vec<Option<GatherPoint>>,
+}
+
+impl GBuffer {
+    /// Traces one primary ray per pixel centre, in parallel.
+    ///
+    /// Errors: [`TraceError::InvalidOption`] for a zero width or height or a non-finite view.
+    pub fn render(
+        scene: &Scene,
+        tracer: &RayTracer,
+        view: &PinholeView,
+        width: usize,
+        height: usize,
+    ) -> Result<Self, TraceError> {
+        if width == 0 || height == 0 {
+            return Err(TraceError::InvalidOption {
+                what: "image size",
+                why: format!("{width} × {height} has no pixels"),
+            });
+        }
+        let finite = view.position.is_finite()
+            && view.forward.is_finite()
+            && view.up.is_finite()
+            && view.yfov.is_finite()
+            && view.yfov > 0.0
+            && view.yfov < PI;
+        if !finite {
+            return Err(TraceError::InvalidOption {
+                what: "view",
+                why: format!("{view:?} is not a finite view with 0 < yfov < π"),
+            });
+        }
+        let points = (0..width * height)
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|p| {
+                let dir = view.ray(p % width, p / width, width, height);
+                let hit = tracer.closest_hit(view.position, dir, 0.0, f32::INFINITY)?;
+                let material = scene.material_of(hit.triangle as usize);
+                let visible_side = hit.front_face || material.double_sided;
+                Some(GatherPoint {
+                    position: view.position + dir * hit.t,
+                    normal: if hit.front_face {
+                        hit.normal
+                    } else {
+                        -hit.normal
+                    },
+                    albedo: if visible_side {
+                        material.albedo
+                    } else {
+                        Vec3::ZERO
+                    },
+                })
+            })
+            .collect();
+        Ok(Self {
+            width,
+            height,
+            points,
+        })
+    }
+}
+
+/// The pixel × VPL matrix (3 channels, RGB) of a G-buffer lit by VPLs, evaluated on demand with
+/// shadow rays; see the module docs for the element. Pixels without a gather point are zero rows.
+#[derive(Debug)]
+pub struct VplOracle<'a> {
+    tracer: &'a RayTracer,
+    gather: &'a [Option<GatherPoint>],
+    vpls: &'a [Vpl],
+    clamp2: f32,
+    eps: f32,
+    evaluated: AtomicU64,
+}
+
+impl<'a> VplOracle<'a> {
+    /// An oracle over `gbuffer`'s pixels and `vpls`, with clamp distance `clamp` (the `1/d²`
+    /// falloff is capped at `1/clamp²`) and shadow-ray offset `eps` along both normals.
+    ///
+    /// Errors: zero pixels or zero VPLs ([`CoreError::Empty`]); a non-finite or negative clamp
+    /// or eps ([`CoreError::Invalid`]); a non-finite VPL or gather point ([`CoreError::NonFinite`]
+    /// with its index).
+    pub fn new(
+        tracer: &'a RayTracer,
+        gbuffer: &'a GBuffer,
+        vpls: &'a [Vpl],
+        clamp: f32,
+        eps: f32,
+    ) -> Result<Self, CoreError> {
+        if gbuffer.points.is_empty() {
+            return Err(CoreError::Empty { what: "pixels" });
+        }
+        if vpls.is_empty() {
+            return Err(CoreError::Empty { what: "VPLs" });
+        }
+        if !(clamp.is_finite() && clamp >= 0.0 && eps.is_finite() && eps >= 0.0) {
+            return Err(CoreError::Invalid {
+                what: "oracle clamp or eps",
+                why: format!("clamp {clamp}, eps {eps}"),
+            });
+        }
+        let bad_vpl = vpls
+            .iter()
+            .position(|v| !(v.position.is_finite() && v.normal.is_finite() && v.flux.is_finite()));
+        if let Some(index) = bad_vpl {
+            return Err(CoreError::NonFinite { what: "VPL", index });
+        }
+        let bad_point = gbuffer.points.iter().position(|g| {
+            g.is_some_and(|g| {
+                !(g.position.is_finite() && g.normal.is_finite() && g.albedo.is_finite())
+            })
+        });
+        if let Some(index) = bad_point {
+            return Err(CoreError::NonFinite {
+                what: "gather point",
+                index,
+            });
+        }
+        Ok(Self {
+            tracer,
+            gather: &gbuffer.points,
+            vpls,
+            clamp2: clamp * clamp,
+            eps,
+            evaluated: AtomicU64::new(0),
+        })
+    }
+
+    /// Resets the element counter.
+    pub fn reset_count(&self) {
+        self.evaluated.store(0, Ordering::Relaxed);
+    }
+
+    /// The RGB contribution of VPL `j` to pixel `i` (not counted; indices must be in range).
+    pub fn element(&self, i: usize, j: usize) -> Result<Vec3, CoreError> {
+        let Some(g) = self.gather.get(i).copied().flatten() else {
+            return Ok(Vec3::ZERO);
+        };
+        let v = &self.vpls[j];
+        let to = v.position - g.position;
+        let d2 = to.length_squared();
+        if d2 <= 0.0 {
+            return Ok(Vec3::ZERO);
+        }
+        let d = d2.sqrt();
+        let w = to / d;
+        let cos_i = g.normal.dot(w);
+        // An isotropic (punctual) VPL has a zero normal and radiates Φ/(4π) in every direction.
+        let cos_j = if v.normal == Vec3::ZERO {
+            0.25
+        } else {
+            -v.normal.dot(w)
+        };
+        if cos_i <= 0.0 || cos_j <= 0.0 || g.albedo == Vec3::ZERO {
+            return Ok(Vec3::ZERO);
+        }
+        let from = g.position + g.normal * self.eps;
+        let target = v.position + v.normal * self.eps;
+        let seg = target - from;
+        let len = seg.length();
+        if len > self.eps && self.tracer.occluded(from, seg / len, 0.0, len - self.eps) {
+            return Ok(Vec3::ZERO);
+        }
+        let value = g.albedo * v.flux * (cos_i * cos_j / (PI * PI * d2.max(self.clamp2)));
+        if value.is_finite() {
+            Ok(value)
+        } else {
+            Err(CoreError::NonFinite {
+                what: "VPL oracle element",
+                index: i * self.vpls.len() + j,
+            })
+        }
+    }
+
+    /// The brute-force image: every element, parallel over pixels, summed per pixel in f64 in
+    /// VPL order (identical on any thread count); `rows × 3` floats, RGB. Counts every element.
+    ///
+    /// Errors: a non-finite element, or [`CoreError::Cancelled`] through `progress`.
+    pub fn reference_image(&self, progress: &dyn Progress) -> Result<Vec<f32>, CoreError> {
+        progress.set_len(self.gather.len() as u64);
+        let pixels: Result<Vec<[f32; 3]>, CoreError> = (0..self.gather.len())
+            .into_par_iter()
+            .map(|i| {
+                progress.check()?;
+                let mut sum = [0f64; 3];
+                for j in 0..self.vpls.len() {
+                    let e = self.element(i, j)?;
+                    for (s, c) in sum.iter_mut().zip(e.to_array()) {
+                        *s += f64::from(c);
+                    }
+                }
+                progress.inc(1);
+                Ok(sum.map(|s| s as f32))
+            })
+            .collect();
+        self.evaluated.fetch_add(
+            (self.gather.len() * self.vpls.len()) as u64,
+            Ordering::Relaxed,
+        );
+        Ok(pixels?.into_iter().flatten().collect())
+    }
+}
+
+impl MatrixOracle for VplOracle<'_> {
+    fn rows(&self) -> usize {
+        self.gather.len()
+    }
+
+    fn cols(&self) -> usize {
+        self.vpls.len()
+    }
+
+    fn channels(&self) -> usize {
+        3
+    }
+
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        if i >= self.rows() {
+            return Err(CoreError::OutOfRange {
+                what: "oracle row",
+                index: i,
+                len: self.rows(),
+            });
+        }
+        if out.len() != 3 * self.cols() {
+            return Err(CoreError::LengthMismatch {
+                what: "oracle row output",
+                expected: 3 * self.cols(),
+                got: out.len(),
+            });
+        }
+        out.par_chunks_mut(3)
+            .with_min_len(256)
+            .enumerate()
+            .try_for_each(|(j, o)| {
+                o.copy_from_slice(&self.element(i, j)?.to_array());
+                Ok(())
+            })?;
+        self.evaluated
+            .fetch_add(self.cols() as u64, Ordering::Relaxed);
+        Ok(())
+    }
+
+    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        if j >= self.cols() {
+            return Err(CoreError::OutOfRange {
+                what: "oracle column",
+                index: j,
+                len: self.cols(),
+            });
+        }
+        if out.len() != 3 * self.rows() {
+            return Err(CoreError::LengthMismatch {
+                what: "oracle column output",
+                expected: 3 * self.rows(),
+                got: out.len(),
+            });
+        }
+        out.par_chunks_mut(3)
+            .with_min_len(256)
+            .enumerate()
+            .try_for_each(|(i, o)| {
+                o.copy_from_slice(&self.element(i, j)?.to_array());
+                Ok(())
+            })?;
+        self.evaluated
+            .fetch_add(self.rows() as u64, Ordering::Relaxed);
+        Ok(())
+    }
+
+    fn elements_evaluated(&self) -> u64 {
+        self.evaluated.load(Ordering::Relaxed)
+    }
+}
