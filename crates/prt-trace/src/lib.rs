@@ -17,6 +17,12 @@
 //!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and
 //!     `L^c_j(h) = (ρ_c/π) ∫_H V(h, ω') (n·ω') Y_j(ω') dω'` is the radiance leaving `h` when the
 //!     sky is `Y_j`.
+//! * **Many lights** ([`trace_vpls`], [`GBuffer`], [`VplOracle`]): virtual point lights by
+//!   particle tracing from the emitters (instant radiosity, Keller 1997; a sun and sky for
+//!   scenes without emitters), a pinhole view ([`PinholeView`]: the glTF camera or a framing of
+//!   the bounds) with a G-buffer of gather points, and the pixel × VPL matrix with shadow rays as
+//!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
+//!   its brute-force reference image.
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out

@@ -556,7 +556,29 @@ impl GBuffer {
 }
 
 /// The pixel × VPL matrix (3 channels, RGB) of a G-buffer lit by VPLs, evaluated on demand with
-/// shadow rays; see the module docs for the element. Pixels without a gather point are zero rows.
+/// shadow rays: element `(i, j) = ρ_i/π · Φ_j/π · max(0, n_i·ω) max(0, -n_j·ω) / max(d², c²) · V`
+/// (an isotropic point-light VPL uses `1/4` for the second cosine, i.e. intensity `Φ/4π`).
+/// Pixels without a gather point are zero rows. `eval_row` and `eval_col` run over rayon; every
+/// element they return, and every element of [`VplOracle::reference_image`], is counted.
+///
+/// ```
+/// use prt_core::{MatrixOracle, NoProgress};
+/// use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls};
+///
+/// let scene = Scene::cornell_box();
+/// let tracer = RayTracer::new(scene.triangles());
+/// let options = VplOptions { particles: 200, max_bounces: 1, seed: 1, ..Default::default() };
+/// let vpls = trace_vpls(&scene, &tracer, &options, &NoProgress)?;
+/// let view = PinholeView::for_scene(&scene)?;
+/// let gbuffer = GBuffer::render(&scene, &tracer, &view, 8, 8)?;
+/// let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, 0.1, 1e-4)?;
+/// let mut column = vec![0.0; 3 * oracle.rows()];
+/// oracle.eval_col(0, &mut column)?;
+/// let image = oracle.reference_image(&NoProgress)?;
+/// assert_eq!(image.len(), 3 * 64);
+/// assert_eq!(oracle.elements_evaluated(), 64 + 64 * vpls.len() as u64);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Debug)]
 pub struct VplOracle<'a> {
     tracer: &'a RayTracer,
@@ -625,12 +647,23 @@ impl<'a> VplOracle<'a> {
         self.evaluated.store(0, Ordering::Relaxed);
     }
 
-    /// The RGB contribution of VPL `j` to pixel `i` (not counted; indices must be in range).
+    /// The RGB contribution of VPL `j` to pixel `i` (not counted by the element counter).
+    ///
+    /// Errors: an index out of range ([`CoreError::OutOfRange`]), a non-finite result.
     pub fn element(&self, i: usize, j: usize) -> Result<Vec3, CoreError> {
-        let Some(g) = self.gather.get(i).copied().flatten() else {
+        let g = self.gather.get(i).ok_or(CoreError::OutOfRange {
+            what: "oracle row",
+            index: i,
+            len: self.gather.len(),
+        })?;
+        let v = self.vpls.get(j).ok_or(CoreError::OutOfRange {
+            what: "oracle column",
+            index: j,
+            len: self.vpls.len(),
+        })?;
+        let Some(g) = g else {
             return Ok(Vec3::ZERO);
         };
-        let v = &self.vpls[j];
         let to = v.position - g.position;
         let d2 = to.length_squared();
         if d2 <= 0.0 {

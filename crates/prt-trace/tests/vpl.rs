@@ -206,6 +206,10 @@ fn counts_row_and_column_elements() {
         Err(CoreError::OutOfRange { .. })
     ));
     assert!(matches!(
+        oracle.element(0, oracle.cols()),
+        Err(CoreError::OutOfRange { .. })
+    ));
+    assert!(matches!(
         oracle.eval_col(0, &mut row[..3]),
         Err(CoreError::LengthMismatch { .. })
     ));
