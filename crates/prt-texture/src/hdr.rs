@@ -75,11 +75,18 @@ pub fn rgbe_encode(rgb: [f32; 3]) -> [u8; 4] {
 
 /// Decodes an RGBE pixel: `m · 2^(E - 136)`, black when `E = 0`.
 pub fn rgbe_decode(rgbe: [u8; 4]) -> [f32; 3] {
-    if rgbe[3] == 0 {
-        return [0.0; 3];
+    let scale = rgbe_scale(rgbe[3]);
+    [0, 1, 2].map(|c| f32::from(rgbe[c]) * scale)
+}
+
+/// `2^(E - 136)` as f32 (0 for E = 0). Exact: the smallest, 2⁻¹³⁵, is an f32 subnormal, and an
+/// 8-bit mantissa times it stays exact, so decoding in f32 equals decoding in f64.
+fn rgbe_scale(e: u8) -> f32 {
+    if e == 0 {
+        0.0
+    } else {
+        2f64.powi(i32::from(e) - 136) as f32
     }
-    let scale = 2f64.powi(i32::from(rgbe[3]) - 136);
-    [0, 1, 2].map(|c| (f64::from(rgbe[c]) * scale) as f32)
 }
 
 /// Bound on `|x - decode(encode(x))|` for a channel of a pixel whose largest component is
@@ -194,10 +201,16 @@ pub fn decode_hdr(bytes: &[u8], limits: &Limits) -> Result<RgbImage, TextureErro
     let w = width as usize;
     let mut data = Vec::with_capacity(pixels as usize * 3);
     let mut scanline = vec![[0u8; 4]; w];
+    let scales: Vec<f32> = (0..=255u8).map(rgbe_scale).collect();
     for _ in 0..height {
         at = read_scanline(bytes, at, &mut scanline)?;
         for p in &scanline {
-            data.extend_from_slice(&rgbe_decode(*p));
+            let s = scales[usize::from(p[3])];
+            data.extend_from_slice(&[
+                f32::from(p[0]) * s,
+                f32::from(p[1]) * s,
+                f32::from(p[2]) * s,
+            ]);
         }
     }
     Ok(RgbImage {
