@@ -1,0 +1,396 @@
+//! Probulator's radiance RMSE table and sample-count sweep, reproduced with prt-sphere and
+//! prt-plsq (anchors in ../shared/design/anchors.md).
+//!
+//! Run: `cargo run --release -p prt-benches --bin plsq_probulator [-- --frame yup|zup]`
+//!
+//! Probulator's definitions, matched here: maps are 256×128 lat-long; fit input = Halton(2,3)
+//! indices 1..N mapped `z = 1 − 2u`, `φ = 2πv`, value of the nearest texel; reconstruction at
+//! texel centres; error = sqrt of the per-pixel MSE averaged over RGB (unweighted by solid
+//! angle); SG radiance not clamped, SH and ambient dice clamped at 0. Probulator works in its
+//! own frame (Y-up with `u = ½ + atan2(x, −z)/2π` in kayru/Probulator; Z-up in troughton's
+//! fork): samples and lobes live in that frame and are rotated into prt's lat-long frame only to
+//! address texels.
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+use prt_benches::Table;
+use prt_core::{NoProgress, SphericalBasis};
+use prt_plsq::{Denominator, EncoderConfig, ProgressiveEncoder, Sweep, Update, reference};
+use prt_sphere::sampling::halton_sphere;
+use prt_sphere::{AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis};
+
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Frame {
+    /// kayru/Probulator: Y up, `u = ½ + atan2(x, −z)/2π` (prt's frame turned by π about Y).
+    YUp,
+    /// troughton/Probulator: Z up, `u = ½ + atan2(x, −y)/2π`, `v = acos(z)/π`.
+    ZUp,
+}
+
+impl Frame {
+    /// Probulator direction → prt direction.
+    fn to_prt(self, d: Vec3) -> Vec3 {
+        match self {
+            Frame::YUp => Vec3::new(-d.x, d.y, -d.z),
+            Frame::ZUp => Vec3::new(-d.x, d.z, -d.y),
+        }
+    }
+
+    /// prt direction → Probulator direction.
+    fn from_prt(self, o: Vec3) -> Vec3 {
+        match self {
+            Frame::YUp => Vec3::new(-o.x, o.y, -o.z),
+            Frame::ZUp => Vec3::new(-o.x, -o.z, o.y),
+        }
+    }
+}
+
+fn load_map(path: &Path) -> Option<LatLongMap> {
+    let img = image::open(path).ok()?.into_rgb32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let map = LatLongMap::new(w, h, img.into_raw()).ok()?;
+    if (w, h) == (256, 128) {
+        return Some(map);
+    }
+    // Box-filter down to 256×128 (Probulator uses stb_image_resize; no anchors depend on this).
+    let (fx, fy) = (w / 256, h / 128);
+    let mut data = Vec::with_capacity(256 * 128 * 3);
+    for y in 0..128 {
+        for x in 0..256 {
+            let mut acc = Vec3::ZERO;
+            for dy in 0..fy {
+                for dx in 0..fx {
+                    acc += map.texel(x * fx + dx, y * fy + dy);
+                }
+            }
+            data.extend_from_slice(&(acc / (fx * fy) as f32).to_array());
+        }
+    }
+    LatLongMap::new(256, 128, data).ok()
+}
+
+struct Probe {
+    map: LatLongMap,
+    frame: Frame,
+    /// Texel-centre directions in Probulator's frame, row-major.
+    pixel_dirs: Vec<Vec3>,
+}
+
+impl Probe {
+    fn new(map: LatLongMap, frame: Frame) -> Self {
+        let pixel_dirs = (0..map.height())
+            .flat_map(|y| (0..map.width()).map(move |x| (x, y)))
+            .map(|(x, y)| frame.from_prt(map.direction(x, y)))
+            .collect();
+        Self {
+            map,
+            frame,
+            pixel_dirs,
+        }
+    }
+
+    fn samples(&self, n: usize) -> (Vec<Vec3>, Vec<f32>) {
+        let dirs = halton_sphere(n);
+        let values = dirs
+            .iter()
+            .flat_map(|d| self.map.nearest(self.frame.to_prt(*d)).to_array())
+            .collect();
+        (dirs, values)
+    }
+
+    /// Probulator's radiance RMSE of `coeffs` (basis rows × RGB).
+    fn rmse(&self, basis: &dyn SphericalBasis, coeffs: &[f32], clamp: bool) -> f64 {
+        let k = basis.len();
+        let mut b = vec![0.0f32; k];
+        let mut sq = [0.0f64; 3];
+        for (p, d) in self.pixel_dirs.iter().enumerate() {
+            basis.eval(*d, &mut b);
+            let truth = &self.map.data()[3 * p..3 * p + 3];
+            for c in 0..3 {
+                let mut v: f32 = (0..k).map(|i| b[i] * coeffs[3 * i + c]).sum();
+                if clamp {
+                    v = v.max(0.0);
+                }
+                sq[c] += ((v - truth[c]) as f64).powi(2);
+            }
+        }
+        let n = self.pixel_dirs.len() as f64;
+        ((sq[0] + sq[1] + sq[2]) / (3.0 * n)).sqrt()
+    }
+
+    /// LS of the whole map by texel solid angles and the basis' Gram matrix (Probulator's
+    /// ambient dice fits).
+    fn ls_from_map(&self, basis: &dyn SphericalBasis) -> Vec<f32> {
+        let k = basis.len();
+        let mut moments = ndarray::Array2::<f64>::zeros((k, 3));
+        let mut b = vec![0.0f32; k];
+        for y in 0..self.map.height() {
+            let omega = self.map.texel_solid_angle(y);
+            for x in 0..self.map.width() {
+                basis.eval(self.pixel_dirs[y * self.map.width() + x], &mut b);
+                let t = self.map.texel(x, y);
+                for i in 0..k {
+                    for c in 0..3 {
+                        moments[[i, c]] += b[i] as f64 * t[c] as f64 * omega;
+                    }
+                }
+            }
+        }
+        let g = basis.gram();
+        match prt_linalg_solve(&g, &moments) {
+            Some(x) => x,
+            None => vec![f32::NAN; k * 3],
+        }
+    }
+}
+
+fn prt_linalg_solve(g: &ndarray::Array2<f64>, m: &ndarray::Array2<f64>) -> Option<Vec<f32>> {
+    // Small SPD solve through the reference module's checked path: LS over "samples" whose
+    // normal equations are (g, m) is exactly this; reuse prt-linalg via nnls-free Cholesky.
+    let k = g.nrows();
+    let mut l = g.clone();
+    for j in 0..k {
+        for p in 0..j {
+            let v = l[[j, p]];
+            for i in j..k {
+                l[[i, j]] -= l[[i, p]] * v;
+            }
+        }
+        let d = l[[j, j]];
+        if d <= 0.0 {
+            return None;
+        }
+        let s = d.sqrt();
+        for i in j..k {
+            l[[i, j]] /= s;
+        }
+    }
+    let mut out = vec![0.0f32; k * 3];
+    for c in 0..3 {
+        let mut y = vec![0.0f64; k];
+        for i in 0..k {
+            y[i] = (m[[i, c]] - (0..i).map(|p| l[[i, p]] * y[p]).sum::<f64>()) / l[[i, i]];
+        }
+        for i in (0..k).rev() {
+            y[i] = (y[i] - (i + 1..k).map(|p| l[[p, i]] * y[p]).sum::<f64>()) / l[[i, i]];
+        }
+        for i in 0..k {
+            out[3 * i + c] = y[i] as f32;
+        }
+    }
+    Some(out)
+}
+
+fn progressive(basis: &SgBasis, cfg: EncoderConfig, dirs: &[Vec3], values: &[f32]) -> Vec<f32> {
+    let mut enc = ProgressiveEncoder::new(basis, 3, cfg).expect("valid config");
+    enc.add_samples(dirs, values, None, &NoProgress)
+        .expect("finite samples");
+    enc.coefficients().to_vec()
+}
+
+fn accel3() -> EncoderConfig {
+    EncoderConfig {
+        update: Update::Residual { acceleration: 3.0 },
+        denominator: Denominator::LerpFromOne,
+        sweep: Sweep::GaussSeidel,
+        ..EncoderConfig::paper()
+    }
+}
+
+fn envmaps_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps")
+}
+
+fn main() {
+    let frame = match std::env::args()
+        .skip_while(|a| a != "--frame")
+        .nth(1)
+        .as_deref()
+    {
+        Some("zup") => Frame::ZUp,
+        _ => Frame::YUp,
+    };
+    let dir = envmaps_dir();
+    let Some(uffizi) = load_map(&dir.join("probulator_uffizi.hdr")) else {
+        println!(
+            "skipping: ../shared/envmaps/probulator_uffizi.hdr not found (shared data absent)"
+        );
+        return;
+    };
+    let Some(wells) = load_map(&dir.join("probulator_wells.hdr")) else {
+        println!("skipping: ../shared/envmaps/probulator_wells.hdr not found");
+        return;
+    };
+    let anchors: [(&str, f64, f64); 12] = [
+        ("SH L1 (4)", 3.39398, 0.48756),
+        ("SH L2 (9)", 2.80398, 0.44933),
+        ("SH L3 (16)", 2.29190, 0.42840),
+        ("SH L4 (25)", 1.91908, 0.41911),
+        ("SG naive projection", 3.13246, 0.47668),
+        ("SG least squares", 2.50891, 0.46679),
+        ("SG non-negative least squares", 2.58235, 0.47044),
+        ("SG progressive (\"running average\")", 2.52161, 0.46680),
+        ("SG progressive, non-negative", 2.58916, 0.47056),
+        (
+            "SG progressive, acceleration 3, lerp denominator, Gauss-Seidel",
+            2.51117,
+            0.46688,
+        ),
+        ("ambient dice, Bezier", 1.64126, 0.40822),
+        ("ambient dice, SRBF", 2.40000, 0.44642),
+    ];
+    let probes = [Probe::new(uffizi, frame), Probe::new(wells, frame)];
+    let n = 20000;
+    let sg = SgBasis::new(
+        prt_sphere::spiral_axes(12),
+        vec![6.0; 12],
+        "SG 12 spiral λ=6",
+    )
+    .expect("valid lobes");
+    let mut results = vec![[f64::NAN; 2]; anchors.len()];
+    for (p, probe) in probes.iter().enumerate() {
+        let (dirs, values) = probe.samples(n);
+        for order in 2..=5 {
+            let sh = ShBasis::new(order).expect("order >= 1");
+            let c = reference::naive_projection(&sh, &dirs, &values, 3, 4.0 * std::f64::consts::PI)
+                .expect("samples");
+            results[order - 2][p] = probe.rmse(&sh, &c, true);
+        }
+        let naive = reference::naive_projection(
+            &sg,
+            &dirs,
+            &values,
+            3,
+            reference::probulator_sg_naive_scale(6.0, 12),
+        )
+        .expect("samples");
+        results[4][p] = probe.rmse(&sg, &naive, false);
+        let ls = reference::least_squares_samples(&sg, &dirs, &values, 3).expect("nonsingular");
+        results[5][p] = probe.rmse(&sg, &ls, false);
+        let nn = reference::nnls_samples(&sg, &dirs, &values, 3).expect("nonsingular");
+        results[6][p] = probe.rmse(&sg, &nn, false);
+        let ra = progressive(
+            &sg,
+            EncoderConfig::probulator_running_average(),
+            &dirs,
+            &values,
+        );
+        results[7][p] = probe.rmse(&sg, &ra, false);
+        let cfg = EncoderConfig {
+            non_negative: true,
+            ..EncoderConfig::probulator_running_average()
+        };
+        results[8][p] = probe.rmse(&sg, &progressive(&sg, cfg, &dirs, &values), false);
+        results[9][p] = probe.rmse(&sg, &progressive(&sg, accel3(), &dirs, &values), false);
+        let dice = AmbientDiceSrbf;
+        results[11][p] = probe.rmse(&dice, &probe.ls_from_map(&dice), true);
+    }
+    let mut t = Table::new(&[
+        "method",
+        "uffizi (prt)",
+        "uffizi (anchor)",
+        "Δ",
+        "wells (prt)",
+        "wells (anchor)",
+        "Δ",
+    ]);
+    for (r, (name, au, aw)) in results.iter().zip(anchors) {
+        let fmt = |v: f64| {
+            if v.is_nan() {
+                "not implemented".to_string()
+            } else {
+                format!("{v:.5}")
+            }
+        };
+        let rel = |v: f64, a: f64| {
+            if v.is_nan() {
+                "–".to_string()
+            } else {
+                format!("{:+.2}%", 100.0 * (v / a - 1.0))
+            }
+        };
+        t.row(vec![
+            name.into(),
+            fmt(r[0]),
+            format!("{au:.5}"),
+            rel(r[0], au),
+            fmt(r[1]),
+            format!("{aw:.5}"),
+            rel(r[1], aw),
+        ]);
+    }
+    println!("Probulator radiance RMSE table (frame {frame:?}, N = {n} Halton samples)\n");
+    println!("{}", t.markdown());
+    let _ = t.write_csv_if_requested("plsq_probulator_table");
+
+    // Sample-count sweep: 12 SG at λ = 8, first N Halton samples, LS vs progressive (acc. 3).
+    let sg8 = SgBasis::new(
+        prt_sphere::spiral_axes(12),
+        vec![8.0; 12],
+        "SG 12 spiral λ=8",
+    )
+    .expect("valid lobes");
+    let counts = [32usize, 64, 128, 256, 512];
+    let mut sweep = Table::new(&["map", "method", "N=32", "N=64", "N=128", "N=256", "N=512"]);
+    sweep.row(
+        [
+            "wells (anchor)",
+            "LS",
+            "0.54256",
+            "0.50935",
+            "0.48103",
+            "0.47863",
+            "0.47586",
+        ]
+        .map(String::from)
+        .to_vec(),
+    );
+    sweep.row(
+        [
+            "wells (anchor)",
+            "progressive (acc. 3)",
+            "0.56455",
+            "0.51423",
+            "0.48031",
+            "0.48265",
+            "0.47627",
+        ]
+        .map(String::from)
+        .to_vec(),
+    );
+    let mut names: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "hdr"))
+                .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    for path in names {
+        let Some(map) = load_map(&path) else { continue };
+        let probe = Probe::new(map, frame);
+        let name = path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let (all_dirs, all_values) = probe.samples(*counts.last().unwrap_or(&512));
+        let mut ls_row = vec![name.clone(), "LS".into()];
+        let mut pr_row = vec![name, "progressive (acc. 3)".into()];
+        for &c in &counts {
+            let (d, v) = (&all_dirs[..c], &all_values[..3 * c]);
+            let ls = reference::least_squares_samples(&sg8, d, v, 3);
+            ls_row.push(ls.map_or("singular".into(), |x| {
+                format!("{:.5}", probe.rmse(&sg8, &x, false))
+            }));
+            pr_row.push(format!(
+                "{:.5}",
+                probe.rmse(&sg8, &progressive(&sg8, accel3(), d, v), false)
+            ));
+        }
+        sweep.row(ls_row);
+        sweep.row(pr_row);
+    }
+    println!("Sample-count sweep (12 SG, λ = 8, first N Halton samples, radiance RMSE)\n");
+    println!("{}", sweep.markdown());
+    let _ = sweep.write_csv_if_requested("plsq_probulator_sweep");
+}

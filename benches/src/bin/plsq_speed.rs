@@ -1,0 +1,258 @@
+//! Speed of progressive least-squares encoding (prt-plsq) against its targets, and the
+//! speed/accuracy trade of LS, NNLS and progressive variants.
+//!
+//! Run: `cargo run --release -p prt-benches --bin plsq_speed`
+//!
+//! 1. Progressive updates per second, 12 SG × RGB, one thread (target >= 20 M/s) and the whole
+//!    20000-sample fit (Probulator: 16-21 ms; target <= 1 ms).
+//! 2. Batch encoder scaling from 1 to 2 threads (target >= 1.8x).
+//! 3. RMSE vs samples and vs time on wells (Probulator's error definition) for LS, NNLS and
+//!    progressive (Jacobi, Gauss-Seidel, acceleration 1..5).
+use std::path::Path;
+use std::time::Duration;
+
+use glam::Vec3;
+use prt_benches::{Table, fmt_duration, median_time};
+use prt_core::{NoProgress, SphericalBasis};
+use prt_plsq::{
+    BatchEncoder, Denominator, EncoderConfig, ProgressiveEncoder, SgEncoder, Sweep, Update,
+    reference,
+};
+use prt_sphere::sampling::{halton_sphere, sobol_sphere};
+use prt_sphere::{LatLongMap, SgBasis};
+
+fn signal(d: Vec3) -> [f32; 3] {
+    let sun = (8.0 * (d.dot(Vec3::new(0.6, 0.64, 0.48)) - 1.0)).exp();
+    [
+        0.2 + 0.5 * d.y.max(0.0) + 3.0 * sun,
+        0.3 + 0.3 * d.y + sun,
+        0.5 + 0.1 * d.x,
+    ]
+}
+
+/// Nanoseconds this thread has spent on a CPU (Linux `/proc/thread-self/schedstat`), so that
+/// single-thread figures are not inflated by other processes on a shared machine.
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+}
+
+/// Mean on-CPU time of `f`, run until at least 0.5 s of CPU time has accumulated (schedstat is
+/// only updated at scheduler ticks, so single short runs cannot be timed this way), or `None`
+/// without schedstat.
+fn mean_cpu_time<T>(mut f: impl FnMut() -> T) -> Option<Duration> {
+    std::hint::black_box(f());
+    let t0 = thread_cpu_ns()?;
+    let mut reps = 0u64;
+    loop {
+        std::hint::black_box(f());
+        reps += 1;
+        let spent = thread_cpu_ns()? - t0;
+        if spent >= 500_000_000 {
+            return Some(Duration::from_nanos(spent / reps));
+        }
+    }
+}
+
+fn cfg(accel: f32, sweep: Sweep) -> EncoderConfig {
+    EncoderConfig {
+        update: Update::Residual {
+            acceleration: accel,
+        },
+        denominator: Denominator::LerpFromOne,
+        sweep,
+        ..EncoderConfig::paper()
+    }
+}
+
+fn main() {
+    let basis = SgBasis::spiral(12, 6.0).expect("valid lobes");
+    let n = 20000;
+    let dirs = halton_sphere(n);
+    let values: Vec<f32> = dirs.iter().flat_map(|d| signal(*d)).collect();
+
+    // 1. Single-thread progressive speed: wall time and on-CPU time (the machine is shared).
+    let mut t1 = Table::new(&[
+        "encoder (12 SG × RGB, 20000 samples, 1 thread)",
+        "fit time (wall)",
+        "fit time (on CPU)",
+        "updates/s (on CPU)",
+    ]);
+    let row = |t1: &mut Table, name: String, wall: Duration, cpu: Option<Duration>| {
+        let rate = cpu.map_or("–".to_string(), |c| {
+            format!("{:.1} M", n as f64 / c.as_secs_f64() / 1e6)
+        });
+        t1.row(vec![name, fmt_duration(wall), cpu.map_or("–".into(), fmt_duration), rate]);
+    };
+    for (name, c) in [
+        ("progressive, Gauss-Seidel, α = 1 (paper)", cfg(1.0, Sweep::GaussSeidel)),
+        ("progressive, acceleration 3, Gauss-Seidel", cfg(3.0, Sweep::GaussSeidel)),
+        ("progressive, Jacobi", cfg(1.0, Sweep::Jacobi)),
+        ("running average (Probulator)", EncoderConfig::probulator_running_average()),
+    ] {
+        let fast = || {
+            let mut enc = SgEncoder::<3>::new(&basis, c).expect("valid");
+            enc.add_samples(&dirs, &values, None, &NoProgress).expect("finite");
+            enc.total_weight()
+        };
+        row(&mut t1, format!("SgEncoder: {name}"), median_time(31, fast), mean_cpu_time(fast));
+        let generic = || {
+            let mut enc = ProgressiveEncoder::new(&basis, 3, c).expect("valid");
+            enc.add_samples(&dirs, &values, None, &NoProgress).expect("finite");
+            enc.coefficients()[0]
+        };
+        row(
+            &mut t1,
+            format!("generic ProgressiveEncoder: {name}"),
+            median_time(7, generic),
+            mean_cpu_time(generic),
+        );
+    }
+    let ls = || reference::least_squares_samples(&basis, &dirs, &values, 3).expect("ok")[0];
+    let name = "LS over the samples (normal equations + Cholesky)";
+    row(&mut t1, name.into(), median_time(7, ls), mean_cpu_time(ls));
+    let nn = || reference::nnls_samples(&basis, &dirs, &values, 3).expect("ok")[0];
+    row(&mut t1, "NNLS over the samples".into(), median_time(7, nn), mean_cpu_time(nn));
+    println!("{}", t1.markdown());
+    let _ = t1.write_csv_if_requested("plsq_speed_single");
+
+    // 2. Batch scaling: 65536 encoders, 16 rounds of one sample each.
+    let encoders = 65536;
+    let rounds = 16;
+    let bdirs = sobol_sphere(encoders * rounds / 16, 1);
+    let bdirs: Vec<Vec3> = (0..encoders * rounds)
+        .map(|i| bdirs[(i * 7919) % bdirs.len()])
+        .collect();
+    let bvals: Vec<f32> = bdirs.iter().flat_map(|d| signal(*d)).collect();
+    let mut t2 = Table::new(&[
+        "threads",
+        "wall time (65536 encoders × 16 samples)",
+        "updates/s",
+        "speed-up",
+        "load average (1 min)",
+    ]);
+    let load = || {
+        std::fs::read_to_string("/proc/loadavg")
+            .ok()
+            .and_then(|s| s.split_whitespace().next().map(String::from))
+            .unwrap_or_default()
+    };
+    let mut base = 0.0;
+    for threads in [1usize, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        let t = pool.install(|| {
+            median_time(7, || {
+                let mut batch =
+                    BatchEncoder::new_sg(&basis, 3, encoders, cfg(1.0, Sweep::GaussSeidel))
+                        .expect("valid");
+                for r in 0..rounds {
+                    let range = r * encoders..(r + 1) * encoders;
+                    batch
+                        .add_samples(
+                            &bdirs[range.clone()],
+                            &bvals[3 * range.start..3 * range.end],
+                            None,
+                        )
+                        .expect("finite");
+                }
+                batch.total_weight(0)
+            })
+        });
+        let secs = t.as_secs_f64();
+        if threads == 1 {
+            base = secs;
+        }
+        t2.row(vec![
+            threads.to_string(),
+            fmt_duration(t),
+            format!("{:.1} M", (encoders * rounds) as f64 / secs / 1e6),
+            format!("{:.2}x", base / secs),
+            load(),
+        ]);
+    }
+    println!("{}", t2.markdown());
+    let _ = t2.write_csv_if_requested("plsq_speed_batch");
+
+    // 3. Speed/accuracy curves on wells.
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps/probulator_wells.hdr");
+    let Some(map) = image::open(&path)
+        .ok()
+        .map(|i| i.into_rgb32f())
+        .and_then(|i| LatLongMap::new(i.width() as usize, i.height() as usize, i.into_raw()).ok())
+    else {
+        println!("skipping the accuracy curves: {} not found", path.display());
+        return;
+    };
+    // Probulator's frame (kayru, Y up) is prt's turned by π about Y.
+    let flip = |d: Vec3| Vec3::new(-d.x, d.y, -d.z);
+    let all_dirs = halton_sphere(20000);
+    let all_vals: Vec<f32> = all_dirs
+        .iter()
+        .flat_map(|d| map.nearest(flip(*d)).to_array())
+        .collect();
+    let pixel_dirs: Vec<Vec3> = (0..map.height())
+        .flat_map(|y| (0..map.width()).map(move |x| (x, y)))
+        .map(|(x, y)| flip(map.direction(x, y)))
+        .collect();
+    let rmse = |c: &[f32]| {
+        let mut b = [0.0f32; 12];
+        let mut sq = 0.0f64;
+        for (p, d) in pixel_dirs.iter().enumerate() {
+            basis.eval(*d, &mut b);
+            for ch in 0..3 {
+                let v: f32 = (0..12).map(|i| b[i] * c[3 * i + ch]).sum();
+                sq += ((v - map.data()[3 * p + ch]) as f64).powi(2);
+            }
+        }
+        (sq / (3.0 * pixel_dirs.len() as f64)).sqrt()
+    };
+    let mut t3 = Table::new(&["method", "N", "time", "RMSE (wells)"]);
+    for &count in &[64usize, 256, 1024, 4096, 20000] {
+        let (d, v) = (&all_dirs[..count], &all_vals[..3 * count]);
+        let reps = if count > 4096 { 5 } else { 21 };
+        let mut out = Vec::new();
+        let t = median_time(reps, || {
+            out = reference::least_squares_samples(&basis, d, v, 3).expect("ok");
+        });
+        t3.row(vec![
+            "LS".into(),
+            count.to_string(),
+            fmt_duration(t),
+            format!("{:.5}", rmse(&out)),
+        ]);
+        let t = median_time(reps, || {
+            out = reference::nnls_samples(&basis, d, v, 3).expect("ok");
+        });
+        t3.row(vec![
+            "NNLS".into(),
+            count.to_string(),
+            fmt_duration(t),
+            format!("{:.5}", rmse(&out)),
+        ]);
+        for (name, c) in [
+            ("progressive Jacobi α=1", cfg(1.0, Sweep::Jacobi)),
+            ("progressive GS α=1", cfg(1.0, Sweep::GaussSeidel)),
+            ("progressive GS α=2", cfg(2.0, Sweep::GaussSeidel)),
+            ("progressive GS α=3", cfg(3.0, Sweep::GaussSeidel)),
+            ("progressive GS α=4", cfg(4.0, Sweep::GaussSeidel)),
+            ("progressive GS α=5", cfg(5.0, Sweep::GaussSeidel)),
+        ] {
+            let t = median_time(reps, || {
+                let mut enc = SgEncoder::<3>::new(&basis, c).expect("valid");
+                enc.add_samples(d, v, None, &NoProgress).expect("finite");
+                out = enc.coefficients();
+            });
+            t3.row(vec![
+                name.into(),
+                count.to_string(),
+                fmt_duration(t),
+                format!("{:.5}", rmse(&out)),
+            ]);
+        }
+    }
+    println!("{}", t3.markdown());
+    let _ = t3.write_csv_if_requested("plsq_speed_accuracy");
+}
