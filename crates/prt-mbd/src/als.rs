@@ -304,9 +304,19 @@ fn basis_step<B: SpatialKernels>(
     if trace <= 0.0 {
         return Ok(());
     }
-    let ridge = 1e-9 * trace / nl as f64;
-    let solution = cholesky_solve(a.view(), rhs.view(), ridge)
-        .map_err(|e| linalg_error("ALS basis step", e))?;
+    // The f32 cell products make a rank-deficient system (e.g. right after the global-PCA start,
+    // where every node holds the same basis) slightly indefinite: a relative ridge, grown until
+    // the factorisation succeeds, keeps it solvable without visibly biasing the fit.
+    let mut ridge = 1e-6 * trace / nl as f64;
+    let solution = loop {
+        match cholesky_solve(a.view(), rhs.view(), ridge) {
+            Ok(x) => break x,
+            Err(prt_linalg::LinalgError::NotPositiveDefinite { .. }) if ridge < 1e-2 * trace => {
+                ridge *= 100.0
+            }
+            Err(e) => return Err(linalg_error("ALS basis step", e)),
+        }
+    };
     for (b, &x) in basis.iter_mut().zip(solution.iter()) {
         *b = x as f32;
     }

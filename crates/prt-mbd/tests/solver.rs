@@ -417,6 +417,27 @@ fn als_decreases_the_loss_and_recovers_exact_fields() {
             < 1e-5
     );
 
+    // Right after the global-PCA start every node holds the same basis, so the basis normal
+    // equations are rank deficient: the step must still succeed and lower the loss.
+    let wide = SyntheticField {
+        dims: [10, 10, 10],
+        dim: 40,
+        harmonics: 4,
+        seed: 1,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let mbd = Mbd {
+        basis_nodes: [3, 3, 3],
+        options: MbdOptions {
+            max_iterations: 2,
+            ..quick(6)
+        },
+    };
+    let (coef, basis) = mbd.kernels(&wide).unwrap();
+    let (_, report) = solve_als(&wide, coef, basis, &mbd.options, &NoProgress).unwrap();
+    assert!(report.history[0].loss_after < report.history[0].loss_before);
+
     let coarse = HatGrid::new([3, 3, 3], Aabb::UNIT).unwrap();
     let err = solve_als(
         &exact,
