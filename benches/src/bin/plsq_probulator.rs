@@ -29,7 +29,7 @@ enum Frame {
 
 impl Frame {
     /// Probulator direction → prt direction.
-    fn to_prt(self, d: Vec3) -> Vec3 {
+    fn probulator_to_prt(self, d: Vec3) -> Vec3 {
         match self {
             Frame::YUp => Vec3::new(-d.x, d.y, -d.z),
             Frame::ZUp => Vec3::new(-d.x, d.z, -d.y),
@@ -37,7 +37,7 @@ impl Frame {
     }
 
     /// prt direction → Probulator direction.
-    fn from_prt(self, o: Vec3) -> Vec3 {
+    fn prt_to_probulator(self, o: Vec3) -> Vec3 {
         match self {
             Frame::YUp => Vec3::new(-o.x, o.y, -o.z),
             Frame::ZUp => Vec3::new(-o.x, -o.z, o.y),
@@ -80,7 +80,7 @@ impl Probe {
     fn new(map: LatLongMap, frame: Frame) -> Self {
         let pixel_dirs = (0..map.height())
             .flat_map(|y| (0..map.width()).map(move |x| (x, y)))
-            .map(|(x, y)| frame.from_prt(map.direction(x, y)))
+            .map(|(x, y)| frame.prt_to_probulator(map.direction(x, y)))
             .collect();
         Self {
             map,
@@ -93,7 +93,11 @@ impl Probe {
         let dirs = halton_sphere(n);
         let values = dirs
             .iter()
-            .flat_map(|d| self.map.nearest(self.frame.to_prt(*d)).to_array())
+            .flat_map(|d| {
+                self.map
+                    .nearest(self.frame.probulator_to_prt(*d))
+                    .to_array()
+            })
             .collect();
         (dirs, values)
     }

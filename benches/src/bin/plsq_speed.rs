@@ -33,7 +33,12 @@ fn signal(d: Vec3) -> [f32; 3] {
 /// Nanoseconds this thread has spent on a CPU (Linux `/proc/thread-self/schedstat`), so that
 /// single-thread figures are not inflated by other processes on a shared machine.
 fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat").ok()?.split_whitespace().next()?.parse().ok()
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 /// Mean on-CPU time of `f`, run until at least 0.5 s of CPU time has accumulated (schedstat is
@@ -81,23 +86,44 @@ fn main() {
         let rate = cpu.map_or("–".to_string(), |c| {
             format!("{:.1} M", n as f64 / c.as_secs_f64() / 1e6)
         });
-        t1.row(vec![name, fmt_duration(wall), cpu.map_or("–".into(), fmt_duration), rate]);
+        t1.row(vec![
+            name,
+            fmt_duration(wall),
+            cpu.map_or("–".into(), fmt_duration),
+            rate,
+        ]);
     };
     for (name, c) in [
-        ("progressive, Gauss-Seidel, α = 1 (paper)", cfg(1.0, Sweep::GaussSeidel)),
-        ("progressive, acceleration 3, Gauss-Seidel", cfg(3.0, Sweep::GaussSeidel)),
+        (
+            "progressive, Gauss-Seidel, α = 1 (paper)",
+            cfg(1.0, Sweep::GaussSeidel),
+        ),
+        (
+            "progressive, acceleration 3, Gauss-Seidel",
+            cfg(3.0, Sweep::GaussSeidel),
+        ),
         ("progressive, Jacobi", cfg(1.0, Sweep::Jacobi)),
-        ("running average (Probulator)", EncoderConfig::probulator_running_average()),
+        (
+            "running average (Probulator)",
+            EncoderConfig::probulator_running_average(),
+        ),
     ] {
         let fast = || {
             let mut enc = SgEncoder::<3>::new(&basis, c).expect("valid");
-            enc.add_samples(&dirs, &values, None, &NoProgress).expect("finite");
+            enc.add_samples(&dirs, &values, None, &NoProgress)
+                .expect("finite");
             enc.total_weight()
         };
-        row(&mut t1, format!("SgEncoder: {name}"), median_time(31, fast), mean_cpu_time(fast));
+        row(
+            &mut t1,
+            format!("SgEncoder: {name}"),
+            median_time(31, fast),
+            mean_cpu_time(fast),
+        );
         let generic = || {
             let mut enc = ProgressiveEncoder::new(&basis, 3, c).expect("valid");
-            enc.add_samples(&dirs, &values, None, &NoProgress).expect("finite");
+            enc.add_samples(&dirs, &values, None, &NoProgress)
+                .expect("finite");
             enc.coefficients()[0]
         };
         row(
@@ -111,7 +137,12 @@ fn main() {
     let name = "LS over the samples (normal equations + Cholesky)";
     row(&mut t1, name.into(), median_time(7, ls), mean_cpu_time(ls));
     let nn = || reference::nnls_samples(&basis, &dirs, &values, 3).expect("ok")[0];
-    row(&mut t1, "NNLS over the samples".into(), median_time(7, nn), mean_cpu_time(nn));
+    row(
+        &mut t1,
+        "NNLS over the samples".into(),
+        median_time(7, nn),
+        mean_cpu_time(nn),
+    );
     println!("{}", t1.markdown());
     let _ = t1.write_csv_if_requested("plsq_speed_single");
 
