@@ -366,3 +366,41 @@ proptest! {
         prop_assert!(row.iter().all(|v| v.is_finite() && *v >= 0.0));
     }
 }
+
+#[test]
+fn a_uniform_sky_on_a_ground_plane_deposits_albedo_times_pi_radiance_times_area() {
+    let half = 2.0;
+    let albedo = 0.8;
+    let scene = Scene::ground_plane(half, Vec3::splat(albedo));
+    let tracer = RayTracer::new(scene.triangles());
+    let sky = SunSky {
+        sun_irradiance: Vec3::ZERO,
+        sky_radiance: Vec3::ONE,
+        ..SunSky::default()
+    };
+    let n = 6000;
+    let options = VplOptions {
+        particles: n,
+        max_bounces: 1,
+        seed: 2,
+        sun_sky: sky,
+    };
+    let vpls = trace_vpls(&scene, &tracer, &options, &NoProgress).unwrap();
+    let total: f64 = vpls.iter().map(|v| f64::from(v.flux.y)).sum();
+    // Irradiance under a uniform sky of radiance 1 is π: the mean is ρ π A. Each particle carries
+    // ρ 2π πR² / N and lands with probability A cos θ / (πR²); the count's variance is at most
+    // N p̄ (1 - p̄) with p̄ = A / (2πR²) = 1/π.
+    let radius2 = 2.0 * f64::from(half * half);
+    let area = 4.0 * f64::from(half * half);
+    let pi = std::f64::consts::PI;
+    let per = f64::from(albedo) * 2.0 * pi * pi * radius2 / n as f64;
+    let p = 1.0 / pi;
+    let mean = f64::from(albedo) * pi * area;
+    let sigma = per * (n as f64 * p * (1.0 - p)).sqrt();
+    assert!(
+        (total - mean).abs() < 4.0 * sigma,
+        "{total} vs {mean} ± {sigma}"
+    );
+    let power = emitted_power(&scene, &sky).unwrap();
+    assert!((f64::from(power.x) - 2.0 * pi * pi * radius2).abs() < 1e-4 * f64::from(power.x));
+}
