@@ -726,6 +726,81 @@ impl<'a> VplOracle<'a> {
         );
         Ok(pixels?.into_iter().flatten().collect())
     }
+
+    /// A fingerprint of everything an element depends on except the geometry behind the shadow
+    /// rays: gather points, VPLs, clamp and offset (FNV-1a over their bits).
+    pub fn fingerprint(&self) -> u64 {
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        let mut eat = |x: f32| {
+            for b in x.to_bits().to_le_bytes() {
+                h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        eat(self.clamp2);
+        eat(self.eps);
+        for g in self.gather {
+            match g {
+                Some(g) => [g.position, g.normal, g.albedo]
+                    .iter()
+                    .flat_map(|v| v.to_array())
+                    .for_each(&mut eat),
+                None => eat(f32::NAN),
+            }
+        }
+        for v in self.vpls {
+            [v.position, v.normal, v.flux]
+                .iter()
+                .flat_map(|v| v.to_array())
+                .for_each(&mut eat);
+        }
+        h
+    }
+
+    /// [`VplOracle::reference_image`] cached in the file `path`: read back when the file holds an
+    /// image of this oracle's shape and [`VplOracle::fingerprint`] (then nothing is evaluated or
+    /// counted), else computed and written. The geometry is not fingerprinted: use one file per
+    /// scene.
+    ///
+    /// Errors: [`TraceError::Io`] when the file cannot be written, those of `reference_image`.
+    pub fn reference_image_cached(
+        &self,
+        path: &std::path::Path,
+        progress: &dyn Progress,
+    ) -> Result<Vec<f32>, TraceError> {
+        let header = [
+            u64::from_le_bytes(*b"PRTVPLR1"),
+            self.gather.len() as u64,
+            self.vpls.len() as u64,
+            self.fingerprint(),
+        ];
+        let expected_len = 32 + 12 * self.gather.len();
+        if let Ok(bytes) = std::fs::read(path) {
+            let matches = bytes.len() == expected_len
+                && bytes
+                    .chunks_exact(8)
+                    .zip(header)
+                    .all(|(b, h)| b == h.to_le_bytes());
+            if matches {
+                return Ok(bytes[32..]
+                    .chunks_exact(4)
+                    .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+                    .collect());
+            }
+        }
+        let image = self.reference_image(progress)?;
+        let mut bytes = Vec::with_capacity(expected_len);
+        header
+            .iter()
+            .for_each(|h| bytes.extend_from_slice(&h.to_le_bytes()));
+        image
+            .iter()
+            .for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
+        std::fs::write(path, bytes).map_err(|source| TraceError::Io {
+            path: path.to_owned(),
+            source,
+        })?;
+        Ok(image)
+    }
 }
 
 impl MatrixOracle for VplOracle<'_> {

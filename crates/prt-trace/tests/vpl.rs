@@ -1,5 +1,7 @@
 //! The many-light scene side: VPL tracing, G-buffer, the pixel × VPL oracle.
 
+mod common;
+
 use std::f32::consts::PI;
 use std::sync::OnceLock;
 
@@ -403,4 +405,31 @@ fn a_uniform_sky_on_a_ground_plane_deposits_albedo_times_pi_radiance_times_area(
     );
     let power = emitted_power(&scene, &sky).unwrap();
     assert!((f64::from(power.x) - 2.0 * pi * pi * radius2).abs() < 1e-4 * f64::from(power.x));
+}
+
+#[test]
+fn the_reference_image_is_cached_on_disk_and_recomputed_when_the_input_changes() {
+    let c = cornell();
+    let dir = common::temp_dir("vpl-cache");
+    let path = dir.join("cornell.ref");
+    let vpls = &c.vpls[..200];
+    let oracle = VplOracle::new(&c.tracer, &c.gbuffer, vpls, 0.1, 1e-4).unwrap();
+    let first = oracle.reference_image_cached(&path, &NoProgress).unwrap();
+    assert_eq!(oracle.elements_evaluated(), (oracle.rows() * 200) as u64);
+    oracle.reset_count();
+    let again = oracle.reference_image_cached(&path, &NoProgress).unwrap();
+    assert_eq!(first, again);
+    assert_eq!(oracle.elements_evaluated(), 0, "read back, not recomputed");
+    // Other VPLs: a different fingerprint, so the image is recomputed and the file replaced.
+    let other = VplOracle::new(&c.tracer, &c.gbuffer, &c.vpls[1..201], 0.1, 1e-4).unwrap();
+    assert_ne!(other.fingerprint(), oracle.fingerprint());
+    let image = other.reference_image_cached(&path, &NoProgress).unwrap();
+    assert_eq!(other.elements_evaluated(), (other.rows() * 200) as u64);
+    assert_eq!(image, other.reference_image(&NoProgress).unwrap());
+    let unwritable = dir.join("missing-dir").join("x.ref");
+    assert!(matches!(
+        oracle.reference_image_cached(&unwritable, &NoProgress),
+        Err(TraceError::Io { .. })
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
 }
