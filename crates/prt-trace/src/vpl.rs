@@ -558,7 +558,9 @@ impl GBuffer {
 /// The pixel × VPL matrix (3 channels, RGB) of a G-buffer lit by VPLs, evaluated on demand with
 /// shadow rays: element `(i, j) = ρ_i/π · Φ_j/π · max(0, n_i·ω) max(0, -n_j·ω) / max(d², c²) · V`
 /// (an isotropic point-light VPL uses `1/4` for the second cosine, i.e. intensity `Φ/4π`).
-/// Pixels without a gather point are zero rows. `eval_row` and `eval_col` run over rayon; every
+/// Pixels without a gather point are zero rows. The matrix holds only light arriving through
+/// VPLs: an emitter's own radiance seen directly by a pixel is not in it (add it to the image).
+/// `eval_row` and `eval_col` run over rayon; every
 /// element they return, and every element of [`VplOracle::reference_image`], is counted.
 ///
 /// ```
