@@ -200,3 +200,68 @@ fn base64(bytes: &[u8]) -> String {
     }
     s
 }
+
+#[test]
+fn encode_fits_a_constant_map_exactly_and_inspect_reads_it() {
+    let dir = scratch("encode");
+    let map = dir.join("constant.hdr");
+    let (w, h, c) = (32u32, 16u32, [0.5f32, 1.0, 2.0]);
+    let pixels: Vec<f32> = (0..w * h).flat_map(|_| c).collect();
+    let image = prt_texture::hdr::RgbImage::new(w, h, pixels).expect("image");
+    prt_texture::hdr::write_hdr(&map, &image).expect("write hdr");
+    let map_arg = map.to_str().expect("utf-8");
+
+    let encode = |basis: &str, method: &str| -> (f64, Vec<f64>) {
+        let out = prt(&[
+            "encode",
+            map_arg,
+            "--basis",
+            basis,
+            "--method",
+            method,
+            "--samples",
+            "4000",
+        ]);
+        assert!(out.status.success(), "{basis} {method}: {}", stderr(&out));
+        let doc: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+        let first = doc["coefficients_rgb"][0]
+            .as_array()
+            .expect("rgb")
+            .iter()
+            .map(|v| v.as_f64().expect("f64"))
+            .collect();
+        (doc["rmse"].as_f64().expect("rmse"), first)
+    };
+    // A constant lies in the span of SH and of the ambient cube: least squares reproduces it
+    // exactly, the Monte Carlo projection up to its quasi-random integration error.
+    let scale = (4.0 * std::f64::consts::PI).sqrt();
+    for (basis, method, bound) in [
+        ("sh:3", "ls", 1e-4),
+        ("sh:2", "projection", 1e-2),
+        ("ambient-cube", "nnls", 1e-4),
+    ] {
+        let (rmse, first) = encode(basis, method);
+        assert!(rmse < bound, "{basis} {method}: rmse {rmse}");
+        if basis.starts_with("sh") {
+            for k in 0..3 {
+                assert!(
+                    (first[k] / (c[k] as f64 * scale) - 1.0).abs() < bound,
+                    "{basis}: DC {first:?}"
+                );
+            }
+        }
+    }
+    // Twelve lobes of sharpness 6 cannot represent a constant (their sum ripples); the progressive
+    // encoder must converge to the least-squares optimum over the same samples.
+    let (ls, _) = encode("sg:12", "ls");
+    let (progressive, _) = encode("sg:12", "progressive");
+    assert!(ls > 0.05, "12 SG should not fit a constant exactly: {ls}");
+    assert!(
+        progressive <= ls * 1.01,
+        "progressive {progressive} vs least squares {ls}"
+    );
+    let inspect = prt(&["inspect", map_arg]);
+    assert!(inspect.status.success(), "{}", stderr(&inspect));
+    assert!(String::from_utf8_lossy(&inspect.stdout).contains("32 x 16 RGB"));
+    let _ = std::fs::remove_dir_all(dir);
+}
