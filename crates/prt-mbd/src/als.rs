@@ -9,6 +9,7 @@ use prt_linalg::cholesky_solve;
 use rayon::prelude::*;
 
 use crate::objective::{Preconditioner, Problem, Samples};
+use crate::solver::Stopping;
 use crate::solver::{IterationRecord, MbdOptions, SolveReport, initialise, validate};
 use crate::subspace::{cholesky_in_place, cholesky_solve_in_place, linalg_error};
 use crate::{MbdError, MbdModel};
@@ -69,7 +70,7 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
         ..SolveReport::default()
     };
     progress.set_len(options.max_iterations as u64);
-    let mut calm = 0;
+    let mut stopping = Stopping::default();
     for _ in 0..options.max_iterations {
         progress.check()?;
         let loss_before = problem
@@ -105,17 +106,7 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
         });
         progress.inc(1);
         progress.message(&format!("ALS loss {loss_after:.6e}"));
-        let decrease = if loss_before > 0.0 {
-            (loss_before - loss_after) / loss_before
-        } else {
-            0.0
-        };
-        calm = if decrease < options.tolerance {
-            calm + 1
-        } else {
-            0
-        };
-        if calm >= options.patience.max(1) || loss_after == 0.0 {
+        if stopping.should_stop(loss_before, loss_after, options) {
             report.converged = true;
             break;
         }

@@ -78,6 +78,34 @@ impl Default for MbdOptions {
     }
 }
 
+/// The stopping rule shared by the solvers: stop once the relative loss decrease of an iteration
+/// stays below `tolerance` for `patience` consecutive iterations, or the loss reaches zero.
+#[derive(Debug, Default)]
+pub(crate) struct Stopping {
+    calm: usize,
+}
+
+impl Stopping {
+    pub(crate) fn should_stop(
+        &mut self,
+        loss_before: f64,
+        loss_after: f64,
+        options: &MbdOptions,
+    ) -> bool {
+        let decrease = if loss_before > 0.0 {
+            (loss_before - loss_after) / loss_before
+        } else {
+            0.0
+        };
+        self.calm = if decrease < options.tolerance {
+            self.calm + 1
+        } else {
+            0
+        };
+        self.calm >= options.patience.max(1) || loss_after == 0.0
+    }
+}
+
 /// One iteration of the solver.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IterationRecord {
@@ -145,7 +173,7 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
         ..SolveReport::default()
     };
     progress.set_len(options.max_iterations as u64);
-    let mut calm = 0;
+    let mut stopping = Stopping::default();
     let mut trial_c = vec![0.0f32; coefficients.len()];
     let mut trial_b = vec![0.0f32; basis.len()];
     for iteration in 0..options.max_iterations {
@@ -204,17 +232,7 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
         });
         progress.inc(1);
         progress.message(&format!("iteration {iteration}: loss {loss_after:.6e}"));
-        let decrease = if loss_before > 0.0 {
-            (loss_before - loss_after) / loss_before
-        } else {
-            0.0
-        };
-        calm = if decrease < options.tolerance {
-            calm + 1
-        } else {
-            0
-        };
-        if calm >= options.patience.max(1) || loss_after == 0.0 {
+        if stopping.should_stop(loss_before, loss_after, options) {
             report.converged = true;
             break;
         }
