@@ -33,6 +33,19 @@ pub struct ClusterModel {
 impl ClusterModel {
     /// Builds the model and its voxel reconstruction. `stored_scalars` is what the method
     /// stores (for vector quantisation, one index per voxel rather than coefficients).
+    /// A subspace model: every voxel projected onto its cluster's basis; it stores the bases
+    /// and L coefficients per voxel.
+    fn projected(
+        name: String,
+        field: &GridField,
+        labels: Vec<u32>,
+        bases: Array3<f32>,
+    ) -> Result<Self, MbdError> {
+        let coefficients = project(field, &labels, &bases);
+        let stored = bases.len() + coefficients.len();
+        Self::new(name, field, labels, bases, coefficients, stored)
+    }
+
     fn new(
         name: String,
         field: &GridField,
@@ -147,16 +160,7 @@ impl Compressor for GlobalPca {
         let basis = principal_subspace(field.data().view(), self.rank)?;
         let bases = basis.insert_axis(Axis(0));
         let labels = vec![0u32; field.num_voxels()];
-        let coefficients = project(field, &labels, &bases);
-        let stored = bases.len() + coefficients.len();
-        ClusterModel::new(
-            format!("PCA rank {}", self.rank),
-            field,
-            labels,
-            bases,
-            coefficients,
-            stored,
-        )
+        ClusterModel::projected(format!("PCA rank {}", self.rank), field, labels, bases)
     }
 }
 
@@ -256,17 +260,8 @@ impl Compressor for BlockPca {
             stacked.index_axis_mut(Axis(0), b).assign(&basis?);
         }
         let labels = self.labels(field);
-        let coefficients = project(field, &labels, &stacked);
-        let stored = stacked.len() + coefficients.len();
         let name = if self.window > 1.0 { "WBPCA" } else { "BPCA" };
-        ClusterModel::new(
-            format!("{name} rank {l}"),
-            field,
-            labels,
-            stacked,
-            coefficients,
-            stored,
-        )
+        ClusterModel::projected(format!("{name} rank {l}"), field, labels, stacked)
     }
 }
 
@@ -425,16 +420,7 @@ impl Compressor for ClusteredPca {
                 break;
             }
         }
-        let coefficients = project(field, &labels, &bases);
-        let stored = bases.len() + coefficients.len();
-        ClusterModel::new(
-            format!("CPCA rank {}", self.rank),
-            field,
-            labels,
-            bases,
-            coefficients,
-            stored,
-        )
+        ClusterModel::projected(format!("CPCA rank {}", self.rank), field, labels, bases)
     }
 }
 
