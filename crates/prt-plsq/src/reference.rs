@@ -85,6 +85,20 @@ fn to_coeffs(x: &Array2<f64>) -> Vec<f32> {
     x.iter().map(|&v| v as f32).collect()
 }
 
+/// Solves `a x = b` for a symmetric positive definite `a` (checked with
+/// [`check_nonsingular`] first), naming `what` in the error.
+fn solve_spd(
+    what: &'static str,
+    a: &Array2<f64>,
+    b: &Array2<f64>,
+) -> Result<Array2<f64>, PlsqError> {
+    check_nonsingular(what, a)?;
+    prt_linalg::cholesky_solve(a.view(), b.view(), 0.0).map_err(|e| PlsqError::Singular {
+        what,
+        why: e.to_string(),
+    })
+}
+
 /// Naive projection: `c_i = scale_i / N Σ_s f(s) B_i(s)` (for SH, `scale = 4π` gives the exact
 /// Monte Carlo projection; Probulator's SG "naive" fit uses [`probulator_sg_naive_scale`]).
 pub fn naive_projection<B: SphericalBasis + ?Sized>(
@@ -116,13 +130,7 @@ pub fn least_squares_gram<B: SphericalBasis + ?Sized>(
     let (_, atb) = normal_equations(basis, dirs, values, channels);
     let moments = atb * (4.0 * std::f64::consts::PI / dirs.len() as f64);
     let g = basis.gram();
-    check_nonsingular("Gram matrix", &g)?;
-    let x = prt_linalg::cholesky_solve(g.view(), moments.view(), 0.0).map_err(|e| {
-        PlsqError::Singular {
-            what: "Gram matrix",
-            why: e.to_string(),
-        }
-    })?;
+    let x = solve_spd("Gram matrix", &g, &moments)?;
     Ok(to_coeffs(&x))
 }
 
@@ -136,13 +144,7 @@ pub fn least_squares_samples<B: SphericalBasis + ?Sized>(
 ) -> Result<Vec<f32>, PlsqError> {
     check_samples(dirs, values, channels)?;
     let (ata, atb) = normal_equations(basis, dirs, values, channels);
-    check_nonsingular("sample normal equations", &ata)?;
-    let x = prt_linalg::cholesky_solve(ata.view(), atb.view(), 0.0).map_err(|e| {
-        PlsqError::Singular {
-            what: "sample normal equations",
-            why: e.to_string(),
-        }
-    })?;
+    let x = solve_spd("sample normal equations", &ata, &atb)?;
     Ok(to_coeffs(&x))
 }
 
