@@ -6,7 +6,7 @@ use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
 use crate::cluster::split_until;
-use crate::reduced::check_shape;
+use crate::reduced::{check_requests, check_shape};
 use crate::{ManyLightError, ReducedMatrix, cluster_columns, stratified_rows};
 
 /// A [`MatrixOracle`] that can also evaluate a column on a contiguous range of rows only: what
@@ -132,27 +132,17 @@ pub fn light_slice(
 ) -> Result<LightSliceEstimate, ManyLightError> {
     check_shape(oracle)?;
     let (n, m, channels) = (oracle.rows(), oracle.cols(), oracle.channels());
-    for (what, requested, available) in [
-        ("slices", config.slices, n),
-        ("local clusters", config.local_clusters, m),
+    check_requests(&[
+        ("slices", "slices", config.slices, n),
+        ("local clusters", "local clusters", config.local_clusters, m),
         (
+            "global clusters",
             "global clusters",
             config.global_clusters,
             config.local_clusters,
         ),
-        ("neighbours", config.neighbours, usize::MAX),
-    ] {
-        if requested == 0 {
-            return Err(ManyLightError::ZeroSamples { what });
-        }
-        if requested > available {
-            return Err(ManyLightError::TooMany {
-                what,
-                requested,
-                available,
-            });
-        }
-    }
+        ("neighbours", "neighbours", config.neighbours, usize::MAX),
+    ])?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("lightslice: reduced matrix");
     let rows = stratified_rows(n, config.slices, &mut rng);

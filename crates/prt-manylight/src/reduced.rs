@@ -60,6 +60,27 @@ fn check_finite(
     }
 }
 
+/// Validates requested sample counts: each entry is `(name when zero, name when too many,
+/// requested, available)`, giving `ZeroSamples` for a zero request and `TooMany` above what is
+/// available.
+pub(crate) fn check_requests(
+    requests: &[(&'static str, &'static str, usize, usize)],
+) -> Result<(), ManyLightError> {
+    for &(zero, what, requested, available) in requests {
+        if requested == 0 {
+            return Err(ManyLightError::ZeroSamples { what: zero });
+        }
+        if requested > available {
+            return Err(ManyLightError::TooMany {
+                what,
+                requested,
+                available,
+            });
+        }
+    }
+    Ok(())
+}
+
 /// Validates the shape of the oracle: `Err(EmptyMatrix)` for zero rows, columns or channels.
 pub(crate) fn check_shape(oracle: &dyn MatrixOracle) -> Result<(), ManyLightError> {
     if oracle.rows() == 0 {

@@ -3,7 +3,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use crate::reduced::{check_shape, eval_column};
+use crate::reduced::{check_requests, check_shape, eval_column};
 use crate::{Clustering, ManyLightError, ReducedMatrix, cluster_columns, stratified_rows};
 
 /// Columns evaluated together (in parallel) before they are accumulated in order.
@@ -101,20 +101,10 @@ pub fn row_column_sampling(
 ) -> Result<RowColumnEstimate, ManyLightError> {
     check_shape(oracle)?;
     let (n, m, channels) = (oracle.rows(), oracle.cols(), oracle.channels());
-    for (what, requested, available) in [("rows", config.rows, n), ("columns", config.columns, m)] {
-        if requested == 0 {
-            return Err(ManyLightError::ZeroSamples {
-                what: &what[..what.len() - 1],
-            });
-        }
-        if requested > available {
-            return Err(ManyLightError::TooMany {
-                what,
-                requested,
-                available,
-            });
-        }
-    }
+    check_requests(&[
+        ("row", "rows", config.rows, n),
+        ("column", "columns", config.columns, m),
+    ])?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("row-column sampling: reduced matrix");
     let rows = stratified_rows(n, config.rows, &mut rng);
