@@ -19,14 +19,9 @@ fn dense(rows: usize, cols: usize, seed: u64) -> DenseOracle {
     DenseOracle::new(data, 3).unwrap()
 }
 
+/// Relative RMS error of an image against the exact one (prt-core's metric).
 fn relative_error(a: &[f32], b: &[f32]) -> f64 {
-    let num: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
-        .sum();
-    let den: f64 = b.iter().map(|&y| (y as f64).powi(2)).sum();
-    (num / den).sqrt()
+    prt_core::metrics::relative_frobenius_error(a, b).unwrap()
 }
 
 #[test]

@@ -436,14 +436,9 @@ fn cancellation_stops_the_work() {
     assert_eq!(progress.position(), 16);
 }
 
+/// Relative RMS error of an image against the exact one (prt-core's metric).
 fn relative_error(a: &[f32], b: &[f32]) -> f64 {
-    let num: f64 = a
-        .iter()
-        .zip(b)
-        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
-        .sum();
-    let den: f64 = b.iter().map(|&y| (y as f64).powi(2)).sum();
-    (num / den).sqrt()
+    prt_core::metrics::relative_frobenius_error(a, b).unwrap()
 }
 
 #[test]
