@@ -7,19 +7,10 @@
 use std::time::Instant;
 
 use prt_benches::{Table, fmt_duration, median_time};
+use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, row_column_sampling};
 use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls};
-
-fn relative_rms(image: &[f32], reference: &[f32]) -> f64 {
-    let num: f64 = image
-        .iter()
-        .zip(reference)
-        .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
-        .sum();
-    let den: f64 = reference.iter().map(|&b| f64::from(b).powi(2)).sum();
-    (num / den).sqrt()
-}
 
 fn main() {
     let args: Vec<usize> = std::env::args()
@@ -110,7 +101,11 @@ fn main() {
             format!("{:.1}×", brute / estimate.elements as f64),
             fmt_duration(time),
             format!("{:.1}×", brute_time.as_secs_f64() / time.as_secs_f64()),
-            format!("{:.4}", relative_rms(&estimate.image, &reference)),
+            format!(
+                "{:.4}",
+                relative_frobenius_error(&estimate.image, &reference)
+                    .expect("images of equal size")
+            ),
         ]);
     }
     println!("{}", table.markdown());

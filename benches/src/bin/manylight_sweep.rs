@@ -9,6 +9,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use prt_benches::{Table, fmt_duration};
+use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress, Progress};
 use prt_manylight::{
     LightSliceConfig, RowColumnConfig, SyntheticVplOracle, brute_force, light_slice,
@@ -33,16 +34,6 @@ impl Progress for PhaseTimes {
     fn is_cancelled(&self) -> bool {
         false
     }
-}
-
-fn relative_rms(estimate: &[f32], reference: &[f32]) -> f64 {
-    let num: f64 = estimate
-        .iter()
-        .zip(reference)
-        .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-        .sum();
-    let den: f64 = reference.iter().map(|&b| (b as f64).powi(2)).sum();
-    (num / den).sqrt()
 }
 
 fn main() {
@@ -109,7 +100,9 @@ fn main() {
                     phases[2] += end - columns;
                 }
                 elements = evaluated;
-                errors.push(relative_rms(&image, &reference));
+                errors.push(
+                    relative_frobenius_error(&image, &reference).expect("images of equal size"),
+                );
             }
             let k = seeds as u32;
             let mean_error = errors.iter().sum::<f64>() / errors.len() as f64;

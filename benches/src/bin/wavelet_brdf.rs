@@ -5,7 +5,8 @@
 //! `cargo run --release -p prt-benches --bin wavelet_brdf`
 
 use prt_benches::Table;
-use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke, relative_rms};
+use prt_core::metrics::relative_frobenius_error;
+use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
@@ -22,7 +23,7 @@ fn run(terms: usize, start: &[f32], edits: &[Vec<f32>], hold: usize) -> Vec<f64>
     }
     let last = edits.last().expect("edits");
     (0..hold)
-        .map(|_| relative_rms(editor.step(last).expect("step"), last))
+        .map(|_| relative_frobenius_error(editor.step(last).expect("step"), last).unwrap())
         .collect()
 }
 

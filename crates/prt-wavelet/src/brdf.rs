@@ -44,22 +44,6 @@ pub fn brush_stroke(curve: &mut [f32], centre: f32, radius: f32, delta: f32) {
     }
 }
 
-/// Relative RMS error `‖a − b‖ / ‖b‖` in f64 (0 when both are zero, infinite when only `b` is).
-pub fn relative_rms(approx: &[f32], exact: &[f32]) -> f64 {
-    let (mut e, mut n) = (0.0f64, 0.0f64);
-    for (&a, &b) in approx.iter().zip(exact) {
-        e += (a as f64 - b as f64).powi(2);
-        n += (b as f64).powi(2);
-    }
-    if n > 0.0 {
-        (e / n).sqrt()
-    } else if e == 0.0 {
-        0.0
-    } else {
-        f64::INFINITY
-    }
-}
-
 /// An interactive curve editor: BI with `k` Daubechies-4 terms per frame.
 #[derive(Debug, Clone)]
 pub struct CurveEditor {

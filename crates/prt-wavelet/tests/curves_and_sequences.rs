@@ -1,8 +1,9 @@
 //! BRDF editing convergence, SH PBI, lighting sequences and the analyses.
 
 use proptest::prelude::*;
+use prt_core::metrics::relative_frobenius_error;
 use prt_wavelet::analysis::{LightingError, band_energy};
-use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke, relative_rms};
+use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke};
 use prt_wavelet::sequence::{Interpolation, Rotation};
 use prt_wavelet::{
     Cubemap, CubemapHaar, CubemapLayout, LatLong, ShApproximator, WaveletError, texel_direction,
@@ -67,10 +68,12 @@ proptest! {
         }
         let mut errors = Vec::new();
         for _ in 0..9 {
-            errors.push(relative_rms(editor.step(&curve).unwrap(), &curve));
+            errors.push(relative_frobenius_error(editor.step(&curve).unwrap(), &curve).unwrap());
         }
         prop_assert!(errors[8] <= 1e-6, "errors after the edits stop: {:?}", errors);
-        prop_assert!(errors.windows(2).all(|w| w[1] <= w[0] * (1.0 + 1e-6) + 1e-9), "not monotone: {:?}", errors);
+        // The curves are f32: once the error reaches a few f32 epsilons it can move by round-off.
+        let floor = 4.0 * f32::EPSILON as f64;
+        prop_assert!(errors.windows(2).all(|w| w[1] <= w[0] * (1.0 + 1e-6) + floor), "not monotone: {:?}", errors);
     }
 }
 
@@ -81,9 +84,9 @@ fn a_large_edit_is_not_exact_after_one_frame() {
     for _ in 0..9 {
         editor.step(&a).unwrap();
     }
-    assert!(relative_rms(editor.curve(), &a) <= 1e-6);
+    assert!(relative_frobenius_error(editor.curve(), &a).unwrap() <= 1e-6);
     let b = beckmann_curve(0.08, 256).unwrap();
-    let first = relative_rms(editor.step(&b).unwrap(), &b);
+    let first = relative_frobenius_error(editor.step(&b).unwrap(), &b).unwrap();
     assert!(
         first > 1e-3,
         "one frame of 30 terms cannot fix a roughness jump: {first}"
