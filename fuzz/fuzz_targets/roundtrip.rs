@@ -81,7 +81,7 @@ fuzz_target!(|data: &[u8]| {
             let loaded = LoadedContainer::decode(&json, &Limits::small(), |_| Ok(files[0].1.clone())).unwrap();
             let entry = &manifest.arrays[0];
             for (i, (x, y)) in array.data.iter().zip(&loaded.arrays[0].1.data).enumerate() {
-                let r = entry.ranges[i % channels];
+                let r = entry.range(i % channels);
                 let bound = match encoding {
                     Encoding::F32 => 0.0,
                     Encoding::F16 => x.abs() * 2f32.powi(-11) + 2f32.powi(-25),

@@ -29,8 +29,9 @@ use crate::{Limits, TextureError};
 
 /// Value of [`Manifest::format`].
 pub const CONTAINER_FORMAT: &str = "prt-container";
-/// The manifest version this crate writes and reads.
-pub const CONTAINER_VERSION: u32 = 1;
+/// The manifest version this crate writes; it reads every version from 1 up to this one
+/// (version 2 stopped storing identity ranges for the float encodings).
+pub const CONTAINER_VERSION: u32 = 2;
 /// File name of the manifest inside a container folder.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the MBD coefficient grid array and its kernel.
@@ -136,7 +137,10 @@ pub struct ArrayEntry {
     pub encoding: Encoding,
     /// Texture layout of the channel groups.
     pub layout: ArrayLayout,
-    /// Per-channel decode map, `value = bias + scale · texel` (identity for float encodings).
+    /// Per-channel decode map of the normalised encodings, `value = bias + scale · texel`.
+    /// Empty for the float encodings and RGB9E5, which decode directly (container version 1
+    /// wrote identity maps there; they are still accepted). Use [`ArrayEntry::range`] to read it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub ranges: Vec<ChannelRange>,
     /// Size of the KTX2 file in bytes.
     pub bytes: u64,
@@ -146,6 +150,15 @@ impl ArrayEntry {
     /// Channels per texel of the encoding's texture format (4, or 3 for RGB9E5).
     pub fn group_size(&self) -> usize {
         self.encoding.rgba_format().channels()
+    }
+
+    /// The decode map of `channel`: its stored range for the normalised encodings, the identity
+    /// for encodings that store none.
+    pub fn range(&self, channel: usize) -> ChannelRange {
+        self.ranges
+            .get(channel)
+            .copied()
+            .unwrap_or(ChannelRange::IDENTITY)
     }
 
     /// Number of texels per node.
@@ -202,7 +215,16 @@ impl ArrayEntry {
             ));
         }
         check_at_most("array channels", self.channels as u64, limits.max_bytes)?;
-        if self.ranges.len() != self.channels {
+        // Normalised encodings need one range per channel; the others store none (or, as
+        // version 1 wrote them, identity maps).
+        let ranges_ok = if self.encoding.is_normalized() {
+            self.ranges.len() == self.channels
+        } else {
+            self.ranges.is_empty()
+                || (self.ranges.len() == self.channels
+                    && self.ranges.iter().all(|r| *r == ChannelRange::IDENTITY))
+        };
+        if !ranges_ok {
             return Err(TextureError::malformed(
                 "manifest",
                 format!(
@@ -275,7 +297,7 @@ impl Manifest {
                 format!("format {:?}", self.format),
             ));
         }
-        if self.version != CONTAINER_VERSION {
+        if !(1..=CONTAINER_VERSION).contains(&self.version) {
             return Err(TextureError::Unsupported {
                 what: "manifest version",
                 why: format!("{} (this reader knows {CONTAINER_VERSION})", self.version),
@@ -457,10 +479,8 @@ fn encode_array(
         dst[..array.channels].copy_from_slice(src);
     }
     let q = if entry.encoding == Encoding::Rgb9e5 {
-        // Shared-exponent texels hold 3 channels each and need no ranges.
-        let mut q = quantize(&padded, 3, entry.encoding)?;
-        q.ranges = vec![ChannelRange::IDENTITY; padded_channels];
-        q
+        // Shared-exponent texels hold 3 channels each.
+        quantize(&padded, 3, entry.encoding)?
     } else {
         quantize(&padded, padded_channels, entry.encoding)?
     };
@@ -485,7 +505,12 @@ fn encode_array(
         entry.texture_shape()?,
         vec![bytes],
     )?;
-    Ok((texture, q.ranges[..array.channels].to_vec()))
+    let ranges = if entry.encoding.is_normalized() {
+        q.ranges[..array.channels].to_vec()
+    } else {
+        Vec::new()
+    };
+    Ok((texture, ranges))
 }
 
 fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, TextureError> {
@@ -508,7 +533,7 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
             && embedded.channels == entry.channels
             && embedded.encoding == entry.encoding
             && embedded.layout == entry.layout
-            && embedded.ranges == entry.ranges;
+            && (0..entry.channels).all(|c| embedded.range(c) == entry.range(c));
         if !same {
             return Err(TextureError::malformed(
                 "container texture",
@@ -534,14 +559,18 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
         }
     };
     let padded_channels = groups * group;
-    let mut ranges = entry.ranges.clone();
-    ranges.resize(
-        padded_channels,
-        ChannelRange {
-            scale: 0.0,
-            bias: 0.0,
-        },
-    );
+    let ranges = (0..padded_channels)
+        .map(|c| {
+            if c < entry.channels {
+                entry.range(c)
+            } else {
+                ChannelRange {
+                    scale: 0.0,
+                    bias: 0.0,
+                }
+            }
+        })
+        .collect();
     let values = dequantize(&Quantized {
         encoding: entry.encoding,
         channels: padded_channels,

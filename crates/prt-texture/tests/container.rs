@@ -142,22 +142,18 @@ fn mbd_model_round_trips_within_the_quantisation_bound_at_random_points() {
         (&model.basis, &back.basis, be),
     ] {
         for (i, (x, y)) in a.data.iter().zip(&b.data).enumerate() {
-            let r = e.ranges[i % a.channels];
+            let r = e.range(i % a.channels);
             let bound = r.half_step(e.encoding) + 4.0 * f32::EPSILON * (r.bias.abs() + r.scale);
             assert!((x - y).abs() <= bound, "{}[{i}]: {x} vs {y}", e.name);
         }
     }
     // Reconstruction: |Σ b c - Σ b' c'| <= Σ |b||δc| + |δb||c'|, with |δ| the per-channel bounds
     // (trilinear weights sum to one, so interpolation does not grow them).
-    let dc: Vec<f64> = ce
-        .ranges
-        .iter()
-        .map(|r| f64::from(r.half_step(ce.encoding)) * 1.001 + 1e-6)
+    let dc: Vec<f64> = (0..ce.channels)
+        .map(|c| f64::from(ce.range(c).half_step(ce.encoding)) * 1.001 + 1e-6)
         .collect();
-    let db: Vec<f64> = be
-        .ranges
-        .iter()
-        .map(|r| f64::from(r.half_step(be.encoding)) * 1.001 + 1e-6)
+    let db: Vec<f64> = (0..be.channels)
+        .map(|c| f64::from(be.range(c).half_step(be.encoding)) * 1.001 + 1e-6)
         .collect();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     for _ in 0..500 {
@@ -219,6 +215,46 @@ fn float_encodings_are_exact_or_within_f16() {
             };
             assert!((x - y).abs() <= bound);
         }
+    }
+}
+
+#[test]
+fn only_normalised_encodings_store_ranges_and_version_1_identity_ranges_still_read() {
+    let a = random_array([2, 3, 2], 6, 8, 4.0);
+    for enc in [Encoding::F32, Encoding::F16, Encoding::Unorm16] {
+        let mut c = Container::default();
+        c.arrays
+            .push(("a".into(), a.clone(), enc, ArrayLayout::Volume));
+        let (manifest, files) = c.encode().unwrap();
+        let json = String::from_utf8(manifest.to_json().unwrap()).unwrap();
+        assert_eq!(
+            json.contains("\"ranges\""),
+            enc == Encoding::Unorm16,
+            "{enc:?}"
+        );
+        if enc == Encoding::Unorm16 {
+            continue;
+        }
+        // What version 1 wrote: identity maps for a float encoding.
+        let mut v1 = manifest.clone();
+        v1.version = 1;
+        v1.arrays[0].ranges = vec![prt_texture::quant::ChannelRange::IDENTITY; 6];
+        let load = |m: &prt_texture::container::Manifest| {
+            LoadedContainer::decode(&m.to_json().unwrap(), &Limits::small(), |_| {
+                Ok(files[0].1.clone())
+            })
+        };
+        assert_eq!(load(&v1).unwrap().arrays, load(&manifest).unwrap().arrays);
+        // A float encoding with a non-identity map is not something we wrote.
+        let mut scaled = v1.clone();
+        scaled.arrays[0].ranges[2].scale = 2.0;
+        assert!(matches!(
+            load(&scaled),
+            Err(TextureError::Malformed {
+                what: "manifest",
+                ..
+            })
+        ));
     }
 }
 
@@ -321,7 +357,7 @@ proptest! {
         let loaded = LoadedContainer::decode(&manifest.to_json().unwrap(), &Limits::small(), |_| Ok(files[0].1.clone())).unwrap();
         let e = &manifest.arrays[0];
         for (i, (x, y)) in a.data.iter().zip(&loaded.arrays[0].1.data).enumerate() {
-            let r = e.ranges[i % channels];
+            let r = e.range(i % channels);
             let bound = match enc {
                 Encoding::F32 => 0.0,
                 Encoding::F16 => x.abs() * 2f32.powi(-11) + 2f32.powi(-25),

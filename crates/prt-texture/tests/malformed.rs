@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use prt_texture::container::{
-    ArrayLayout, Container, GridArray, LoadedContainer, MANIFEST_FILE, Manifest,
+    ArrayLayout, CONTAINER_VERSION, Container, GridArray, LoadedContainer, MANIFEST_FILE, Manifest,
 };
 use prt_texture::exr_io::{ExrLayer, ExrSample, decode_exr, encode_exr};
 use prt_texture::hdr::{RgbImage, decode_hdr, encode_hdr};
@@ -218,7 +218,10 @@ fn malformed() -> Vec<(String, Vec<u8>)> {
     push(
         "unsupported-manifest-version.json",
         manifest
-            .replace("\"version\": 1", "\"version\": 99")
+            .replace(
+                &format!("\"version\": {CONTAINER_VERSION}"),
+                "\"version\": 99",
+            )
             .into_bytes(),
     );
     push(
@@ -233,7 +236,13 @@ fn malformed() -> Vec<(String, Vec<u8>)> {
     );
     push(
         "too-large-manifest-dims.json",
-        manifest.replacen("2,\n", "4000000000,\n", 1).into_bytes(),
+        manifest
+            .replacen(
+                "\"dims\": [\n        2,",
+                "\"dims\": [\n        4000000000,",
+                1,
+            )
+            .into_bytes(),
     );
     push(
         "json-manifest-unknown-field.json",
