@@ -6,44 +6,22 @@
 //! Probulator's definitions, matched here: maps are 256×128 lat-long; fit input = Halton(2,3)
 //! indices 1..N mapped `z = 1 − 2u`, `φ = 2πv`, value of the nearest texel; reconstruction at
 //! texel centres; error = sqrt of the per-pixel MSE averaged over RGB (unweighted by solid
-//! angle); SG radiance not clamped, SH and ambient dice clamped at 0. Probulator works in its
-//! own frame (Y-up with `u = ½ + atan2(x, −z)/2π` in kayru/Probulator; Z-up in troughton's
-//! fork): samples and lobes live in that frame and are rotated into prt's lat-long frame only to
-//! address texels.
+//! angle; `prt_plsq::radiance_rmse`); SG radiance not clamped, SH and ambient dice clamped at
+//! 0. Probulator works in its own frame (`prt_plsq::LatLongFrame::Probulator`: prt's frame
+//! turned by π about +Y in kayru/Probulator; Z-up in troughton's fork with `--frame zup`):
+//! samples, lobes and dice vertices live in that frame and are rotated into prt's lat-long
+//! frame only to address texels.
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use prt_benches::Table;
 use prt_core::{NoProgress, SphericalBasis};
-use prt_plsq::{Denominator, EncoderConfig, ProgressiveEncoder, Sweep, Update, reference};
+use prt_plsq::{
+    Denominator, EncoderConfig, LatLongFrame, ProgressiveEncoder, Sweep, Update, radiance_rmse,
+    reference, sample_nearest,
+};
 use prt_sphere::sampling::halton_sphere;
-use prt_sphere::{AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis};
-
-#[derive(Clone, Copy, PartialEq, Eq, Debug)]
-enum Frame {
-    /// kayru/Probulator: Y up, `u = ½ + atan2(x, −z)/2π` (prt's frame turned by π about Y).
-    YUp,
-    /// troughton/Probulator: Z up, `u = ½ + atan2(x, −y)/2π`, `v = acos(z)/π`.
-    ZUp,
-}
-
-impl Frame {
-    /// Probulator direction → prt direction.
-    fn probulator_to_prt(self, d: Vec3) -> Vec3 {
-        match self {
-            Frame::YUp => Vec3::new(-d.x, d.y, -d.z),
-            Frame::ZUp => Vec3::new(-d.x, d.z, -d.y),
-        }
-    }
-
-    /// prt direction → Probulator direction.
-    fn prt_to_probulator(self, o: Vec3) -> Vec3 {
-        match self {
-            Frame::YUp => Vec3::new(-o.x, o.y, -o.z),
-            Frame::ZUp => Vec3::new(-o.x, -o.z, o.y),
-        }
-    }
-}
+use prt_sphere::{AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis};
 
 fn load_map(path: &Path) -> Option<LatLongMap> {
     let img = image::open(path).ok()?.into_rgb32f();
@@ -71,118 +49,27 @@ fn load_map(path: &Path) -> Option<LatLongMap> {
 
 struct Probe {
     map: LatLongMap,
-    frame: Frame,
-    /// Texel-centre directions in Probulator's frame, row-major.
-    pixel_dirs: Vec<Vec3>,
+    frame: LatLongFrame,
 }
 
 impl Probe {
-    fn new(map: LatLongMap, frame: Frame) -> Self {
-        let pixel_dirs = (0..map.height())
-            .flat_map(|y| (0..map.width()).map(move |x| (x, y)))
-            .map(|(x, y)| frame.prt_to_probulator(map.direction(x, y)))
-            .collect();
-        Self {
-            map,
-            frame,
-            pixel_dirs,
-        }
-    }
-
     fn samples(&self, n: usize) -> (Vec<Vec3>, Vec<f32>) {
         let dirs = halton_sphere(n);
-        let values = dirs
-            .iter()
-            .flat_map(|d| {
-                self.map
-                    .nearest(self.frame.probulator_to_prt(*d))
-                    .to_array()
-            })
-            .collect();
+        let values = sample_nearest(&self.map, &dirs, self.frame);
         (dirs, values)
     }
 
     /// Probulator's radiance RMSE of `coeffs` (basis rows × RGB).
     fn rmse(&self, basis: &dyn SphericalBasis, coeffs: &[f32], clamp: bool) -> f64 {
-        let k = basis.len();
-        let mut b = vec![0.0f32; k];
-        let mut sq = [0.0f64; 3];
-        for (p, d) in self.pixel_dirs.iter().enumerate() {
-            basis.eval(*d, &mut b);
-            let truth = &self.map.data()[3 * p..3 * p + 3];
-            for c in 0..3 {
-                let mut v: f32 = (0..k).map(|i| b[i] * coeffs[3 * i + c]).sum();
-                if clamp {
-                    v = v.max(0.0);
-                }
-                sq[c] += ((v - truth[c]) as f64).powi(2);
-            }
-        }
-        let n = self.pixel_dirs.len() as f64;
-        ((sq[0] + sq[1] + sq[2]) / (3.0 * n)).sqrt()
+        radiance_rmse(&self.map, basis, coeffs, clamp, self.frame).unwrap_or(f64::NAN)
     }
 
     /// LS of the whole map by texel solid angles and the basis' Gram matrix (Probulator's
     /// ambient dice fits).
     fn ls_from_map(&self, basis: &dyn SphericalBasis) -> Vec<f32> {
-        let k = basis.len();
-        let mut moments = ndarray::Array2::<f64>::zeros((k, 3));
-        let mut b = vec![0.0f32; k];
-        for y in 0..self.map.height() {
-            let omega = self.map.texel_solid_angle(y);
-            for x in 0..self.map.width() {
-                basis.eval(self.pixel_dirs[y * self.map.width() + x], &mut b);
-                let t = self.map.texel(x, y);
-                for i in 0..k {
-                    for c in 0..3 {
-                        moments[[i, c]] += b[i] as f64 * t[c] as f64 * omega;
-                    }
-                }
-            }
-        }
-        let g = basis.gram();
-        match prt_linalg_solve(&g, &moments) {
-            Some(x) => x,
-            None => vec![f32::NAN; k * 3],
-        }
+        reference::least_squares_map(basis, &self.map, self.frame)
+            .unwrap_or_else(|_| vec![f32::NAN; 3 * basis.len()])
     }
-}
-
-fn prt_linalg_solve(g: &ndarray::Array2<f64>, m: &ndarray::Array2<f64>) -> Option<Vec<f32>> {
-    // Small SPD solve through the reference module's checked path: LS over "samples" whose
-    // normal equations are (g, m) is exactly this; reuse prt-linalg via nnls-free Cholesky.
-    let k = g.nrows();
-    let mut l = g.clone();
-    for j in 0..k {
-        for p in 0..j {
-            let v = l[[j, p]];
-            for i in j..k {
-                l[[i, j]] -= l[[i, p]] * v;
-            }
-        }
-        let d = l[[j, j]];
-        if d <= 0.0 {
-            return None;
-        }
-        let s = d.sqrt();
-        for i in j..k {
-            l[[i, j]] /= s;
-        }
-    }
-    let mut out = vec![0.0f32; k * 3];
-    for c in 0..3 {
-        let mut y = vec![0.0f64; k];
-        for i in 0..k {
-            y[i] = (m[[i, c]] - (0..i).map(|p| l[[i, p]] * y[p]).sum::<f64>()) / l[[i, i]];
-        }
-        for i in (0..k).rev() {
-            y[i] = (y[i] - (i + 1..k).map(|p| l[[p, i]] * y[p]).sum::<f64>()) / l[[i, i]];
-        }
-        for i in 0..k {
-            out[3 * i + c] = y[i] as f32;
-        }
-    }
-    Some(out)
 }
 
 fn progressive(basis: &SgBasis, cfg: EncoderConfig, dirs: &[Vec3], values: &[f32]) -> Vec<f32> {
@@ -211,8 +98,8 @@ fn main() {
         .nth(1)
         .as_deref()
     {
-        Some("zup") => Frame::ZUp,
-        _ => Frame::YUp,
+        Some("zup") => LatLongFrame::ProbulatorZUp,
+        _ => LatLongFrame::Probulator,
     };
     let dir = envmaps_dir();
     let Some(uffizi) = load_map(&dir.join("probulator_uffizi.hdr")) else {
@@ -243,7 +130,7 @@ fn main() {
         ("ambient dice, Bezier", 1.64126, 0.40822),
         ("ambient dice, SRBF", 2.40000, 0.44642),
     ];
-    let probes = [Probe::new(uffizi, frame), Probe::new(wells, frame)];
+    let probes = [Probe { map: uffizi, frame }, Probe { map: wells, frame }];
     let n = 20000;
     let sg = SgBasis::new(
         prt_sphere::spiral_axes(12),
@@ -286,8 +173,10 @@ fn main() {
         };
         results[8][p] = probe.rmse(&sg, &progressive(&sg, cfg, &dirs, &values), false);
         results[9][p] = probe.rmse(&sg, &progressive(&sg, accel3(), &dirs, &values), false);
-        let dice = AmbientDiceSrbf;
-        results[11][p] = probe.rmse(&dice, &probe.ls_from_map(&dice), true);
+        let bezier = AmbientDiceBezier;
+        results[10][p] = probe.rmse(&bezier, &probe.ls_from_map(&bezier), true);
+        let srbf = AmbientDiceSrbf;
+        results[11][p] = probe.rmse(&srbf, &probe.ls_from_map(&srbf), true);
     }
     let mut t = Table::new(&[
         "method",
@@ -372,7 +261,7 @@ fn main() {
     names.sort();
     for path in names {
         let Some(map) = load_map(&path) else { continue };
-        let probe = Probe::new(map, frame);
+        let probe = Probe { map, frame };
         let name = path
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())

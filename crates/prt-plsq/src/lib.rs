@@ -20,7 +20,8 @@
 //! [`SgEncoder`] is the same encoder specialised for spherical Gaussians (structure of arrays,
 //! vectorised `exp`, Gauss-Seidel as a prefix product); it is the one to use for speed.
 //! [`BatchEncoder`] runs many independent encoders (lightmap texels, probes) in a blocked
-//! structure-of-arrays layout in parallel; [`reference`](mod@reference) has the exact fits over the same samples.
+//! structure-of-arrays layout in parallel; [`reference`](mod@reference) has the exact fits over the same samples;
+//! [`probulator`] has Probulator's error definition ([`radiance_rmse`]) and lat-long frame.
 //!
 //! ```
 //! use prt_plsq::{EncoderConfig, ProgressiveEncoder, reference};
@@ -47,6 +48,7 @@ mod batch;
 mod encoder;
 mod error;
 mod fast;
+pub mod probulator;
 pub mod reference;
 
 pub use batch::{BatchEncoder, LANES};
@@ -56,3 +58,4 @@ pub use encoder::{
 };
 pub use error::PlsqError;
 pub use fast::{SgEncoder, exp_nonpositive};
+pub use probulator::{LatLongFrame, radiance_rmse, sample_nearest};

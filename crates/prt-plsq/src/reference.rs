@@ -172,3 +172,35 @@ pub fn nnls_samples<B: SphericalBasis + ?Sized>(
     }
     Ok(out)
 }
+
+/// Least squares of a whole lat-long map (RGB) through the Gram matrix: `G c = Σ_texels
+/// ω_t f_t B(d_t)` with exact texel solid angles `ω_t` and texel-centre directions `d_t`
+/// expressed in `frame` (Probulator fits ambient dice this way). Moments in f64.
+///
+/// Errors: a Gram matrix that is singular to working precision.
+pub fn least_squares_map<B: SphericalBasis + ?Sized>(
+    basis: &B,
+    map: &prt_sphere::LatLongMap,
+    frame: crate::LatLongFrame,
+) -> Result<Vec<f32>, PlsqError> {
+    let k = basis.len();
+    let mut moments = Array2::<f64>::zeros((k, 3));
+    let mut b = vec![0.0f32; k];
+    for y in 0..map.height() {
+        let omega = map.texel_solid_angle(y);
+        for x in 0..map.width() {
+            basis.eval(frame.from_conventions(map.direction(x, y)), &mut b);
+            let t = map.texel(x, y).to_array();
+            for i in 0..k {
+                if b[i] == 0.0 {
+                    continue;
+                }
+                for c in 0..3 {
+                    moments[[i, c]] += b[i] as f64 * t[c] as f64 * omega;
+                }
+            }
+        }
+    }
+    let x = solve_spd("Gram matrix", &basis.gram(), &moments)?;
+    Ok(to_coeffs(&x))
+}

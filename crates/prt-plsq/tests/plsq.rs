@@ -489,3 +489,120 @@ fn batch_sg_fast_path_matches_the_generic_batch() {
         }
     }
 }
+
+#[test]
+fn probulator_rmse_definition_and_frames() {
+    use prt_plsq::{LatLongFrame, radiance_rmse, sample_nearest};
+    use prt_sphere::{LatLongMap, ShBasis};
+    // A constant map (one texel of 1e6 HDR elsewhere checks accumulation) and the SH DC term.
+    let sh = ShBasis::new(1).unwrap();
+    let y00 = 0.5 / std::f32::consts::PI.sqrt();
+    let constant = LatLongMap::from_fn(16, 8, |_| Vec3::new(1.0, 2.0, 3.0)).unwrap();
+    let exact = [1.0 / y00, 2.0 / y00, 3.0 / y00];
+    for frame in [
+        LatLongFrame::Conventions,
+        LatLongFrame::Probulator,
+        LatLongFrame::ProbulatorZUp,
+    ] {
+        let e = radiance_rmse(&constant, &sh, &exact, false, frame).unwrap();
+        assert!(e < 1e-6, "{frame:?}: {e}");
+        // Off by 1 in one channel: sqrt(1/3) whatever the frame (unweighted mean over texels).
+        let off = [exact[0] + 1.0 / y00, exact[1], exact[2]];
+        let e = radiance_rmse(&constant, &sh, &off, false, frame).unwrap();
+        assert!((e - (1.0f64 / 3.0).sqrt()).abs() < 1e-5, "{frame:?}: {e}");
+        // Clamping: a negative fit clamps to 0, so the error is the map's RMS.
+        let neg = exact.map(|c| -c);
+        let clamped = radiance_rmse(&constant, &sh, &neg, true, frame).unwrap();
+        assert!((clamped - (14.0f64 / 3.0).sqrt()).abs() < 1e-5);
+        // The frame maps are inverse rotations.
+        for d in halton_sphere(50) {
+            let back = frame.to_conventions(frame.from_conventions(d));
+            assert!((back - d).length() < 1e-6);
+            assert!((frame.from_conventions(d).length() - 1.0).abs() < 1e-5);
+        }
+    }
+    // Unweighted by solid angle: an error only in the top row counts 1/height of the texels,
+    // though that row covers far less than 1/height of the sphere.
+    let (w, h) = (16, 8);
+    let mut data = vec![1.0f32; w * h * 3];
+    data[..w * 3].fill(1.0 + 1e6);
+    let spiky = LatLongMap::new(w, h, data).unwrap();
+    let e = radiance_rmse(
+        &spiky,
+        &sh,
+        &[1.0 / y00; 3],
+        false,
+        LatLongFrame::Conventions,
+    )
+    .unwrap();
+    assert!((e - 1e6 / (h as f64).sqrt()).abs() < 1e-3 * e, "{e}");
+    // Probulator's frame is conventions' turned by π about +Y: the texel a Probulator
+    // direction reads is the one prt finds at (−x, y, −z).
+    let ramp = LatLongMap::from_fn(64, 32, |d| Vec3::splat(d.x + 2.0)).unwrap();
+    let d = Vec3::new(0.8, 0.0, 0.6);
+    assert_eq!(
+        sample_nearest(&ramp, &[d], LatLongFrame::Probulator),
+        ramp.nearest(Vec3::new(-0.8, 0.0, -0.6)).to_array().to_vec()
+    );
+    // Bad input: wrong length, non-finite coefficient.
+    assert!(matches!(
+        radiance_rmse(&constant, &sh, &[1.0; 2], false, LatLongFrame::Conventions),
+        Err(PlsqError::LengthMismatch { .. })
+    ));
+    assert_eq!(
+        radiance_rmse(
+            &constant,
+            &sh,
+            &[1.0, f32::INFINITY, 1.0],
+            false,
+            LatLongFrame::Conventions
+        ),
+        Err(PlsqError::NonFinite {
+            what: "coefficient",
+            index: 1
+        })
+    );
+}
+
+#[test]
+fn map_least_squares_reproduces_a_function_in_the_span() {
+    use prt_plsq::LatLongFrame;
+    use prt_sphere::{AmbientDiceBezier, LatLongMap, ShBasis};
+    // SH order 3 on a 128×64 map: exact up to the texel quadrature.
+    let sh = ShBasis::new(3).unwrap();
+    let coeffs: Vec<f32> = (0..27).map(|i| ((i as f32) * 0.41).sin()).collect();
+    let eval = |basis: &dyn prt_core::SphericalBasis, c: &[f32], d: Vec3| {
+        let mut b = vec![0.0f32; basis.len()];
+        basis.eval(d, &mut b);
+        let mut out = Vec3::ZERO;
+        for i in 0..basis.len() {
+            out += b[i] * Vec3::from_slice(&c[3 * i..3 * i + 3]);
+        }
+        out
+    };
+    let map = LatLongMap::from_fn(128, 64, |d| eval(&sh, &coeffs, d)).unwrap();
+    let fit = reference::least_squares_map(&sh, &map, LatLongFrame::Conventions).unwrap();
+    for (a, b) in coeffs.iter().zip(&fit) {
+        assert!((a - b).abs() < 2e-3, "{a} vs {b}");
+    }
+    // The Bezier dice in Probulator's frame recovers the coefficients of a map built in that
+    // frame. (The icosahedron is symmetric under the frame's π turn, so a conventions-frame
+    // fit reaches the same error with the coefficients permuted: the dice figures do not
+    // depend on the frame.)
+    let dice = AmbientDiceBezier;
+    let coeffs: Vec<f32> = (0..108).map(|i| ((i as f32) * 0.7).cos()).collect();
+    let frame = LatLongFrame::Probulator;
+    let map = LatLongMap::from_fn(256, 128, |d| {
+        eval(&dice, &coeffs, frame.from_conventions(d))
+    })
+    .unwrap();
+    let fit = reference::least_squares_map(&dice, &map, frame).unwrap();
+    let worst = coeffs
+        .iter()
+        .zip(&fit)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max);
+    assert!(worst < 0.02, "worst coefficient error {worst}");
+    let rmse = prt_plsq::radiance_rmse(&map, &dice, &fit, false, frame).unwrap();
+    assert!(rmse < 1e-3, "{rmse}");
+}

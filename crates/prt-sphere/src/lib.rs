@@ -9,6 +9,7 @@
 //! | [`SgBasis`] | spherical Gaussians on Probulator's spiral, Fibonacci or icosahedral axes ([`sg`]) | analytic |
 //! | [`AmbientCube`] | six clamped cos² lobes (Valve 2004) | analytic |
 //! | [`AmbientDiceSrbf`] | ambient dice, SRBF variant (Iwanicki & Sloan 2017) | quadrature |
+//! | [`AmbientDiceBezier`] | ambient dice, hybrid cubic Bezier variant (36 functions) | quadrature |
 //!
 //! plus SH rotation of any order (Ivanic & Ruedenberg 1996) and zonal convolution with the
 //! clamped cosine (Ramamoorthi & Hanrahan 2001), sphere point sets ([`sampling`]) and
@@ -42,7 +43,7 @@ pub mod sampling;
 pub mod sg;
 pub mod sh;
 
-pub use ambient::{AmbientCube, AmbientDiceSrbf, quadrature_gram};
+pub use ambient::{AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, quadrature_gram};
 pub use envmap::{CubeMap, LatLongMap};
 pub use error::SphereError;
 pub use sg::{

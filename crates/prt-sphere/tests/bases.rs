@@ -8,8 +8,8 @@ use prt_sphere::sampling::{
     stratified_sphere,
 };
 use prt_sphere::{
-    AmbientCube, AmbientDiceSrbf, CubeMap, LatLongMap, SgBasis, SgLobe, SphereError, envmap,
-    quadrature_gram, sg_inner_product, sg_integral,
+    AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, CubeMap, LatLongMap, SgBasis, SgLobe,
+    SphereError, envmap, quadrature_gram, sg_inner_product, sg_integral,
 };
 
 fn cholesky(g: &Array2<f64>) -> Option<Array2<f64>> {
@@ -275,6 +275,83 @@ fn ambient_cube_and_dice() {
         256,
         2e-3,
     );
+}
+
+#[test]
+fn ambient_dice_bezier() {
+    let dice = AmbientDiceBezier;
+    let g = dice.gram();
+    assert_symmetric_pd(&g);
+    assert_eq!(g, dice.gram(), "cached");
+    // Interpolation at the vertices: the value function of vertex v is 1 there and every
+    // other function is 0.
+    let mut w = [0.0f32; 36];
+    for (v, p) in AmbientDiceBezier::vertices().iter().enumerate() {
+        dice.eval(p.normalize().as_vec3(), &mut w);
+        for (i, x) in w.iter().enumerate() {
+            let want = if i == 3 * v { 1.0 } else { 0.0 };
+            assert!((x - want).abs() < 1e-5, "vertex {v}, function {i}: {x}");
+        }
+    }
+    // Exactly 9 functions (3 vertices) are non-zero inside a triangle.
+    dice.eval(Vec3::new(0.3, -0.5, 0.81).normalize(), &mut w);
+    assert_eq!(w.iter().filter(|&&x| x != 0.0).count(), 9);
+    // Finite everywhere, including the poles, the axes and the zero vector.
+    for d in [Vec3::X, -Vec3::Y, Vec3::Z, Vec3::ZERO] {
+        dice.eval(d, &mut w);
+        assert!(w.iter().all(|x| x.is_finite()), "{d}");
+    }
+    reconstructs_span(
+        &dice,
+        &(0..36).map(|i| (i as f64 * 0.37).sin()).collect::<Vec<_>>(),
+        256,
+        2e-3,
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The selected triangle contains the direction (all barycentrics >= 0 to rounding).
+    #[test]
+    fn ambient_dice_triangle_contains_the_direction(a in prop::array::uniform3(-1.0f64..1.0)) {
+        let d = DVec3::from_array(a);
+        prop_assume!(d.length() > 0.05);
+        let d = d.normalize();
+        let tri = AmbientDiceBezier::triangles()[AmbientDiceBezier::triangle_of(d.as_vec3())];
+        let v = AmbientDiceBezier::vertices();
+        let m = glam::DMat3::from_cols(v[tri[0]], v[tri[1]], v[tri[2]]);
+        let b = m.inverse() * d;
+        prop_assert!(b.min_element() > -1e-6, "{d}: triangle {tri:?}, barycentrics {b}");
+    }
+
+    /// The reconstruction is continuous across triangle edges.
+    #[test]
+    fn ambient_dice_bezier_is_continuous(
+        a in prop::array::uniform3(-1.0f64..1.0),
+        c in prop::collection::vec(-1.0f32..1.0, 36),
+    ) {
+        let d = DVec3::from_array(a);
+        prop_assume!(d.length() > 0.05);
+        let d = d.normalize();
+        // Move to the nearest point on a great circle through two vertices of d's triangle.
+        let tri = AmbientDiceBezier::triangles()[AmbientDiceBezier::triangle_of(d.as_vec3())];
+        let v = AmbientDiceBezier::vertices();
+        let n = v[tri[0]].cross(v[tri[1]]).normalize();
+        let on_edge = (d - n * n.dot(d)).normalize();
+        let dice = AmbientDiceBezier;
+        let f = |p: DVec3| {
+            let mut w = [0.0f32; 36];
+            dice.eval(p.as_vec3(), &mut w);
+            w.iter().zip(&c).map(|(w, c)| (w * c) as f64).sum::<f64>()
+        };
+        let eps = 1e-4;
+        let (inside, outside) = ((on_edge - n * eps).normalize(), (on_edge + n * eps).normalize());
+        // Across 2e-4 rad a function with a slope of a few units changes by ~1e-3; a jump
+        // between the two triangles' polynomials would be O(1).
+        prop_assert!((f(inside) - f(outside)).abs() < 2e-3,
+            "jump {} at {on_edge}", f(inside) - f(outside));
+    }
 }
 
 #[test]
