@@ -1,112 +1,186 @@
-//! The many-light scene side of prt-trace on the Cornell box: VPL tracing throughput, G-buffer,
-//! oracle row / column cost, the brute-force reference image, and row-column sampling
-//! (prt-manylight) on the real scene oracle against it (relative RMS error vs elements).
+//! Row-column sampling (prt-manylight) on the real VPL scene oracle of prt-trace (Cornell box or
+//! Sponza) against the brute-force image: relative RMS error vs elements evaluated, for several
+//! VPL clamp distances (the clamp decides how spiky the matrix is).
 //!
-//! `cargo run --release -p prt-benches --bin manylight_scene [-- WIDTH PARTICLES]`
-//! (defaults 128 × 128 pixels, 20000 particles with 2 bounces ≈ 4·10^4 VPLs).
+//! `cargo run --release -p prt-benches --bin manylight_scene -- SCENE WIDTH VPLS CLAMPS [SEEDS] [IMAGE]`
+//!
+//! * `SCENE`: `cornell` (built-in box, lit by its ceiling quad) or `sponza`
+//!   (`../shared/scenes/sponza`, sun and sky);
+//! * `WIDTH`: the image is `WIDTH × WIDTH`; `VPLS`: about this many VPLs (particles with 2
+//!   bounces); `CLAMPS`: comma-separated clamp distances in scene units;
+//! * `SEEDS` (default 2): seeds per configuration (mean and max of the error);
+//! * `IMAGE`: a PNG path: reference | row-column 300/900 | 10× error, for the first clamp.
+//!
+//! Brute-force images are cached in `target/manylight_cache/` (keyed by shape and fingerprint),
+//! so that only the first run of a (scene, size, VPLs, clamp) pays for them.
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::{Table, fmt_duration, median_time};
+use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, row_column_sampling};
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls};
+use prt_trace::{
+    GBuffer, LoadOptions, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls,
+};
+
+const CONFIGS: [(usize, usize); 6] = [
+    (100, 200),
+    (300, 900),
+    (432, 864),
+    (400, 1300),
+    (600, 1200),
+    (900, 1800),
+];
 
 fn main() {
-    let args: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
-        .collect();
-    let width = args.first().copied().unwrap_or(128);
-    let particles = args.get(1).copied().unwrap_or(20_000);
-    let scene = Scene::cornell_box();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let scene_name = args.first().map(String::as_str).unwrap_or("cornell");
+    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(128);
+    let target_vpls: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(50_000);
+    let clamps: Vec<f32> = args
+        .get(3)
+        .map(|a| a.split(',').filter_map(|c| c.parse().ok()).collect())
+        .unwrap_or_else(|| vec![0.05]);
+    let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
+    let image_path = args.get(5).map(PathBuf::from);
+
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scene = match scene_name {
+        "cornell" => Scene::cornell_box(),
+        "sponza" => {
+            let path = manifest.join("../../shared/scenes/sponza/Sponza.gltf");
+            match Scene::load_gltf(&path, &LoadOptions::default()) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("skipping Sponza: {e}");
+                    return;
+                }
+            }
+        }
+        other => {
+            eprintln!("unknown scene {other} (cornell or sponza)");
+            return;
+        }
+    };
     let tracer = RayTracer::new(scene.triangles());
-    println!("Cornell box, {} threads\n", rayon::current_num_threads());
+    let vpls = trace_about(&scene, &tracer, target_vpls);
+    let view = PinholeView::for_scene(&scene).expect("non-empty scene");
+    let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
+    let cache = manifest.join("../target/manylight_cache");
+    std::fs::create_dir_all(&cache).expect("cache folder");
+    println!(
+        "{scene_name}: {width} × {width} pixels, {} VPLs, {} threads",
+        vpls.len(),
+        rayon::current_num_threads()
+    );
 
-    let mut tracing = Table::new(&["particles", "VPLs (≤ 2 bounces)", "time", "M particles/s"]);
-    for n in [10_000, 100_000, 1_000_000] {
-        let options = VplOptions {
-            particles: n,
-            max_bounces: 2,
-            seed: 1,
-            ..Default::default()
-        };
-        let mut count = 0;
-        let t = median_time(3, || {
-            let v = trace_vpls(&scene, &tracer, &options, &NoProgress).expect("lit scene");
-            count = v.len();
-        });
-        tracing.row(vec![
-            n.to_string(),
-            count.to_string(),
-            fmt_duration(t),
-            format!("{:.2}", n as f64 / t.as_secs_f64() / 1e6),
-        ]);
+    let mut table = Table::new(&[
+        "clamp",
+        "rows / columns",
+        "elements",
+        "fewer elements than brute force",
+        "time (mean)",
+        "relative RMS error (mean of seeds)",
+        "max over seeds",
+    ]);
+    for (c, &clamp) in clamps.iter().enumerate() {
+        let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite input");
+        let (n, m) = (oracle.rows(), oracle.cols());
+        let file = cache.join(format!("{scene_name}_{width}_{m}_{clamp}.bin"));
+        let start = Instant::now();
+        let reference = oracle
+            .reference_image_cached(&file, &NoProgress)
+            .expect("reference image");
+        println!(
+            "clamp {clamp}: brute force {} ({:.3e} elements; 0 s when cached)",
+            fmt_duration(start.elapsed()),
+            (n * m) as f64
+        );
+        let brute = (n * m) as f64;
+        for (rows, columns) in CONFIGS {
+            if rows > n || columns > m {
+                continue;
+            }
+            let mut errors = Vec::new();
+            let mut elements = 0;
+            let start = Instant::now();
+            let mut first_image = None;
+            for seed in 0..seeds {
+                let config = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
+                let estimate =
+                    row_column_sampling(&oracle, &config, &NoProgress).expect("valid config");
+                elements = estimate.elements;
+                errors.push(
+                    relative_frobenius_error(&estimate.image, &reference)
+                        .expect("images of equal size"),
+                );
+                if first_image.is_none() {
+                    first_image = Some(estimate.image);
+                }
+            }
+            let time = start.elapsed() / seeds.max(1) as u32;
+            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+            let max = errors.iter().copied().fold(0.0, f64::max);
+            table.row(vec![
+                format!("{clamp}"),
+                format!("{rows} / {columns}"),
+                format!("{:.3e}", elements as f64),
+                format!("{:.1}×", brute / elements as f64),
+                fmt_duration(time),
+                format!("{:.2}%", 100.0 * mean),
+                format!("{:.2}%", 100.0 * max),
+            ]);
+            if let (0, (300, 900), Some(path), Some(image)) =
+                (c, (rows, columns), &image_path, first_image)
+            {
+                write_comparison(path, width, &reference, &image);
+            }
+        }
     }
-    println!("{}", tracing.markdown());
+    println!("\n{}", table.markdown());
+}
 
-    let options = VplOptions {
+/// About `target` VPLs: a pilot run measures VPLs per particle.
+fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<prt_trace::Vpl> {
+    let options = |particles| VplOptions {
         particles,
         max_bounces: 2,
         seed: 1,
         ..Default::default()
     };
-    let vpls = trace_vpls(&scene, &tracer, &options, &NoProgress).expect("lit scene");
-    let view = PinholeView::for_scene(&scene).expect("non-empty scene");
-    let start = Instant::now();
-    let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-    let gbuffer_time = start.elapsed();
-    let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, 0.05, 1e-4).expect("finite input");
-    let (n, m) = (oracle.rows(), oracle.cols());
-    let mut row = vec![0.0; 3 * m];
-    let mut col = vec![0.0; 3 * n];
-    let row_time = median_time(9, || oracle.eval_row(n / 2 + width / 2, &mut row));
-    let col_time = median_time(9, || oracle.eval_col(m / 3, &mut col));
-    oracle.reset_count();
-    let start = Instant::now();
-    let reference = oracle.reference_image(&NoProgress).expect("finite oracle");
-    let brute_time = start.elapsed();
-    let brute = (n * m) as f64;
-    println!(
-        "{width} × {width} pixels (G-buffer {}), {m} VPLs: eval_row {} ({:.1} M elements/s), \
-         eval_col {} ({:.1} M elements/s), brute force {} ({brute:.3e} elements, {:.1} M elements/s)\n",
-        fmt_duration(gbuffer_time),
-        fmt_duration(row_time),
-        m as f64 / row_time.as_secs_f64() / 1e6,
-        fmt_duration(col_time),
-        n as f64 / col_time.as_secs_f64() / 1e6,
-        fmt_duration(brute_time),
-        brute / brute_time.as_secs_f64() / 1e6,
-    );
+    let pilot = trace_vpls(scene, tracer, &options(2000), &NoProgress).expect("lit scene");
+    let per_particle = (pilot.len() as f64 / 2000.0).max(0.1);
+    let particles = (target as f64 / per_particle).round().max(1.0) as usize;
+    trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
+}
 
-    let mut table = Table::new(&[
-        "rows / columns",
-        "elements",
-        "fewer elements than brute force",
-        "time",
-        "speed-up (time)",
-        "relative RMS error",
-    ]);
-    for (rows, columns) in [(100, 200), (300, 900), (600, 1200), (900, 1800)] {
-        if rows > n || columns > m {
-            continue;
+/// Reference | estimate | 10 × |difference|, tone-mapped with one exposure (99th percentile of
+/// the reference at 0.8) and sRGB gamma.
+fn write_comparison(path: &Path, width: usize, reference: &[f32], estimate: &[f32]) {
+    let mut sorted: Vec<f32> = reference.to_vec();
+    sorted.sort_by(f32::total_cmp);
+    let p99 = sorted[(sorted.len() * 99) / 100].max(1e-12);
+    let exposure = 0.8 / p99;
+    let tone = |v: f32| ((v * exposure).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
+    let mut out = image::RgbImage::new(3 * width as u32, width as u32);
+    for y in 0..width {
+        for x in 0..width {
+            let p = 3 * (y * width + x);
+            let r = &reference[p..p + 3];
+            let e = &estimate[p..p + 3];
+            let d: Vec<f32> = r.iter().zip(e).map(|(a, b)| 10.0 * (a - b).abs()).collect();
+            for (k, px) in [r, e, &d].into_iter().enumerate() {
+                out.put_pixel(
+                    (k * width + x) as u32,
+                    y as u32,
+                    image::Rgb([tone(px[0]), tone(px[1]), tone(px[2])]),
+                );
+            }
         }
-        let config = RowColumnConfig::new(rows, columns).with_seed(7);
-        let start = Instant::now();
-        let estimate = row_column_sampling(&oracle, &config, &NoProgress).expect("valid config");
-        let time = start.elapsed();
-        table.row(vec![
-            format!("{rows} / {columns}"),
-            format!("{:.3e}", estimate.elements as f64),
-            format!("{:.1}×", brute / estimate.elements as f64),
-            fmt_duration(time),
-            format!("{:.1}×", brute_time.as_secs_f64() / time.as_secs_f64()),
-            format!(
-                "{:.4}",
-                relative_frobenius_error(&estimate.image, &reference)
-                    .expect("images of equal size")
-            ),
-        ]);
     }
-    println!("{}", table.markdown());
+    match out.save(path) {
+        Ok(()) => println!("wrote {}", path.display()),
+        Err(e) => eprintln!("could not write {}: {e}", path.display()),
+    }
 }

@@ -48,6 +48,39 @@ impl Clustering {
 /// the identity `Σ_{i<j} a_i a_j ‖ρ̂_i − ρ̂_j‖² = (Σ a_i)² − ‖Σ ρ_i‖²` (with `a = ‖ρ‖`), in f64.
 /// Zero columns contribute nothing. Column indices out of range are ignored.
 pub fn cluster_cost(reduced: &ReducedMatrix, members: &[u32]) -> f64 {
+    set_cost(reduced, members)
+}
+
+/// Reduced columns as the clustering sees them: the columns of a [`ReducedMatrix`], or of a
+/// tensor restricted to a range of frames.
+pub(crate) trait ColumnSet: Sync {
+    /// Number of columns.
+    fn cols(&self) -> usize;
+    /// Length of a column.
+    fn dim(&self) -> usize;
+    /// Column `j` (empty when out of range).
+    fn column(&self, j: usize) -> &[f32];
+    /// `‖column(j)‖` (0 when out of range).
+    fn norm(&self, j: usize) -> f64;
+}
+
+impl ColumnSet for ReducedMatrix {
+    fn cols(&self) -> usize {
+        ReducedMatrix::cols(self)
+    }
+    fn dim(&self) -> usize {
+        ReducedMatrix::dim(self)
+    }
+    fn column(&self, j: usize) -> &[f32] {
+        ReducedMatrix::column(self, j)
+    }
+    fn norm(&self, j: usize) -> f64 {
+        self.norms().get(j).copied().unwrap_or(0.0)
+    }
+}
+
+/// [`cluster_cost`] on any [`ColumnSet`].
+pub(crate) fn set_cost(reduced: &impl ColumnSet, members: &[u32]) -> f64 {
     if members.len() < 2 {
         // No pairs; the formula would return rounding noise.
         return 0.0;
@@ -55,7 +88,7 @@ pub fn cluster_cost(reduced: &ReducedMatrix, members: &[u32]) -> f64 {
     let mut sum = vec![0.0f64; reduced.dim()];
     let mut total_norm = 0.0;
     for &j in members {
-        total_norm += reduced.norms().get(j as usize).copied().unwrap_or(0.0);
+        total_norm += reduced.norm(j as usize);
         for (s, &v) in sum.iter_mut().zip(reduced.column(j as usize)) {
             *s += v as f64;
         }
@@ -79,14 +112,21 @@ pub fn split_cluster(
     lines: usize,
     rng: &mut impl Rng,
 ) -> Option<(Vec<u32>, Vec<u32>)> {
+    split_set(reduced, members, lines, rng)
+}
+
+/// [`split_cluster`] on any [`ColumnSet`].
+pub(crate) fn split_set(
+    reduced: &impl ColumnSet,
+    members: &[u32],
+    lines: usize,
+    rng: &mut impl Rng,
+) -> Option<(Vec<u32>, Vec<u32>)> {
     let n = members.len();
     if n < 2 {
         return None;
     }
-    let norms: Vec<f64> = members
-        .iter()
-        .map(|&j| reduced.norms()[j as usize])
-        .collect();
+    let norms: Vec<f64> = members.iter().map(|&j| reduced.norm(j as usize)).collect();
     let total_norm: f64 = norms.iter().sum();
     if total_norm <= 0.0 {
         let (a, b) = members.split_at(n / 2);
@@ -177,10 +217,10 @@ pub fn split_cluster(
 
 /// A cluster in the splitting queue: highest cost first, then the largest, then the oldest.
 #[derive(Debug, PartialEq)]
-struct Queued {
-    cost: f64,
-    size: usize,
-    id: usize,
+pub(crate) struct Queued {
+    pub(crate) cost: f64,
+    pub(crate) size: usize,
+    pub(crate) id: usize,
 }
 
 impl Eq for Queued {}
@@ -221,9 +261,20 @@ pub fn cluster_columns(
     rng: &mut impl Rng,
     progress: &dyn Progress,
 ) -> Result<Clustering, ManyLightError> {
-    let norms = reduced.norms();
+    let clusters = cluster_set(reduced, count, lines, rng, progress)?;
+    Ok(Clustering { clusters })
+}
+
+/// [`cluster_columns`] on any [`ColumnSet`], returning the clusters.
+pub(crate) fn cluster_set(
+    reduced: &impl ColumnSet,
+    count: usize,
+    lines: usize,
+    rng: &mut impl Rng,
+    progress: &dyn Progress,
+) -> Result<Vec<Vec<u32>>, ManyLightError> {
     let (positive, zero): (Vec<u32>, Vec<u32>) =
-        (0..reduced.cols() as u32).partition(|&j| norms[j as usize] > 0.0);
+        (0..reduced.cols() as u32).partition(|&j| reduced.norm(j as usize) > 0.0);
     let mut clusters: Vec<Vec<u32>> = Vec::new();
     if !zero.is_empty() {
         clusters.push(zero);
@@ -241,13 +292,13 @@ pub fn cluster_columns(
         }
     }
     split_until(reduced, &mut clusters, count, lines, rng, progress)?;
-    Ok(Clustering { clusters })
+    Ok(clusters)
 }
 
 /// The top-down stage: splits the cluster of highest [`cluster_cost`] on `reduced` with
 /// [`split_cluster`] until there are `count` clusters or only singletons are left.
 pub(crate) fn split_until(
-    reduced: &ReducedMatrix,
+    reduced: &impl ColumnSet,
     clusters: &mut Vec<Vec<u32>>,
     count: usize,
     lines: usize,
@@ -255,10 +306,7 @@ pub(crate) fn split_until(
     progress: &dyn Progress,
 ) -> Result<(), ManyLightError> {
     progress.check()?;
-    let costs: Vec<f64> = clusters
-        .par_iter()
-        .map(|c| cluster_cost(reduced, c))
-        .collect();
+    let costs: Vec<f64> = clusters.par_iter().map(|c| set_cost(reduced, c)).collect();
     let mut queue: BinaryHeap<Queued> = costs
         .into_iter()
         .enumerate()
@@ -276,18 +324,18 @@ pub(crate) fn split_until(
         }
         progress.check()?;
         let members = std::mem::take(&mut clusters[top.id]);
-        let Some((left, right)) = split_cluster(reduced, &members, lines, rng) else {
+        let Some((left, right)) = split_set(reduced, &members, lines, rng) else {
             clusters[top.id] = members;
             continue;
         };
         let new_id = clusters.len();
         queue.push(Queued {
-            cost: cluster_cost(reduced, &left),
+            cost: set_cost(reduced, &left),
             size: left.len(),
             id: top.id,
         });
         queue.push(Queued {
-            cost: cluster_cost(reduced, &right),
+            cost: set_cost(reduced, &right),
             size: right.len(),
             id: new_id,
         });
@@ -299,15 +347,19 @@ pub(crate) fn split_until(
 
 /// Stage 1 of [`cluster_columns`] over the non-zero columns `positive`; returns the non-empty
 /// clusters.
-fn sampling_clustering(
-    reduced: &ReducedMatrix,
+pub(crate) fn sampling_clustering(
+    reduced: &impl ColumnSet,
     positive: &[u32],
     centres: usize,
     rng: &mut impl Rng,
     progress: &dyn Progress,
 ) -> Result<Vec<Vec<u32>>, ManyLightError> {
     let dim = reduced.dim();
-    let norms = reduced.norms();
+    // Norms by column index (only those of `positive` are read).
+    let mut norms = vec![0.0f64; reduced.cols()];
+    for &j in positive {
+        norms[j as usize] = reduced.norm(j as usize);
+    }
     let mut total = vec![0.0f64; dim];
     for &j in positive {
         for (t, &v) in total.iter_mut().zip(reduced.column(j as usize)) {

@@ -8,7 +8,7 @@ pub enum ManyLightError {
     /// The matrix has no rows (pixels), no columns (lights) or no channels.
     #[error("the matrix has no {what}")]
     EmptyMatrix {
-        /// "rows (pixels)", "columns (lights)" or "channels".
+        /// "rows (pixels)", "columns (lights)", "channels" or "frames".
         what: &'static str,
     },
     /// A sample count was zero.
@@ -47,6 +47,22 @@ pub enum ManyLightError {
         channels: usize,
         /// Columns of the matrix.
         cols: usize,
+    },
+    /// A frame of an animation has other columns or channels than the first frame.
+    #[error(
+        "frame {frame} has {cols} columns x {channels} channels, the first frame {expected_cols} x {expected_channels}"
+    )]
+    ShapeMismatch {
+        /// Index of the frame.
+        frame: usize,
+        /// Its columns (lights).
+        cols: usize,
+        /// Its channels.
+        channels: usize,
+        /// Columns of the first frame.
+        expected_cols: usize,
+        /// Channels of the first frame.
+        expected_channels: usize,
     },
     /// The oracle failed.
     #[error("matrix oracle: {0}")]

@@ -44,6 +44,7 @@ mod lightslice;
 mod reduced;
 mod rowcol;
 mod synthetic;
+mod tensor;
 
 pub use cluster::{Clustering, cluster_columns, cluster_cost, split_cluster};
 pub use error::ManyLightError;
@@ -53,3 +54,4 @@ pub use rowcol::{
     Representative, RowColumnConfig, RowColumnEstimate, brute_force, row_column_sampling,
 };
 pub use synthetic::SyntheticVplOracle;
+pub use tensor::{TensorCluster, TensorConfig, TensorEstimate, tensor_clustering};

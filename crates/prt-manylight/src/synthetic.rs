@@ -18,13 +18,15 @@ use crate::SliceOracle;
 /// oriented point lights: about 0.1% (at least 4) bright ones just below the ceiling facing
 /// down (the "primary" lights), the rest dim and coloured on the left (red), right (green), back
 /// and ceiling (white) walls, and 10% on the floor itself, which reach no pixel. A sphere of
-/// radius 0.18 at `(0.5, 0.3, 0.5)` casts shadows. Element `(i, j)` is
+/// radius 0.18 at `(0.5, 0.3, 0.5)` (movable with [`SyntheticVplOracle::with_occluder`]) casts
+/// shadows. Element `(i, j)` is
 /// `albedo_i / π · Φ_j · cos θ_i cos θ_j / max(d², 0.01) · V(i, j)`.
 #[derive(Debug)]
 pub struct SyntheticVplOracle {
     width: usize,
     height: usize,
     lights: Vec<Light>,
+    occluder: [f32; 3],
     evaluated: AtomicU64,
 }
 
@@ -96,7 +98,17 @@ impl SyntheticVplOracle {
             width,
             height,
             lights: list,
+            occluder: OCCLUDER_CENTRE,
             evaluated: AtomicU64::new(0),
+        }
+    }
+
+    /// The same image and lights with the occluding sphere moved to `centre`: the frames of an
+    /// animation (a moving object) share their lights, as tensor clustering expects.
+    pub fn with_occluder(self, centre: [f32; 3]) -> Self {
+        Self {
+            occluder: centre,
+            ..self
         }
     }
 
@@ -124,7 +136,7 @@ impl SyntheticVplOracle {
 
     /// The element `(pixel, light)` into `out` (3 channels).
     #[inline]
-    fn element(p: [f32; 3], albedo: [f32; 3], light: &Light, out: &mut [f32]) {
+    fn element(&self, p: [f32; 3], albedo: [f32; 3], light: &Light, out: &mut [f32]) {
         let w = [
             light.position[0] - p[0],
             light.position[1] - p[1],
@@ -133,7 +145,7 @@ impl SyntheticVplOracle {
         // The receiver's normal is +Y, so cos θ_i = w.y / d.
         let d2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
         let cos_light = -(light.normal[0] * w[0] + light.normal[1] * w[1] + light.normal[2] * w[2]);
-        if w[1] <= 0.0 || cos_light <= 0.0 || d2 <= 0.0 || Self::occluded(p, w) {
+        if w[1] <= 0.0 || cos_light <= 0.0 || d2 <= 0.0 || self.occluded(p, w) {
             out.fill(0.0);
             return;
         }
@@ -145,11 +157,11 @@ impl SyntheticVplOracle {
 
     /// Whether the segment `p → p + w` passes through the occluding sphere.
     #[inline]
-    fn occluded(p: [f32; 3], w: [f32; 3]) -> bool {
+    fn occluded(&self, p: [f32; 3], w: [f32; 3]) -> bool {
         let o = [
-            p[0] - OCCLUDER_CENTRE[0],
-            p[1] - OCCLUDER_CENTRE[1],
-            p[2] - OCCLUDER_CENTRE[2],
+            p[0] - self.occluder[0],
+            p[1] - self.occluder[1],
+            p[2] - self.occluder[2],
         ];
         let ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
         let t = (-(o[0] * w[0] + o[1] * w[1] + o[2] * w[2]) / ww).clamp(0.0, 1.0);
@@ -188,7 +200,7 @@ impl MatrixOracle for SyntheticVplOracle {
         }
         let (p, albedo) = self.pixel(i);
         for (light, element) in self.lights.iter().zip(out.chunks_exact_mut(3)) {
-            Self::element(p, albedo, light, element);
+            self.element(p, albedo, light, element);
         }
         self.evaluated
             .fetch_add(self.cols() as u64, Ordering::Relaxed);
@@ -212,7 +224,7 @@ impl MatrixOracle for SyntheticVplOracle {
         }
         for (i, element) in out.chunks_exact_mut(3).enumerate() {
             let (p, albedo) = self.pixel(i);
-            Self::element(p, albedo, light, element);
+            self.element(p, albedo, light, element);
         }
         self.evaluated
             .fetch_add(self.rows() as u64, Ordering::Relaxed);
@@ -256,7 +268,7 @@ impl SliceOracle for SyntheticVplOracle {
         let count = rows.len() as u64;
         for (i, element) in rows.zip(out.chunks_exact_mut(3)) {
             let (p, albedo) = self.pixel(i);
-            Self::element(p, albedo, light, element);
+            self.element(p, albedo, light, element);
         }
         self.evaluated.fetch_add(count, Ordering::Relaxed);
         Ok(())
