@@ -45,6 +45,7 @@ mod reduced;
 mod rowcol;
 mod synthetic;
 mod tensor;
+mod visibility;
 
 pub use cluster::{Clustering, cluster_columns, cluster_cost, split_cluster};
 pub use error::ManyLightError;
@@ -55,3 +56,7 @@ pub use rowcol::{
 };
 pub use synthetic::SyntheticVplOracle;
 pub use tensor::{TensorCluster, TensorConfig, TensorEstimate, tensor_clustering};
+pub use visibility::{
+    VisibilityClusterMethod, VisibilityConfig, VisibilityEstimate, VisibilityOracle,
+    visibility_clustering,
+};

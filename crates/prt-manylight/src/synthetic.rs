@@ -6,7 +6,7 @@ use prt_core::{CoreError, MatrixOracle};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use crate::SliceOracle;
+use crate::{SliceOracle, VisibilityOracle};
 
 /// A procedural pixels × lights matrix with the structure of a virtual-point-light matrix, for
 /// tests and benchmarks without a ray tracer: non-negative RGB elements, columns that cluster
@@ -117,6 +117,22 @@ impl SyntheticVplOracle {
         self.evaluated.store(0, Ordering::Relaxed);
     }
 
+    /// Light `j` after checking both indices.
+    fn checked(&self, i: usize, j: usize) -> Result<&Light, CoreError> {
+        if i >= self.rows() {
+            return Err(CoreError::OutOfRange {
+                what: "oracle row",
+                index: i,
+                len: self.rows(),
+            });
+        }
+        self.lights.get(j).ok_or(CoreError::OutOfRange {
+            what: "oracle column",
+            index: j,
+            len: self.cols(),
+        })
+    }
+
     /// Position and albedo of pixel `i`.
     fn pixel(&self, i: usize) -> ([f32; 3], [f32; 3]) {
         let (x, y) = (i % self.width, i / self.width);
@@ -137,22 +153,35 @@ impl SyntheticVplOracle {
     /// The element `(pixel, light)` into `out` (3 channels).
     #[inline]
     fn element(&self, p: [f32; 3], albedo: [f32; 3], light: &Light, out: &mut [f32]) {
-        let w = [
+        if Self::shading(p, albedo, light, out) && self.occluded(p, Self::to_light(p, light)) {
+            out.fill(0.0);
+        }
+    }
+
+    fn to_light(p: [f32; 3], light: &Light) -> [f32; 3] {
+        [
             light.position[0] - p[0],
             light.position[1] - p[1],
             light.position[2] - p[2],
-        ];
+        ]
+    }
+
+    /// The unshadowed element into `out`; whether it is non-zero.
+    #[inline]
+    fn shading(p: [f32; 3], albedo: [f32; 3], light: &Light, out: &mut [f32]) -> bool {
+        let w = Self::to_light(p, light);
         // The receiver's normal is +Y, so cos θ_i = w.y / d.
         let d2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
         let cos_light = -(light.normal[0] * w[0] + light.normal[1] * w[1] + light.normal[2] * w[2]);
-        if w[1] <= 0.0 || cos_light <= 0.0 || d2 <= 0.0 || self.occluded(p, w) {
+        if w[1] <= 0.0 || cos_light <= 0.0 || d2 <= 0.0 {
             out.fill(0.0);
-            return;
+            return false;
         }
         let g = w[1] * cos_light / (d2 * d2.max(MIN_DISTANCE_SQ));
         for c in 0..3 {
             out[c] = albedo[c] * std::f32::consts::FRAC_1_PI * light.flux[c] * g;
         }
+        true
     }
 
     /// Whether the segment `p → p + w` passes through the occluding sphere.
@@ -233,6 +262,32 @@ impl MatrixOracle for SyntheticVplOracle {
 
     fn elements_evaluated(&self) -> u64 {
         self.evaluated.load(Ordering::Relaxed)
+    }
+}
+
+impl VisibilityOracle for SyntheticVplOracle {
+    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        let light = self.checked(i, j)?;
+        if out.len() != 3 {
+            return Err(CoreError::LengthMismatch {
+                what: "shading output",
+                expected: 3,
+                got: out.len(),
+            });
+        }
+        let (p, albedo) = self.pixel(i);
+        Self::shading(p, albedo, light, out);
+        Ok(())
+    }
+
+    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
+        let light = self.checked(i, j)?;
+        let (p, _) = self.pixel(i);
+        Ok(if self.occluded(p, Self::to_light(p, light)) {
+            0.0
+        } else {
+            1.0
+        })
     }
 }
 
