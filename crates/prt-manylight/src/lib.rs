@@ -49,7 +49,9 @@ mod visibility;
 
 pub use cluster::{Clustering, cluster_columns, cluster_cost, split_cluster};
 pub use error::ManyLightError;
-pub use lightslice::{LightSliceConfig, LightSliceEstimate, SliceOracle, light_slice};
+pub use lightslice::{
+    GatherGeometry, LightSliceConfig, LightSliceEstimate, SliceOracle, light_slice,
+};
 pub use reduced::{ReducedMatrix, stratified_rows};
 pub use rowcol::{
     Representative, RowColumnConfig, RowColumnEstimate, brute_force, row_column_sampling,

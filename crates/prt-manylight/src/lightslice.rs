@@ -1,5 +1,3 @@
-use std::ops::Range;
-
 use prt_core::{CoreError, DenseOracle, MatrixOracle, Progress};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -7,42 +5,57 @@ use rayon::prelude::*;
 
 use crate::cluster::split_until;
 use crate::reduced::{check_requests, check_shape};
-use crate::{ManyLightError, ReducedMatrix, cluster_columns, stratified_rows};
+use crate::{ManyLightError, ReducedMatrix, cluster_columns};
 
-/// A [`MatrixOracle`] that can also evaluate a column on a contiguous range of rows only: what
-/// LightSlice needs to render one slice of pixels with its own representatives.
+/// A [`MatrixOracle`] that LightSlice can slice: it evaluates a column on a subset of rows
+/// only, and may tell where each row's gather point is so that slices group pixels of similar
+/// position and normal.
 ///
-/// Defined here rather than in prt-core because only LightSlice needs it. The default method
-/// evaluates the whole column and copies the range (correct, but it costs a full column);
-/// oracles that can do better override it.
+/// Defined here rather than in prt-core because only LightSlice needs it. The default
+/// `eval_col_rows` evaluates the whole column and copies the rows (correct, but it costs a full
+/// column); oracles that can do better override it. The default `gather_point` is `None`: the
+/// slices are then contiguous row ranges.
 pub trait SliceOracle: MatrixOracle {
-    /// Writes rows `rows` of column `j` into `out` (`rows.len() * channels` floats).
-    fn eval_col_range(
-        &self,
-        j: usize,
-        rows: Range<usize>,
-        out: &mut [f32],
-    ) -> Result<(), CoreError> {
+    /// Writes column `j` at `rows` (in that order) into `out` (`rows.len() * channels` floats).
+    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
         let c = self.channels();
-        if rows.end > self.rows() || rows.start > rows.end {
+        if let Some(&bad) = rows.iter().find(|&&i| i >= self.rows()) {
             return Err(CoreError::OutOfRange {
-                what: "oracle row range end",
-                index: rows.end,
+                what: "oracle row",
+                index: bad,
                 len: self.rows(),
             });
         }
         if out.len() != rows.len() * c {
             return Err(CoreError::LengthMismatch {
-                what: "oracle column range output",
+                what: "oracle column rows output",
                 expected: rows.len() * c,
                 got: out.len(),
             });
         }
         let mut column = vec![0.0f32; self.rows() * c];
         self.eval_col(j, &mut column)?;
-        out.copy_from_slice(&column[rows.start * c..rows.end * c]);
+        for (dst, &i) in out.chunks_exact_mut(c).zip(rows) {
+            dst.copy_from_slice(&column[i * c..(i + 1) * c]);
+        }
         Ok(())
     }
+
+    /// The gather point of row `i` (pixel): its position and unit normal, or `None` when the
+    /// oracle has no geometry for it (a pixel that sees nothing, or an abstract matrix).
+    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
+        let _ = i;
+        None
+    }
+}
+
+/// Where a row's pixel is: the position and unit normal of its gather point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GatherGeometry {
+    /// World-space position.
+    pub position: [f32; 3],
+    /// Unit normal.
+    pub normal: [f32; 3],
 }
 
 impl SliceOracle for DenseOracle {}
@@ -50,14 +63,15 @@ impl SliceOracle for DenseOracle {}
 /// The knobs of [`light_slice`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LightSliceConfig {
-    /// Slices: contiguous ranges of rows (pixels in scanline order), one sampled row each.
+    /// Slices: groups of rows (pixels) of similar gather-point position and normal (contiguous
+    /// row ranges for an oracle without geometry), one sampled row each.
     pub slices: usize,
     /// Clusters of the global clustering, shared by all slices (at most `local_clusters`).
     pub global_clusters: usize,
     /// Clusters per slice after the local refinement: representative columns per slice.
     pub local_clusters: usize,
     /// Sampled rows used to refine a slice's clustering: its own and those of the nearest
-    /// slices by index (at most `slices`).
+    /// slices (by the distance between slice centroids; at most `slices`).
     pub neighbours: usize,
     /// Random projections tried per cluster split.
     pub split_lines: usize,
@@ -92,6 +106,8 @@ pub struct LightSliceEstimate {
     pub image: Vec<f32>,
     /// The sampled rows, one per slice.
     pub rows: Vec<usize>,
+    /// The rows of every slice, each in increasing order.
+    pub slices: Vec<Vec<usize>>,
     /// Representative columns rendered per slice.
     pub clusters_per_slice: Vec<usize>,
     /// Matrix elements evaluated: `slices × cols` for the reduced matrix plus, per slice, its
@@ -99,21 +115,31 @@ pub struct LightSliceEstimate {
     pub elements: u64,
 }
 
+/// Weight of the unit normal against the position (scaled to a unit bounding-box diagonal)
+/// in the slicing and neighbour distances: opposite normals are as far apart as points 0.6
+/// diagonals apart.
+const NORMAL_WEIGHT: f32 = 0.3;
+
 /// LightSlice (Ou and Pellacini, "LightSlice: Matrix Slice Sampling for the Many-Lights
-/// Problem", SIGGRAPH Asia 2011), on contiguous row ranges as slices.
+/// Problem", SIGGRAPH Asia 2011).
 ///
-/// 1. The rows are cut into `slices` contiguous slices and one row is drawn in each
-///    ([`stratified_rows`]), giving the reduced matrix.
-/// 2. A global clustering of the lights into `global_clusters` clusters
-///    ([`cluster_columns`]) on all sampled rows.
-/// 3. For each slice, the global clusters are refined by top-down splits
-///    ([`crate::split_cluster`]) on the rows of the `neighbours` nearest slices only, up to
-///    `local_clusters`: each slice gets the clustering that fits its own part of the image.
-/// 4. Each local cluster draws one representative with probability
-///    `½ a_j^local / Σ a^local + ½ a_j^global / Σ a^global` (`a` = reduced norms; the global
-///    half keeps every light of a non-zero global cluster possible, uniform in a cluster of
-///    zero columns), and the slice's rows of its column, scaled by the inverse probability,
-///    are added to the slice's pixels.
+/// 1. **Slices**: the pixels are cut into `slices` groups of similar gather-point geometry by
+///    median splits (largest slice first, along the axis of largest extent) in the 6-D space of
+///    position (scaled to a unit bounding-box diagonal) and normal (weighted by 0.3). Pixels
+///    without a gather point form a slice of their own; an oracle without any geometry is cut
+///    into contiguous row ranges. One row per slice is drawn uniformly, giving the reduced
+///    matrix.
+/// 2. **Global clustering** of the lights into `global_clusters` clusters ([`cluster_columns`])
+///    on all sampled rows.
+/// 3. **Local refinement**: for each slice, the global clusters are split further
+///    ([`crate::split_cluster`], highest cost first) on the rows of the `neighbours` slices
+///    whose centroids are nearest to its own (itself included), up to `local_clusters`: each
+///    slice gets the clustering that fits its part of the image.
+/// 4. Each local cluster draws one representative proportionally to its norm on those local
+///    rows (a member with zero local norm as if its norm were 1% of the cluster's mean; the
+///    global norms when the whole cluster is zero locally, uniformly when it is zero
+///    globally too), and the slice's pixels of its column, scaled by the inverse probability,
+///    are added to the slice.
 ///
 /// Unbiased given the rows and clusterings (every light has a non-zero probability and its
 /// inverse as weight); exact when `local_clusters == cols`. The cost is
@@ -144,8 +170,13 @@ pub fn light_slice(
         ("neighbours", "neighbours", config.neighbours, usize::MAX),
     ])?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
+    progress.message("lightslice: slices");
+    let (slices, centroids) = make_slices(oracle, config.slices);
+    let rows: Vec<usize> = slices
+        .iter()
+        .map(|s| s[rng.random_range(0..s.len())])
+        .collect();
     progress.message("lightslice: reduced matrix");
-    let rows = stratified_rows(n, config.slices, &mut rng);
     let reduced = ReducedMatrix::sample(oracle, rows, progress)?;
     progress.message("lightslice: global clustering");
     let global = cluster_columns(
@@ -157,38 +188,19 @@ pub fn light_slice(
     )?;
     let slice_seed: u64 = rng.random();
     let global_norms = reduced.norms();
+    let window = config.neighbours.min(slices.len());
 
-    // The image cut into the slices' disjoint row ranges.
-    let bounds: Vec<Range<usize>> = (0..config.slices)
-        .map(|s| {
-            let lo = (s as u128 * n as u128 / config.slices as u128) as usize;
-            let hi = ((s as u128 + 1) * n as u128 / config.slices as u128) as usize;
-            lo..hi
-        })
-        .collect();
-    let mut image = vec![0.0f32; n * channels];
-    let mut parts: Vec<&mut [f32]> = Vec::with_capacity(config.slices);
-    let mut rest = image.as_mut_slice();
-    for range in &bounds {
-        let (part, tail) = rest.split_at_mut(range.len() * channels);
-        parts.push(part);
-        rest = tail;
-    }
     progress.message("lightslice: slices");
-    progress.set_len(config.slices as u64);
-    let window = config.neighbours.min(config.slices);
-    let clusters_per_slice: Vec<usize> = parts
-        .into_par_iter()
+    progress.set_len(slices.len() as u64);
+    let rendered: Vec<(Vec<f32>, usize)> = slices
+        .par_iter()
         .enumerate()
-        .map(|(s, part)| {
+        .map(|(s, pixels)| {
             progress.check()?;
             let mut rng = Pcg64Mcg::seed_from_u64(
                 slice_seed.wrapping_add((s as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
             );
-            // The `window` slices nearest to s by index, clamped at the ends.
-            let first = s.saturating_sub(window / 2).min(config.slices - window);
-            let positions: Vec<usize> = (first..first + window).collect();
-            let local = reduced.select_rows(&positions);
+            let local = reduced.select_rows(&nearest(&centroids, s, window));
             let mut clusters = global.clusters().to_vec();
             split_until(
                 &local,
@@ -198,15 +210,14 @@ pub fn light_slice(
                 &mut rng,
                 progress,
             )?;
-            let range = bounds[s].clone();
-            let mut acc = vec![0.0f64; part.len()];
-            let mut column = vec![0.0f32; part.len()];
+            let mut acc = vec![0.0f64; pixels.len() * channels];
+            let mut column = vec![0.0f32; pixels.len() * channels];
             for members in &clusters {
-                let (j, weight) = pick_mixture(members, local.norms(), global_norms, &mut rng);
-                oracle.eval_col_range(j, range.clone(), &mut column)?;
+                let (j, weight) = pick_local(members, local.norms(), global_norms, &mut rng);
+                oracle.eval_col_rows(j, pixels, &mut column)?;
                 if let Some(k) = column.iter().position(|v| !v.is_finite()) {
                     return Err(ManyLightError::NonFinite {
-                        row: range.start + k / channels,
+                        row: pixels[k / channels],
                         col: j,
                         channel: k % channels,
                     });
@@ -215,60 +226,182 @@ pub fn light_slice(
                     *a += weight * v as f64;
                 }
             }
-            for (p, a) in part.iter_mut().zip(acc) {
-                *p = a as f32;
-            }
             progress.inc(1);
-            Ok(clusters.len())
+            Ok((acc.into_iter().map(|a| a as f32).collect(), clusters.len()))
         })
         .collect::<Result<_, ManyLightError>>()?;
-    let elements = (config.slices * m) as u64
-        + bounds
-            .iter()
-            .zip(&clusters_per_slice)
-            .map(|(r, &c)| (r.len() * c) as u64)
-            .sum::<u64>();
+    let mut image = vec![0.0f32; n * channels];
+    let mut elements = (slices.len() * m) as u64;
+    let mut clusters_per_slice = Vec::with_capacity(slices.len());
+    for (pixels, (values, clusters)) in slices.iter().zip(rendered) {
+        for (&i, v) in pixels.iter().zip(values.chunks_exact(channels)) {
+            image[i * channels..(i + 1) * channels].copy_from_slice(v);
+        }
+        elements += (pixels.len() * clusters) as u64;
+        clusters_per_slice.push(clusters);
+    }
     Ok(LightSliceEstimate {
         image,
         rows: reduced.rows().to_vec(),
+        slices,
         clusters_per_slice,
         elements,
     })
 }
 
-/// A representative of `members` drawn with probability
-/// `½ local_j / Σ local + ½ global_j / Σ global` (one half alone when the other total is 0,
-/// uniform when both are), and the inverse of that probability.
-fn pick_mixture(
-    members: &[u32],
-    local: &[f64],
-    global: &[f64],
-    rng: &mut impl Rng,
-) -> (usize, f64) {
-    let total_local: f64 = members.iter().map(|&j| local[j as usize]).sum();
-    let total_global: f64 = members.iter().map(|&j| global[j as usize]).sum();
-    let (wl, wg) = match (total_local > 0.0, total_global > 0.0) {
-        (true, true) => (0.5 / total_local, 0.5 / total_global),
-        (true, false) => (1.0 / total_local, 0.0),
-        (false, true) => (0.0, 1.0 / total_global),
-        (false, false) => {
-            let k = rng.random_range(0..members.len());
-            return (members[k] as usize, members.len() as f64);
+/// Cuts the rows into `count` slices (fewer only if there are fewer rows) and returns them with
+/// their centroids in the 6-D slicing space. See [`light_slice`], step 1.
+fn make_slices(oracle: &dyn SliceOracle, count: usize) -> (Vec<Vec<usize>>, Vec<[f32; 6]>) {
+    let n = oracle.rows();
+    let geometry: Vec<Option<GatherGeometry>> = (0..n).map(|i| oracle.gather_point(i)).collect();
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for g in geometry.iter().flatten() {
+        for a in 0..3 {
+            lo[a] = lo[a].min(g.position[a]);
+            hi[a] = hi[a].max(g.position[a]);
         }
+    }
+    let diagonal = (0..3)
+        .map(|a| (hi[a] - lo[a]).max(0.0).powi(2))
+        .sum::<f32>()
+        .sqrt();
+    let scale = if diagonal > 0.0 && diagonal.is_finite() {
+        1.0 / diagonal
+    } else {
+        1.0
     };
-    let probability = |j: u32| wl * local[j as usize] + wg * global[j as usize];
-    let u: f64 = rng.random();
-    let mut running = 0.0;
-    let mut pick = members[0];
-    for &j in members {
-        let p = probability(j);
-        if p > 0.0 {
-            pick = j;
-            running += p;
+    let any_geometry = geometry.iter().any(Option::is_some);
+    let features: Vec<[f32; 6]> = geometry
+        .iter()
+        .enumerate()
+        .map(|(i, g)| match g {
+            Some(g) => {
+                let p = g.position.map(|x| if x.is_finite() { x } else { 0.0 });
+                let nrm = g.normal.map(|x| if x.is_finite() { x } else { 0.0 });
+                [
+                    (p[0] - lo[0]) * scale,
+                    (p[1] - lo[1]) * scale,
+                    (p[2] - lo[2]) * scale,
+                    nrm[0] * NORMAL_WEIGHT,
+                    nrm[1] * NORMAL_WEIGHT,
+                    nrm[2] * NORMAL_WEIGHT,
+                ]
+            }
+            None => [i as f32 / n as f32, 0.0, 0.0, 0.0, 0.0, 0.0],
+        })
+        .collect();
+    let mut slices: Vec<Vec<usize>> = if any_geometry {
+        let (with, without): (Vec<usize>, Vec<usize>) =
+            (0..n).partition(|&i| geometry[i].is_some());
+        [with, without]
+            .into_iter()
+            .filter(|s| !s.is_empty())
+            .collect()
+    } else {
+        vec![(0..n).collect()]
+    };
+    // Largest slice first (then lowest index); the rows without geometry are never split.
+    let splittable = |s: &Vec<usize>| !any_geometry || geometry[s[0]].is_some();
+    while slices.len() < count {
+        let Some(k) = (0..slices.len())
+            .filter(|&k| slices[k].len() >= 2 && splittable(&slices[k]))
+            .max_by(|&a, &b| slices[a].len().cmp(&slices[b].len()).then(b.cmp(&a)))
+        else {
+            break;
+        };
+        let mut rows = std::mem::take(&mut slices[k]);
+        let axis = (0..6)
+            .max_by(|&a, &b| {
+                let extent = |x: usize| {
+                    let (mut l, mut h) = (f32::INFINITY, f32::NEG_INFINITY);
+                    for &i in &rows {
+                        l = l.min(features[i][x]);
+                        h = h.max(features[i][x]);
+                    }
+                    h - l
+                };
+                extent(a).total_cmp(&extent(b)).then(b.cmp(&a))
+            })
+            .unwrap_or(0);
+        rows.sort_by(|&a, &b| {
+            features[a][axis]
+                .total_cmp(&features[b][axis])
+                .then(a.cmp(&b))
+        });
+        let right = rows.split_off(rows.len() / 2);
+        slices[k] = rows;
+        slices.push(right);
+    }
+    for s in &mut slices {
+        s.sort_unstable();
+    }
+    slices.sort_unstable_by_key(|s| s[0]);
+    let centroids = slices
+        .iter()
+        .map(|s| {
+            let mut c = [0.0f64; 6];
+            for &i in s {
+                for (a, &f) in c.iter_mut().zip(&features[i]) {
+                    *a += f as f64;
+                }
+            }
+            c.map(|a| (a / s.len() as f64) as f32)
+        })
+        .collect();
+    (slices, centroids)
+}
+
+/// The `window` slices whose centroids are nearest to slice `s`'s (itself first; ties to the
+/// lower index), as positions into the sampled rows.
+fn nearest(centroids: &[[f32; 6]], s: usize, window: usize) -> Vec<usize> {
+    let d = |t: usize| -> f32 {
+        centroids[s]
+            .iter()
+            .zip(&centroids[t])
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum()
+    };
+    let mut order: Vec<(f32, usize)> = (0..centroids.len()).map(|t| (d(t), t)).collect();
+    order.sort_by(|a, b| {
+        a.0.total_cmp(&b.0)
+            .then((a.1 != s).cmp(&(b.1 != s)))
+            .then(a.1.cmp(&b.1))
+    });
+    order.into_iter().take(window).map(|(_, t)| t).collect()
+}
+
+/// A zero-norm light inside a cluster with bright members is drawn as if its norm were this
+/// fraction of the cluster's mean norm, so that no light has probability zero.
+const ZERO_NORM_FLOOR: f64 = 1e-2;
+
+/// A representative of `members` drawn proportionally to its local norm (a zero local norm as
+/// [`ZERO_NORM_FLOOR`] of the mean), by the global norms when the cluster is zero locally, and
+/// uniformly when it is zero globally too; with the inverse of its probability.
+fn pick_local(members: &[u32], local: &[f64], global: &[f64], rng: &mut impl Rng) -> (usize, f64) {
+    for norms in [local, global] {
+        let positive: f64 = members.iter().map(|&j| norms[j as usize]).sum();
+        if positive <= 0.0 {
+            continue;
+        }
+        let floor = ZERO_NORM_FLOOR * positive / members.len() as f64;
+        let a = |j: u32| {
+            let v = norms[j as usize];
+            if v > 0.0 { v } else { floor }
+        };
+        let total: f64 = members.iter().map(|&j| a(j)).sum();
+        let u = rng.random::<f64>() * total;
+        let mut running = 0.0;
+        let mut pick = members[members.len() - 1];
+        for &j in members {
+            running += a(j);
             if u < running {
+                pick = j;
                 break;
             }
         }
+        return (pick as usize, total / a(pick));
     }
-    (pick as usize, 1.0 / probability(pick))
+    let k = rng.random_range(0..members.len());
+    (members[k] as usize, members.len() as f64)
 }

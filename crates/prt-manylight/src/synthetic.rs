@@ -1,12 +1,10 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use std::ops::Range;
-
 use prt_core::{CoreError, MatrixOracle};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-use crate::{SliceOracle, VisibilityOracle};
+use crate::{GatherGeometry, SliceOracle, VisibilityOracle};
 
 /// A procedural pixels × lights matrix with the structure of a virtual-point-light matrix, for
 /// tests and benchmarks without a ray tracer: non-negative RGB elements, columns that cluster
@@ -293,12 +291,7 @@ impl VisibilityOracle for SyntheticVplOracle {
 
 impl SliceOracle for SyntheticVplOracle {
     /// Evaluates only the requested rows (counting `rows.len()` elements).
-    fn eval_col_range(
-        &self,
-        j: usize,
-        rows: Range<usize>,
-        out: &mut [f32],
-    ) -> Result<(), CoreError> {
+    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
         let Some(light) = self.lights.get(j) else {
             return Err(CoreError::OutOfRange {
                 what: "oracle column",
@@ -306,26 +299,34 @@ impl SliceOracle for SyntheticVplOracle {
                 len: self.cols(),
             });
         };
-        if rows.end > self.rows() || rows.start > rows.end {
+        if let Some(&bad) = rows.iter().find(|&&i| i >= self.rows()) {
             return Err(CoreError::OutOfRange {
-                what: "oracle row range end",
-                index: rows.end,
+                what: "oracle row",
+                index: bad,
                 len: self.rows(),
             });
         }
         if out.len() != rows.len() * 3 {
             return Err(CoreError::LengthMismatch {
-                what: "oracle column range output",
+                what: "oracle column rows output",
                 expected: rows.len() * 3,
                 got: out.len(),
             });
         }
-        let count = rows.len() as u64;
-        for (i, element) in rows.zip(out.chunks_exact_mut(3)) {
+        for (&i, element) in rows.iter().zip(out.chunks_exact_mut(3)) {
             let (p, albedo) = self.pixel(i);
             self.element(p, albedo, light, element);
         }
-        self.evaluated.fetch_add(count, Ordering::Relaxed);
+        self.evaluated
+            .fetch_add(rows.len() as u64, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// The floor point of pixel `i`, normal +Y.
+    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
+        (i < self.rows()).then(|| GatherGeometry {
+            position: self.pixel(i).0,
+            normal: [0.0, 1.0, 0.0],
+        })
     }
 }

@@ -181,9 +181,38 @@ fn bad_input_is_a_typed_error() {
             what: "rows (pixels)"
         })
     );
-    // The default range evaluation checks its range.
+    // The default row evaluation checks its rows and output.
     let mut out = vec![0.0f32; 9];
-    assert!(oracle.eval_col_range(0, 8..11, &mut out).is_err());
-    assert!(oracle.eval_col_range(0, 7..10, &mut out).is_ok());
-    assert_eq!(out[0], oracle.data()[[7, 0]]);
+    assert!(oracle.eval_col_rows(0, &[8, 9, 10], &mut out).is_err());
+    assert!(oracle.eval_col_rows(0, &[7, 8], &mut out).is_err());
+    assert!(oracle.eval_col_rows(0, &[9, 7, 8], &mut out).is_ok());
+    assert_eq!(out[0], oracle.data()[[9, 0]]);
+    assert_eq!(out[3], oracle.data()[[7, 0]]);
+}
+
+/// With gather-point geometry, slices are compact groups of pixels (here square tiles of the
+/// synthetic floor), not scanline segments; without it, contiguous row ranges. Both partition
+/// the rows.
+#[test]
+fn slices_follow_the_geometry_and_partition_the_rows() {
+    let oracle = SyntheticVplOracle::new(16, 16, 200, 8);
+    let estimate = light_slice(&oracle, &LightSliceConfig::new(16, 10), &NoProgress).unwrap();
+    let mut seen = vec![0; 256];
+    for (slice, &row) in estimate.slices.iter().zip(&estimate.rows) {
+        assert!(slice.contains(&row), "the sampled row lies in its slice");
+        assert_eq!(slice.len(), 16);
+        let span = |f: fn(usize) -> usize| {
+            let v: Vec<usize> = slice.iter().map(|&i| f(i)).collect();
+            v.iter().max().unwrap() - v.iter().min().unwrap()
+        };
+        assert_eq!((span(|i| i % 16), span(|i| i / 16)), (3, 3), "{slice:?}");
+        slice.iter().for_each(|&i| seen[i] += 1);
+    }
+    assert!(seen.iter().all(|&s| s == 1));
+
+    let abstract_matrix = dense(20, 10, 9);
+    let estimate =
+        light_slice(&abstract_matrix, &LightSliceConfig::new(4, 5), &NoProgress).unwrap();
+    let ranges: Vec<Vec<usize>> = (0..4).map(|s| (s * 5..(s + 1) * 5).collect()).collect();
+    assert_eq!(estimate.slices, ranges);
 }
