@@ -79,6 +79,28 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(3))]
+
+    /// The rank-2L model space contains the rank-L one, so twice the rank must end at least as
+    /// well, and no fit may end worse than its own global-PCA start. On this locally rank-3
+    /// field the rank-2L curvature blocks are singular; before the solver floored them, rank 16
+    /// diverged slowly from its start and ended ~4× worse than rank 8 (regression test).
+    #[test]
+    fn a_larger_rank_ends_at_least_as_well(seed in 0u64..1000, rank in 6usize..=8) {
+        let field = SyntheticField { dims: [8, 8, 8], dim: 48, harmonics: 4, seed }.build(Aabb::UNIT).unwrap();
+        let fit = |rank: usize, max_iterations: usize| {
+            let options = MbdOptions { rank, max_iterations, tolerance: 0.0, seed, ..MbdOptions::default() };
+            let (model, _) = Mbd { basis_nodes: [3, 3, 3], options }.fit(&field, &NoProgress).unwrap();
+            evaluate(&model, &field, &EvalOptions::default()).unwrap().relative_mse
+        };
+        let small = fit(rank, 64);
+        let (start, big) = (fit(2 * rank, 0), fit(2 * rank, 64));
+        prop_assert!(big <= small, "rank {}: {big:e} > rank {rank}: {small:e}", 2 * rank);
+        prop_assert!(big <= start, "rank {} ends at {big:e} above its start {start:e}", 2 * rank);
+    }
+}
+
 #[test]
 fn zero_and_constant_fields_are_handled_exactly() {
     let zero = GridField::new([4, 3, 5], Aabb::UNIT, 6).unwrap();
