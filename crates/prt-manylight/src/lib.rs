@@ -11,10 +11,18 @@
 //!   lights are clustered by their reduced columns ([`cluster_columns`], cost [`cluster_cost`]);
 //!   one full column per cluster, drawn proportionally to its reduced norm and weighted by the
 //!   inverse probability, gives an unbiased image estimate.
+//! * [`tensor_clustering`] — Hašan, Velázquez-Armendáriz, Pellacini and Bala, "Tensor
+//!   Clustering for Rendering Many-Light Animations" (EGSR 2008): rows sampled in every frame of
+//!   an animation, rectangular clusters (lights × frame range) split in lights or in time by
+//!   whichever lowers the cost more, one representative per cluster reused across its frames.
 //! * [`light_slice`] — Ou and Pellacini, "LightSlice: Matrix Slice Sampling for the
-//!   Many-Lights Problem" (SIGGRAPH Asia 2011): one sampled row per slice of pixels, a global
-//!   clustering refined per slice on the rows of neighbouring slices, and per-slice
-//!   representatives evaluated on the slice's pixels only (through [`SliceOracle`]).
+//!   Many-Lights Problem" (SIGGRAPH Asia 2011): slices of pixels with similar gather-point
+//!   position and normal, one sampled row per slice, a global clustering refined per slice on
+//!   the rows of the nearest slices, and per-slice representatives evaluated on the slice's
+//!   pixels only (through [`SliceOracle`]).
+//! * [`visibility_clustering`] — shading from every light, visibility from one representative
+//!   per cluster of lights, clusters minimising the L2 error of that visibility approximation
+//!   (divisive or k-means; through [`VisibilityOracle`]).
 //! * [`brute_force`] — the exact image, every element.
 //! * [`SyntheticVplOracle`] — a procedural VPL-like matrix (coloured walls, bright primary
 //!   lights, shadows, zero columns) to test and measure without a ray tracer.

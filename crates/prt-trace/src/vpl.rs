@@ -649,20 +649,26 @@ impl<'a> VplOracle<'a> {
         self.evaluated.store(0, Ordering::Relaxed);
     }
 
-    /// The RGB contribution of VPL `j` to pixel `i` (not counted by the element counter).
+    /// The RGB contribution of VPL `j` to pixel `i` (not counted by the element counter):
+    /// [`VplOracle::shading`] times [`VplOracle::visible`], the shadow ray traced only where the
+    /// shading is non-zero.
     ///
     /// Errors: an index out of range ([`CoreError::OutOfRange`]), a non-finite result.
     pub fn element(&self, i: usize, j: usize) -> Result<Vec3, CoreError> {
-        let g = self.gather.get(i).ok_or(CoreError::OutOfRange {
-            what: "oracle row",
-            index: i,
-            len: self.gather.len(),
-        })?;
-        let v = self.vpls.get(j).ok_or(CoreError::OutOfRange {
-            what: "oracle column",
-            index: j,
-            len: self.vpls.len(),
-        })?;
+        let shading = self.shading(i, j)?;
+        if shading == Vec3::ZERO || self.visible(i, j)? {
+            Ok(shading)
+        } else {
+            Ok(Vec3::ZERO)
+        }
+    }
+
+    /// The unshadowed contribution of VPL `j` to pixel `i`: the element without its visibility
+    /// term (no shadow ray; not counted).
+    ///
+    /// Errors: an index out of range ([`CoreError::OutOfRange`]), a non-finite result.
+    pub fn shading(&self, i: usize, j: usize) -> Result<Vec3, CoreError> {
+        let (g, v) = self.pair(i, j)?;
         let Some(g) = g else {
             return Ok(Vec3::ZERO);
         };
@@ -671,8 +677,7 @@ impl<'a> VplOracle<'a> {
         if d2 <= 0.0 {
             return Ok(Vec3::ZERO);
         }
-        let d = d2.sqrt();
-        let w = to / d;
+        let w = to / d2.sqrt();
         let cos_i = g.normal.dot(w);
         // An isotropic (punctual) VPL has a zero normal and radiates Φ/(4π) in every direction.
         let cos_j = if v.normal == Vec3::ZERO {
@@ -681,13 +686,6 @@ impl<'a> VplOracle<'a> {
             -v.normal.dot(w)
         };
         if cos_i <= 0.0 || cos_j <= 0.0 || g.albedo == Vec3::ZERO {
-            return Ok(Vec3::ZERO);
-        }
-        let from = g.position + g.normal * self.eps;
-        let target = v.position + v.normal * self.eps;
-        let seg = target - from;
-        let len = seg.length();
-        if len > self.eps && self.tracer.occluded(from, seg / len, 0.0, len - self.eps) {
             return Ok(Vec3::ZERO);
         }
         let value = g.albedo * v.flux * (cos_i * cos_j / (PI * PI * d2.max(self.clamp2)));
@@ -699,6 +697,36 @@ impl<'a> VplOracle<'a> {
                 index: i * self.vpls.len() + j,
             })
         }
+    }
+
+    /// Whether VPL `j` is visible from pixel `i`'s gather point (one shadow ray between the
+    /// points offset by `eps` along their normals; false for a pixel without a gather point).
+    ///
+    /// Errors: an index out of range ([`CoreError::OutOfRange`]).
+    pub fn visible(&self, i: usize, j: usize) -> Result<bool, CoreError> {
+        let (g, v) = self.pair(i, j)?;
+        let Some(g) = g else {
+            return Ok(false);
+        };
+        let from = g.position + g.normal * self.eps;
+        let target = v.position + v.normal * self.eps;
+        let seg = target - from;
+        let len = seg.length();
+        Ok(!(len > self.eps && self.tracer.occluded(from, seg / len, 0.0, len - self.eps)))
+    }
+
+    fn pair(&self, i: usize, j: usize) -> Result<(&Option<GatherPoint>, &Vpl), CoreError> {
+        let g = self.gather.get(i).ok_or(CoreError::OutOfRange {
+            what: "oracle row",
+            index: i,
+            len: self.gather.len(),
+        })?;
+        let v = self.vpls.get(j).ok_or(CoreError::OutOfRange {
+            what: "oracle column",
+            index: j,
+            len: self.vpls.len(),
+        })?;
+        Ok((g, v))
     }
 
     /// The brute-force image: every element, parallel over pixels, summed per pixel in f64 in

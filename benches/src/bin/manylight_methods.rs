@@ -1,0 +1,265 @@
+//! Row-column sampling, LightSlice and visibility clustering (divisive and k-means) at equal
+//! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
+//! relative RMS error vs elements and vs time.
+//!
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE]`
+//!
+//! `SCENE` is `cornell` (prt-trace's VPL oracle; the brute-force image is cached in
+//! `target/manylight_cache/` and shared with `manylight_scene`) or `synthetic`
+//! (`SyntheticVplOracle`, `CLAMP` unused). Visibility clustering also evaluates the unshadowed
+//! shading of every pixel against every light (no shadow rays), reported separately. `IMAGE`
+//! (a PNG path) gets reference | row-column | LightSlice at 300 / 900 for the first seed.
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use prt_benches::{Table, fmt_duration};
+use prt_core::metrics::relative_frobenius_error;
+use prt_core::{CoreError, MatrixOracle, NoProgress};
+use prt_manylight::{
+    GatherGeometry, LightSliceConfig, RowColumnConfig, SliceOracle, SyntheticVplOracle,
+    VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
+    row_column_sampling, visibility_clustering,
+};
+use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls};
+use rayon::prelude::*;
+
+/// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
+/// clustering.
+struct SceneOracle<'a> {
+    inner: VplOracle<'a>,
+    gbuffer: &'a GBuffer,
+}
+
+impl MatrixOracle for SceneOracle<'_> {
+    fn rows(&self) -> usize {
+        self.inner.rows()
+    }
+    fn cols(&self) -> usize {
+        self.inner.cols()
+    }
+    fn channels(&self) -> usize {
+        3
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        self.inner.eval_row(i, out)
+    }
+    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        self.inner.eval_col(j, out)
+    }
+    fn elements_evaluated(&self) -> u64 {
+        self.inner.elements_evaluated()
+    }
+}
+
+impl SliceOracle for SceneOracle<'_> {
+    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
+        out.par_chunks_mut(3)
+            .zip(rows.par_iter())
+            .with_min_len(64)
+            .try_for_each(|(o, &i)| {
+                o.copy_from_slice(&self.inner.element(i, j)?.to_array());
+                Ok(())
+            })
+    }
+
+    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
+        let g = self.gbuffer.points.get(i).copied().flatten()?;
+        Some(GatherGeometry {
+            position: g.position.to_array(),
+            normal: g.normal.to_array(),
+        })
+    }
+}
+
+impl VisibilityOracle for SceneOracle<'_> {
+    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        out.copy_from_slice(&self.inner.shading(i, j)?.to_array());
+        Ok(())
+    }
+    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
+        Ok(if self.inner.visible(i, j)? { 1.0 } else { 0.0 })
+    }
+}
+
+const CONFIGS: [(usize, usize); 4] = [(100, 200), (300, 900), (432, 864), (600, 1200)];
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let scene_name = args.first().map(String::as_str).unwrap_or("cornell");
+    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(128);
+    let target_vpls: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(50_000);
+    let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(0.1);
+    let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
+    let image_path = args.get(5).map(PathBuf::from);
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    match scene_name {
+        "cornell" => {
+            let scene = Scene::cornell_box();
+            let tracer = RayTracer::new(scene.triangles());
+            let vpls = trace_about(&scene, &tracer, target_vpls);
+            let view = PinholeView::for_scene(&scene).expect("non-empty scene");
+            let gbuffer =
+                GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
+            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite");
+            let (n, m) = (inner.rows(), inner.cols());
+            let cache = manifest.join("../target/manylight_cache");
+            std::fs::create_dir_all(&cache).expect("cache folder");
+            let file = cache.join(format!("cornell_{width}_{m}_{clamp}.bin"));
+            let start = Instant::now();
+            let reference = inner
+                .reference_image_cached(&file, &NoProgress)
+                .expect("reference image");
+            println!(
+                "Cornell box: {width} × {width} pixels, {m} VPLs, clamp {clamp}, {} threads; \
+                 brute force {} ({:.3e} elements; 0 s when cached)\n",
+                rayon::current_num_threads(),
+                fmt_duration(start.elapsed()),
+                (n * m) as f64
+            );
+            let oracle = SceneOracle {
+                inner,
+                gbuffer: &gbuffer,
+            };
+            compare(&oracle, &reference, width, seeds, image_path.as_deref());
+        }
+        "synthetic" => {
+            let oracle = SyntheticVplOracle::new(width, width, target_vpls, 1);
+            let start = Instant::now();
+            let reference = brute_force(&oracle, &NoProgress).expect("finite oracle");
+            println!(
+                "Synthetic VPL matrix: {width} × {width} pixels, {target_vpls} lights, {} threads; \
+                 brute force {}\n",
+                rayon::current_num_threads(),
+                fmt_duration(start.elapsed()),
+            );
+            compare(&oracle, &reference, width, seeds, image_path.as_deref());
+        }
+        other => eprintln!("unknown scene {other} (cornell or synthetic)"),
+    }
+}
+
+fn compare<O: SliceOracle + VisibilityOracle>(
+    oracle: &O,
+    reference: &[f32],
+    width: usize,
+    seeds: u64,
+    image_path: Option<&Path>,
+) {
+    let brute = (oracle.rows() * oracle.cols()) as f64;
+    let mut table = Table::new(&[
+        "method",
+        "rows / columns",
+        "elements (shadow rays)",
+        "fewer than brute force",
+        "time (mean)",
+        "relative RMS error (mean of seeds)",
+        "max over seeds",
+    ]);
+    let kmeans = VisibilityClusterMethod::KMeans { iterations: 4 };
+    for (rows, columns) in CONFIGS {
+        if rows > oracle.rows() || columns > oracle.cols() {
+            continue;
+        }
+        let methods = [
+            "row-column",
+            "LightSlice",
+            "visibility (split)",
+            "visibility (k-means)",
+        ];
+        let mut images: Vec<Vec<f32>> = Vec::new();
+        for method in methods {
+            let (mut errors, mut elements, mut extra) = (Vec::new(), 0u64, 0u64);
+            let start = Instant::now();
+            for seed in 0..seeds {
+                let (image, e) = match method {
+                    "row-column" => {
+                        let c = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
+                        let r = row_column_sampling(oracle, &c, &NoProgress).expect("valid");
+                        (r.image, r.elements)
+                    }
+                    "LightSlice" => {
+                        let c = LightSliceConfig::new(rows, columns).with_seed(seed + 7);
+                        let r = light_slice(oracle, &c, &NoProgress).expect("valid");
+                        (r.image, r.elements)
+                    }
+                    _ => {
+                        let mut c = VisibilityConfig::new(rows, columns).with_seed(seed + 7);
+                        if method.contains("k-means") {
+                            c = c.with_method(kmeans);
+                        }
+                        let r = visibility_clustering(oracle, &c, &NoProgress).expect("valid");
+                        extra = r.shading_evaluations;
+                        (r.image, r.elements)
+                    }
+                };
+                elements = e;
+                errors.push(relative_frobenius_error(&image, reference).expect("same size"));
+                if seed == 0 {
+                    images.push(image);
+                }
+            }
+            let time = start.elapsed() / seeds.max(1) as u32;
+            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+            let max = errors.iter().copied().fold(0.0, f64::max);
+            let elements_cell = if extra > 0 {
+                format!("{:.3e} (+{:.2e} shading)", elements as f64, extra as f64)
+            } else {
+                format!("{:.3e}", elements as f64)
+            };
+            table.row(vec![
+                method.to_string(),
+                format!("{rows} / {columns}"),
+                elements_cell,
+                format!("{:.1}×", brute / elements as f64),
+                fmt_duration(time),
+                format!("{:.2}%", 100.0 * mean),
+                format!("{:.2}%", 100.0 * max),
+            ]);
+            println!("{method} {rows}/{columns}: {:.2}%", 100.0 * mean);
+        }
+        if let (Some(path), (300, 900)) = (image_path, (rows, columns)) {
+            write_strip(path, width, reference, &images[..2]);
+        }
+    }
+    println!("\n{}", table.markdown());
+}
+
+/// About `target` VPLs: a pilot run measures VPLs per particle (as `manylight_scene`).
+fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<prt_trace::Vpl> {
+    let options = |particles| VplOptions {
+        particles,
+        max_bounces: 2,
+        seed: 1,
+        ..Default::default()
+    };
+    let pilot = trace_vpls(scene, tracer, &options(2000), &NoProgress).expect("lit scene");
+    let per_particle = (pilot.len() as f64 / 2000.0).max(0.1);
+    let particles = (target as f64 / per_particle).round().max(1.0) as usize;
+    trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
+}
+
+/// Reference | each estimate, tone-mapped with one exposure (99th percentile of the reference
+/// at 0.8) and sRGB gamma.
+fn write_strip(path: &Path, width: usize, reference: &[f32], estimates: &[Vec<f32>]) {
+    let mut sorted: Vec<f32> = reference.to_vec();
+    sorted.sort_by(f32::total_cmp);
+    let exposure = 0.8 / sorted[(sorted.len() * 99) / 100].max(1e-12);
+    let tone = |v: f32| ((v * exposure).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
+    let panels: Vec<&[f32]> = std::iter::once(reference)
+        .chain(estimates.iter().map(Vec::as_slice))
+        .collect();
+    let mut out = image::RgbImage::new((panels.len() * width) as u32, width as u32);
+    for (k, panel) in panels.iter().enumerate() {
+        for y in 0..width {
+            for x in 0..width {
+                let p = 3 * (y * width + x);
+                let rgb = [tone(panel[p]), tone(panel[p + 1]), tone(panel[p + 2])];
+                out.put_pixel((k * width + x) as u32, y as u32, image::Rgb(rgb));
+            }
+        }
+    }
+    match out.save(path) {
+        Ok(()) => println!("wrote {}", path.display()),
+        Err(e) => eprintln!("could not write {}: {e}", path.display()),
+    }
+}
