@@ -1,20 +1,56 @@
-//! Moving Basis Decomposition against the PCA family on synthetic 324-D fields: error vs basis
-//! count (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
+//! Moving Basis Decomposition against the PCA family on 324-D fields: error vs basis count
+//! (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
 //! solvers' convergence (error vs iterations and time).
 //!
 //! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|all>`
+//!
+//! Environment knobs (so that each run stays a few minutes on a shared machine):
+//! * `MBD_FIELD=synthetic|cornell`: the synthetic manifold field (default) or the built-in
+//!   Cornell box traced by prt-trace at `prt bake`'s defaults (256 rays, 64 cache rays, seed 0),
+//!   cached under `target/mbd_cache/` so that reruns skip the trace.
+//! * `MBD_N`: the field's resolution (longest axis for Cornell; default 32).
+//! * `MBD_KNOBS=2,4`: only these ranks (basis sweep) / basis nodes per axis (grid sweep).
+//! * `MBD_METHODS=MBD,BPCA`: only these methods (MBD, PCA, BPCA, WBPCA, CPCA, VQ).
+//! * `MBD_PLOT=path.png`: also plot relative MSE against the knob (basis and grid sweeps).
+//!
+//! Every row reports wall time and the process CPU time (user + system) of the method; the
+//! load average is printed before and after each sweep.
 
+use std::path::PathBuf;
 use std::time::Instant;
 
+use glam::Vec3;
 use prt_benches::{Table, fmt_duration};
 use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, resample_to_grid};
 use prt_mbd::*;
+use prt_trace::{BakeOptions, Scene, TransferBaker};
 
 const DIM: usize = 324;
 /// The transfer vector as four 9 × 9 operators.
 const BLOCKS: [usize; 4] = [81, 81, 81, 81];
 
-fn field(n: usize) -> GridField {
+/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
+/// ticks per second).
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name (which is in parentheses and may contain spaces).
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (ticks(11), ticks(12)) {
+        (Some(user), Some(system)) => (user + system) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
+/// The 1, 5 and 15 minute load averages.
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+fn synthetic_field(n: usize) -> GridField {
     SyntheticField {
         dims: [n; 3],
         dim: DIM,
@@ -47,15 +83,53 @@ fn score(model: &dyn FieldModel, field: &GridField, labels: &[u32]) -> Scores {
     }
 }
 
-fn row(table: &mut Table, knob: String, method: &str, seconds: f64, s: &Scores, stored: usize) {
+/// Wall and CPU seconds of one fit.
+#[derive(Clone, Copy)]
+struct Cost {
+    wall: f64,
+    cpu: f64,
+}
+
+impl Cost {
+    fn measure<T>(fit: impl FnOnce() -> T) -> (T, Cost) {
+        let (t, cpu) = (Instant::now(), cpu_seconds());
+        let value = fit();
+        let cost = Cost {
+            wall: t.elapsed().as_secs_f64(),
+            cpu: cpu_seconds() - cpu,
+        };
+        (value, cost)
+    }
+}
+
+/// One sweep's results: the markdown table and (knob, method, relative MSE) for the plot.
+struct Sweep {
+    table: Table,
+    points: Vec<(usize, String, f64)>,
+}
+
+impl Sweep {
+    fn new() -> Self {
+        Self {
+            table: Table::new(&HEADER),
+            points: Vec::new(),
+        }
+    }
+}
+
+fn row(sweep: &mut Sweep, knob: usize, method: &str, cost: Cost, s: &Scores, stored: usize) {
     eprintln!(
-        "{knob} {method} {seconds:.3} s, relative MSE {:.3e}",
-        s.relative_mse
+        "{knob} {method} {:.3} s (CPU {:.2} s), relative MSE {:.3e}",
+        cost.wall, cost.cpu, s.relative_mse
     );
-    table.row(vec![
-        knob,
+    sweep
+        .points
+        .push((knob, method.to_string(), s.relative_mse));
+    sweep.table.row(vec![
+        knob.to_string(),
         method.to_string(),
-        fmt_duration(std::time::Duration::from_secs_f64(seconds)),
+        fmt_duration(std::time::Duration::from_secs_f64(cost.wall)),
+        format!("{:.2} s", cost.cpu),
         format!("{:.3e}", s.relative_mse),
         format!("{:.3e}", s.operator),
         format!("{:.3e}", s.seam),
@@ -64,46 +138,76 @@ fn row(table: &mut Table, knob: String, method: &str, seconds: f64, s: &Scores, 
 }
 
 /// Every method at rank `l` with `b³` basis nodes / blocks / clusters.
+/// Whether `MBD_METHODS` (comma-separated, default all) includes `method`.
+fn enabled(method: &str) -> bool {
+    std::env::var("MBD_METHODS").map_or(true, |list| {
+        list.split(',')
+            .any(|m| m.trim().eq_ignore_ascii_case(method))
+    })
+}
+
+/// `MBD_KNOBS` (comma-separated) or `default`.
+fn knobs(default: &[usize]) -> Vec<usize> {
+    std::env::var("MBD_KNOBS")
+        .ok()
+        .map(|list| {
+            list.split(',')
+                .filter_map(|k| k.trim().parse().ok())
+                .collect()
+        })
+        .unwrap_or_else(|| default.to_vec())
+}
+
+/// Every enabled method at rank `l` with `b³` basis nodes / blocks / clusters (fewer on a short
+/// axis, as `prt bake` does).
 fn compare(
-    table: &mut Table,
-    knob: String,
+    sweep: &mut Sweep,
+    knob: usize,
     field: &GridField,
     l: usize,
     b: usize,
     iterations: usize,
-    with_cpca: bool,
 ) {
-    let t = Instant::now();
-    eprintln!("{knob}: fitting MBD");
-    let mbd = Mbd {
-        basis_nodes: [b; 3],
-        options: MbdOptions {
-            rank: l,
-            max_iterations: iterations,
-            ..MbdOptions::default()
-        },
-    };
-    let (model, _) = mbd.fit(field, &NoProgress).expect("mbd");
-    let secs = t.elapsed().as_secs_f64();
-    let labels = kernel_labels(model.basis_kernels(), field).expect("labels");
-    row(
-        table,
-        knob.clone(),
-        "MBD",
-        secs,
-        &score(&model, field, &labels),
-        model.stored_scalars(),
-    );
+    let dims = field.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let clusters = nodes.iter().product::<usize>();
+    if enabled("MBD") {
+        eprintln!("{knob}: fitting MBD");
+        let mbd = Mbd {
+            basis_nodes: nodes,
+            options: MbdOptions {
+                rank: l,
+                max_iterations: iterations,
+                ..MbdOptions::default()
+            },
+        };
+        let ((model, report), cost) = Cost::measure(|| mbd.fit(field, &NoProgress).expect("mbd"));
+        eprintln!(
+            "{knob}: MBD {} iterations, converged: {}",
+            report.history.len(),
+            report.converged
+        );
+        let labels = kernel_labels(model.basis_kernels(), field).expect("labels");
+        row(
+            sweep,
+            knob,
+            "MBD",
+            cost,
+            &score(&model, field, &labels),
+            model.stored_scalars(),
+        );
+    }
 
     let mut baseline = |name: &str, fit: &dyn Fn() -> ClusterModel| {
-        let t = Instant::now();
-        let m = fit();
-        let secs = t.elapsed().as_secs_f64();
+        if !enabled(name) {
+            return;
+        }
+        let (m, cost) = Cost::measure(fit);
         row(
-            table,
-            knob.clone(),
+            sweep,
+            knob,
             name,
-            secs,
+            cost,
             &score(&m, field, m.labels()),
             m.stored_scalars(),
         );
@@ -116,7 +220,7 @@ fn compare(
     baseline("BPCA", &|| {
         BlockPca {
             rank: l,
-            blocks: [b; 3],
+            blocks: nodes,
             window: 1.0,
         }
         .compress(field, &NoProgress)
@@ -125,22 +229,20 @@ fn compare(
     baseline("WBPCA", &|| {
         BlockPca {
             rank: l,
-            blocks: [b; 3],
+            blocks: nodes,
             window: 2.0,
         }
         .compress(field, &NoProgress)
         .expect("wbpca")
     });
-    if with_cpca {
-        baseline("CPCA", &|| {
-            ClusteredPca::new(l, b * b * b)
-                .compress(field, &NoProgress)
-                .expect("cpca")
-        });
-    }
+    baseline("CPCA", &|| {
+        ClusteredPca::new(l, clusters)
+            .compress(field, &NoProgress)
+            .expect("cpca")
+    });
     baseline("VQ", &|| {
         KMeansVq {
-            codewords: (b * b * b * l).min(field.num_voxels()),
+            codewords: (clusters * l).min(field.num_voxels()),
             iterations: 10,
             seed: 0,
         }
@@ -149,10 +251,11 @@ fn compare(
     });
 }
 
-const HEADER: [&str; 7] = [
+const HEADER: [&str; 8] = [
     "knob",
     "method",
     "time",
+    "CPU time",
     "relative MSE",
     "operator rel. Frobenius (mean of 4 blocks)",
     "seam (boundary jump)",
@@ -167,67 +270,225 @@ fn sweep_n() -> usize {
         .unwrap_or(32)
 }
 
-fn basis_count() {
-    let f = field(sweep_n());
-    let mut table = Table::new(&HEADER);
-    for l in [2, 4, 8, 16] {
-        compare(&mut table, format!("L = {l}"), &f, l, 5, 64, true);
+/// The field of the basis and grid sweeps (`MBD_FIELD`) and its description.
+fn sweep_field() -> (GridField, String) {
+    let n = sweep_n();
+    match std::env::var("MBD_FIELD").as_deref() {
+        Ok("cornell") => {
+            let f = cornell_field(n);
+            let [x, y, z] = f.dims();
+            (f, format!("traced Cornell box {x}×{y}×{z} × 324"))
+        }
+        _ => (synthetic_field(n), format!("synthetic {n}³ × 324")),
     }
-    println!(
-        "### Error vs basis count ({}³ × 324, 5³ basis nodes)\n\n{}",
-        sweep_n(),
-        table.markdown()
+}
+
+/// Folder for cached traced volumes: `$CARGO_TARGET_DIR` or the workspace's `target/`.
+fn cache_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../target")))
+        .join("mbd_cache")
+}
+
+/// The built-in Cornell box traced at `n` voxels along its longest axis with `prt bake`'s
+/// defaults, read from the cache when an earlier run wrote it.
+fn cornell_field(n: usize) -> GridField {
+    let path = cache_dir().join(format!("cornell_{n}_r256_c64_s0.f32"));
+    if let Some(field) = read_cached(&path) {
+        eprintln!("Cornell {n}: read {}", path.display());
+        return field;
+    }
+    let scene = Scene::cornell_box();
+    let bounds = scene.bounds().expect("the Cornell box has triangles");
+    let size = bounds.size().to_array();
+    let longest = size.iter().copied().fold(0.0f32, f32::max);
+    let resolution = size.map(|s| ((s / longest * n as f32).round() as usize).clamp(2, n));
+    let options = BakeOptions {
+        resolution,
+        ..BakeOptions::default()
+    };
+    let (volume, cost) = Cost::measure(|| {
+        TransferBaker::new(&scene, options)
+            .and_then(|baker| baker.bake(&NoProgress))
+            .expect("Cornell bake")
+    });
+    eprintln!(
+        "Cornell {n}: traced {resolution:?} in {:.2} s (CPU {:.2} s)",
+        cost.wall, cost.cpu
     );
-    table.write_csv_if_requested("mbd_basis").ok();
+    if let Err(e) = write_cached(&path, &volume.field) {
+        eprintln!("cannot cache {}: {e}", path.display());
+    }
+    volume.field
+}
+
+/// Cache layout, little endian: dims (3 × u64), bounds (6 × f32), dim (u64), data (f32).
+fn write_cached(path: &std::path::Path, field: &GridField) -> std::io::Result<()> {
+    std::fs::create_dir_all(path.parent().unwrap_or(std::path::Path::new(".")))?;
+    let mut bytes = Vec::with_capacity(64 + 4 * field.data().len());
+    for d in field.dims() {
+        bytes.extend((d as u64).to_le_bytes());
+    }
+    let b = field.bounds();
+    for v in b.min.to_array().into_iter().chain(b.max.to_array()) {
+        bytes.extend(v.to_le_bytes());
+    }
+    bytes.extend((field.dim() as u64).to_le_bytes());
+    for v in field.data().iter() {
+        bytes.extend(v.to_le_bytes());
+    }
+    std::fs::write(path, bytes)
+}
+
+/// The cached field, or `None` when the file is missing or malformed.
+fn read_cached(path: &std::path::Path) -> Option<GridField> {
+    let bytes = std::fs::read(path).ok()?;
+    let u64_at = |i: usize| -> Option<usize> {
+        Some(u64::from_le_bytes(bytes.get(i..i + 8)?.try_into().ok()?) as usize)
+    };
+    let f32_at = |i: usize| -> Option<f32> {
+        Some(f32::from_le_bytes(bytes.get(i..i + 4)?.try_into().ok()?))
+    };
+    let dims = [u64_at(0)?, u64_at(8)?, u64_at(16)?];
+    let corner = |i: usize| Some(Vec3::new(f32_at(i)?, f32_at(i + 4)?, f32_at(i + 8)?));
+    let bounds = Aabb::new(corner(24)?, corner(36)?);
+    let dim = u64_at(48)?;
+    let count = dims.iter().product::<usize>().checked_mul(dim)?;
+    let payload = bytes.get(56..)?;
+    if payload.len() != 4 * count {
+        return None;
+    }
+    let data: Vec<f32> = payload
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let data = ndarray::Array2::from_shape_vec((count / dim.max(1), dim), data).ok()?;
+    GridField::from_data(dims, bounds, data).ok()
+}
+
+/// Relative MSE against the knob, one line per method, log scale.
+fn plot(points: &[(usize, String, f64)], x_label: &str, title: &str, path: &str) {
+    use plotters::prelude::*;
+    plotters::style::register_font(
+        "sans-serif",
+        FontStyle::Normal,
+        epaint_default_fonts::UBUNTU_LIGHT,
+    )
+    .map_err(|_| "font")
+    .expect("register the plot font");
+    let mut methods: Vec<&str> = Vec::new();
+    for (_, m, _) in points {
+        if !methods.contains(&m.as_str()) {
+            methods.push(m);
+        }
+    }
+    let xs = points.iter().map(|p| p.0);
+    let (x0, x1) = (xs.clone().min().unwrap_or(0), xs.max().unwrap_or(1));
+    let ys = points.iter().map(|p| p.2).filter(|&e| e > 0.0);
+    let lo = ys.clone().fold(f64::MAX, f64::min) * 0.5;
+    let hi = ys.fold(f64::MIN, f64::max) * 2.0;
+    let root = BitMapBackend::new(path, (760, 480)).into_drawing_area();
+    root.fill(&WHITE).expect("plot");
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(80)
+        .build_cartesian_2d(x0..x1.max(x0 + 1), (lo..hi).log_scale())
+        .expect("plot");
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc("relative MSE")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .expect("plot");
+    for (i, method) in methods.iter().enumerate() {
+        let colour = Palette99::pick(i).stroke_width(2);
+        let line: Vec<(usize, f64)> = points
+            .iter()
+            .filter(|p| p.1 == *method && p.2 > 0.0)
+            .map(|p| (p.0, p.2))
+            .collect();
+        chart
+            .draw_series(LineSeries::new(line.clone(), colour))
+            .expect("plot")
+            .label(*method)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour));
+        chart
+            .draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))
+            .expect("plot");
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .expect("plot");
+    root.present().expect("plot");
+    eprintln!("wrote {path}");
+}
+
+fn finish(sweep: &Sweep, heading: String, csv: &str, x_label: &str) {
+    println!("### {heading}\n\n{}", sweep.table.markdown());
+    println!("load average after: {}\n", load_average());
+    sweep.table.write_csv_if_requested(csv).ok();
+    if let Ok(path) = std::env::var("MBD_PLOT") {
+        plot(&sweep.points, x_label, &heading, &path);
+    }
+}
+
+fn basis_count() {
+    let (f, name) = sweep_field();
+    let mut sweep = Sweep::new();
+    for l in knobs(&[2, 4, 8, 16]) {
+        compare(&mut sweep, l, &f, l, 5, 64);
+    }
+    finish(
+        &sweep,
+        format!("Error vs basis count L ({name}, 5³ basis nodes, MBD ≤ 64 iterations)"),
+        "mbd_basis",
+        "basis vectors L",
+    );
 }
 
 fn grid_resolution() {
-    let f = field(sweep_n());
-    let mut table = Table::new(&HEADER);
-    for b in [9, 7, 5, 3] {
-        compare(&mut table, format!("{b}³"), &f, 8, b, 64, true);
+    let (f, name) = sweep_field();
+    let mut sweep = Sweep::new();
+    for b in knobs(&[9, 7, 5, 3]) {
+        compare(&mut sweep, b, &f, 8, b, 64);
     }
-    println!(
-        "### Error vs basis-grid resolution ({}³ × 324, L = 8)\n\n{}",
-        sweep_n(),
-        table.markdown()
+    finish(
+        &sweep,
+        format!("Error vs basis-grid resolution b (b³ nodes; {name}, L = 8, MBD ≤ 64 iterations)"),
+        "mbd_grid",
+        "basis nodes per axis",
     );
-    table.write_csv_if_requested("mbd_grid").ok();
 }
 
 fn timing() {
-    let mut table = Table::new(&HEADER);
-    let sizes: Vec<(usize, usize)> = match std::env::var("MBD_MAX_N")
+    let mut sweep = Sweep::new();
+    let max = std::env::var("MBD_MAX_N")
         .ok()
         .and_then(|v| v.parse::<usize>().ok())
-    {
-        Some(max) => [(16, 3), (32, 5), (64, 9)]
-            .into_iter()
-            .filter(|&(n, _)| n <= max)
-            .collect(),
-        None => vec![(16, 3), (32, 5), (64, 9)],
-    };
-    for (n, b) in sizes {
-        let f = field(n);
-        compare(
-            &mut table,
-            format!("{n}³/{b}³"),
-            &f,
-            8,
-            b,
-            32,
-            std::env::var("MBD_SKIP_CPCA").is_err() || n < 64,
-        );
+        .unwrap_or(64);
+    for (n, b) in [(16, 3), (32, 5), (64, 9)] {
+        if n <= max {
+            compare(&mut sweep, n, &synthetic_field(n), 8, b, 32);
+        }
     }
-    println!(
-        "### Timings (324-D, L = 8, MBD 32 iterations, CPCA 8 rounds)\n\n{}",
-        table.markdown()
+    finish(
+        &sweep,
+        "Timings (324-D, n³ voxels with 3³/5³/9³ nodes, L = 8, MBD 32 iterations)".into(),
+        "mbd_timing",
+        "voxels per axis",
     );
-    table.write_csv_if_requested("mbd_timing").ok();
 }
 
 fn convergence() {
-    let f = field(32);
+    let f = synthetic_field(32);
     let mut table = Table::new(&["solver", "iterations", "time", "relative MSE"]);
     for (name, pre) in [
         ("stochastic, paper diagonal", Preconditioner::Diagonal),
@@ -291,7 +552,11 @@ fn convergence() {
 
 fn main() {
     let mode = std::env::args().nth(1).unwrap_or_else(|| "all".into());
-    println!("threads: {}\n", rayon::current_num_threads());
+    println!(
+        "threads: {}, load average before: {}\n",
+        rayon::current_num_threads(),
+        load_average()
+    );
     match mode.as_str() {
         "basis" => basis_count(),
         "grid" => grid_resolution(),
