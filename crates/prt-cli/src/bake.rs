@@ -10,7 +10,8 @@ use prt_mbd::{BlockPca, ClusterModel, ClusteredPca, EvalOptions, Mbd, MbdOptions
 use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 
 use crate::progress::Stage;
-use crate::report::{self, MethodRow, Report};
+use crate::report::{self, ImageMethod, MethodRow, Report};
+use crate::seams::{self, LocalBasis, SeamView};
 
 /// Storage encoding of the written volumes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -156,8 +157,8 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         &eval_options,
         mbd_time,
     )?);
-    let mut reconstructions = vec![("mbd", mbd_recon)];
     times.push(("evaluate", stage.finish()));
+    let mut baselines: Vec<(&str, ClusterModel)> = Vec::new();
 
     if !args.no_baselines {
         let clusters = nodes.iter().product::<usize>();
@@ -179,20 +180,53 @@ pub fn run(args: &BakeArgs) -> Result<()> {
                 result.0.with_context(|| format!("{name} failed"))?,
                 result.1,
             );
-            let recon = resample_to_grid(&baseline, field.dims(), field.bounds())?;
             rows.push(method_row(
                 name,
                 &baseline,
                 field,
-                &recon,
+                baseline.reconstruction(),
                 baseline.labels(),
                 &eval_options,
                 seconds,
             )?);
-            reconstructions.push((key, recon));
+            baselines.push((key, baseline));
         }
         times.push(("baselines", stage.finish()));
     }
+
+    let methods: Vec<ImageMethod<'_>> = std::iter::once(ImageMethod {
+        key: "mbd",
+        reconstruction: &mbd_recon,
+        labels: &mbd_labels,
+        basis: LocalBasis::Moving {
+            kernels: &basis_kernels,
+            basis: model.basis(),
+        },
+    })
+    .chain(baselines.iter().map(|(key, b)| ImageMethod {
+        key,
+        reconstruction: b.reconstruction(),
+        labels: b.labels(),
+        basis: LocalBasis::Clustered {
+            labels: b.labels(),
+            bases: b.bases(),
+        },
+    }))
+    .collect();
+    // The seam view: each method's basis on the denoised reference (see `seams`); rows are MBD,
+    // then the baselines, in the order of `methods`.
+    let stage = Stage::start("seams");
+    let smoothed = seams::smooth(field, &volume.valid)?;
+    let slice_y = field.dims()[1] / 2;
+    let views: Vec<SeamView> = methods
+        .iter()
+        .map(|m| seams::seam_view(&smoothed, &volume.valid, m.labels, &m.basis, slice_y))
+        .collect::<Result<_>>()?;
+    drop(smoothed);
+    for (row, view) in rows.iter_mut().zip(&views) {
+        row.denoised_seam_ratio = Some(view.seam_ratio);
+    }
+    times.push(("seams", stage.finish()));
 
     // Write the container.
     let stage = Stage::start("write");
@@ -232,8 +266,9 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         rows,
         stage_seconds: Vec::new(),
         total_seconds: 0.0,
+        slice_y,
     };
-    let images = report::write_images(&out_dir, &volume, &reconstructions)?;
+    let images = report::write_images(&out_dir, &volume, &methods, &views, slice_y)?;
     times.push(("report", stage.finish()));
     let report = Report {
         stage_seconds: times
@@ -340,6 +375,7 @@ fn method_row(
         operator_frobenius: evaluation.block_relative_frobenius,
         seam_boundary: seams.boundary,
         seam_interior: seams.interior,
+        denoised_seam_ratio: None,
         stored_scalars: model.stored_scalars(),
         bytes_per_voxel: None,
         voxels: field.num_voxels(),

@@ -15,6 +15,7 @@ mod encode;
 mod inspect;
 mod progress;
 mod report;
+mod seams;
 
 use std::process::ExitCode;
 
