@@ -22,7 +22,7 @@
 //! threads.
 
 use glam::Vec3;
-use ndarray::{Array2, linalg::general_mat_mul};
+use ndarray::{ArrayView2, ArrayViewMut2, linalg::general_mat_mul};
 use prt_core::{CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -208,7 +208,7 @@ impl Evaluation {
 struct GroupOut {
     loss: f64,
     basis_nodes: Vec<u32>,
-    grad_b: Array2<f32>,
+    grad_b: Vec<f32>,
     hess_b: Vec<f64>,
     coef_nodes: Vec<u32>,
     grad_c: Vec<f64>,
@@ -262,13 +262,16 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             let outs: Vec<GroupOut> = batch
                 .par_iter()
                 .map(|&(a, b)| {
-                    self.evaluate_group(
-                        samples,
-                        &samples.order[a..b],
-                        coefficients,
-                        basis,
-                        want_gradient,
-                    )
+                    SCRATCH.with_borrow_mut(|scratch| {
+                        self.evaluate_group(
+                            samples,
+                            &samples.order[a..b],
+                            coefficients,
+                            basis,
+                            want_gradient,
+                            scratch,
+                        )
+                    })
                 })
                 .collect::<Result<_, _>>()?;
             for out in outs {
@@ -279,7 +282,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
                 for (j, &node) in out.basis_nodes.iter().enumerate() {
                     let node = node as usize;
                     for li in 0..l {
-                        let row = out.grad_b.row(j * l + li);
+                        let row = &out.grad_b[(j * l + li) * d..(j * l + li + 1) * d];
                         let dst = &mut eval.grad_b[(node * l + li) * d..(node * l + li + 1) * d];
                         for (g, &v) in dst.iter_mut().zip(row.iter()) {
                             *g += v as f64;
@@ -304,7 +307,97 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         }
         Ok(eval)
     }
+}
 
+thread_local! {
+    /// Each worker thread's buffers, kept across groups, evaluations and iterations.
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// Buffers of one group's evaluation, reused for every group a thread evaluates (the matrices
+/// are row-major and resized per group, never shrunk).
+#[derive(Default)]
+struct Scratch {
+    phi: KernelWeights,
+    psi: KernelWeights,
+    /// Kernel weights of every sample, flattened with offsets.
+    phi_off: Vec<usize>,
+    phi_idx: Vec<u32>,
+    phi_w: Vec<f32>,
+    psi_off: Vec<usize>,
+    psi_idx: Vec<u32>,
+    psi_w: Vec<f32>,
+    /// ψ of every sample over the cell's nodes (`S × nb`).
+    psi_dense: Vec<f32>,
+    /// `c(x_s)` (`S × L`).
+    c_at: Vec<f32>,
+    /// `P[s, j L + l] = ψ_j(x_s) c_l(x_s)` (`S × nb L`).
+    p: Vec<f32>,
+    /// The cell's basis rows `B_g` (`nb L × D`).
+    bg: Vec<f32>,
+    /// Residuals `R = F − P B_g` (`S × D`).
+    r: Vec<f32>,
+    /// Gradient-only products.
+    pw: Vec<f32>,
+    hb: Vec<f32>,
+    q: Vec<f32>,
+    gram: Vec<f32>,
+    psi2: Vec<f32>,
+    pair_grams: Vec<f32>,
+    bbt: Vec<f32>,
+}
+
+/// `buf` resized to `rows × cols` and viewed as a matrix. Contents are unspecified: callers
+/// overwrite every entry (or multiply with β = 0).
+fn matrix(buf: &mut Vec<f32>, rows: usize, cols: usize) -> ArrayViewMut2<'_, f32> {
+    buf.resize(rows * cols, 0.0);
+    match ArrayViewMut2::from_shape((rows, cols), &mut buf[..rows * cols]) {
+        Ok(view) => view,
+        Err(_) => unreachable!("a buffer of rows × cols elements has that shape"),
+    }
+}
+
+fn view(buf: &[f32], rows: usize, cols: usize) -> ArrayView2<'_, f32> {
+    match ArrayView2::from_shape((rows, cols), &buf[..rows * cols]) {
+        Ok(view) => view,
+        Err(_) => unreachable!("a buffer of rows × cols elements has that shape"),
+    }
+}
+
+/// `Σ x²` in f64 with eight independent lanes (vectorisable, and the order is fixed).
+fn sum_of_squares(x: &[f32]) -> f64 {
+    let mut lanes = [0.0f64; 8];
+    let chunks = x.chunks_exact(8);
+    let rest: f64 = chunks
+        .remainder()
+        .iter()
+        .map(|&v| v as f64 * v as f64)
+        .sum();
+    for chunk in chunks {
+        for (acc, &v) in lanes.iter_mut().zip(chunk) {
+            *acc += v as f64 * v as f64;
+        }
+    }
+    lanes.iter().sum::<f64>() + rest
+}
+
+/// `out = Σ_k w_k v_k` over the eight trilinear corners, in one pass over `out`.
+fn blend8(out: &mut [f32], rows: [&[f32]; 8], w: [f32; 8]) {
+    let d = out.len();
+    let [r0, r1, r2, r3, r4, r5, r6, r7] = rows.map(|r| &r[..d]);
+    for k in 0..d {
+        out[k] = w[0] * r0[k]
+            + w[1] * r1[k]
+            + w[2] * r2[k]
+            + w[3] * r3[k]
+            + w[4] * r4[k]
+            + w[5] * r5[k]
+            + w[6] * r6[k]
+            + w[7] * r7[k];
+    }
+}
+
+impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
     fn evaluate_group(
         &self,
         samples: &Samples,
@@ -312,117 +405,120 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         coefficients: &[f32],
         basis: &[f32],
         want_gradient: bool,
+        scratch: &mut Scratch,
     ) -> Result<GroupOut, CoreError> {
         let (l, d) = (self.rank, self.dim());
         let s_len = ids.len();
-        let mut phi = KernelWeights::with_capacity(self.coefficient_kernels.max_support());
-        let mut psi = KernelWeights::with_capacity(self.basis_kernels.max_support());
-        // Kernel weights of every sample, flattened with offsets.
-        let mut phi_off = Vec::with_capacity(s_len + 1);
-        let mut phi_idx = Vec::new();
-        let mut phi_w = Vec::new();
-        let mut psi_off = Vec::with_capacity(s_len + 1);
-        let mut psi_idx = Vec::new();
-        let mut psi_w = Vec::new();
-        phi_off.push(0);
-        psi_off.push(0);
+        let sc = scratch;
+        sc.phi_off.clear();
+        sc.phi_idx.clear();
+        sc.phi_w.clear();
+        sc.psi_off.clear();
+        sc.psi_idx.clear();
+        sc.psi_w.clear();
+        sc.phi_off.push(0);
+        sc.psi_off.push(0);
         for &s in ids {
             let x = samples.points[s as usize];
-            self.coefficient_kernels.eval(x, &mut phi)?;
-            self.basis_kernels.eval(x, &mut psi)?;
-            phi_idx.extend_from_slice(&phi.indices);
-            phi_w.extend_from_slice(&phi.weights);
-            phi_off.push(phi_idx.len());
-            psi_idx.extend_from_slice(&psi.indices);
-            psi_w.extend_from_slice(&psi.weights);
-            psi_off.push(psi_idx.len());
+            self.coefficient_kernels.eval(x, &mut sc.phi)?;
+            self.basis_kernels.eval(x, &mut sc.psi)?;
+            sc.phi_idx.extend_from_slice(&sc.phi.indices);
+            sc.phi_w.extend_from_slice(&sc.phi.weights);
+            sc.phi_off.push(sc.phi_idx.len());
+            sc.psi_idx.extend_from_slice(&sc.psi.indices);
+            sc.psi_w.extend_from_slice(&sc.psi.weights);
+            sc.psi_off.push(sc.psi_idx.len());
         }
-        let basis_nodes = sorted_unique(&psi_idx);
+        let basis_nodes = sorted_unique(&sc.psi_idx);
         let nb = basis_nodes.len();
-        let local_psi: Vec<usize> = psi_idx
-            .iter()
-            .map(|i| basis_nodes.binary_search(i).unwrap_or(0))
-            .collect();
+        let nbl = nb * l;
 
         // Dense ψ (S × nb) and c(x_s) (S × L).
-        let mut psi_dense = Array2::<f32>::zeros((s_len, nb));
-        let mut c_at = Array2::<f32>::zeros((s_len, l));
+        sc.psi_dense.clear();
+        sc.psi_dense.resize(s_len * nb, 0.0);
+        sc.c_at.clear();
+        sc.c_at.resize(s_len * l, 0.0);
         for s in 0..s_len {
-            for k in psi_off[s]..psi_off[s + 1] {
-                psi_dense[[s, local_psi[k]]] += psi_w[k];
+            let psi_row = &mut sc.psi_dense[s * nb..(s + 1) * nb];
+            for k in sc.psi_off[s]..sc.psi_off[s + 1] {
+                let j = basis_nodes.binary_search(&sc.psi_idx[k]).unwrap_or(0);
+                psi_row[j] += sc.psi_w[k];
             }
-            let mut row = c_at.row_mut(s);
-            for k in phi_off[s]..phi_off[s + 1] {
-                let w = phi_w[k];
-                let src = &coefficients[phi_idx[k] as usize * l..(phi_idx[k] as usize + 1) * l];
-                for (o, &c) in row.iter_mut().zip(src) {
+            let c_row = &mut sc.c_at[s * l..(s + 1) * l];
+            for k in sc.phi_off[s]..sc.phi_off[s + 1] {
+                let w = sc.phi_w[k];
+                let node = sc.phi_idx[k] as usize;
+                for (o, &c) in c_row
+                    .iter_mut()
+                    .zip(&coefficients[node * l..(node + 1) * l])
+                {
                     *o += w * c;
                 }
             }
         }
         // P[s, j L + l] = ψ_j(x_s) c_l(x_s).
-        let mut p = Array2::<f32>::zeros((s_len, nb * l));
-        for s in 0..s_len {
-            for j in 0..nb {
-                let w = psi_dense[[s, j]];
-                if w == 0.0 {
-                    continue;
-                }
-                for li in 0..l {
-                    p[[s, j * l + li]] = w * c_at[[s, li]];
+        let mut p = matrix(&mut sc.p, s_len, nbl);
+        for (s, mut row) in p.rows_mut().into_iter().enumerate() {
+            let c_row = &sc.c_at[s * l..(s + 1) * l];
+            for (chunk, &w) in row
+                .as_slice_mut()
+                .unwrap_or(&mut [])
+                .chunks_exact_mut(l)
+                .zip(&sc.psi_dense[s * nb..(s + 1) * nb])
+            {
+                for (o, &c) in chunk.iter_mut().zip(c_row) {
+                    *o = w * c;
                 }
             }
         }
         // The cell's basis rows B_g (nb L × D).
-        let mut bg = Array2::<f32>::zeros((nb * l, d));
+        sc.bg.resize(nbl * d, 0.0);
         for (j, &node) in basis_nodes.iter().enumerate() {
-            let src = &basis[node as usize * l * d..(node as usize + 1) * l * d];
-            if let Some(dst) = bg
-                .slice_mut(ndarray::s![j * l..(j + 1) * l, ..])
-                .as_slice_mut()
-            {
-                dst.copy_from_slice(src);
-            }
+            let node = node as usize;
+            sc.bg[j * l * d..(j + 1) * l * d]
+                .copy_from_slice(&basis[node * l * d..(node + 1) * l * d]);
         }
-        // Residual R = F − P B_g.
-        let mut r = Array2::<f32>::zeros((s_len, d));
-        for (s, &id) in ids.iter().enumerate() {
+        // Residual R = F − P B_g, the target blended from its eight voxels in one pass.
+        sc.r.resize(s_len * d, 0.0);
+        for (row, &id) in sc.r.chunks_exact_mut(d).zip(ids) {
             let tw = self.field.trilinear_weights(samples.points[id as usize])?;
-            let mut row = r.row_mut(s);
-            for (&v, &w) in tw.indices.iter().zip(&tw.weights) {
-                if w != 0.0 {
-                    row.scaled_add(w, &ndarray::aview1(self.field.voxel(v)));
-                }
-            }
+            blend8(row, tw.indices.map(|v| self.field.voxel(v)), tw.weights);
         }
-        general_mat_mul(-1.0, &p, &bg, 1.0, &mut r);
-        let loss = r.iter().map(|&v| (v as f64) * (v as f64)).sum();
+        let bg = view(&sc.bg, nbl, d);
+        let p = view(&sc.p, s_len, nbl);
+        {
+            let mut r = matrix(&mut sc.r, s_len, d);
+            general_mat_mul(-1.0, &p, &bg, 1.0, &mut r);
+        }
+        let loss = sum_of_squares(&sc.r[..s_len * d]);
         if !want_gradient {
             return Ok(GroupOut {
                 loss,
                 basis_nodes,
-                grad_b: Array2::zeros((0, 0)),
+                grad_b: Vec::new(),
                 hess_b: Vec::new(),
                 coef_nodes: Vec::new(),
                 grad_c: Vec::new(),
                 hess_c: Vec::new(),
             });
         }
-        // ∇_B = −2 Pᵀ R; diagonal Hessian 2 Σ_s P².
-        let mut grad_b = Array2::<f32>::zeros((nb * l, d));
-        general_mat_mul(-2.0, &p.t(), &r, 0.0, &mut grad_b);
+        let r = view(&sc.r, s_len, d);
+        // ∇_B = −2 Pᵀ R.
+        let mut grad_b = Vec::new();
+        general_mat_mul(-2.0, &p.t(), &r, 0.0, &mut matrix(&mut grad_b, nbl, d));
         let lumped = self.preconditioner != Preconditioner::Diagonal;
         let w = self.preconditioner.width(l);
         // Curvature of the basis: Σ_s ψ_j(x_s) κ_s c(x_s) c(x_s)ᵀ with κ_s = Σψ (lumped) or
-        // ψ_j (exact diagonal), as one product (diag(κ) P)ᵀ C for the lumped kinds.
-        let mut hess_b = vec![0.0f64; nb * l * w];
+        // ψ_j (exact diagonal), as one product (diag(2κ) P)ᵀ C for the lumped kinds.
+        let mut hess_b = vec![0.0f64; nbl * w];
         if lumped {
-            let mut pw = p.clone();
-            for (mut row, prow) in pw.rows_mut().into_iter().zip(psi_dense.rows()) {
-                let overlap = prow.sum();
-                row.mapv_inplace(|v| 2.0 * v * overlap);
+            let mut pw = matrix(&mut sc.pw, s_len, nbl);
+            for (s, (mut row, prow)) in pw.rows_mut().into_iter().zip(p.rows()).enumerate() {
+                let overlap: f32 = sc.psi_dense[s * nb..(s + 1) * nb].iter().sum();
+                row.zip_mut_with(&prow, |o, &v| *o = 2.0 * v * overlap);
             }
-            let mut hb = Array2::<f32>::zeros((nb * l, l));
+            let c_at = view(&sc.c_at, s_len, l);
+            let mut hb = matrix(&mut sc.hb, nbl, l);
             general_mat_mul(1.0, &pw.t(), &c_at, 0.0, &mut hb);
             for (jl, row) in hb.rows().into_iter().enumerate() {
                 if w == 1 {
@@ -441,26 +537,27 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             }
         }
         // b(x_s)·r_s through Q = R B_gᵀ, and ‖b_l(x_s)‖² through the cell Gram G = B_g B_gᵀ.
-        let mut q = Array2::<f32>::zeros((s_len, nb * l));
+        let mut q = matrix(&mut sc.q, s_len, nbl);
         general_mat_mul(1.0, &r, &bg.t(), 0.0, &mut q);
-        let mut gram = Array2::<f32>::zeros((nb * l, nb * l));
+        let mut gram = matrix(&mut sc.gram, nbl, nbl);
         general_mat_mul(1.0, &bg, &bg.t(), 0.0, &mut gram);
 
-        let coef_nodes = sorted_unique(&phi_idx);
+        let coef_nodes = sorted_unique(&sc.phi_idx);
         let nc = coef_nodes.len();
         let mut grad_c = vec![0.0f64; nc * l];
         let mut hess_c = vec![0.0f64; nc * l * w];
         // b(x_s) b(x_s)ᵀ = Σ_jk ψ_j ψ_k B_j B_kᵀ for every sample at once: (ψ ⊗ ψ) (S × nb²)
         // times the cell's node-pair Grams (nb² × L²).
-        let mut psi2 = Array2::<f32>::zeros((s_len, nb * nb));
-        for (mut row, prow) in psi2.rows_mut().into_iter().zip(psi_dense.rows()) {
+        let mut psi2 = matrix(&mut sc.psi2, s_len, nb * nb);
+        for (s, mut row) in psi2.rows_mut().into_iter().enumerate() {
+            let prow = &sc.psi_dense[s * nb..(s + 1) * nb];
             for j in 0..nb {
                 for k in 0..nb {
                     row[j * nb + k] = prow[j] * prow[k];
                 }
             }
         }
-        let mut pair_grams = Array2::<f32>::zeros((nb * nb, l * l));
+        let mut pair_grams = matrix(&mut sc.pair_grams, nb * nb, l * l);
         for j in 0..nb {
             for k in 0..nb {
                 let mut row = pair_grams.row_mut(j * nb + k);
@@ -471,19 +568,18 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
                 }
             }
         }
-        let mut bbt = Array2::<f32>::zeros((s_len, l * l));
+        let mut bbt = matrix(&mut sc.bbt, s_len, l * l);
         general_mat_mul(1.0, &psi2, &pair_grams, 0.0, &mut bbt);
         let mut br = vec![0.0f64; l];
         let mut bb = vec![0.0f64; l * w];
         for s in 0..s_len {
             br.fill(0.0);
-            for j in 0..nb {
-                let wj = psi_dense[[s, j]] as f64;
+            for (j, &wj) in sc.psi_dense[s * nb..(s + 1) * nb].iter().enumerate() {
                 if wj == 0.0 {
                     continue;
                 }
                 for li in 0..l {
-                    br[li] += wj * q[[s, j * l + li]] as f64;
+                    br[li] += wj as f64 * q[[s, j * l + li]] as f64;
                 }
             }
             let row = bbt.row(s);
@@ -496,17 +592,18 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
                     }
                 }
             }
+            let phi_w = &sc.phi_w[sc.phi_off[s]..sc.phi_off[s + 1]];
             let overlap: f64 = if lumped {
-                phi_w[phi_off[s]..phi_off[s + 1]]
-                    .iter()
-                    .map(|&v| v as f64)
-                    .sum()
+                phi_w.iter().map(|&v| v as f64).sum()
             } else {
                 0.0
             };
-            for k in phi_off[s]..phi_off[s + 1] {
-                let local = coef_nodes.binary_search(&phi_idx[k]).unwrap_or(0);
-                let weight = phi_w[k] as f64;
+            for (&node, &weight) in sc.phi_idx[sc.phi_off[s]..sc.phi_off[s + 1]]
+                .iter()
+                .zip(phi_w)
+            {
+                let local = coef_nodes.binary_search(&node).unwrap_or(0);
+                let weight = weight as f64;
                 let scale = if lumped {
                     2.0 * weight * overlap
                 } else {

@@ -3,7 +3,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use ndarray::{Array2, Array3, ArrayView2};
+use ndarray::{Array2, Array3, ArrayView2, ArrayViewMut2, linalg::general_mat_mul};
 use prt_core::{Aabb, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
@@ -484,9 +484,10 @@ fn fit_coefficients<C: SpatialKernels, B: SpatialKernels>(
                     vec![0.0f32; l * d],
                     vec![0.0f64; l * l],
                     vec![0.0f64; l],
+                    vec![0.0f32; l * l],
                 )
             },
-            |(psi, f, b, a, rhs), (index, out)| -> Result<(), MbdError> {
+            |(psi, f, b, a, rhs, g32), (index, out)| -> Result<(), MbdError> {
                 let Some(x) = problem.coefficient_kernels.centre(index) else {
                     return Ok(());
                 };
@@ -499,23 +500,20 @@ fn fit_coefficients<C: SpatialKernels, B: SpatialKernels>(
                         *o += w * v;
                     }
                 }
+                // The normal equations as f32 products (a starting point only; the solver
+                // refines it), solved in f64.
                 let bm = ArrayView2::from_shape((l, d), &b[..]).map_err(shape_error)?;
+                let fv = ndarray::aview1(&f[..]);
+                let mut gram =
+                    ArrayViewMut2::from_shape((l, l), &mut g32[..]).map_err(shape_error)?;
+                general_mat_mul(1.0, &bm, &bm.t(), 0.0, &mut gram);
+                for (o, v) in rhs.iter_mut().zip(bm.dot(&fv)) {
+                    *o = v as f64;
+                }
+                for (o, &v) in a.iter_mut().zip(g32.iter()) {
+                    *o = v as f64;
+                }
                 for i in 0..l {
-                    let bi = bm.row(i);
-                    rhs[i] = bi
-                        .iter()
-                        .zip(f.iter())
-                        .map(|(&x, &y)| x as f64 * y as f64)
-                        .sum();
-                    for j in 0..=i {
-                        let v: f64 = bi
-                            .iter()
-                            .zip(bm.row(j).iter())
-                            .map(|(&x, &y)| x as f64 * y as f64)
-                            .sum();
-                        a[i * l + j] = v;
-                        a[j * l + i] = v;
-                    }
                     a[i * l + i] += lambda;
                 }
                 if cholesky_in_place(a, l) {

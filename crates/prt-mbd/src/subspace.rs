@@ -3,6 +3,7 @@
 
 use ndarray::{Array2, ArrayView2, Axis, linalg::general_mat_mul, s};
 use prt_linalg::sym_eig;
+use rayon::prelude::*;
 
 use crate::MbdError;
 
@@ -10,14 +11,30 @@ use crate::MbdError;
 /// stays at the level of one product, long enough for an efficient matrix product.
 const GRAM_BLOCK: usize = 256;
 
-/// `XᵀX` (`d × d`) accumulated in f64 from f32 products of `GRAM_BLOCK`-row blocks.
+/// Rows per parallel task of [`gram_columns`]: fixed, so the f64 sums run in the same order on
+/// any number of threads.
+const GRAM_TASK: usize = 64 * GRAM_BLOCK;
+
+/// `XᵀX` (`d × d`) accumulated in f64 from f32 products of `GRAM_BLOCK`-row blocks, tasks of
+/// `GRAM_TASK` rows in parallel and their totals added in order.
 pub(crate) fn gram_columns(x: ArrayView2<'_, f32>) -> Array2<f64> {
     let d = x.ncols();
+    let task_totals: Vec<Array2<f64>> = x
+        .axis_chunks_iter(Axis(0), GRAM_TASK)
+        .into_par_iter()
+        .map(|task| {
+            let mut total = Array2::<f64>::zeros((d, d));
+            let mut block = Array2::<f32>::zeros((d, d));
+            for chunk in task.axis_chunks_iter(Axis(0), GRAM_BLOCK) {
+                general_mat_mul(1.0, &chunk.t(), &chunk, 0.0, &mut block);
+                total.zip_mut_with(&block, |t, &b| *t += b as f64);
+            }
+            total
+        })
+        .collect();
     let mut total = Array2::<f64>::zeros((d, d));
-    let mut block = Array2::<f32>::zeros((d, d));
-    for chunk in x.axis_chunks_iter(Axis(0), GRAM_BLOCK) {
-        general_mat_mul(1.0, &chunk.t(), &chunk, 0.0, &mut block);
-        total.zip_mut_with(&block, |t, &b| *t += b as f64);
+    for task in &task_totals {
+        total += task;
     }
     total
 }
