@@ -9,7 +9,7 @@ use prt_benches::Table;
 use prt_wavelet::analysis::LightingError;
 use prt_wavelet::sequence::Interpolation;
 use prt_wavelet::{
-    Approximator, BandStrategy, Cubemap, CubemapHaar, CubemapLayout, LatLong, Policy, Weighting,
+    Approximator, BandStrategy, Cubemap, CubemapHaar, CubemapLayout, Policy, Weighting,
 };
 
 const SIZE: usize = 64;
@@ -22,8 +22,8 @@ fn load(name: &str) -> Option<Cubemap> {
         .join(format!("{name}.hdr"));
     let img = image::open(&path).ok()?.into_rgb32f();
     let (w, h) = img.dimensions();
-    let map = LatLong::new(w as usize, h as usize, 3, img.into_raw()).ok()?;
-    Cubemap::from_lat_long(&map, SIZE, 0.0).ok()
+    let map = prt_sphere::LatLongMap::new(w as usize, h as usize, img.into_raw()).ok()?;
+    Cubemap::from_lat_long(&map, SIZE, 0.0, Cubemap::default_samples(map.width(), SIZE)).ok()
 }
 
 fn main() {

@@ -8,8 +8,10 @@
 use std::path::Path;
 
 use prt_benches::Table;
+use prt_sphere::LatLongMap;
+use prt_sphere::envmap::cube_texel_direction;
 use prt_wavelet::sequence::Rotation;
-use prt_wavelet::{LatLong, ShApproximator, texel_direction, texel_solid_angles};
+use prt_wavelet::{ShApproximator, texel_solid_angles};
 
 const ORDER: usize = 10;
 const SIZE: usize = 32;
@@ -49,7 +51,7 @@ fn main() {
             let mut y = vec![0.0f32; ORDER * ORDER];
             prt_sphere::eval_sh(
                 ORDER,
-                texel_direction(SIZE, face, t % SIZE, t / SIZE),
+                cube_texel_direction(face, t % SIZE, t / SIZE, SIZE),
                 &mut y,
             );
             y
@@ -74,7 +76,7 @@ fn main() {
         };
         let img = img.into_rgb32f();
         let (w, h) = img.dimensions();
-        let map = LatLong::new(w as usize, h as usize, 3, img.into_raw()).expect("finite map");
+        let map = LatLongMap::new(w as usize, h as usize, img.into_raw()).expect("finite map");
         for deg in [1.0f32, 3.0] {
             let rotation =
                 Rotation::new(map.clone(), SIZE, deg.to_radians(), STOP).expect("rotation");

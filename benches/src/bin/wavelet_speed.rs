@@ -77,16 +77,33 @@ impl MatrixOracle for SyntheticTransport {
 /// accumulators (enough to keep the loads, not the adds, the bottleneck).
 fn read_bandwidth() -> f64 {
     let data = vec![1.0f32; 64 << 20];
-    let t = median_time(5, || {
-        let mut acc = [0.0f32; 32];
-        for c in data.chunks_exact(32) {
-            for k in 0..32 {
-                acc[k] += c[k];
+    // Median over repetitions of the thread's CPU time (the machine is shared: wall time
+    // would count waiting), falling back to wall time where schedstat is unavailable.
+    let mut times: Vec<Duration> = (0..6)
+        .map(|_| {
+            let (cpu, wall) = (thread_cpu(), std::time::Instant::now());
+            let mut acc = [0.0f32; 32];
+            for c in data.chunks_exact(32) {
+                for k in 0..32 {
+                    acc[k] += c[k];
+                }
             }
-        }
-        acc
-    });
-    (data.len() * 4) as f64 / t.as_secs_f64()
+            std::hint::black_box(acc);
+            let cpu = thread_cpu().saturating_sub(cpu);
+            if cpu.is_zero() { wall.elapsed() } else { cpu }
+        })
+        .collect();
+    times.sort();
+    (data.len() * 4) as f64 / times[times.len() / 2].as_secs_f64()
+}
+
+/// CPU time of the calling thread so far (Linux: `/proc/thread-self/schedstat`, nanoseconds on
+/// the CPU; zero elsewhere), so that timings on a shared machine can be told from waiting.
+fn thread_cpu() -> Duration {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse().ok())
+        .map_or(Duration::ZERO, Duration::from_nanos)
 }
 
 fn main() {
@@ -179,42 +196,90 @@ fn main() {
     let mut relight = Table::new(&[
         "policy",
         "terms",
+        "tile rows",
         "approximation step",
-        "relight apply",
+        "relight apply (wall)",
+        "relight apply (thread CPU)",
         "column bytes",
         "image bytes",
         "bandwidth bound (all bytes)",
-        "apply / bound",
+        "apply CPU / bound",
     ]);
-    for (name, policy) in [
-        ("NWA", Policy::NonIncremental),
-        ("BI", Policy::Incremental),
-        ("PBI L1 test", Policy::PerBand(BandStrategy::L1Test)),
-        ("PBI exhaustive", Policy::PerBand(BandStrategy::Exhaustive)),
-        ("PBI dealer", Policy::PerBand(BandStrategy::Dealer)),
+    let untiled = transport.rows();
+    for (name, policy, terms, tilings) in [
+        ("NWA", Policy::NonIncremental, 30, vec![untiled, 1024]),
+        ("NWA", Policy::NonIncremental, 100, vec![untiled, 1024]),
+        (
+            "BI",
+            Policy::Incremental,
+            30,
+            vec![untiled, 4096, 1024, 256, 64],
+        ),
+        (
+            "BI",
+            Policy::Incremental,
+            100,
+            vec![untiled, 4096, 1024, 256, 64],
+        ),
+        (
+            "PBI L1 test",
+            Policy::PerBand(BandStrategy::L1Test),
+            30,
+            vec![untiled, 1024],
+        ),
+        (
+            "PBI exhaustive",
+            Policy::PerBand(BandStrategy::Exhaustive),
+            30,
+            vec![untiled, 1024],
+        ),
+        (
+            "PBI exhaustive",
+            Policy::PerBand(BandStrategy::Exhaustive),
+            100,
+            vec![untiled, 1024],
+        ),
+        (
+            "PBI dealer",
+            Policy::PerBand(BandStrategy::Dealer),
+            30,
+            vec![untiled, 1024],
+        ),
     ] {
-        for terms in [30usize, 100] {
-            let mut approx = Approximator::for_cubemap(
-                &layout,
-                3,
-                Weighting::Transport(transport.column_l1_norms()),
-                terms,
-                policy,
-            )
-            .expect("config");
-            let mut engine =
-                Relighter::new(transport.clone(), 3, layout.band_count()).expect("engine");
-            let (mut t_step, mut t_apply) = (Duration::ZERO, Duration::ZERO);
-            let (mut col_bytes, mut img_bytes) = (0usize, 0usize);
-            for f in &frames {
+        let mut approx = Approximator::for_cubemap(
+            &layout,
+            3,
+            Weighting::Transport(transport.column_l1_norms()),
+            terms,
+            policy,
+        )
+        .expect("config");
+        let mut t_step = Duration::ZERO;
+        let updates: Vec<_> = frames
+            .iter()
+            .map(|f| {
                 let start = std::time::Instant::now();
                 let update = approx.step(f).expect("step").clone();
                 t_step += start.elapsed();
+                update
+            })
+            .collect();
+        for tile_rows in tilings {
+            let mut engine = Relighter::new(
+                transport.clone().with_tile_rows(tile_rows),
+                3,
+                layout.band_count(),
+            )
+            .expect("engine");
+            let (mut t_apply, mut cpu_apply) = (Duration::ZERO, Duration::ZERO);
+            let (mut col_bytes, mut img_bytes) = (0usize, 0usize);
+            for update in &updates {
+                let cpu = thread_cpu();
                 let start = std::time::Instant::now();
-                col_bytes += engine.apply(&update).expect("apply");
+                col_bytes += engine.apply(update).expect("apply");
                 t_apply += start.elapsed();
-                // Each term's column is read twice (partial image and total) and its pixels
-                // written; each replaced band streams its partial image and the total.
+                cpu_apply += thread_cpu().saturating_sub(cpu);
+                // Each replaced band streams its partial image and the total.
                 let replaced = update
                     .modes
                     .iter()
@@ -222,19 +287,25 @@ fn main() {
                     .count();
                 img_bytes += replaced * 3 * transport.rows() * 4 * 3;
             }
-            let n = frames.len() as u32;
+            let n = updates.len() as u32;
             let bound = Duration::from_secs_f64((col_bytes + img_bytes) as f64 / bandwidth) / n;
             relight.row(vec![
                 name.into(),
                 terms.to_string(),
+                if tile_rows == untiled {
+                    format!("{tile_rows} (one tile)")
+                } else {
+                    tile_rows.to_string()
+                },
                 fmt_duration(t_step / n),
                 fmt_duration(t_apply / n),
+                fmt_duration(cpu_apply / n),
                 format!("{:.0} KB", col_bytes as f64 / n as f64 / 1e3),
                 format!("{:.0} KB", img_bytes as f64 / n as f64 / 1e3),
                 fmt_duration(bound),
                 format!(
-                    "{:.1}",
-                    (t_apply / n).as_secs_f64() / bound.as_secs_f64().max(1e-12)
+                    "{:.2}",
+                    (cpu_apply / n).as_secs_f64() / bound.as_secs_f64().max(1e-12)
                 ),
             ]);
         }

@@ -63,9 +63,7 @@ pub mod sequence;
 mod sh;
 
 pub use approx::{Approximator, BandMode, BandStrategy, FrameUpdate, Policy, Term, Weighting};
-pub use cubemap::{
-    Cubemap, CubemapHaar, CubemapLayout, LatLong, texel_direction, texel_solid_angles,
-};
+pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, texel_solid_angles};
 pub use daubechies::Daubechies4;
 pub use error::WaveletError;
 pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};

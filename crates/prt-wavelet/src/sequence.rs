@@ -1,23 +1,28 @@
 //! Lighting sequences for the incremental experiments (Overbeck's rotating and blending maps).
 
+use prt_sphere::LatLongMap;
+
 use crate::WaveletError;
-use crate::cubemap::{Cubemap, LatLong};
+use crate::cubemap::Cubemap;
 
 /// An environment map rotating about +Y at `speed` radians per frame until `stop_frame`, then
-/// static: frame `t` is the map rotated by `speed × min(t, stop_frame)`.
+/// static: frame `t` is the map rotated by `speed × min(t, stop_frame)`, area-averaged onto the
+/// cube faces ([`Cubemap::from_lat_long`]).
 #[derive(Debug, Clone)]
 pub struct Rotation {
-    map: LatLong,
+    map: LatLongMap,
     size: usize,
+    samples: usize,
     speed: f32,
     stop_frame: usize,
 }
 
 impl Rotation {
-    /// A rotation of `map` resampled to `size × size` cube faces. Errors if `size` is not a power
-    /// of two or `speed` is not finite.
+    /// A rotation of `map` resampled to `size × size` cube faces with
+    /// [`Cubemap::default_samples`] sub-texel samples. Errors if `size` is not a power of two or
+    /// `speed` is not finite.
     pub fn new(
-        map: LatLong,
+        map: LatLongMap,
         size: usize,
         speed: f32,
         stop_frame: usize,
@@ -30,11 +35,31 @@ impl Rotation {
             });
         }
         Ok(Self {
+            samples: Cubemap::default_samples(map.width(), size),
             map,
             size,
             speed,
             stop_frame,
         })
+    }
+
+    /// The same rotation resampled with `samples × samples` lookups per cube texel (1 = a single
+    /// point sample at the texel centre, which aliases small bright sources). Errors if
+    /// `samples` is zero.
+    pub fn with_samples(mut self, samples: usize) -> Result<Self, WaveletError> {
+        if samples == 0 {
+            return Err(WaveletError::Invalid {
+                what: "samples per texel side",
+                why: "must be at least 1".into(),
+            });
+        }
+        self.samples = samples;
+        Ok(self)
+    }
+
+    /// Sub-texel samples per side.
+    pub fn samples(&self) -> usize {
+        self.samples
     }
 
     /// The rotation angle of frame `t`.
@@ -49,7 +74,7 @@ impl Rotation {
 
     /// The cube map of frame `t`.
     pub fn frame(&self, t: usize) -> Result<Cubemap, WaveletError> {
-        Cubemap::from_lat_long(&self.map, self.size, self.angle(t))
+        Cubemap::from_lat_long(&self.map, self.size, self.angle(t), self.samples)
     }
 }
 

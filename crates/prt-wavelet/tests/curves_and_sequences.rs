@@ -2,11 +2,13 @@
 
 use proptest::prelude::*;
 use prt_core::metrics::relative_frobenius_error;
+use prt_sphere::LatLongMap;
+use prt_sphere::envmap::cube_texel_direction;
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke};
 use prt_wavelet::sequence::{Interpolation, Rotation};
 use prt_wavelet::{
-    Cubemap, CubemapHaar, CubemapLayout, LatLong, ShApproximator, WaveletError, texel_direction,
+    Cubemap, CubemapHaar, CubemapLayout, ShApproximator, WaveletError, texel_solid_angles,
 };
 
 #[test]
@@ -151,46 +153,105 @@ fn sh_tolerance_prioritises_stale_bands() {
     assert_eq!(u.terms.len(), 5);
 }
 
-/// A lat-long map of f(d) = 2 + d.x + 0.5 d.z (single channel).
-fn linear_map(w: usize, h: usize) -> LatLong {
-    let mut data = Vec::with_capacity(w * h);
-    for y in 0..h {
-        for x in 0..w {
-            let theta = 2.0 * std::f32::consts::PI * (x as f32 + 0.5) / w as f32;
-            let phi = std::f32::consts::PI * (y as f32 + 0.5) / h as f32;
-            let d = glam::Vec3::new(phi.sin() * theta.sin(), phi.cos(), -phi.sin() * theta.cos());
-            data.push(2.0 + d.x + 0.5 * d.z);
-        }
-    }
-    LatLong::new(w, h, 1, data).unwrap()
+/// A lat-long RGB map of f(d) = (2 + d.x + 0.5 d.z) × (1, 2, 3).
+fn linear_map(w: usize, h: usize) -> LatLongMap {
+    LatLongMap::from_fn(w, h, |d| {
+        (2.0 + d.x + 0.5 * d.z) * glam::Vec3::new(1.0, 2.0, 3.0)
+    })
+    .unwrap()
 }
 
 #[test]
 fn rotation_moves_the_map_about_y_and_stops() {
-    let map = linear_map(512, 256);
-    let angle = 0.7f32;
-    let rot = Rotation::new(map, 8, angle, 3).unwrap();
+    let (size, angle) = (16, 0.7f32);
+    let rot = Rotation::new(linear_map(512, 256), size, angle, 3).unwrap();
     assert_eq!(rot.angle(10), 3.0 * angle);
+    assert_eq!(rot.samples(), Cubemap::default_samples(512, size));
     let frame = rot.frame(1).unwrap();
+    let plane = 6 * size * size;
     for face in 0..6 {
-        for y in 0..8 {
-            for x in 0..8 {
-                let d = texel_direction(8, face, x, y);
+        for y in 0..size {
+            for x in 0..size {
+                let d = cube_texel_direction(face, x, y, size);
                 // Content moves towards increasing θ: L'(θ) = L(θ − α).
                 let theta = d.x.atan2(-d.z) - angle;
                 let r = (d.x * d.x + d.z * d.z).sqrt();
                 let src = glam::Vec3::new(r * theta.sin(), d.y, -r * theta.cos());
                 let expect = 2.0 + src.x + 0.5 * src.z;
-                let got = frame.data()[(face * 8 + y) * 8 + x];
-                assert!(
-                    (got - expect).abs() < 2e-3,
-                    "face {face} ({x},{y}): {got} vs {expect}"
-                );
+                for c in 0..3 {
+                    let got = frame.data()[c * plane + (face * size + y) * size + x];
+                    // The texel mean of a linear function is its value at the texel's mean
+                    // direction, which sits within (texel angle)^2 / 8 = 2e-3 of the centre.
+                    assert!(
+                        (got - (c + 1) as f32 * expect).abs() < 3e-3 * (c + 1) as f32,
+                        "face {face} ({x},{y}) channel {c}: {got} vs {expect}"
+                    );
+                }
             }
         }
     }
     assert_eq!(rot.frame(3).unwrap(), rot.frame(50).unwrap());
     assert!(Rotation::new(linear_map(8, 4), 6, 0.1, 1).is_err());
+    assert!(Rotation::new(linear_map(8, 4), 8, f32::NAN, 1).is_err());
+    assert!(rot.clone().with_samples(0).is_err());
+}
+
+#[test]
+fn rotating_by_one_texel_shifts_the_map_by_one_column() {
+    let (w, h) = (64, 32);
+    let value = |x: usize, y: usize| ((x * 7 + y * 13) % 11) as f32 + 0.5;
+    let data = |shift: usize| -> Vec<f32> {
+        (0..h)
+            .flat_map(|y| (0..w).flat_map(move |x| [value((x + w - shift) % w, y); 3]))
+            .collect()
+    };
+    let map = LatLongMap::new(w, h, data(0)).unwrap();
+    let shifted = LatLongMap::new(w, h, data(1)).unwrap();
+    let step = std::f32::consts::TAU / w as f32;
+    let a = Cubemap::from_lat_long(&map, 8, step, 3).unwrap();
+    let b = Cubemap::from_lat_long(&shifted, 8, 0.0, 3).unwrap();
+    for (i, (x, y)) in a.data().iter().zip(b.data()).enumerate() {
+        assert!((x - y).abs() < 1e-3, "texel {i}: {x} vs {y}");
+    }
+    assert!(Cubemap::from_lat_long(&map, 8, 0.0, 0).is_err());
+    assert!(Cubemap::from_lat_long(&map, 6, 0.0, 1).is_err());
+}
+
+#[test]
+fn area_averaging_keeps_a_small_bright_source_steady_under_rotation() {
+    // One bright lat-long texel (1.4 degrees) seen by 5.6-degree cube texels.
+    let (w, h, size) = (256, 128, 16);
+    let (sx, sy) = (40, 50);
+    let mut data = vec![0.0f32; 3 * w * h];
+    data[3 * (sy * w + sx)..3 * (sy * w + sx) + 3].fill(1000.0);
+    let map = LatLongMap::new(w, h, data).unwrap();
+    let exact = 1000.0 * map.texel_solid_angle(sy);
+    let omega = texel_solid_angles(size);
+    let energy = |samples: usize, angle: f32| -> f64 {
+        let cube = Cubemap::from_lat_long(&map, size, angle, samples).unwrap();
+        cube.data()[..omega.len()]
+            .iter()
+            .zip(&omega)
+            .map(|(l, o)| (l * o) as f64)
+            .sum()
+    };
+    let samples = Cubemap::default_samples(w, size);
+    let (mut lo, mut hi) = (f64::MAX, 0.0f64);
+    let (mut lo1, mut hi1) = (f64::MAX, 0.0f64);
+    for k in 0..24 {
+        let angle = 0.3f32.to_radians() * k as f32;
+        let e = energy(samples, angle) / exact;
+        let e1 = energy(1, angle) / exact;
+        (lo, hi) = (lo.min(e), hi.max(e));
+        (lo1, hi1) = (lo1.min(e1), hi1.max(e1));
+    }
+    // Bilinear spreading conserves the integral up to the solid-angle change over two texels.
+    assert!(lo > 0.95 && hi < 1.05, "area-averaged energy {lo}..{hi}");
+    // One point sample per texel misses the source (or overweights it) depending on the angle.
+    assert!(
+        (1.0 - lo1).max(hi1 - 1.0) > 0.5,
+        "point-sampled energy {lo1}..{hi1}"
+    );
 }
 
 #[test]

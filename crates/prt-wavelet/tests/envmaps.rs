@@ -3,13 +3,12 @@
 
 use std::path::Path;
 
+use prt_sphere::LatLongMap;
 use prt_wavelet::analysis::LightingError;
 use prt_wavelet::sequence::Rotation;
-use prt_wavelet::{
-    Approximator, BandStrategy, CubemapHaar, CubemapLayout, LatLong, Policy, Weighting,
-};
+use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, Policy, Weighting};
 
-fn load(name: &str) -> Option<LatLong> {
+fn load(name: &str) -> Option<LatLongMap> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../../shared/envmaps")
         .join(name);
@@ -21,7 +20,7 @@ fn load(name: &str) -> Option<LatLong> {
         }
     };
     let (w, h) = img.dimensions();
-    Some(LatLong::new(w as usize, h as usize, 3, img.into_raw()).expect("finite HDR"))
+    Some(LatLongMap::new(w as usize, h as usize, img.into_raw()).expect("finite HDR"))
 }
 
 #[test]

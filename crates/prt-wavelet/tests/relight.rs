@@ -71,7 +71,11 @@ fn dense_check(channels: usize) {
     let mut rng = Pcg64::seed_from_u64(11);
     let (rows, cols) = (50, 48);
     let oracle = DenseOracle::new(sparse_matrix(rows, cols, 0.3, &mut rng), 1).unwrap();
-    let t = SparseTransport::from_oracle(&oracle, 10, &NoProgress).unwrap();
+    // Tiles of 8 pixels (the last one partial) so that the tiled apply is what is checked.
+    let t = SparseTransport::from_oracle(&oracle, 10, &NoProgress)
+        .unwrap()
+        .with_tile_rows(8);
+    assert_eq!((t.tile_rows(), t.tiles()), (8, 7));
     let deq = t.to_dense();
     let bands: Vec<u8> = (0..cols).map(|j| (j % 4) as u8).collect();
     for policy in [
@@ -114,6 +118,58 @@ fn dense_check(channels: usize) {
                     assert!(
                         (got - exact).abs() <= 1e-4 * (1.0 + scale),
                         "{policy:?} frame {frame}: {got} vs {exact}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn tiling_never_changes_the_image() {
+    // Per pixel, terms are accumulated in the same (band) order whatever the tiling, so every
+    // tile size gives bit-identical images.
+    let mut rng = Pcg64::seed_from_u64(3);
+    let (rows, cols) = (37, 40);
+    let oracle = DenseOracle::new(sparse_matrix(rows, cols, 0.4, &mut rng), 1).unwrap();
+    let t = SparseTransport::from_oracle(&oracle, 12, &NoProgress).unwrap();
+    assert_eq!(t.tiles(), 1, "37 pixels fit in one default tile");
+    let bands: Vec<u8> = (0..cols).map(|j| (j % 3) as u8).collect();
+    for channels in [1, 3, 5] {
+        for policy in [
+            Policy::NonIncremental,
+            Policy::PerBand(BandStrategy::Exhaustive),
+        ] {
+            let mut engines: Vec<Relighter> = [rows, 1, 5, 16, 1000]
+                .iter()
+                .map(|&n| Relighter::new(t.clone().with_tile_rows(n), channels, 3).unwrap())
+                .collect();
+            assert_eq!(engines[1].transport().tiles(), rows);
+            assert_eq!(
+                engines[4].transport().tile_rows(),
+                rows,
+                "clamped to the pixels"
+            );
+            let mut a =
+                Approximator::new(bands.clone(), vec![1.0; cols], channels, 6, policy).unwrap();
+            let mut lighting: Vec<f32> = (0..cols * channels)
+                .map(|_| rng.random_range(-1.0f32..1.0))
+                .collect();
+            for _ in 0..12 {
+                for v in &mut lighting {
+                    *v += rng.random_range(-0.5f32..0.5);
+                }
+                let update = a.step(&lighting).unwrap().clone();
+                let bytes: Vec<usize> = engines
+                    .iter_mut()
+                    .map(|e| e.apply(&update).unwrap())
+                    .collect();
+                assert!(bytes.iter().all(|&b| b == bytes[0]));
+                for e in &engines[1..] {
+                    assert_eq!(
+                        e.image(),
+                        engines[0].image(),
+                        "{policy:?}, {channels} channels"
                     );
                 }
             }

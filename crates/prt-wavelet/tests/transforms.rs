@@ -219,6 +219,55 @@ fn layout_bands_and_area_weights() {
     }
 }
 
+#[test]
+fn tile_bands_keep_each_support_inside_one_tile() {
+    let n = 8;
+    let layout = CubemapLayout::new(n).expect("size");
+    assert_eq!(
+        layout.level_face_tile_bands(1).expect("tiles"),
+        layout.level_face_bands()
+    );
+    let bands = layout.level_face_tile_bands(2).expect("tiles");
+    // Levels 0 and 1 span the face: one band per level and face; levels 2 and 3: four each.
+    assert_eq!(*bands.iter().max().unwrap() as usize + 1, 2 * 6 + 2 * 6 * 4);
+    let mut haar = CubemapHaar::new(n).expect("size");
+    let mut tile_of_band = vec![None; 60];
+    for i in 0..6 * n * n {
+        if layout.bands()[i] < 2 {
+            continue;
+        }
+        let mut e = vec![0.0f32; 6 * n * n];
+        e[i] = 1.0;
+        haar.inverse(&mut e).expect("inverse");
+        let mut tiles: Vec<(usize, usize, usize)> = e
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| **v != 0.0)
+            .map(|(t, _)| (t / (n * n), (t % n) / (n / 2), (t % (n * n)) / n / (n / 2)))
+            .collect();
+        tiles.dedup();
+        assert_eq!(tiles.len(), 1, "coefficient {i} spans {tiles:?}");
+        let b = bands[i] as usize;
+        assert_eq!(
+            *tile_of_band[b].get_or_insert(tiles[0]),
+            tiles[0],
+            "band {b}"
+        );
+    }
+    assert!(layout.level_face_tile_bands(0).is_err());
+    assert!(layout.level_face_tile_bands(3).is_err());
+    assert!(layout.level_face_tile_bands(16).is_err());
+    let big = CubemapLayout::new(256).expect("size");
+    assert!(
+        big.level_face_tile_bands(2).is_ok(),
+        "12 + 7 x 6 x 4 = 180 bands"
+    );
+    assert!(
+        big.level_face_tile_bands(4).is_err(),
+        "18 + 6 x 6 x 16 > 256 bands"
+    );
+}
+
 fn signal(max_log2: u32) -> impl Strategy<Value = Vec<f32>> {
     (0..=max_log2).prop_flat_map(|k| prop::collection::vec(-1.0e3f32..1.0e3, 1usize << k))
 }
