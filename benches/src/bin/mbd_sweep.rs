@@ -11,7 +11,8 @@
 //! * `MBD_N`: the field's resolution (longest axis for Cornell; default 32).
 //! * `MBD_KNOBS=2,4`: only these ranks (basis sweep) / basis nodes per axis (grid sweep).
 //! * `MBD_METHODS=MBD,BPCA`: only these methods (MBD, PCA, BPCA, WBPCA, CPCA, VQ).
-//! * `MBD_PLOT=path.png`: also plot relative MSE against the knob (basis and grid sweeps).
+//! * `PRT_CSV_DIR=dir`: also write each table as CSV; `mbd_sweep plot TABLE.csv OUT.png TITLE
+//!   X_LABEL` then draws relative MSE against the knob, one line per method (log scale).
 //!
 //! Every row reports wall time and the process CPU time (user + system) of the method; the
 //! load average is printed before and after each sweep.
@@ -102,17 +103,15 @@ impl Cost {
     }
 }
 
-/// One sweep's results: the markdown table and (knob, method, relative MSE) for the plot.
+/// One sweep's results.
 struct Sweep {
     table: Table,
-    points: Vec<(usize, String, f64)>,
 }
 
 impl Sweep {
     fn new() -> Self {
         Self {
             table: Table::new(&HEADER),
-            points: Vec::new(),
         }
     }
 }
@@ -122,9 +121,6 @@ fn row(sweep: &mut Sweep, knob: usize, method: &str, cost: Cost, s: &Scores, sto
         "{knob} {method} {:.3} s (CPU {:.2} s), relative MSE {:.3e}",
         cost.wall, cost.cpu, s.relative_mse
     );
-    sweep
-        .points
-        .push((knob, method.to_string(), s.relative_mse));
     sweep.table.row(vec![
         knob.to_string(),
         method.to_string(),
@@ -401,6 +397,8 @@ fn plot(points: &[(usize, String, f64)], x_label: &str, title: &str, path: &str)
         .configure_mesh()
         .x_desc(x_label)
         .y_desc("relative MSE")
+        .y_label_formatter(&|v| format!("{v:.0e}"))
+        .x_label_formatter(&|v| v.to_string())
         .label_style(("sans-serif", 14))
         .draw()
         .expect("plot");
@@ -431,13 +429,34 @@ fn plot(points: &[(usize, String, f64)], x_label: &str, title: &str, path: &str)
     eprintln!("wrote {path}");
 }
 
-fn finish(sweep: &Sweep, heading: String, csv: &str, x_label: &str) {
+fn finish(sweep: &Sweep, heading: String, csv: &str) {
     println!("### {heading}\n\n{}", sweep.table.markdown());
     println!("load average after: {}\n", load_average());
     sweep.table.write_csv_if_requested(csv).ok();
-    if let Ok(path) = std::env::var("MBD_PLOT") {
-        plot(&sweep.points, x_label, &heading, &path);
-    }
+}
+
+/// `plot TABLE.csv OUT.png TITLE X_LABEL`: relative MSE of a sweep's CSV against its knob.
+fn plot_csv(args: &[String]) {
+    let [csv, png, title, x_label] = args else {
+        eprintln!("usage: mbd_sweep plot TABLE.csv OUT.png TITLE X_LABEL");
+        std::process::exit(2);
+    };
+    let text = std::fs::read_to_string(csv).expect("read the CSV");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).expect("CSV column");
+    let (knob, method, error) = (column("knob"), column("method"), column("relative MSE"));
+    let points: Vec<(usize, String, f64)> = lines
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter_map(|cells| {
+            Some((
+                cells.get(knob)?.parse().ok()?,
+                cells.get(method)?.to_string(),
+                cells.get(error)?.parse().ok()?,
+            ))
+        })
+        .collect();
+    plot(&points, x_label, title, png);
 }
 
 fn basis_count() {
@@ -450,7 +469,6 @@ fn basis_count() {
         &sweep,
         format!("Error vs basis count L ({name}, 5³ basis nodes, MBD ≤ 64 iterations)"),
         "mbd_basis",
-        "basis vectors L",
     );
 }
 
@@ -464,7 +482,6 @@ fn grid_resolution() {
         &sweep,
         format!("Error vs basis-grid resolution b (b³ nodes; {name}, L = 8, MBD ≤ 64 iterations)"),
         "mbd_grid",
-        "basis nodes per axis",
     );
 }
 
@@ -483,7 +500,6 @@ fn timing() {
         &sweep,
         "Timings (324-D, n³ voxels with 3³/5³/9³ nodes, L = 8, MBD 32 iterations)".into(),
         "mbd_timing",
-        "voxels per axis",
     );
 }
 
@@ -551,7 +567,12 @@ fn convergence() {
 }
 
 fn main() {
-    let mode = std::env::args().nth(1).unwrap_or_else(|| "all".into());
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mode = args.first().cloned().unwrap_or_else(|| "all".into());
+    if mode == "plot" {
+        plot_csv(&args[1..]);
+        return;
+    }
     println!(
         "threads: {}, load average before: {}\n",
         rayon::current_num_threads(),
