@@ -9,6 +9,8 @@
 //! (`SyntheticVplOracle`, `CLAMP` unused). Visibility clustering also evaluates the unshadowed
 //! shading of every pixel against every light (no shadow rays), reported separately. `IMAGE`
 //! (a PNG path) gets reference | row-column | LightSlice at 300 / 900 for the first seed.
+//! `METHODS` (optional, after `IMAGE`, `-` for no image): comma-separated subset of `rowcol`,
+//! `slice`, `vis`, `kmeans` (default all).
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -90,7 +92,23 @@ fn main() {
     let target_vpls: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(50_000);
     let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(0.1);
     let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
-    let image_path = args.get(5).map(PathBuf::from);
+    let image_path = args.get(5).filter(|a| *a != "-").map(PathBuf::from);
+    let selected: Vec<&'static str> = {
+        let wanted = args
+            .get(6)
+            .map(String::as_str)
+            .unwrap_or("rowcol,slice,vis,kmeans");
+        [
+            ("rowcol", "row-column"),
+            ("slice", "LightSlice"),
+            ("vis", "visibility (split)"),
+            ("kmeans", "visibility (k-means)"),
+        ]
+        .into_iter()
+        .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
+        .map(|(_, name)| name)
+        .collect()
+    };
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     match scene_name {
         "cornell" => {
@@ -120,7 +138,14 @@ fn main() {
                 inner,
                 gbuffer: &gbuffer,
             };
-            compare(&oracle, &reference, width, seeds, image_path.as_deref());
+            compare(
+                &oracle,
+                &reference,
+                width,
+                seeds,
+                image_path.as_deref(),
+                &selected,
+            );
         }
         "synthetic" => {
             let oracle = SyntheticVplOracle::new(width, width, target_vpls, 1);
@@ -132,7 +157,14 @@ fn main() {
                 rayon::current_num_threads(),
                 fmt_duration(start.elapsed()),
             );
-            compare(&oracle, &reference, width, seeds, image_path.as_deref());
+            compare(
+                &oracle,
+                &reference,
+                width,
+                seeds,
+                image_path.as_deref(),
+                &selected,
+            );
         }
         other => eprintln!("unknown scene {other} (cornell or synthetic)"),
     }
@@ -144,6 +176,7 @@ fn compare<O: SliceOracle + VisibilityOracle>(
     width: usize,
     seeds: u64,
     image_path: Option<&Path>,
+    methods: &[&str],
 ) {
     let brute = (oracle.rows() * oracle.cols()) as f64;
     let mut table = Table::new(&[
@@ -160,14 +193,8 @@ fn compare<O: SliceOracle + VisibilityOracle>(
         if rows > oracle.rows() || columns > oracle.cols() {
             continue;
         }
-        let methods = [
-            "row-column",
-            "LightSlice",
-            "visibility (split)",
-            "visibility (k-means)",
-        ];
         let mut images: Vec<Vec<f32>> = Vec::new();
-        for method in methods {
+        for &method in methods {
             let (mut errors, mut elements, mut extra) = (Vec::new(), 0u64, 0u64);
             let start = Instant::now();
             for seed in 0..seeds {
@@ -217,7 +244,7 @@ fn compare<O: SliceOracle + VisibilityOracle>(
             ]);
             println!("{method} {rows}/{columns}: {:.2}%", 100.0 * mean);
         }
-        if let (Some(path), (300, 900)) = (image_path, (rows, columns)) {
+        if let (Some(path), (300, 900), 2..) = (image_path, (rows, columns), images.len()) {
             write_strip(path, width, reference, &images[..2]);
         }
     }

@@ -135,11 +135,11 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///    ([`crate::split_cluster`], highest cost first) on the rows of the `neighbours` slices
 ///    whose centroids are nearest to its own (itself included), up to `local_clusters`: each
 ///    slice gets the clustering that fits its part of the image.
-/// 4. Each local cluster draws one representative proportionally to its norm on those local
-///    rows (a member with zero local norm as if its norm were 1% of the cluster's mean; the
-///    global norms when the whole cluster is zero locally, uniformly when it is zero
-///    globally too), and the slice's pixels of its column, scaled by the inverse probability,
-///    are added to the slice.
+/// 4. Each local cluster draws one representative proportionally to its reduced norm over all
+///    sampled rows (uniformly in a cluster of zero columns), as the authors' implementation
+///    does — the local rows decide the clusters, the global norms are the robust importance —
+///    and the slice's pixels of its column, scaled by the inverse probability, are added to
+///    the slice.
 ///
 /// Unbiased given the rows and clusterings (every light has a non-zero probability and its
 /// inverse as weight); exact when `local_clusters == cols`. The cost is
@@ -213,7 +213,7 @@ pub fn light_slice(
             let mut acc = vec![0.0f64; pixels.len() * channels];
             let mut column = vec![0.0f32; pixels.len() * channels];
             for members in &clusters {
-                let (j, weight) = pick_local(members, local.norms(), global_norms, &mut rng);
+                let (j, weight) = pick_global(members, global_norms, &mut rng);
                 oracle.eval_col_rows(j, pixels, &mut column)?;
                 if let Some(k) = column.iter().position(|v| !v.is_finite()) {
                     return Err(ManyLightError::NonFinite {
@@ -371,37 +371,28 @@ fn nearest(centroids: &[[f32; 6]], s: usize, window: usize) -> Vec<usize> {
     order.into_iter().take(window).map(|(_, t)| t).collect()
 }
 
-/// A zero-norm light inside a cluster with bright members is drawn as if its norm were this
-/// fraction of the cluster's mean norm, so that no light has probability zero.
-const ZERO_NORM_FLOOR: f64 = 1e-2;
-
-/// A representative of `members` drawn proportionally to its local norm (a zero local norm as
-/// [`ZERO_NORM_FLOOR`] of the mean), by the global norms when the cluster is zero locally, and
-/// uniformly when it is zero globally too; with the inverse of its probability.
-fn pick_local(members: &[u32], local: &[f64], global: &[f64], rng: &mut impl Rng) -> (usize, f64) {
-    for norms in [local, global] {
-        let positive: f64 = members.iter().map(|&j| norms[j as usize]).sum();
-        if positive <= 0.0 {
-            continue;
-        }
-        let floor = ZERO_NORM_FLOOR * positive / members.len() as f64;
-        let a = |j: u32| {
-            let v = norms[j as usize];
-            if v > 0.0 { v } else { floor }
-        };
-        let total: f64 = members.iter().map(|&j| a(j)).sum();
-        let u = rng.random::<f64>() * total;
-        let mut running = 0.0;
-        let mut pick = members[members.len() - 1];
-        for &j in members {
-            running += a(j);
+/// A representative of `members` drawn proportionally to its norm over all sampled rows
+/// (uniformly in a cluster of zero columns), with the inverse of its probability. Local
+/// clusters only split global ones, and the global clustering keeps zero columns apart, so a
+/// cluster is either all zero or all positive.
+fn pick_global(members: &[u32], norms: &[f64], rng: &mut impl Rng) -> (usize, f64) {
+    let total: f64 = members.iter().map(|&j| norms[j as usize]).sum();
+    if total <= 0.0 {
+        let k = rng.random_range(0..members.len());
+        return (members[k] as usize, members.len() as f64);
+    }
+    let u = rng.random::<f64>() * total;
+    let mut running = 0.0;
+    let mut pick = members[0];
+    for &j in members {
+        let a = norms[j as usize];
+        if a > 0.0 {
+            pick = j;
+            running += a;
             if u < running {
-                pick = j;
                 break;
             }
         }
-        return (pick as usize, total / a(pick));
     }
-    let k = rng.random_range(0..members.len());
-    (members[k] as usize, members.len() as f64)
+    (pick as usize, total / norms[pick as usize])
 }
