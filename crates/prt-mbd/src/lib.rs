@@ -26,7 +26,9 @@
 //!   `L × L` blocks with the kernels' overlap lumped in: a Gershgorin bound of each block's
 //!   Hessian that also captures the coupling between basis vectors, so full steps are accepted
 //!   and convergence per iteration is several times faster (measured in `docs/results.md`);
-//!   [`Preconditioner::Diagonal`] is the paper's.
+//!   [`Preconditioner::Diagonal`] is the paper's. Every kernel's curvature gets a
+//!   Levenberg-Marquardt floor of `1e-5` of its mean diagonal: above the field's local rank the
+//!   blocks are singular, and the floor keeps f32 rounding from becoming huge basis steps.
 //! * Baselines, each a [`prt_core::Compressor`] with the same storage budget: [`GlobalPca`],
 //!   [`BlockPca`] (BPCA, and WBPCA with `window = 2`), [`ClusteredPca`] (Sloan et al. 2003),
 //!   [`KMeansVq`].
