@@ -4,6 +4,7 @@
 Called by the sweep with the data it generated (raw little-endian files), so both sides work on
 the same matrices in the same run. Prints one JSON object per line:
     {"task": ..., "rows": ..., "time_s": ..., "residual": ..., ...}
+(numpy's PCA also gives "cpu_s", the mean CPU time per run).
 
 Tasks:
   pca FILE N D RANK REPS        numpy f64 covariance + eigh, scikit-learn covariance_eigh,
@@ -24,13 +25,20 @@ import numpy as np
 
 def best_time(reps, fn):
     """Best of `reps` runs after a warm-up (the sweep does the same for prt-linalg)."""
+    return best_and_cpu_time(reps, fn)[0]
+
+
+def best_and_cpu_time(reps, fn):
+    """Best wall time of `reps` runs after a warm-up, and the mean CPU time of this process per
+    run (with one BLAS thread: what an idle core would take on a shared machine)."""
     fn()
     times = []
+    cpu0 = time.process_time()
     for _ in range(max(1, reps)):
         t = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t)
-    return min(times)
+    return min(times), (time.process_time() - cpu0) / max(1, reps)
 
 
 def residual(x, mean, components):
@@ -56,9 +64,9 @@ def pca(path, n, d, rank, reps):
         w, v = np.linalg.eigh(cov)
         return mean, v[:, ::-1][:, :rank].T
 
-    t = best_time(reps, numpy_cov_eigh)
+    t, cpu = best_and_cpu_time(reps, numpy_cov_eigh)
     mean, comps = numpy_cov_eigh()
-    emit(task="pca", method="numpy f64 covariance + eigh", rows=n, time_s=t,
+    emit(task="pca", method="numpy f64 covariance + eigh", rows=n, time_s=t, cpu_s=cpu,
          residual=residual(x, mean, comps))
 
     try:

@@ -38,10 +38,18 @@ fn main() -> BoxResult<()> {
     let rows: Vec<usize> = match args.iter().position(|a| a == "--rows") {
         Some(i) => args[i + 1..]
             .iter()
+            .take_while(|v| !v.starts_with("--"))
             .map(|v| v.parse())
             .collect::<Result<_, _>>()?,
         None => vec![32768, 262144],
     };
+    // `--only pca|kmeans|nnls` runs one of the three tables.
+    let only = args
+        .iter()
+        .position(|a| a == "--only")
+        .and_then(|i| args.get(i + 1))
+        .map(String::as_str);
+    let wanted = |table: &str| only.is_none_or(|o| o == table);
     let max_rows = rows
         .iter()
         .copied()
@@ -59,23 +67,29 @@ fn main() -> BoxResult<()> {
     eprintln!("generating {max_rows} x {D} (rank 40, spectrum 0.8^i, noise 1e-3)...");
     let data = low_rank_matrix(max_rows, D, 40, 0.8, 1e-3, 0.0, 1)?;
 
-    let pca_table = pca_sweep(&data, &rows, &dir, python)?;
-    println!(
-        "### PCA, rank {RANK}, {D} columns\n\n{}",
-        pca_table.markdown()
-    );
-    pca_table.write_csv_if_requested("linalg_pca")?;
+    if wanted("pca") {
+        let pca_table = pca_sweep(&data, &rows, &dir, python)?;
+        println!(
+            "### PCA, rank {RANK}, {D} columns\n\n{}",
+            pca_table.markdown()
+        );
+        pca_table.write_csv_if_requested("linalg_pca")?;
+    }
 
-    let km_table = kmeans_sweep(&data, &dir, python)?;
-    println!(
-        "### k-means, k = {K}, {KMEANS_ROWS} x {D}, per Lloyd iteration\n\n{}",
-        km_table.markdown()
-    );
-    km_table.write_csv_if_requested("linalg_kmeans")?;
+    if wanted("kmeans") {
+        let km_table = kmeans_sweep(&data, &dir, python)?;
+        println!(
+            "### k-means, k = {K}, {KMEANS_ROWS} x {D}, per Lloyd iteration\n\n{}",
+            km_table.markdown()
+        );
+        km_table.write_csv_if_requested("linalg_kmeans")?;
+    }
 
-    let nnls_table = nnls_sweep(&dir, python)?;
-    println!("### NNLS, per problem\n\n{}", nnls_table.markdown());
-    nnls_table.write_csv_if_requested("linalg_nnls")?;
+    if wanted("nnls") {
+        let nnls_table = nnls_sweep(&dir, python)?;
+        println!("### NNLS, per problem\n\n{}", nnls_table.markdown());
+        nnls_table.write_csv_if_requested("linalg_nnls")?;
+    }
 
     std::fs::remove_dir_all(&dir)?;
     Ok(())
@@ -85,6 +99,39 @@ fn main() -> BoxResult<()> {
 /// disturbed by other load, for us and for the references alike (the script does the same).
 fn best_time<T>(reps: usize, mut f: impl FnMut() -> T) -> Duration {
     std::hint::black_box(f());
+    best_time_no_warmup(reps, f)
+}
+
+/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
+/// ticks per second; 0 elsewhere). On a shared machine the CPU time of a one-thread run is what
+/// an idle core would take, while the wall time also counts the waits for a core.
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .map_or("", |(_, rest)| rest)
+        .split_whitespace()
+        .collect();
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// [`best_time`] plus the mean CPU time per run (of the whole process: the calling thread
+/// waits while a pool's worker runs, so for a one-thread pool this is the worker's time).
+fn best_and_cpu_time<T>(reps: usize, mut f: impl FnMut() -> T) -> (Duration, f64) {
+    std::hint::black_box(f());
+    let cpu0 = cpu_seconds();
+    let best = best_time_no_warmup(reps, f);
+    (best, (cpu_seconds() - cpu0) / reps.max(1) as f64)
+}
+
+fn best_time_no_warmup<T>(reps: usize, mut f: impl FnMut() -> T) -> Duration {
     (0..reps.max(1))
         .map(|_| {
             let t = std::time::Instant::now();
@@ -158,6 +205,8 @@ fn pca_sweep(data: &Array2<f32>, rows: &[usize], dir: &Path, python: bool) -> Bo
         "threads",
         "time",
         "speed-up vs numpy",
+        "CPU time",
+        "CPU speed-up vs numpy",
         "residual / optimal - 1",
     ]);
     let methods = [
@@ -204,9 +253,16 @@ fn pca_sweep(data: &Array2<f32>, rows: &[usize], dir: &Path, python: bool) -> Bo
             .iter()
             .find(|r| r["method"].as_str().is_some_and(|m| m.starts_with("numpy")))
             .and_then(|r| r["time_s"].as_f64());
+        let numpy_cpu = refs
+            .iter()
+            .find(|r| r["method"].as_str().is_some_and(|m| m.starts_with("numpy")))
+            .and_then(|r| r["cpu_s"].as_f64());
         let speedup = |t: f64| numpy.map_or("-".into(), |np| format!("{:.2}x", np / t));
+        let cpu_speedup = |t: f64| numpy_cpu.map_or("-".into(), |np| format!("{:.2}x", np / t));
+        let cpu_cell = |t: Option<f64>| t.map_or("-".into(), |t| format!("{:.0} ms", t * 1e3));
         for r in &refs {
             let t = r["time_s"].as_f64().unwrap_or(f64::NAN);
+            let cpu = r["cpu_s"].as_f64();
             let res = r["residual"].as_f64().unwrap_or(f64::NAN);
             table.row(vec![
                 n.to_string(),
@@ -214,6 +270,8 @@ fn pca_sweep(data: &Array2<f32>, rows: &[usize], dir: &Path, python: bool) -> Bo
                 "1".into(),
                 fmt_duration(Duration::from_secs_f64(t)),
                 speedup(t),
+                cpu_cell(cpu),
+                cpu.map_or("-".into(), cpu_speedup),
                 format!("{:.2e}", res / best - 1.0),
             ]);
         }
@@ -222,7 +280,7 @@ fn pca_sweep(data: &Array2<f32>, rows: &[usize], dir: &Path, python: bool) -> Bo
                 eprintln!("PCA {n} rows: ours, {name}, {threads} thread(s)...");
                 let opts = PcaOptions { method };
                 let fit = || Pca::fit(x, RANK, &opts, &NoProgress);
-                let t = in_pool(threads, || best_time(reps, fit));
+                let (t, cpu) = in_pool(threads, || best_and_cpu_time(reps, fit));
                 let pca = fit()?;
                 let res = pca.residual_energy(x)?;
                 table.row(vec![
@@ -231,6 +289,12 @@ fn pca_sweep(data: &Array2<f32>, rows: &[usize], dir: &Path, python: bool) -> Bo
                     threads.to_string(),
                     fmt_duration(t),
                     speedup(t.as_secs_f64()),
+                    cpu_cell(Some(cpu)),
+                    if threads == 1 {
+                        cpu_speedup(cpu)
+                    } else {
+                        "-".into()
+                    },
                     format!("{:.2e}", res / best - 1.0),
                 ]);
             }

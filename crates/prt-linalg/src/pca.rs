@@ -109,6 +109,20 @@ fn add_into(acc: &mut [f64], part: Vec<f64>) {
     }
 }
 
+/// Row `i` of `data` as a slice: borrowed when the row is contiguous (the usual row-major
+/// input), else copied into `scratch`. Slices let the per-element loops vectorise.
+fn row_slice<'a>(data: ArrayView2<'a, f32>, i: usize, scratch: &'a mut Vec<f32>) -> &'a [f32] {
+    let row = data.index_axis_move(Axis(0), i);
+    match row.to_slice() {
+        Some(slice) => slice,
+        None => {
+            scratch.clear();
+            scratch.extend(row.iter());
+            scratch
+        }
+    }
+}
+
 /// Writes rows `range` of `data`, minus `mean`, into `out` (row-major) as `T`.
 fn centered_rows<T: Copy + 'static>(
     data: ArrayView2<'_, f32>,
@@ -117,9 +131,15 @@ fn centered_rows<T: Copy + 'static>(
     out: &mut Vec<T>,
     cast: impl Fn(f64) -> T,
 ) {
+    let d = mean.len();
     out.clear();
-    for row in data.slice(s![range, ..]).rows() {
-        out.extend(row.iter().zip(mean).map(|(&x, &m)| cast(x as f64 - m)));
+    out.resize(range.len() * d, cast(0.0));
+    let mut scratch = Vec::new();
+    for (i, dst) in range.zip(out.chunks_exact_mut(d)) {
+        let row = row_slice(data, i, &mut scratch);
+        for ((o, &x), &m) in dst.iter_mut().zip(row).zip(mean) {
+            *o = cast(f64::from(x) - m);
+        }
     }
 }
 
@@ -276,8 +296,9 @@ fn column_mean(
         |range| {
             let rows = data.slice(s![range.clone(), ..]);
             let mut sum = vec![0.0f64; d];
-            for row in rows.rows() {
-                for (acc, &v) in sum.iter_mut().zip(row.iter()) {
+            let mut scratch = Vec::new();
+            for i in 0..rows.nrows() {
+                for (acc, &v) in sum.iter_mut().zip(row_slice(rows, i, &mut scratch)) {
                     *acc += f64::from(v);
                 }
             }
@@ -322,9 +343,13 @@ fn lower_gram<T: Real>(
                 centered_rows(data, mean, start..start + rows, &mut block, &cast);
                 let (lhs, rhs) = (Operand::t(&block, rows, d), Operand::n(&block, rows, d));
                 backend::gemm(&mut part, false, lhs, rhs, true, false);
-                for i in 0..d {
-                    for j in 0..=i {
-                        acc[i * d + j] += part[i * d + j].to_f64();
+                for (i, (acc_row, part_row)) in acc
+                    .chunks_exact_mut(d)
+                    .zip(part.chunks_exact(d))
+                    .enumerate()
+                {
+                    for (a, &p) in acc_row[..=i].iter_mut().zip(&part_row[..=i]) {
+                        *a += p.to_f64();
                     }
                 }
             }

@@ -1,6 +1,6 @@
 //! Laws of the PCA: equality with the thin-SVD optimum, orthonormality, determinism, extremes.
 
-use ndarray::{Array2, Axis, s};
+use ndarray::{Array2, Axis, ShapeBuilder, s};
 use proptest::prelude::*;
 use prt_core::{AtomicProgress, NoProgress};
 use prt_linalg::synthetic::low_rank_matrix;
@@ -157,6 +157,20 @@ fn results_do_not_depend_on_the_thread_count() {
     };
     for opts in [COV, RANDOMIZED] {
         assert_eq!(fit(1, opts), fit(3, opts), "{opts:?}");
+    }
+}
+
+#[test]
+fn results_do_not_depend_on_the_memory_layout() {
+    // Rows are read as slices when contiguous and copied otherwise: same numbers either way.
+    let data = low_rank_matrix(3000, 9, 4, 0.8, 0.01, 2.0, 4).unwrap();
+    let mut column_major = Array2::<f32>::zeros(data.raw_dim().f());
+    column_major.assign(&data);
+    assert!(column_major.row(0).as_slice().is_none());
+    for opts in [COV, COV_F64, RANDOMIZED] {
+        let a = Pca::fit(data.view(), 3, &opts, &NoProgress).unwrap();
+        let b = Pca::fit(column_major.view(), 3, &opts, &NoProgress).unwrap();
+        assert_eq!(a, b, "{opts:?}");
     }
 }
 
