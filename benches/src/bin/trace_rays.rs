@@ -1,12 +1,21 @@
 //! Raw ray throughput of prt-trace's CWBVH: 10M random rays (origins uniform in the scene box,
 //! directions uniform on the sphere), closest hit and shadow (first hit), on 2 threads, for the
-//! scenes of ../shared/design/anchors.md, next to the anchor figures (obvhs and Embree).
+//! scenes of ../shared/design/anchors.md, next to the anchor figures (obvhs and Embree) and to
+//! obvhs used directly on the same rays in the same run (the anchors come from another machine;
+//! the same-run row separates our overhead from the machine's speed). Rays are generated before
+//! the timed loops.
 //!
 //! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow]`
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use glam::Vec3;
+use obvhs::BvhBuildParams;
+use obvhs::cwbvh::CwBvh;
+use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::rt_triangle::RtTriangle;
+use obvhs::triangle::Triangle;
 use prt_benches::{Table, fmt_duration};
 use prt_trace::{BuildQuality, LoadOptions, RayTracer, Scene};
 use rand::{Rng, SeedableRng};
@@ -42,6 +51,89 @@ fn random_rays(scene: &Scene, count: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
         .collect()
 }
 
+/// obvhs's CWBVH used the way its examples use it: triangles gathered into BVH order,
+/// `ray_traverse` / `ray_traverse_miss` with an `RtTriangle::intersect` closure.
+struct DirectObvhs {
+    bvh: CwBvh,
+    tris: Vec<RtTriangle>,
+}
+
+impl DirectObvhs {
+    fn new(triangles: &[[Vec3; 3]], quality: BuildQuality) -> Self {
+        let input: Vec<Triangle> = triangles
+            .iter()
+            .map(|t| Triangle {
+                v0: t[0].into(),
+                v1: t[1].into(),
+                v2: t[2].into(),
+            })
+            .collect();
+        let params = match quality {
+            BuildQuality::Fast => BvhBuildParams::fast_build(),
+            BuildQuality::Slow => BvhBuildParams::slow_build(),
+            _ => BvhBuildParams::medium_build(),
+        };
+        let bvh = build_cwbvh_from_tris(&input, params, &mut Duration::default());
+        let tris = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| RtTriangle::from(&input[i as usize]))
+            .collect();
+        Self { bvh, tris }
+    }
+
+    fn closest(&self, o: Vec3, d: Vec3) -> bool {
+        let ray = Ray::new(o.into(), d.into(), 0.0, f32::INFINITY);
+        let mut hit = RayHit::none();
+        self.bvh
+            .ray_traverse(ray, &mut hit, |r, id| self.tris[id].intersect(r))
+    }
+
+    fn occluded(&self, o: Vec3, d: Vec3) -> bool {
+        let ray = Ray::new(o.into(), d.into(), 0.0, f32::INFINITY);
+        !self
+            .bvh
+            .ray_traverse_miss(ray, |r, id| self.tris[id].intersect(r))
+    }
+}
+
+/// Throughputs `[wall, CPU-normalised]` in Mrays/s of one implementation, and hit counts.
+struct Throughput {
+    closest: [f64; 2],
+    shadow: [f64; 2],
+    hits: usize,
+    occluded: usize,
+}
+
+/// Times closest-hit then shadow queries over all `rays` on the rayon pool.
+fn measure(
+    rays: &[(Vec3, Vec3)],
+    closest: impl Fn(Vec3, Vec3) -> bool + Sync,
+    shadow: impl Fn(Vec3, Vec3) -> bool + Sync,
+) -> Throughput {
+    let threads = rayon::current_num_threads() as f64;
+    let count = rays.len() as f64;
+    let run = |f: &(dyn Fn(Vec3, Vec3) -> bool + Sync)| {
+        let (t, c) = (Instant::now(), cpu_seconds());
+        let n = rays
+            .par_iter()
+            .with_min_len(4096)
+            .filter(|&&(o, d)| f(o, d))
+            .count();
+        let wall = count / t.elapsed().as_secs_f64() / 1e6;
+        let cpu = count / ((cpu_seconds() - c) / threads) / 1e6;
+        (n, [wall, cpu])
+    };
+    let (hits, closest) = run(&closest);
+    let (occluded, shadow) = run(&shadow);
+    Throughput {
+        closest,
+        shadow,
+        hits,
+        occluded,
+    }
+}
+
 fn main() {
     let count: usize = std::env::args()
         .nth(1)
@@ -70,10 +162,12 @@ fn main() {
     let mut table = Table::new(&[
         "scene",
         "triangles",
+        "implementation",
         "BVH build",
         "closest Mrays/s wall (CPU-normalised)",
         "shadow Mrays/s wall (CPU-normalised)",
         "hit rate",
+        "CPU-normalised vs obvhs in this run (closest / shadow)",
         "CPU-normalised vs obvhs anchor (closest / shadow)",
         "CPU-normalised vs Embree anchor (closest / shadow)",
     ]);
@@ -88,40 +182,61 @@ fn main() {
                 }
             },
         };
+        let rays = random_rays(&scene, count, 7);
+        let t = Instant::now();
+        let direct = DirectObvhs::new(scene.triangles(), quality);
+        let direct_build = t.elapsed();
         let t = Instant::now();
         let tracer = RayTracer::with_quality(scene.triangles(), quality);
         let build = t.elapsed();
-        let rays = random_rays(&scene, count, 7);
-        let threads = rayon::current_num_threads() as f64;
-        let (t, c) = (Instant::now(), cpu_seconds());
-        let hits = rays
-            .par_iter()
-            .with_min_len(4096)
-            .filter(|&&(o, d)| tracer.closest_hit(o, d, 0.0, f32::INFINITY).is_some())
-            .count();
-        let closest = count as f64 / t.elapsed().as_secs_f64() / 1e6;
-        let closest_cpu = count as f64 / ((cpu_seconds() - c) / threads) / 1e6;
-        let (t, c) = (Instant::now(), cpu_seconds());
-        let blocked = rays
-            .par_iter()
-            .with_min_len(4096)
-            .filter(|&&(o, d)| tracer.occluded(o, d, 0.0, f32::INFINITY))
-            .count();
-        let shadow = count as f64 / t.elapsed().as_secs_f64() / 1e6;
-        let shadow_cpu = count as f64 / ((cpu_seconds() - c) / threads) / 1e6;
-        if blocked != hits {
-            eprintln!("{name}: {hits} closest hits but {blocked} occluded shadow rays");
+        // obvhs used directly, as its own examples and benchmarks do: the same-run baseline.
+        let base = measure(
+            &rays,
+            |o, d| direct.closest(o, d),
+            |o, d| direct.occluded(o, d),
+        );
+        let lean = measure(
+            &rays,
+            |o, d| tracer.closest_triangle(o, d, 0.0, f32::INFINITY).is_some(),
+            |o, d| tracer.occluded(o, d, 0.0, f32::INFINITY),
+        );
+        let full = measure(
+            &rays,
+            |o, d| tracer.closest_hit(o, d, 0.0, f32::INFINITY).is_some(),
+            |o, d| tracer.occluded(o, d, 0.0, f32::INFINITY),
+        );
+        for (implementation, build, m) in [
+            ("obvhs directly (ray_traverse)", direct_build, &base),
+            ("prt-trace closest_triangle", build, &lean),
+            (
+                "prt-trace closest_hit (+ barycentrics, normal)",
+                build,
+                &full,
+            ),
+        ] {
+            if m.occluded != m.hits {
+                eprintln!(
+                    "{name}, {implementation}: {} closest hits but {} occluded shadow rays",
+                    m.hits, m.occluded
+                );
+            }
+            table.row(vec![
+                name.into(),
+                scene.triangles().len().to_string(),
+                implementation.into(),
+                fmt_duration(build),
+                format!("{:.2} ({:.2})", m.closest[0], m.closest[1]),
+                format!("{:.2} ({:.2})", m.shadow[0], m.shadow[1]),
+                format!("{:.3}", m.hits as f64 / count as f64),
+                format!(
+                    "{:.2} / {:.2}",
+                    m.closest[1] / base.closest[1],
+                    m.shadow[1] / base.shadow[1]
+                ),
+                format!("{:.2} / {:.2}", m.closest[1] / a[0], m.shadow[1] / a[1]),
+                format!("{:.2} / {:.2}", m.closest[1] / a[2], m.shadow[1] / a[3]),
+            ]);
         }
-        table.row(vec![
-            name.into(),
-            scene.triangles().len().to_string(),
-            fmt_duration(build),
-            format!("{closest:.2} ({closest_cpu:.2})"),
-            format!("{shadow:.2} ({shadow_cpu:.2})"),
-            format!("{:.3}", hits as f64 / count as f64),
-            format!("{:.2} / {:.2}", closest_cpu / a[0], shadow_cpu / a[1]),
-            format!("{:.2} / {:.2}", closest_cpu / a[2], shadow_cpu / a[3]),
-        ]);
     }
     println!(
         "threads: {}, rays: {count}, BVH quality: {quality:?}\n",

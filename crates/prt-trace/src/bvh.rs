@@ -143,8 +143,12 @@ impl RayTracer {
     /// Barycentrics `(u, v)` (weights of v1, v2) of the hit of `ray` on a slot.
     #[inline]
     pub(crate) fn slot_barycentrics(&self, slot: u32, origin: Vec3, dir: Vec3) -> Vec2 {
-        let ray = Ray::new(origin.into(), dir.into(), 0.0, f32::INFINITY);
-        self.tris[slot as usize].compute_barycentric(&ray)
+        // `RtTriangle::compute_barycentric` without building a `Ray`, whose three reciprocals
+        // it would not use (this runs once per closest hit).
+        let t = &self.tris[slot as usize];
+        let d = Vec3A::from(dir);
+        let r = d.cross(t.v0 - Vec3A::from(origin));
+        Vec2::new(r.dot(t.e2), r.dot(t.e1)) / t.ng.dot(d)
     }
 
     #[inline]
@@ -167,6 +171,22 @@ impl RayTracer {
         } else {
             None
         }
+    }
+
+    /// Distance and scene triangle index of the closest hit of the ray `origin + t dir`,
+    /// `tmin <= t <= tmax`, if any: the cheapest closest-hit query (traversal and the
+    /// intersection tests only, as obvhs's own benchmarks time it). [`RayTracer::closest_hit`]
+    /// adds barycentrics, normal and facing.
+    #[inline]
+    pub fn closest_triangle(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<(f32, u32)> {
+        let h = self.closest_slot(origin, dir, tmin, tmax)?;
+        Some((h.t, self.scene_triangle(h.slot)))
     }
 
     /// The closest hit of the ray `origin + t dir`, `tmin <= t <= tmax`, if any.

@@ -144,6 +144,11 @@ fn batched_queries_equal_single_queries() {
     for (k, &(o, d)) in rays.iter().enumerate() {
         assert_eq!(hits[k], tracer.closest_hit(o, d, 0.0, f32::INFINITY));
         assert_eq!(occ[k], tracer.occluded(o, d, 0.0, f32::INFINITY));
+        // The lean query is the same hit without the extras.
+        assert_eq!(
+            tracer.closest_triangle(o, d, 0.0, f32::INFINITY),
+            hits[k].map(|h| (h.t, h.triangle))
+        );
     }
 }
 
@@ -155,6 +160,10 @@ fn an_empty_tracer_misses_everything() {
         None
     );
     assert!(!tracer.occluded(Vec3::ZERO, Vec3::X, 0.0, f32::INFINITY));
+    assert_eq!(
+        tracer.closest_triangle(Vec3::ZERO, Vec3::X, 0.0, f32::INFINITY),
+        None
+    );
 }
 
 proptest! {
