@@ -1,7 +1,8 @@
 //! Speed of progressive least-squares encoding (prt-plsq) against its targets, and the
 //! speed/accuracy trade of LS, NNLS and progressive variants.
 //!
-//! Run: `cargo run --release -p prt-benches --bin plsq_speed`
+//! Run: `cargo run --release -p prt-benches --bin plsq_speed [-- single|batch|curves|profile]`
+//! (default: all three sections; `profile` loops the 12 SG × RGB fit for `perf`).
 //!
 //! 1. Progressive updates per second, 12 SG × RGB, one thread (target >= 20 M/s) and the whole
 //!    20000-sample fit (Probulator: 16-21 ms; target <= 1 ms).
@@ -13,10 +14,10 @@ use std::time::Duration;
 
 use glam::Vec3;
 use prt_benches::{Table, fmt_duration, median_time};
-use prt_core::{NoProgress, SphericalBasis};
+use prt_core::NoProgress;
 use prt_plsq::{
-    BatchEncoder, Denominator, EncoderConfig, ProgressiveEncoder, SgEncoder, Sweep, Update,
-    reference,
+    BatchEncoder, Denominator, EncoderConfig, LatLongFrame, ProgressiveEncoder, SgEncoder, Sweep,
+    Update, radiance_rmse, reference, sample_nearest,
 };
 use prt_sphere::sampling::{halton_sphere, sobol_sphere};
 use prt_sphere::{LatLongMap, SgBasis};
@@ -70,10 +71,36 @@ fn cfg(accel: f32, sweep: Sweep) -> EncoderConfig {
 }
 
 fn main() {
+    let section = std::env::args().nth(1).unwrap_or_default();
+    let run = |name: &str| section.is_empty() || section == name;
     let basis = SgBasis::spiral(12, 6.0).expect("valid lobes");
     let n = 20000;
     let dirs = halton_sphere(n);
     let values: Vec<f32> = dirs.iter().flat_map(|d| signal(*d)).collect();
+    if section == "profile" {
+        let mut sum = 0.0;
+        for _ in 0..2000 {
+            let mut enc = SgEncoder::<3>::new(&basis, cfg(1.0, Sweep::GaussSeidel)).expect("ok");
+            enc.add_samples(&dirs, &values, None, &NoProgress)
+                .expect("finite");
+            sum += enc.coefficients()[0];
+        }
+        println!("{sum}");
+        return;
+    }
+    if run("single") {
+        single_thread(&basis, &dirs, &values);
+    }
+    if run("batch") {
+        batch_scaling(&basis);
+    }
+    if run("curves") {
+        curves(&basis);
+    }
+}
+
+fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32]) {
+    let n = dirs.len();
 
     // 1. Single-thread progressive speed: wall time and on-CPU time (the machine is shared).
     let mut t1 = Table::new(&[
@@ -109,8 +136,8 @@ fn main() {
         ),
     ] {
         let fast = || {
-            let mut enc = SgEncoder::<3>::new(&basis, c).expect("valid");
-            enc.add_samples(&dirs, &values, None, &NoProgress)
+            let mut enc = SgEncoder::<3>::new(basis, c).expect("valid");
+            enc.add_samples(dirs, values, None, &NoProgress)
                 .expect("finite");
             enc.total_weight()
         };
@@ -121,8 +148,8 @@ fn main() {
             mean_cpu_time(fast),
         );
         let generic = || {
-            let mut enc = ProgressiveEncoder::new(&basis, 3, c).expect("valid");
-            enc.add_samples(&dirs, &values, None, &NoProgress)
+            let mut enc = ProgressiveEncoder::new(basis, 3, c).expect("valid");
+            enc.add_samples(dirs, values, None, &NoProgress)
                 .expect("finite");
             enc.coefficients()[0]
         };
@@ -133,10 +160,10 @@ fn main() {
             mean_cpu_time(generic),
         );
     }
-    let ls = || reference::least_squares_samples(&basis, &dirs, &values, 3).expect("ok")[0];
+    let ls = || reference::least_squares_samples(basis, dirs, values, 3).expect("ok")[0];
     let name = "LS over the samples (normal equations + Cholesky)";
     row(&mut t1, name.into(), median_time(7, ls), mean_cpu_time(ls));
-    let nn = || reference::nnls_samples(&basis, &dirs, &values, 3).expect("ok")[0];
+    let nn = || reference::nnls_samples(basis, dirs, values, 3).expect("ok")[0];
     row(
         &mut t1,
         "NNLS over the samples".into(),
@@ -145,7 +172,9 @@ fn main() {
     );
     println!("{}", t1.markdown());
     let _ = t1.write_csv_if_requested("plsq_speed_single");
+}
 
+fn batch_scaling(basis: &SgBasis) {
     // 2. Batch scaling: 65536 encoders, 16 rounds of one sample each.
     let encoders = 65536;
     let rounds = 16;
@@ -176,7 +205,7 @@ fn main() {
         let t = pool.install(|| {
             median_time(7, || {
                 let mut batch =
-                    BatchEncoder::new_sg(&basis, 3, encoders, cfg(1.0, Sweep::GaussSeidel))
+                    BatchEncoder::new_sg(basis, 3, encoders, cfg(1.0, Sweep::GaussSeidel))
                         .expect("valid");
                 for r in 0..rounds {
                     let range = r * encoders..(r + 1) * encoders;
@@ -205,7 +234,9 @@ fn main() {
     }
     println!("{}", t2.markdown());
     let _ = t2.write_csv_if_requested("plsq_speed_batch");
+}
 
+fn curves(basis: &SgBasis) {
     // 3. Speed/accuracy curves on wells.
     let path =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps/probulator_wells.hdr");
@@ -217,36 +248,18 @@ fn main() {
         println!("skipping the accuracy curves: {} not found", path.display());
         return;
     };
-    // Probulator's frame (kayru, Y up) is prt's turned by π about Y.
-    let flip = |d: Vec3| Vec3::new(-d.x, d.y, -d.z);
+    // Probulator's frame and error definition (prt_plsq::probulator).
+    let frame = LatLongFrame::Probulator;
     let all_dirs = halton_sphere(20000);
-    let all_vals: Vec<f32> = all_dirs
-        .iter()
-        .flat_map(|d| map.nearest(flip(*d)).to_array())
-        .collect();
-    let pixel_dirs: Vec<Vec3> = (0..map.height())
-        .flat_map(|y| (0..map.width()).map(move |x| (x, y)))
-        .map(|(x, y)| flip(map.direction(x, y)))
-        .collect();
-    let rmse = |c: &[f32]| {
-        let mut b = [0.0f32; 12];
-        let mut sq = 0.0f64;
-        for (p, d) in pixel_dirs.iter().enumerate() {
-            basis.eval(*d, &mut b);
-            for ch in 0..3 {
-                let v: f32 = (0..12).map(|i| b[i] * c[3 * i + ch]).sum();
-                sq += ((v - map.data()[3 * p + ch]) as f64).powi(2);
-            }
-        }
-        (sq / (3.0 * pixel_dirs.len() as f64)).sqrt()
-    };
+    let all_vals = sample_nearest(&map, &all_dirs, frame);
+    let rmse = |c: &[f32]| radiance_rmse(&map, basis, c, false, frame).unwrap_or(f64::NAN);
     let mut t3 = Table::new(&["method", "N", "time", "RMSE (wells)"]);
     for &count in &[64usize, 256, 1024, 4096, 20000] {
         let (d, v) = (&all_dirs[..count], &all_vals[..3 * count]);
         let reps = if count > 4096 { 5 } else { 21 };
         let mut out = Vec::new();
         let t = median_time(reps, || {
-            out = reference::least_squares_samples(&basis, d, v, 3).expect("ok");
+            out = reference::least_squares_samples(basis, d, v, 3).expect("ok");
         });
         t3.row(vec![
             "LS".into(),
@@ -255,7 +268,7 @@ fn main() {
             format!("{:.5}", rmse(&out)),
         ]);
         let t = median_time(reps, || {
-            out = reference::nnls_samples(&basis, d, v, 3).expect("ok");
+            out = reference::nnls_samples(basis, d, v, 3).expect("ok");
         });
         t3.row(vec![
             "NNLS".into(),
@@ -272,7 +285,7 @@ fn main() {
             ("progressive GS α=5", cfg(5.0, Sweep::GaussSeidel)),
         ] {
             let t = median_time(reps, || {
-                let mut enc = SgEncoder::<3>::new(&basis, c).expect("valid");
+                let mut enc = SgEncoder::<3>::new(basis, c).expect("valid");
                 enc.add_samples(d, v, None, &NoProgress).expect("finite");
                 out = enc.coefficients();
             });

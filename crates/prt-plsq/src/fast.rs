@@ -37,24 +37,60 @@ pub fn exp_nonpositive(x: f32) -> f32 {
     scale * p
 }
 
+/// Lobes are processed in groups of `LANE` (lobe arrays are padded to a multiple of it), so
+/// every per-lobe loop is a fixed-width loop the compiler turns into SIMD instructions.
+const LANE: usize = 16;
+
+/// Samples per block: the basis values, steps and Gauss-Seidel prefix products of a block do
+/// not depend on the coefficients, so they are computed for the whole block first and only
+/// the residual and the coefficient update stay serial over the samples.
+const BLOCK: usize = 16;
+
 /// A progressive least-squares encoder for a set of spherical Gaussians and `C` channels, the
-/// same arithmetic as [`crate::ProgressiveEncoder`] (to `exp` rounding) at several times the
-/// speed. f32 state only.
+/// same arithmetic as [`crate::ProgressiveEncoder`] (to `exp` and summation-order rounding)
+/// at several times the speed. f32 state only.
+///
+/// Samples are taken in blocks of 16. For a block the coefficient-independent work comes
+/// first, vectorised over the lobes: `B_i(s)` through [`exp_nonpositive`], the running
+/// integrals `I_i` (they depend only on the samples), the denominators, the steps
+/// `w B_i / (W I_i)` and, for Gauss-Seidel, the prefix products `Π_{j<i} (1 − step_j B_j)`.
+/// Then per sample only the residual `Δ = f − Σ_i b_i B_i` (a 16-lane dot product per
+/// channel) and the update `b_i += g_i Δ` remain. The state after the block is the paper's
+/// state after its samples (coefficients, integrals, total weight); blocking only reorders
+/// independent arithmetic.
 #[derive(Debug, Clone)]
 pub struct SgEncoder<const C: usize> {
+    /// Number of lobes; lobe arrays are padded to a multiple of `LANE`.
+    lobes: usize,
     px: Vec<f32>,
     py: Vec<f32>,
     pz: Vec<f32>,
     lambda: Vec<f32>,
+    /// 1 for a lobe, 0 for padding (padding evaluates to 0 and so never updates).
+    live: Vec<f32>,
     true_means: Vec<f32>,
     config: EncoderConfig,
+    /// `[channel][padded lobe]`.
     coeffs: [Vec<f32>; C],
     integrals: Vec<f32>,
     total_weight: f32,
-    b: Vec<f32>,
-    step: Vec<f32>,
-    denom: Vec<f32>,
-    scale: Vec<f32>,
+    block: Block<C>,
+}
+
+/// The samples of one block and what is computed from them, `[sample][padded lobe]`, kept
+/// between blocks so that no sample allocates.
+#[derive(Debug, Clone)]
+struct Block<const C: usize> {
+    dirs: [Vec3; BLOCK],
+    values: [[f32; C]; BLOCK],
+    weights: [f32; BLOCK],
+    len: usize,
+    /// Basis values `B_i(s)`.
+    basis: Vec<f32>,
+    /// Residual update: the gain `g_i` of `b_i += g_i Δ`; running average: the denominator.
+    gain: Vec<f32>,
+    /// Running average: `w / W` where `B_i(s) ≠ 0`, else 0.
+    share: Vec<f32>,
 }
 
 impl<const C: usize> SgEncoder<C> {
@@ -66,29 +102,43 @@ impl<const C: usize> SgEncoder<C> {
             return Err(PlsqError::invalid("precision", "SgEncoder stores f32 only"));
         }
         let k = basis.len();
+        let padded = k.div_ceil(LANE) * LANE;
         let axes = basis.axes();
+        let pad = |v: Vec<f32>, fill: f32| {
+            let mut v = v;
+            v.resize(padded, fill);
+            v
+        };
         Ok(Self {
-            px: axes.iter().map(|a| a.x).collect(),
-            py: axes.iter().map(|a| a.y).collect(),
-            pz: axes.iter().map(|a| a.z).collect(),
-            lambda: basis.sharpness().to_vec(),
-            true_means: true_square_means(basis)?,
+            lobes: k,
+            px: pad(axes.iter().map(|a| a.x).collect(), 0.0),
+            py: pad(axes.iter().map(|a| a.y).collect(), 0.0),
+            pz: pad(axes.iter().map(|a| a.z).collect(), 0.0),
+            lambda: pad(basis.sharpness().to_vec(), 0.0),
+            live: pad(vec![1.0; k], 0.0),
+            true_means: pad(true_square_means(basis)?, 1.0),
             config,
-            coeffs: std::array::from_fn(|_| vec![0.0; k]),
-            integrals: vec![0.0; k],
+            coeffs: std::array::from_fn(|_| vec![0.0; padded]),
+            integrals: vec![0.0; padded],
             total_weight: 0.0,
-            b: vec![0.0; k],
-            step: vec![0.0; k],
-            denom: vec![1.0; k],
-            scale: vec![0.0; k],
+            block: Block {
+                dirs: [Vec3::ZERO; BLOCK],
+                values: [[0.0; C]; BLOCK],
+                weights: [0.0; BLOCK],
+                len: 0,
+                basis: vec![0.0; BLOCK * padded],
+                gain: vec![0.0; BLOCK * padded],
+                share: vec![0.0; BLOCK * padded],
+            },
         })
     }
 
     /// Coefficients as `len` rows of `C` interleaved values (the layout of
     /// [`crate::ProgressiveEncoder::coefficients`]).
     pub fn coefficients(&self) -> Vec<f32> {
-        let k = self.lambda.len();
-        (0..k * C).map(|i| self.coeffs[i % C][i / C]).collect()
+        (0..self.lobes * C)
+            .map(|i| self.coeffs[i % C][i / C])
+            .collect()
     }
 
     /// Total sample weight so far.
@@ -117,10 +167,8 @@ impl<const C: usize> SgEncoder<C> {
         if weight == 0.0 {
             return Ok(SampleOutcome::ZeroWeight);
         }
-        self.apply(dir, value, weight);
-        if self.config.hemisphere {
-            self.apply(-dir, [0.0; C], weight);
-        }
+        self.push(dir, value, weight);
+        self.flush();
         Ok(SampleOutcome::Applied)
     }
 
@@ -173,125 +221,211 @@ impl<const C: usize> SgEncoder<C> {
                     ));
                 }
             }
-            for s in start..end {
+            for (s, value) in values[start * C..end * C].chunks_exact(C).enumerate() {
+                let s = start + s;
                 let w = weights.map_or(1.0, |w| w[s]);
                 if w == 0.0 {
                     continue;
                 }
-                let v: [f32; C] = std::array::from_fn(|c| values[s * C + c]);
-                self.apply(dirs[s], v, w);
-                if self.config.hemisphere {
-                    self.apply(-dirs[s], [0.0; C], w);
-                }
+                self.push(dirs[s], std::array::from_fn(|c| value[c]), w);
             }
+            self.flush();
             progress.inc((end - start) as u64);
         }
         Ok(())
     }
 
-    fn apply(&mut self, dir: Vec3, value: [f32; C], weight: f32) {
-        // Common lobe counts get a copy of the body with a constant trip count (fully unrolled,
-        // no remainder loops); `apply_with` is inlined into each arm.
-        match self.lambda.len() {
-            4 => self.apply_with(4, dir, value, weight),
-            6 => self.apply_with(6, dir, value, weight),
-            8 => self.apply_with(8, dir, value, weight),
-            9 => self.apply_with(9, dir, value, weight),
-            12 => self.apply_with(12, dir, value, weight),
-            16 => self.apply_with(16, dir, value, weight),
-            k => self.apply_with(k, dir, value, weight),
+    /// Queues a sample (and its hemisphere mirror), applying the block when it is full.
+    fn push(&mut self, dir: Vec3, value: [f32; C], weight: f32) {
+        self.queue(dir, value, weight);
+        if self.config.hemisphere {
+            self.queue(-dir, [0.0; C], weight);
         }
     }
 
+    fn queue(&mut self, dir: Vec3, value: [f32; C], weight: f32) {
+        let b = &mut self.block;
+        b.dirs[b.len] = dir;
+        b.values[b.len] = value;
+        b.weights[b.len] = weight;
+        b.len += 1;
+        if b.len == BLOCK {
+            self.flush();
+        }
+    }
+
+    /// Applies the queued samples.
+    fn flush(&mut self) {
+        if self.block.len == 0 {
+            return;
+        }
+        // 12 and 16 lobes (one lane group) get a copy with a constant trip count.
+        match self.px.len() {
+            LANE => self.apply_block::<1>(),
+            _ => self.apply_block::<0>(),
+        }
+        self.block.len = 0;
+    }
+
+    /// `GROUPS` is the number of lane groups when known at compile time (0: read it).
     #[inline(always)]
-    fn apply_with(&mut self, k: usize, dir: Vec3, value: [f32; C], weight: f32) {
+    fn apply_block<const GROUPS: usize>(&mut self) {
+        let padded = if GROUPS > 0 {
+            GROUPS * LANE
+        } else {
+            self.px.len()
+        };
         let cfg = self.config;
-        self.total_weight += weight;
-        let share = weight / self.total_weight;
-        let (b, step, scale) = (&mut self.b[..k], &mut self.step[..k], &mut self.scale[..k]);
-        let denoms = &mut self.denom[..k];
-        let (px, py, pz, lambda) = (
-            &self.px[..k],
-            &self.py[..k],
-            &self.pz[..k],
-            &self.lambda[..k],
-        );
-        for i in 0..k {
-            let d = px[i] * dir.x + py[i] * dir.y + pz[i] * dir.z;
-            b[i] = exp_nonpositive(lambda[i] * (d - 1.0));
-        }
-        let mut delta = value;
-        for c in 0..C {
-            let co = &self.coeffs[c][..k];
-            let mut s = 0.0;
-            for i in 0..k {
-                s += b[i] * co[i];
-            }
-            delta[c] -= s;
-        }
-        let (integrals, true_means) = (&mut self.integrals[..k], &self.true_means[..k]);
-        let share_of = |b: f32| if b != 0.0 { share } else { 0.0 };
-        for i in 0..k {
-            // A lobe that evaluates to exactly 0 is skipped, as in the generic encoder.
-            integrals[i] += (b[i] * b[i] - integrals[i]) * share_of(b[i]);
-        }
-        match cfg.denominator {
-            Denominator::Clamped { floor } => {
-                for i in 0..k {
-                    denoms[i] = integrals[i].max(floor * true_means[i]);
+        let n = self.block.len;
+        let Block {
+            dirs,
+            values,
+            weights,
+            basis,
+            gain,
+            share,
+            ..
+        } = &mut self.block;
+        let residual = matches!(cfg.update, Update::Residual { .. });
+        // Coefficient-independent part, vectorised over the lobes: every loop below is a
+        // branch-free loop over one lane group (the configuration is matched outside them).
+        for s in 0..n {
+            self.total_weight += weights[s];
+            let w_share = weights[s] / self.total_weight;
+            let d = dirs[s];
+            for o in (0..padded).step_by(LANE) {
+                let lanes = o..o + LANE;
+                let (px, py, pz) = (
+                    &self.px[lanes.clone()],
+                    &self.py[lanes.clone()],
+                    &self.pz[lanes.clone()],
+                );
+                let (lambda, live) = (&self.lambda[lanes.clone()], &self.live[lanes.clone()]);
+                let means = &self.true_means[lanes.clone()];
+                let est = &mut self.integrals[lanes];
+                let mut b = [0.0f32; LANE];
+                for l in 0..LANE {
+                    let cos = px[l] * d.x + py[l] * d.y + pz[l] * d.z;
+                    b[l] = live[l] * exp_nonpositive(lambda[l] * (cos - 1.0));
+                }
+                // A lobe that evaluates to exactly 0 is skipped, as in the generic encoder.
+                let mut sh = [0.0f32; LANE];
+                for l in 0..LANE {
+                    sh[l] = if b[l] != 0.0 { w_share } else { 0.0 };
+                    est[l] += (b[l] * b[l] - est[l]) * sh[l];
+                }
+                let mut denom = [0.0f32; LANE];
+                match cfg.denominator {
+                    Denominator::Clamped { floor } => {
+                        for l in 0..LANE {
+                            denom[l] = est[l].max(floor * means[l]);
+                        }
+                    }
+                    Denominator::LerpFromOne => {
+                        for l in 0..LANE {
+                            denom[l] = sh[l] + (1.0 - sh[l]) * est[l];
+                        }
+                    }
+                    Denominator::Exact => denom.copy_from_slice(means),
+                }
+                let row = s * padded + o..s * padded + o + LANE;
+                basis[row.clone()].copy_from_slice(&b);
+                if residual {
+                    let g = &mut gain[row];
+                    for l in 0..LANE {
+                        let step = sh[l] * b[l] / denom[l];
+                        g[l] = if b[l] != 0.0 { step } else { 0.0 };
+                    }
+                } else {
+                    gain[row.clone()].copy_from_slice(&denom);
+                    share[row].copy_from_slice(&sh);
                 }
             }
-            Denominator::LerpFromOne => {
-                for i in 0..k {
-                    denoms[i] = share + (1.0 - share) * integrals[i];
-                }
-            }
-            Denominator::Exact => denoms.copy_from_slice(true_means),
-        }
-        for i in 0..k {
-            step[i] = share_of(b[i]) * b[i] / denoms[i];
         }
         match cfg.update {
             Update::Residual { acceleration } => {
-                // scale[i] = α Π_{j<i} (1 − step_j B_j) for Gauss-Seidel, α for Jacobi.
-                let mut prefix = acceleration;
-                for i in 0..k {
-                    scale[i] = prefix;
-                    if cfg.sweep == Sweep::GaussSeidel {
-                        prefix *= 1.0 - step[i] * b[i];
+                if cfg.sweep == Sweep::GaussSeidel {
+                    // g_i ← α Π_{j<i} (1 − step_j B_j) step_i: serial in the lobes, but the
+                    // samples' chains are independent, so they overlap in the pipeline.
+                    for s in 0..n {
+                        let row = s * padded..s * padded + self.lobes;
+                        let mut prefix = acceleration;
+                        for (g, b) in gain[row.clone()].iter_mut().zip(&basis[row]) {
+                            let step = *g;
+                            *g = prefix * step;
+                            prefix *= 1.0 - step * b;
+                        }
+                    }
+                } else {
+                    for g in &mut gain[..n * padded] {
+                        *g *= acceleration;
                     }
                 }
-                for c in 0..C {
-                    let co = &mut self.coeffs[c][..k];
-                    for i in 0..k {
-                        let new = co[i] + scale[i] * step[i] * delta[c];
-                        co[i] = if cfg.non_negative { new.max(0.0) } else { new };
+                // The serial part: residual and update per sample.
+                for s in 0..n {
+                    let row = s * padded..(s + 1) * padded;
+                    let (b, g) = (&basis[row.clone()], &gain[row]);
+                    for c in 0..C {
+                        let co = &mut self.coeffs[c][..padded];
+                        let delta = values[s][c] - dot(b, co);
+                        for (co, g) in co.chunks_exact_mut(LANE).zip(g.chunks_exact(LANE)) {
+                            for l in 0..LANE {
+                                let new = co[l] + g[l] * delta;
+                                co[l] = if cfg.non_negative { new.max(0.0) } else { new };
+                            }
+                        }
                     }
                 }
             }
             Update::RunningAverage => {
                 // Serial in the lobes for Gauss-Seidel (the residual depends on the clamped
                 // new coefficient); Jacobi reads the residual before the sample.
-                for i in 0..k {
-                    if b[i] == 0.0 {
-                        continue;
-                    }
-                    let denom = denoms[i];
-                    for c in 0..C {
-                        let old = self.coeffs[c][i];
-                        let mut new = old + (b[i] * (delta[c] + old * b[i]) / denom - old) * share;
-                        if cfg.non_negative {
-                            new = new.max(0.0);
+                for s in 0..n {
+                    let row = s * padded..(s + 1) * padded;
+                    let (b, denom, sh) = (&basis[row.clone()], &gain[row.clone()], &share[row]);
+                    let mut delta: [f32; C] =
+                        std::array::from_fn(|c| values[s][c] - dot(b, &self.coeffs[c][..padded]));
+                    for i in 0..self.lobes {
+                        if b[i] == 0.0 {
+                            continue;
                         }
-                        self.coeffs[c][i] = new;
-                        if cfg.sweep == Sweep::GaussSeidel {
-                            delta[c] -= (new - old) * b[i];
+                        for c in 0..C {
+                            let old = self.coeffs[c][i];
+                            let mut new =
+                                old + (b[i] * (delta[c] + old * b[i]) / denom[i] - old) * sh[i];
+                            if cfg.non_negative {
+                                new = new.max(0.0);
+                            }
+                            self.coeffs[c][i] = new;
+                            if cfg.sweep == Sweep::GaussSeidel {
+                                delta[c] -= (new - old) * b[i];
+                            }
                         }
                     }
                 }
             }
         }
     }
+}
+
+/// `Σ a_i b_i` over lane groups: `LANE` partial sums (vectorised), then a fixed pairwise
+/// reduction, so the result does not depend on the instruction set.
+#[inline(always)]
+fn dot(a: &[f32], b: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANE];
+    for (a, b) in a.chunks_exact(LANE).zip(b.chunks_exact(LANE)) {
+        for l in 0..LANE {
+            acc[l] += a[l] * b[l];
+        }
+    }
+    let mut width = LANE / 2;
+    while width > 0 {
+        for l in 0..width {
+            acc[l] += acc[l + width];
+        }
+        width /= 2;
+    }
+    acc[0]
 }
 
 fn offset(e: PlsqError, by: usize) -> PlsqError {

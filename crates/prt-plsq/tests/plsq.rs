@@ -606,3 +606,49 @@ fn map_least_squares_reproduces_a_function_in_the_span() {
     let rmse = prt_plsq::radiance_rmse(&map, &dice, &fit, false, frame).unwrap();
     assert!(rmse < 1e-3, "{rmse}");
 }
+
+/// Blocking reorders only independent arithmetic: one sample at a time, the whole stream at
+/// once (blocks of 16) and a stream with zero weights all give the same state, bit for bit.
+#[test]
+fn sg_encoder_blocking_does_not_change_the_result() {
+    use prt_plsq::SgEncoder;
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let (dirs, values) = samples(101);
+    for cfg in [
+        EncoderConfig::paper(),
+        EncoderConfig::probulator_running_average(),
+        EncoderConfig {
+            hemisphere: true,
+            non_negative: true,
+            ..EncoderConfig::paper()
+        },
+    ] {
+        let mut whole = SgEncoder::<3>::new(&basis, cfg).unwrap();
+        whole
+            .add_samples(&dirs, &values, None, &NoProgress)
+            .unwrap();
+        let mut single = SgEncoder::<3>::new(&basis, cfg).unwrap();
+        for (d, v) in dirs.iter().zip(values.chunks_exact(3)) {
+            single.add_sample(*d, [v[0], v[1], v[2]], 1.0).unwrap();
+        }
+        // Every third sample duplicated with weight 0: skipped, no state change.
+        let (mut d2, mut v2, mut w2) = (Vec::new(), Vec::new(), Vec::new());
+        for (s, (d, v)) in dirs.iter().zip(values.chunks_exact(3)).enumerate() {
+            d2.push(*d);
+            v2.extend_from_slice(v);
+            w2.push(1.0);
+            if s % 3 == 0 {
+                d2.push(-*d);
+                v2.extend_from_slice(&[9.0, 9.0, 9.0]);
+                w2.push(0.0);
+            }
+        }
+        let mut weighted = SgEncoder::<3>::new(&basis, cfg).unwrap();
+        weighted
+            .add_samples(&d2, &v2, Some(&w2), &NoProgress)
+            .unwrap();
+        assert_eq!(whole.coefficients(), single.coefficients(), "{cfg:?}");
+        assert_eq!(whole.coefficients(), weighted.coefficients(), "{cfg:?}");
+        assert_eq!(whole.total_weight(), weighted.total_weight());
+    }
+}
