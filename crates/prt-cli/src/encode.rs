@@ -1,5 +1,6 @@
 //! `prt encode ENVMAP`: fit an environment map into a sphere basis (Roughton's progressive least
-//! squares, or the least-squares / NNLS / projection references) and report the radiance RMSE.
+//! squares, or the least-squares / NNLS / projection references) and report the radiance RMSE
+//! under Probulator's definition (`prt_plsq::radiance_rmse`).
 
 use std::path::{Path, PathBuf};
 
@@ -7,8 +8,12 @@ use anyhow::{Context, Result, bail, ensure};
 use clap::ValueEnum;
 use glam::Vec3;
 use prt_core::SphericalBasis;
-use prt_plsq::{EncoderConfig, ProgressiveEncoder, reference};
-use prt_sphere::{AmbientCube, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, sampling};
+use prt_plsq::{
+    EncoderConfig, LatLongFrame, ProgressiveEncoder, radiance_rmse, reference, sample_nearest,
+};
+use prt_sphere::{
+    AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, sampling,
+};
 use prt_texture::Limits;
 use serde_json::json;
 
@@ -23,6 +28,18 @@ pub enum Method {
     Progressive,
     /// Monte Carlo projection (exact for orthonormal bases such as SH).
     Projection,
+    /// Least squares of the whole map (every texel, weighted by its solid angle) through the
+    /// Gram matrix; ignores `--samples` (Probulator's ambient dice fit).
+    MapLs,
+}
+
+/// The frame in which sample directions and basis functions are laid over the map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Frame {
+    /// prt's conventions.md lat-long mapping.
+    Conventions,
+    /// kayru/Probulator's mapping (conventions turned by π about +Y): reproduces its figures.
+    Probulator,
 }
 
 /// Options of `prt encode`.
@@ -31,7 +48,7 @@ pub struct EncodeArgs {
     /// Lat-long environment map (.hdr or .exr).
     pub envmap: PathBuf,
     /// Basis: `sh:N` (order N, N² functions), `sg:N` (N lobes on Probulator's spiral),
-    /// `ambient-cube`, or `ambient-dice`.
+    /// `ambient-cube`, `ambient-dice` (SRBF, 12 functions) or `ambient-dice-bezier` (36).
     #[arg(long, default_value = "sg:12")]
     pub basis: String,
     /// Spherical Gaussian sharpness λ (for `sg:N`).
@@ -43,6 +60,9 @@ pub struct EncodeArgs {
     /// Fit samples (Halton(2,3) directions, nearest texel).
     #[arg(long, default_value_t = 20000)]
     pub samples: usize,
+    /// Frame of the sample directions and basis functions relative to the map.
+    #[arg(long, value_enum, default_value_t = Frame::Conventions)]
+    pub frame: Frame,
     /// Write the reconstruction as a tone-mapped lat-long PNG.
     #[arg(long)]
     pub png: Option<PathBuf>,
@@ -52,25 +72,31 @@ pub fn run(args: &EncodeArgs) -> Result<()> {
     ensure!(args.samples >= 1, "--samples must be at least 1");
     let map = read_envmap(&args.envmap)?;
     let (basis, clamp): (Box<dyn SphericalBasis>, bool) = parse_basis(&args.basis, args.lambda)?;
-    let dirs = sampling::halton_sphere(args.samples);
-    let mut values = Vec::with_capacity(dirs.len() * 3);
-    for &d in &dirs {
-        values.extend_from_slice(&map.nearest(d).to_array());
-    }
-    let coefficients = fit(basis.as_ref(), args.method, &dirs, &values)?;
-    let rmse = radiance_rmse(&map, basis.as_ref(), &coefficients, clamp);
+    let frame = match args.frame {
+        Frame::Conventions => LatLongFrame::Conventions,
+        Frame::Probulator => LatLongFrame::Probulator,
+    };
+    let coefficients = if args.method == Method::MapLs {
+        reference::least_squares_map(basis.as_ref(), &map, frame)?
+    } else {
+        let dirs = sampling::halton_sphere(args.samples);
+        let values = sample_nearest(&map, &dirs, frame);
+        fit(basis.as_ref(), args.method, &dirs, &values)?
+    };
+    let rmse = radiance_rmse(&map, basis.as_ref(), &coefficients, clamp, frame)?;
     let doc = json!({
         "envmap": args.envmap.display().to_string(),
         "basis": basis.name(),
         "method": format!("{:?}", args.method).to_lowercase(),
+        "frame": format!("{:?}", args.frame).to_lowercase(),
         "samples": args.samples,
         "rmse": rmse,
-        "rmse_definition": "sqrt(mean over pixel centres of the per-pixel MSE averaged over RGB); SH and ambient dice clamped at 0",
+        "rmse_definition": "Probulator's: sqrt(mean over texel centres, unweighted, of the per-texel MSE averaged over RGB); SH and ambient dice clamped at 0",
         "coefficients_rgb": coefficients.chunks_exact(3).map(|c| c.to_vec()).collect::<Vec<_>>(),
     });
     println!("{}", serde_json::to_string_pretty(&doc)?);
     if let Some(png) = &args.png {
-        write_png(png, &map, basis.as_ref(), &coefficients, clamp)?;
+        write_png(png, &map, basis.as_ref(), &coefficients, clamp, frame)?;
         eprintln!("wrote {}", png.display());
     }
     Ok(())
@@ -91,8 +117,11 @@ fn parse_basis(spec: &str, lambda: f32) -> Result<(Box<dyn SphericalBasis>, bool
         ("sh", Some(order)) => (Box::new(ShBasis::new(order)?), true),
         ("sg", Some(lobes)) => (Box::new(SgBasis::spiral(lobes, lambda)?), false),
         ("ambient-cube", None) => (Box::new(AmbientCube), false),
-        ("ambient-dice", None) => (Box::new(AmbientDiceSrbf), true),
-        _ => bail!("unknown basis {spec:?} (expected sh:N, sg:N, ambient-cube or ambient-dice)"),
+        ("ambient-dice" | "ambient-dice-srbf", None) => (Box::new(AmbientDiceSrbf), true),
+        ("ambient-dice-bezier", None) => (Box::new(AmbientDiceBezier), true),
+        _ => bail!(
+            "unknown basis {spec:?} (expected sh:N, sg:N, ambient-cube, ambient-dice or ambient-dice-bezier)"
+        ),
     })
 }
 
@@ -142,6 +171,7 @@ fn fit(
         Method::Projection => {
             reference::naive_projection(basis, dirs, values, 3, 4.0 * std::f64::consts::PI)?
         }
+        Method::MapLs => bail!("map least squares does not use samples"),
         Method::Progressive => {
             let mut encoder = ProgressiveEncoder::new(basis, 3, EncoderConfig::paper())?;
             for (d, v) in dirs.iter().zip(values.chunks_exact(3)) {
@@ -169,41 +199,13 @@ fn reconstruct(
     if clamp { rgb.map(|v| v.max(0.0)) } else { rgb }
 }
 
-/// Probulator's radiance RMSE: at every pixel centre, the squared error averaged over RGB; the
-/// square root of the mean over pixels (unweighted by solid angle).
-fn radiance_rmse(
-    map: &LatLongMap,
-    basis: &dyn SphericalBasis,
-    coefficients: &[f32],
-    clamp: bool,
-) -> f64 {
-    let mut scratch = vec![0.0f32; basis.len()];
-    let mut sum = 0.0f64;
-    for y in 0..map.height() {
-        for x in 0..map.width() {
-            let got = reconstruct(
-                basis,
-                coefficients,
-                map.direction(x, y),
-                clamp,
-                &mut scratch,
-            );
-            let want = map.texel(x, y).to_array();
-            sum += (0..3)
-                .map(|c| ((got[c] - want[c]) as f64).powi(2))
-                .sum::<f64>()
-                / 3.0;
-        }
-    }
-    (sum / (map.width() * map.height()) as f64).sqrt()
-}
-
 fn write_png(
     path: &Path,
     map: &LatLongMap,
     basis: &dyn SphericalBasis,
     coefficients: &[f32],
     clamp: bool,
+    frame: LatLongFrame,
 ) -> Result<()> {
     let mut scratch = vec![0.0f32; basis.len()];
     let (w, h) = (map.width(), map.height());
@@ -213,7 +215,7 @@ fn write_png(
         let rgb = reconstruct(
             basis,
             coefficients,
-            map.direction(x as usize, y as usize),
+            frame.from_conventions(map.direction(x as usize, y as usize)),
             clamp,
             &mut scratch,
         );
