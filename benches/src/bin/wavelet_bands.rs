@@ -1,8 +1,10 @@
 //! Per-band error breakdown of the rotating-map experiment: where NWA and PBI spend their terms
 //! and where their error is, band (wavelet level) by band, averaged over the rotating frames.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_bands [-- map deg/frame]`
-//! (default: probulator_grace at 1 degree per frame; 64 × 64 faces, RGB, area-weighted selection).
+//! `cargo run --release -p prt-benches --bin wavelet_bands [-- map deg/frame samples]`
+//! (default: probulator_grace at 1 degree per frame, `Cubemap::default_samples` sub-texel
+//! lookups per side; 64 × 64 faces, RGB, area-weighted selection). `samples = 1` is the point
+//! sampling that aliases small bright sources.
 //!
 //! For each method and band: mean terms per frame, the share of frames the band was replaced,
 //! and the band's error, measured as the area-weighted L1 of the texels reconstructed with the
@@ -51,57 +53,12 @@ fn main() {
     };
     let layout = CubemapLayout::new(SIZE).expect("size");
     let bands = layout.band_count();
-    let ss: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
-    let rotation = Rotation::new(map, SIZE * ss, deg.to_radians(), STOP).expect("rotation");
-    let frame = |t: usize| -> Vec<f32> {
-        let fine = rotation.frame(t).expect("frame").into_data();
-        let big = SIZE * ss;
-        let mut out = vec![0.0f32; 3 * 6 * SIZE * SIZE];
-        for (i, v) in fine.iter().enumerate() {
-            let (plane, r) = (i / (big * big), i % (big * big));
-            let (x, y) = (r % big / ss, r / big / ss);
-            out[(plane * SIZE + y) * SIZE + x] += v / (ss * ss) as f32;
-        }
-        out
-    };
-    let mk = |name, terms, policy| Stats {
-        name,
-        approx: Approximator::for_cubemap(&layout, 3, Weighting::Area, terms, policy)
-            .expect("config"),
-        terms: vec![0.0; bands],
-        replaced: vec![0.0; bands],
-        band_error: vec![0.0; bands],
-        total_error: 0.0,
-        objective: 0.0,
-    };
-    let quadrant_bands: Vec<u8> = layout
-        .level_face_bands()
-        .iter()
-        .enumerate()
-        .map(|(i, &b)| {
-            let (x, y) = ((i % (SIZE * SIZE)) % SIZE, (i % (SIZE * SIZE)) / SIZE);
-            let level = layout.bands()[i] as usize;
-            // The quadrant of the face a coefficient's support lies in (levels >= 2).
-            let q = if level >= 2 {
-                let s = 1usize << (level - 1);
-                let (bx, by) = (x % s, y % s);
-                2 * (2 * by / s) + 2 * bx / s
-            } else {
-                0
-            };
-            (4 * b as usize + q) as u8
-        })
-        .collect();
-    let fine = |name, bands: Vec<u8>, policy| Stats {
-        name,
-        approx: Approximator::new(bands, layout.area_weights().to_vec(), 3, 30, policy)
-            .expect("config"),
-        terms: vec![0.0; layout.band_count()],
-        replaced: vec![0.0; layout.band_count()],
-        band_error: vec![0.0; layout.band_count()],
-        total_error: 0.0,
-        objective: 0.0,
-    };
+    let mut rotation = Rotation::new(map, SIZE, deg.to_radians(), STOP).expect("rotation");
+    if let Some(samples) = args.get(2).and_then(|s| s.parse().ok()) {
+        rotation = rotation.with_samples(samples).expect("samples");
+    }
+    let samples = rotation.samples();
+    let frame = |t: usize| rotation.frame(t).expect("frame").into_data();
     let mut methods = vec![
         mk(
             "PBI30 exhaustive",
@@ -228,7 +185,7 @@ fn main() {
         .fold((f64::MAX, f64::MIN), |(a, b), &e| (a.min(e), b.max(e)));
     println!("total radiant energy over frames: min {lo:.4}, max {hi:.4}");
     println!(
-        "\n### Per-band breakdown, {name}, {deg} deg/frame, mean over rotating frames {WARMUP}..{STOP}\n\n{}",
+        "\n### Per-band breakdown, {name}, {deg} deg/frame, {samples}x{samples} samples per texel, mean over rotating frames {WARMUP}..{STOP}\n\n{}",
         table.markdown()
     );
 }

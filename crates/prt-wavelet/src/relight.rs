@@ -12,9 +12,11 @@
 //! streams both whole images through the cache once per term. The engine instead works tile by
 //! tile: pixels are cut into tiles of [`SparseTransport::tile_rows`] rows (1024 by default:
 //! 12 KB per RGB image tile, so a partial tile and the total's tile stay in L1), each column's
-//! entries are indexed by tile, and within a tile the terms are applied band by band. The
-//! transport bytes read are the same; the images are touched once per frame instead of once per
-//! term.
+//! entries are indexed by tile, and within a tile the terms are applied band by band: a band's
+//! terms are summed into one scratch tile (one scattered update of a pixel per stored entry,
+//! instead of two), which is then added to the band's partial image and the total in one
+//! contiguous pass. The transport bytes read are the same; each image is touched once per band
+//! and frame instead of once per term.
 
 use prt_core::{MatrixOracle, Progress};
 
@@ -217,18 +219,11 @@ impl SparseTransport {
         self.col_start[j] + offsets[0] as usize..self.col_start[j] + offsets[1] as usize
     }
 
-    /// `partial[(r − first_row)·C + c] += v_c T(r, j)` and the same into `image`, for the
-    /// entries of column `j` in tile `tile` (whose first pixel is `first_row`) and all `C`
-    /// channels at once.
+    /// `delta[(r − first_row)·C + c] += v_c T(r, j)` for the entries of column `j` in tile
+    /// `tile` (whose first pixel is `first_row`) and all `C` channels at once: one scattered
+    /// read-modify-write of `C` adjacent floats per entry.
     #[inline]
-    fn add_tile<const C: usize>(
-        &self,
-        j: usize,
-        tile: usize,
-        values: &[f32],
-        partial: &mut [f32],
-        image: &mut [f32],
-    ) {
+    fn add_tile<const C: usize>(&self, j: usize, tile: usize, values: &[f32], delta: &mut [f32]) {
         let range = self.tile_range(j, tile);
         let first_row = tile * self.tile_rows;
         let mut s = [0.0f32; C];
@@ -241,22 +236,15 @@ impl SparseTransport {
         {
             let q = q as f32;
             let o = (r as usize - first_row) * C;
+            let pixel = &mut delta[o..o + C];
             for c in 0..C {
-                partial[o + c] += s[c] * q;
-                image[o + c] += s[c] * q;
+                pixel[c] += s[c] * q;
             }
         }
     }
 
     /// [`Self::add_tile`] for a channel count known only at run time.
-    fn add_tile_any(
-        &self,
-        j: usize,
-        tile: usize,
-        values: &[f32],
-        partial: &mut [f32],
-        image: &mut [f32],
-    ) {
+    fn add_tile_any(&self, j: usize, tile: usize, values: &[f32], delta: &mut [f32]) {
         let range = self.tile_range(j, tile);
         let first_row = tile * self.tile_rows;
         let channels = values.len();
@@ -266,9 +254,8 @@ impl SparseTransport {
         {
             let q = q as f32 * self.scale[j];
             let o = (r as usize - first_row) * channels;
-            for (c, v) in values.iter().enumerate() {
-                partial[o + c] += v * q;
-                image[o + c] += v * q;
+            for (d, v) in delta[o..o + channels].iter_mut().zip(values) {
+                *d += v * q;
             }
         }
     }
@@ -283,6 +270,8 @@ pub struct Relighter {
     partial: Vec<Vec<f32>>,
     /// `image[r * channels + c]` = Σ_b partial[b].
     image: Vec<f32>,
+    /// One tile of one band's new contributions (reused every frame).
+    delta: Vec<f32>,
 }
 
 impl Relighter {
@@ -300,10 +289,11 @@ impl Relighter {
         }
         let n = transport.rows * channels;
         Ok(Self {
-            transport,
             channels,
             partial: vec![vec![0.0; n]; bands],
             image: vec![0.0; n],
+            delta: vec![0.0; transport.tile_rows * channels],
+            transport,
         })
     }
 
@@ -357,17 +347,31 @@ impl Relighter {
                     *p = 0.0;
                 }
             }
-            for &t in &order {
-                let term = update.terms[t];
-                let j = term.index as usize;
-                let partial = &mut self.partial[term.band as usize][pixels.clone()];
-                let values = &update.values[t * c..(t + 1) * c];
-                match c {
-                    1 => transport.add_tile::<1>(j, tile, values, partial, image),
-                    2 => transport.add_tile::<2>(j, tile, values, partial, image),
-                    3 => transport.add_tile::<3>(j, tile, values, partial, image),
-                    4 => transport.add_tile::<4>(j, tile, values, partial, image),
-                    _ => transport.add_tile_any(j, tile, values, partial, image),
+            // Band by band: the band's new terms are summed into `delta` (scattered, but
+            // within one L1-resident tile), then added to its partial image and the total in
+            // one contiguous pass.
+            let delta = &mut self.delta[..pixels.len()];
+            for group in order.chunk_by(|&x, &y| update.terms[x].band == update.terms[y].band) {
+                delta.fill(0.0);
+                for &t in group {
+                    let j = update.terms[t].index as usize;
+                    let values = &update.values[t * c..(t + 1) * c];
+                    match c {
+                        1 => transport.add_tile::<1>(j, tile, values, delta),
+                        2 => transport.add_tile::<2>(j, tile, values, delta),
+                        3 => transport.add_tile::<3>(j, tile, values, delta),
+                        4 => transport.add_tile::<4>(j, tile, values, delta),
+                        _ => transport.add_tile_any(j, tile, values, delta),
+                    }
+                }
+                let band = update.terms[group[0]].band as usize;
+                for ((p, img), d) in self.partial[band][pixels.clone()]
+                    .iter_mut()
+                    .zip(image.iter_mut())
+                    .zip(delta.iter())
+                {
+                    *p += d;
+                    *img += d;
                 }
             }
         }
