@@ -59,6 +59,27 @@ fn main() {
     }
     let samples = rotation.samples();
     let frame = |t: usize| rotation.frame(t).expect("frame").into_data();
+    let mk = |name, terms, policy| Stats {
+        name,
+        approx: Approximator::for_cubemap(&layout, 3, Weighting::Area, terms, policy)
+            .expect("config"),
+        terms: vec![0.0; bands],
+        replaced: vec![0.0; bands],
+        band_error: vec![0.0; bands],
+        total_error: 0.0,
+        objective: 0.0,
+    };
+    let quadrant_bands = layout.level_face_tile_bands(2).expect("tiles");
+    let fine = |name, bands: Vec<u8>, policy| Stats {
+        name,
+        approx: Approximator::new(bands, layout.area_weights().to_vec(), 3, 30, policy)
+            .expect("config"),
+        terms: vec![0.0; layout.band_count()],
+        replaced: vec![0.0; layout.band_count()],
+        band_error: vec![0.0; layout.band_count()],
+        total_error: 0.0,
+        objective: 0.0,
+    };
     let mut methods = vec![
         mk(
             "PBI30 exhaustive",
