@@ -132,9 +132,10 @@ pub fn smooth(field: &GridField, valid: &[bool]) -> Result<GridField> {
 /// The seam view of one method.
 pub struct SeamView {
     /// Per pixel of the horizontal slice `y` (x fastest): the largest jump of the residual to an
-    /// in-slice neighbour, `‖e_v − e_u‖ / max(‖s_v‖, ‖s_u‖)`; `None` for invalid voxels.
+    /// in-slice neighbour, `‖e_v − e_u‖ / max(‖s_v‖, ‖s_u‖, floor)`; `None` for invalid voxels.
+    /// `floor` is a tenth of the smoothed field's RMS norm over valid voxels.
     pub jump: Vec<Option<f32>>,
-    /// Per pixel of the slice: the relative residual `‖e_v‖ / ‖s_v‖`.
+    /// Per pixel of the slice: the relative residual `‖e_v‖ / max(‖s_v‖, floor)`.
     pub residual: Vec<Option<f32>>,
     /// Over the whole volume: RMS jump `‖e_u − e_v‖` between valid neighbours with different
     /// labels, over the same between neighbours with equal labels. About 1 without seams.
@@ -267,6 +268,15 @@ pub fn seam_view(
         0.0
     };
 
+    // Relative measures divide by the field's norm, but never by less than a tenth of its RMS:
+    // enclosed voxels that no light reaches (a zero field) would otherwise turn noise-level
+    // residuals into 100 %.
+    let (energy, count) = (0..smoothed.num_voxels())
+        .filter(|&v| valid[v])
+        .fold((0.0f64, 0usize), |(e, n), v| {
+            (e + norm(smoothed.voxel(v)).powi(2), n + 1)
+        });
+    let floor = 0.1 * (energy / count.max(1) as f64).sqrt();
     let (nx, nz) = (dims[0], dims[2]);
     let mut jump = Vec::with_capacity(nx * nz);
     let mut residual = Vec::with_capacity(nx * nz);
@@ -278,7 +288,7 @@ pub fn seam_view(
                 residual.push(None);
                 continue;
             }
-            let sv = norm(smoothed.voxel(v));
+            let sv = norm(smoothed.voxel(v)).max(floor);
             let neighbours = [
                 (x > 0).then(|| v - 1),
                 (x + 1 < nx).then(|| v + 1),
@@ -395,6 +405,33 @@ mod tests {
         let (a, b) = (0.5f32 + 1.0 / 16.0, 0.2f32);
         let want = (a * a + b * b).sqrt() / (1.0 + a * a + b * b).sqrt();
         assert!((r - want).abs() < 1e-5, "{r} vs {want}");
+    }
+
+    #[test]
+    fn a_dark_region_is_not_reported_as_unrepresentable() {
+        // Left half: a noise-level field orthogonal to the basis (relative residual 100 %).
+        let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let field = GridField::from_fn([8, 2, 2], bounds, 3, |p, out| {
+            let v = if p.x < 0.5 {
+                [0.0, 0.0, 1e-6]
+            } else {
+                [1.0, 0.5 + p.x, 0.2]
+            };
+            out.copy_from_slice(&v)
+        })
+        .expect("finite");
+        let valid = vec![true; field.num_voxels()];
+        let labels = vec![0u32; field.num_voxels()];
+        let bases = Array3::from_shape_vec((1, 1, 3), vec![1.0, 0.0, 0.0]).expect("shape");
+        let basis = LocalBasis::Clustered {
+            labels: &labels,
+            bases: &bases,
+        };
+        let view = seam_view(&field, &valid, &labels, &basis, 0).expect("seam view");
+        let dark = view.residual[0].expect("valid");
+        assert!(dark < 1e-3, "residual of a dark voxel {dark}");
+        let lit = view.residual[7].expect("valid");
+        assert!(lit > 0.5, "residual of a lit voxel {lit}");
     }
 
     #[test]
