@@ -3,8 +3,9 @@
 //!
 //! Run: `cargo run --release -p prt-benches --bin plsq_probulator [-- --frame yup|zup]`
 //!
-//! Probulator's definitions, matched here: maps are 256×128 lat-long; fit input = Halton(2,3)
-//! indices 1..N mapped `z = 1 − 2u`, `φ = 2πv`, value of the nearest texel; reconstruction at
+//! Probulator's definitions, matched here: maps are 256×128 lat-long; SG fit input = Halton(2,3)
+//! indices 1..N mapped `z = 1 − 2u`, `φ = 2πv`, value of the nearest texel (SH and ambient dice
+//! project the whole map by texel solid angles, as Probulator's experiments do); reconstruction at
 //! texel centres; error = sqrt of the per-pixel MSE averaged over RGB (unweighted by solid
 //! angle; `prt_plsq::radiance_rmse`); SG radiance not clamped, SH and ambient dice clamped at
 //! 0. Probulator works in its own frame (`prt_plsq::LatLongFrame::Probulator`: prt's frame
@@ -143,9 +144,9 @@ fn main() {
         let (dirs, values) = probe.samples(n);
         for order in 2..=5 {
             let sh = ShBasis::new(order).expect("order >= 1");
-            let c = reference::naive_projection(&sh, &dirs, &values, 3, 4.0 * std::f64::consts::PI)
-                .expect("samples");
-            results[order - 2][p] = probe.rmse(&sh, &c, true);
+            // Probulator's ExperimentSH projects the whole map by texel solid angles (not the
+            // Halton samples); with an identity Gram this is that projection.
+            results[order - 2][p] = probe.rmse(&sh, &probe.ls_from_map(&sh), true);
         }
         let naive = reference::naive_projection(
             &sg,
