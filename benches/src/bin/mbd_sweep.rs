@@ -2,7 +2,7 @@
 //! (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
 //! solvers' convergence (error vs iterations and time).
 //!
-//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|all>`
+//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|ridge|all>`
 //!
 //! Environment knobs (so that each run stays a few minutes on a shared machine):
 //! * `MBD_FIELD=synthetic|cornell`: the synthetic manifold field (default) or the built-in
@@ -566,6 +566,59 @@ fn convergence() {
     table.write_csv_if_requested("mbd_convergence").ok();
 }
 
+/// MBD at rank 8 and 16 with the default and a 100× smaller ridge λ, beside the global PCA of the
+/// same rank that MBD starts from: does the solver end above its own starting point, and is the
+/// ridge the cause?
+fn ridge() {
+    let n = sweep_n();
+    let f = synthetic_field(n);
+    let mut table = Table::new(&[
+        "L",
+        "λ",
+        "iterations",
+        "CPU time",
+        "MBD relative MSE",
+        "RMS coefficient",
+        "global PCA (start) relative MSE",
+    ]);
+    for l in [8, 16] {
+        let pca = GlobalPca { rank: l }
+            .compress(&f, &NoProgress)
+            .expect("pca");
+        let start = evaluate(&pca, &f, &EvalOptions::default()).expect("evaluate");
+        for lambda in [1e-4f32, 1e-6] {
+            let mbd = Mbd {
+                basis_nodes: [5; 3],
+                options: MbdOptions {
+                    rank: l,
+                    lambda,
+                    max_iterations: 64,
+                    ..MbdOptions::default()
+                },
+            };
+            let ((model, report), cost) = Cost::measure(|| mbd.fit(&f, &NoProgress).expect("mbd"));
+            let e = evaluate(&model, &f, &EvalOptions::default()).expect("evaluate");
+            let c = model.coefficients();
+            let rms =
+                (c.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>() / c.len() as f64).sqrt();
+            table.row(vec![
+                l.to_string(),
+                format!("{lambda:e}"),
+                report.history.len().to_string(),
+                format!("{:.2} s", cost.cpu),
+                format!("{:.3e}", e.relative_mse),
+                format!("{rms:.3}"),
+                format!("{:.3e}", start.relative_mse),
+            ]);
+        }
+    }
+    println!(
+        "### MBD vs its global-PCA start ({n}³ × 324, 5³ nodes)\n\n{}",
+        table.markdown()
+    );
+    println!("load average after: {}\n", load_average());
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mode = args.first().cloned().unwrap_or_else(|| "all".into());
@@ -583,6 +636,7 @@ fn main() {
         "grid" => grid_resolution(),
         "timing" => timing(),
         "convergence" => convergence(),
+        "ridge" => ridge(),
         _ => {
             basis_count();
             grid_resolution();
