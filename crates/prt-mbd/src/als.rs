@@ -73,9 +73,8 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
     let mut stopping = Stopping::default();
     for _ in 0..options.max_iterations {
         progress.check()?;
-        let loss_before = problem
-            .evaluate(&centres, &coefficients, &basis, false, progress)?
-            .loss();
+        let before = problem.evaluate(&centres, &coefficients, &basis, false, progress)?;
+        let loss_before = before.loss();
         coefficient_step(
             field,
             &basis_kernels,
@@ -106,7 +105,7 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
         });
         progress.inc(1);
         progress.message(&format!("ALS loss {loss_after:.6e}"));
-        if stopping.should_stop(loss_before, loss_after, options) {
+        if stopping.should_stop(loss_before, loss_after, before.data_loss, options) {
             report.converged = true;
             break;
         }
