@@ -536,13 +536,14 @@ pub fn write_images(
         save(format!("error_{}.png", m.key), img)?;
     }
 
-    // The profile along the slice row with the most valid voxels (ties: nearest the middle).
+    // The profile along the row nearest the middle of the slice that is at least half valid:
+    // the middle crosses the scene's interior (a row of most valid voxels can lie outside a
+    // building's walls).
+    let half_valid = |z: usize| 2 * (0..w).filter(|&x| slice_valid[z * w + x]).count() >= w;
     let profile_row = (0..h)
-        .max_by_key(|&z| {
-            let count = (0..w).filter(|&x| slice_valid[z * w + x]).count();
-            (count, std::cmp::Reverse(z.abs_diff(h / 2)))
-        })
-        .unwrap_or(0);
+        .filter(|&z| half_valid(z))
+        .min_by_key(|&z| z.abs_diff(h / 2))
+        .unwrap_or(h / 2);
     let slice_labels: Vec<Vec<u32>> = methods
         .iter()
         .map(|m| {
