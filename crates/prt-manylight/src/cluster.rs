@@ -152,7 +152,7 @@ pub(crate) fn split_set(
         })
         .collect();
 
-    let mut best: Option<(f64, usize, Vec<usize>)> = None;
+    let mut best = BestCut::default();
     let mut partial = vec![0.0f64; dim];
     for _ in 0..lines.max(1) {
         let direction: Vec<f32> = (0..dim).map(|_| rng.random_range(-1.0f32..1.0)).collect();
@@ -188,31 +188,61 @@ pub(crate) fn split_set(
             let right_sq = total_sq - 2.0 * left_dot_total + left_sq;
             let cost = (left_norm * left_norm - left_sq).max(0.0)
                 + (right_norm * right_norm - right_sq).max(0.0);
-            let cut = k + 1;
-            let imbalance = cut.abs_diff(n - cut);
-            let better = match &best {
-                None => true,
-                Some((c, b, _)) => match cost.total_cmp(c) {
-                    Ordering::Less => true,
-                    Ordering::Equal => imbalance < *b,
-                    Ordering::Greater => false,
-                },
-            };
-            if better {
-                best = Some((cost, imbalance, order[..cut].to_vec()));
-            }
+            best.offer(cost, k + 1, n);
+        }
+        best.end_order(&order);
+    }
+    best.split(members)
+}
+
+/// The best cut over several sorted orders of a cluster's members: the lowest cost, then the most
+/// balanced, the first found on ties. Only the winning cut of each order is copied.
+#[derive(Debug, Default)]
+pub(crate) struct BestCut {
+    best: Option<(f64, usize)>,
+    improved_at: Option<usize>,
+    left: Vec<usize>,
+}
+
+impl BestCut {
+    /// Offers the cut that leaves the first `cut` of `n` members of the current order on the left.
+    pub(crate) fn offer(&mut self, cost: f64, cut: usize, n: usize) {
+        let imbalance = cut.abs_diff(n - cut);
+        let better = match self.best {
+            None => true,
+            Some((c, b)) => match cost.total_cmp(&c) {
+                Ordering::Less => true,
+                Ordering::Equal => imbalance < b,
+                Ordering::Greater => false,
+            },
+        };
+        if better {
+            self.best = Some((cost, imbalance));
+            self.improved_at = Some(cut);
         }
     }
-    let (_, _, left) = best?;
-    let mut in_left = vec![false; n];
-    for x in left {
-        in_left[x] = true;
+
+    /// Ends the current order: keeps its positions on the left if one of its cuts won.
+    pub(crate) fn end_order(&mut self, order: &[usize]) {
+        if let Some(cut) = self.improved_at.take() {
+            self.left.clear();
+            self.left.extend_from_slice(&order[..cut]);
+        }
     }
-    let (mut a, mut b) = (Vec::new(), Vec::new());
-    for (x, &j) in members.iter().enumerate() {
-        if in_left[x] { a.push(j) } else { b.push(j) }
+
+    /// Splits `members` by the winning cut (left, right); `None` if no cut was offered.
+    pub(crate) fn split(self, members: &[u32]) -> Option<(Vec<u32>, Vec<u32>)> {
+        self.best?;
+        let mut in_left = vec![false; members.len()];
+        for &x in &self.left {
+            in_left[x] = true;
+        }
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for (x, &j) in members.iter().enumerate() {
+            if in_left[x] { a.push(j) } else { b.push(j) }
+        }
+        Some((a, b))
     }
-    Some((a, b))
 }
 
 /// A cluster in the splitting queue: highest cost first, then the largest, then the oldest.

@@ -1,4 +1,3 @@
-use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 use faer::{Accum, MatMut, MatRef, Par};
@@ -7,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use crate::cluster::Queued;
+use crate::cluster::{BestCut, Queued};
 use crate::reduced::{check_requests, check_shape};
 use crate::{ManyLightError, stratified_rows};
 
@@ -195,7 +194,7 @@ fn split_visibility(
         return None;
     }
     let total = features.moments(members);
-    let mut best: Option<(f64, usize, Vec<usize>)> = None;
+    let mut best = BestCut::default();
     for _ in 0..lines.max(1) {
         let direction: Vec<f32> = (0..features.r)
             .map(|_| rng.random_range(-1.0f32..1.0))
@@ -222,31 +221,11 @@ fn split_visibility(
             let j = members[x];
             left.add(features.weight(j), features.vis(j));
             let cost = left.error() + total.error_minus(Some(&left));
-            let cut = k + 1;
-            let imbalance = cut.abs_diff(n - cut);
-            let better = match &best {
-                None => true,
-                Some((c, b, _)) => match cost.total_cmp(c) {
-                    Ordering::Less => true,
-                    Ordering::Equal => imbalance < *b,
-                    Ordering::Greater => false,
-                },
-            };
-            if better {
-                best = Some((cost, imbalance, order[..cut].to_vec()));
-            }
+            best.offer(cost, k + 1, n);
         }
+        best.end_order(&order);
     }
-    let (_, _, left) = best?;
-    let mut in_left = vec![false; n];
-    for x in left {
-        in_left[x] = true;
-    }
-    let (mut a, mut b) = (Vec::new(), Vec::new());
-    for (x, &j) in members.iter().enumerate() {
-        if in_left[x] { a.push(j) } else { b.push(j) }
-    }
-    Some((a, b))
+    best.split(members)
 }
 
 /// Divisive clustering into `count` clusters: the cluster of largest error (then the largest)
