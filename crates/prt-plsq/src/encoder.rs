@@ -271,22 +271,7 @@ impl<'b, B: SphericalBasis + ?Sized> ProgressiveEncoder<'b, B> {
         weights: Option<&[f32]>,
         progress: &dyn Progress,
     ) -> Result<(), PlsqError> {
-        if values.len() != dirs.len() * self.channels {
-            return Err(PlsqError::LengthMismatch {
-                what: "sample values",
-                expected: dirs.len() * self.channels,
-                got: values.len(),
-            });
-        }
-        if let Some(w) = weights
-            && w.len() != dirs.len()
-        {
-            return Err(PlsqError::LengthMismatch {
-                what: "sample weights",
-                expected: dirs.len(),
-                got: w.len(),
-            });
-        }
+        PlsqError::check_sample_lengths(dirs.len(), values, self.channels, weights)?;
         progress.set_len(dirs.len() as u64);
         for (chunk_start, chunk) in dirs.chunks(4096).enumerate().map(|(c, d)| (c * 4096, d)) {
             if progress.is_cancelled() {

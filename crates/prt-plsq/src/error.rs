@@ -55,6 +55,32 @@ impl PlsqError {
         }
     }
 
+    /// `channels` values per sample and, when given, one weight per sample.
+    pub(crate) fn check_sample_lengths(
+        samples: usize,
+        values: &[f32],
+        channels: usize,
+        weights: Option<&[f32]>,
+    ) -> Result<(), PlsqError> {
+        if values.len() != samples * channels {
+            return Err(PlsqError::LengthMismatch {
+                what: "sample values",
+                expected: samples * channels,
+                got: values.len(),
+            });
+        }
+        if let Some(w) = weights
+            && w.len() != samples
+        {
+            return Err(PlsqError::LengthMismatch {
+                what: "sample weights",
+                expected: samples,
+                got: w.len(),
+            });
+        }
+        Ok(())
+    }
+
     pub(crate) fn invalid(what: &'static str, why: impl Into<String>) -> PlsqError {
         PlsqError::Invalid {
             what,

@@ -181,22 +181,7 @@ impl<const C: usize> SgEncoder<C> {
         weights: Option<&[f32]>,
         progress: &dyn Progress,
     ) -> Result<(), PlsqError> {
-        if values.len() != dirs.len() * C {
-            return Err(PlsqError::LengthMismatch {
-                what: "sample values",
-                expected: dirs.len() * C,
-                got: values.len(),
-            });
-        }
-        if let Some(w) = weights
-            && w.len() != dirs.len()
-        {
-            return Err(PlsqError::LengthMismatch {
-                what: "sample weights",
-                expected: dirs.len(),
-                got: w.len(),
-            });
-        }
+        PlsqError::check_sample_lengths(dirs.len(), values, C, weights)?;
         progress.set_len(dirs.len() as u64);
         for start in (0..dirs.len()).step_by(4096) {
             if progress.is_cancelled() {
