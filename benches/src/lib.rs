@@ -7,6 +7,8 @@
 
 use std::time::{Duration, Instant};
 
+pub mod manylight;
+
 /// Runs `f` `reps` times after one warm-up call and returns the median wall time.
 pub fn median_time<T>(reps: usize, mut f: impl FnMut() -> T) -> Duration {
     std::hint::black_box(f());

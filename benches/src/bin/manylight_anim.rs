@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use glam::Vec3;
+use prt_benches::manylight::write_strip;
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
@@ -150,30 +151,4 @@ fn main() {
         }
     }
     println!("\n{}", table.markdown());
-}
-
-/// Reference | each estimate, tone-mapped with one exposure (99th percentile of the reference
-/// at 0.8) and sRGB gamma.
-fn write_strip(path: &Path, width: usize, reference: &[f32], estimates: &[Vec<f32>]) {
-    let mut sorted: Vec<f32> = reference.to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let exposure = 0.8 / sorted[(sorted.len() * 99) / 100].max(1e-12);
-    let tone = |v: f32| ((v * exposure).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
-    let panels: Vec<&[f32]> = std::iter::once(reference)
-        .chain(estimates.iter().map(Vec::as_slice))
-        .collect();
-    let mut out = image::RgbImage::new((panels.len() * width) as u32, width as u32);
-    for (k, panel) in panels.iter().enumerate() {
-        for y in 0..width {
-            for x in 0..width {
-                let p = 3 * (y * width + x);
-                let rgb = [tone(panel[p]), tone(panel[p + 1]), tone(panel[p + 2])];
-                out.put_pixel((k * width + x) as u32, y as u32, image::Rgb(rgb));
-            }
-        }
-    }
-    match out.save(path) {
-        Ok(()) => println!("wrote {}", path.display()),
-        Err(e) => eprintln!("could not write {}: {e}", path.display()),
-    }
 }

@@ -14,6 +14,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use prt_benches::manylight::{trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
@@ -22,7 +23,7 @@ use prt_manylight::{
     VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
     row_column_sampling, visibility_clustering,
 };
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls};
+use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOracle};
 use rayon::prelude::*;
 
 /// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
@@ -249,44 +250,4 @@ fn compare<O: SliceOracle + VisibilityOracle>(
         }
     }
     println!("\n{}", table.markdown());
-}
-
-/// About `target` VPLs: a pilot run measures VPLs per particle (as `manylight_scene`).
-fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<prt_trace::Vpl> {
-    let options = |particles| VplOptions {
-        particles,
-        max_bounces: 2,
-        seed: 1,
-        ..Default::default()
-    };
-    let pilot = trace_vpls(scene, tracer, &options(2000), &NoProgress).expect("lit scene");
-    let per_particle = (pilot.len() as f64 / 2000.0).max(0.1);
-    let particles = (target as f64 / per_particle).round().max(1.0) as usize;
-    trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
-}
-
-/// Reference | each estimate, tone-mapped with one exposure (99th percentile of the reference
-/// at 0.8) and sRGB gamma.
-fn write_strip(path: &Path, width: usize, reference: &[f32], estimates: &[Vec<f32>]) {
-    let mut sorted: Vec<f32> = reference.to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let exposure = 0.8 / sorted[(sorted.len() * 99) / 100].max(1e-12);
-    let tone = |v: f32| ((v * exposure).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
-    let panels: Vec<&[f32]> = std::iter::once(reference)
-        .chain(estimates.iter().map(Vec::as_slice))
-        .collect();
-    let mut out = image::RgbImage::new((panels.len() * width) as u32, width as u32);
-    for (k, panel) in panels.iter().enumerate() {
-        for y in 0..width {
-            for x in 0..width {
-                let p = 3 * (y * width + x);
-                let rgb = [tone(panel[p]), tone(panel[p + 1]), tone(panel[p + 2])];
-                out.put_pixel((k * width + x) as u32, y as u32, image::Rgb(rgb));
-            }
-        }
-    }
-    match out.save(path) {
-        Ok(()) => println!("wrote {}", path.display()),
-        Err(e) => eprintln!("could not write {}: {e}", path.display()),
-    }
 }

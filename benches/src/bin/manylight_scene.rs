@@ -16,13 +16,12 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use prt_benches::manylight::{trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, row_column_sampling};
-use prt_trace::{
-    GBuffer, LoadOptions, PinholeView, RayTracer, Scene, VplOptions, VplOracle, trace_vpls,
-};
+use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene, VplOracle};
 
 const CONFIGS: [(usize, usize); 6] = [
     (100, 200),
@@ -134,53 +133,14 @@ fn main() {
             if let (0, (300, 900), Some(path), Some(image)) =
                 (c, (rows, columns), &image_path, first_image)
             {
-                write_comparison(path, width, &reference, &image);
+                let difference: Vec<f32> = reference
+                    .iter()
+                    .zip(&image)
+                    .map(|(a, b)| 10.0 * (a - b).abs())
+                    .collect();
+                write_strip(path, width, &reference, &[image, difference]);
             }
         }
     }
     println!("\n{}", table.markdown());
-}
-
-/// About `target` VPLs: a pilot run measures VPLs per particle.
-fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<prt_trace::Vpl> {
-    let options = |particles| VplOptions {
-        particles,
-        max_bounces: 2,
-        seed: 1,
-        ..Default::default()
-    };
-    let pilot = trace_vpls(scene, tracer, &options(2000), &NoProgress).expect("lit scene");
-    let per_particle = (pilot.len() as f64 / 2000.0).max(0.1);
-    let particles = (target as f64 / per_particle).round().max(1.0) as usize;
-    trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
-}
-
-/// Reference | estimate | 10 × |difference|, tone-mapped with one exposure (99th percentile of
-/// the reference at 0.8) and sRGB gamma.
-fn write_comparison(path: &Path, width: usize, reference: &[f32], estimate: &[f32]) {
-    let mut sorted: Vec<f32> = reference.to_vec();
-    sorted.sort_by(f32::total_cmp);
-    let p99 = sorted[(sorted.len() * 99) / 100].max(1e-12);
-    let exposure = 0.8 / p99;
-    let tone = |v: f32| ((v * exposure).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8;
-    let mut out = image::RgbImage::new(3 * width as u32, width as u32);
-    for y in 0..width {
-        for x in 0..width {
-            let p = 3 * (y * width + x);
-            let r = &reference[p..p + 3];
-            let e = &estimate[p..p + 3];
-            let d: Vec<f32> = r.iter().zip(e).map(|(a, b)| 10.0 * (a - b).abs()).collect();
-            for (k, px) in [r, e, &d].into_iter().enumerate() {
-                out.put_pixel(
-                    (k * width + x) as u32,
-                    y as u32,
-                    image::Rgb([tone(px[0]), tone(px[1]), tone(px[2])]),
-                );
-            }
-        }
-    }
-    match out.save(path) {
-        Ok(()) => println!("wrote {}", path.display()),
-        Err(e) => eprintln!("could not write {}: {e}", path.display()),
-    }
 }
