@@ -103,6 +103,6 @@ pub use gltf_load::LoadOptions;
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, sh9};
 pub use vpl::{
-    GBuffer, GatherPoint, PinholeView, SunSky, Vpl, VplOptions, VplOracle, emitted_power,
-    trace_vpls,
+    DirectionalLight, GBuffer, GatherPoint, PinholeView, SunSky, Vpl, VplOptions, VplOracle,
+    directional_lights, emitted_power, trace_vpls,
 };

@@ -12,6 +12,12 @@
 //! with `ω = (y_j - x_i)/d`, the clamp distance `c` bounding the `1/d²` singularity, and `V` a
 //! shadow ray. (Hašan's notes fold the second `1/π` into the VPL's flux; here the stored flux is
 //! the physical one, so the emitter VPLs sum to the emitters' power.)
+//!
+//! Sun, sky and glTF directional lights have no position, so particle tracing can only leave
+//! VPLs where they first hit (their *indirect* light). Their *direct* light enters the matrix as
+//! [`DirectionalLight`] columns ([`directional_lights`], [`VplOracle::with_directional`]), as
+//! Hašan et al. 2007 do for their sun-and-sky scenes: the sun one light, the sky many
+//! directions, each of element `ρ_i/π · E_j · max(0, n_i·(−d_j)) · V(x_i, −d_j)`.
 
 use std::f32::consts::{PI, TAU};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -57,6 +63,92 @@ impl Default for SunSky {
             sky_radiance: Vec3::new(0.15, 0.2, 0.3),
         }
     }
+}
+
+/// A light at infinity: parallel light travelling along `direction` with irradiance `irradiance`
+/// on a surface facing it. One column of the [`VplOracle`] matrix (direct sun or sky light).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DirectionalLight {
+    /// Unit direction the light travels (from the light into the scene).
+    pub direction: Vec3,
+    /// Irradiance on a surface facing the light (linear RGB).
+    pub irradiance: Vec3,
+}
+
+/// The direct light of the scene's lights at infinity as [`DirectionalLight`]s: its glTF
+/// directional lights (irradiance = colour × intensity), and, for a scene with neither emissive
+/// triangles nor punctual lights (the case where [`trace_vpls`] uses `sun_sky`), the sun as one
+/// light and the sky as `sky_directions` lights. Sky directions are stratified over the upper
+/// (+Y) hemisphere in equal solid angles (a grid in `cos θ` and `φ`, each cell's centre); each
+/// carries `L · 2π / K`, so a horizontal surface open to the sky receives `π L`, the exact
+/// irradiance, up to the grid's quadrature error. Emissive triangles and point lights need no
+/// entry (their direct light is the emitter VPLs); a zero sun or sky gives no light for it.
+///
+/// Errors: [`TraceError::EmptyScene`] for a scene without triangles, [`TraceError::InvalidOption`]
+/// for a non-finite `sun_sky`.
+pub fn directional_lights(
+    scene: &Scene,
+    sun_sky: &SunSky,
+    sky_directions: usize,
+) -> Result<Vec<DirectionalLight>, TraceError> {
+    let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
+    let finite = sun_sky.sun_direction.is_finite()
+        && sun_sky.sun_irradiance.is_finite()
+        && sun_sky.sky_radiance.is_finite();
+    if !finite {
+        return Err(TraceError::InvalidOption {
+            what: "sun and sky",
+            why: format!("{sun_sky:?} is not finite"),
+        });
+    }
+    // The sun and sky light the scene exactly when `trace_vpls` falls back to them: no emissive
+    // triangle and no punctual light among its sources.
+    let uses_sun_sky = sources(scene, &bounds, sun_sky)
+        .iter()
+        .all(|s| !matches!(s, Source::Triangle { .. }))
+        && !scene.lights().iter().any(|l| {
+            let intensity = l.color * l.intensity;
+            intensity.is_finite() && intensity.max_element() > 0.0
+        });
+    let mut out: Vec<DirectionalLight> = scene
+        .lights()
+        .iter()
+        .filter(|l| matches!(l.kind, LightKind::Directional))
+        .map(|l| DirectionalLight {
+            direction: l.direction.normalize_or(Vec3::NEG_Y),
+            irradiance: l.color * l.intensity,
+        })
+        .filter(|l| l.irradiance.is_finite() && l.irradiance.max_element() > 0.0)
+        .collect();
+    if !uses_sun_sky {
+        return Ok(out);
+    }
+    if sun_sky.sun_irradiance.max_element() > 0.0 {
+        out.push(DirectionalLight {
+            direction: sun_sky.sun_direction.normalize_or(Vec3::NEG_Y),
+            irradiance: sun_sky.sun_irradiance,
+        });
+    }
+    if sun_sky.sky_radiance.max_element() > 0.0 && sky_directions > 0 {
+        // A near-square grid: `rings` bands of equal height in cos θ, `sectors` in φ.
+        let rings = ((sky_directions as f64 / 2.0).sqrt().round() as usize).max(1);
+        let sectors = sky_directions.div_ceil(rings);
+        let count = rings * sectors;
+        let irradiance = sun_sky.sky_radiance * (TAU / count as f32);
+        for r in 0..rings {
+            let cos_theta = (r as f32 + 0.5) / rings as f32;
+            let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+            for k in 0..sectors {
+                let phi = TAU * (k as f32 + 0.5) / sectors as f32;
+                let from = Vec3::new(sin_theta * phi.cos(), cos_theta, sin_theta * phi.sin());
+                out.push(DirectionalLight {
+                    direction: -from,
+                    irradiance,
+                });
+            }
+        }
+    }
+    Ok(out)
 }
 
 /// Options of [`trace_vpls`].
@@ -212,8 +304,10 @@ pub fn emitted_power(scene: &Scene, sun_sky: &SunSky) -> Result<Vec3, TraceError
 ///
 /// Emitter VPLs (bounce 0) lie on emissive triangles and point lights; their fluxes sum to the
 /// emitted power in expectation (exactly for a single emitter). Directional and sky light have no
-/// position and a spot's cone is not a Lambertian or isotropic lobe, so they give no bounce-0 VPL: their first surface hit is the first VPL (their direct
-/// light is then represented only through one bounce). A particle that hits the back of a
+/// position and a spot's cone is not a Lambertian or isotropic lobe, so they give no bounce-0
+/// VPL: their first surface hit is the first VPL, which carries their indirect light. The direct
+/// light of lights at infinity is added to the oracle as columns of its own
+/// ([`directional_lights`], [`VplOracle::with_directional`]). A particle that hits the back of a
 /// single-sided surface or leaves the scene stops.
 ///
 /// Errors: [`TraceError::EmptyScene`] without triangles, [`TraceError::InvalidOption`] for zero
@@ -555,9 +649,18 @@ impl GBuffer {
     }
 }
 
+/// One column's light: a VPL or a light at infinity.
+#[derive(Debug, Clone, Copy)]
+enum Light<'a> {
+    Point(&'a Vpl),
+    Directional(&'a DirectionalLight),
+}
+
 /// The pixel × VPL matrix (3 channels, RGB) of a G-buffer lit by VPLs, evaluated on demand with
 /// shadow rays: element `(i, j) = ρ_i/π · Φ_j/π · max(0, n_i·ω) max(0, -n_j·ω) / max(d², c²) · V`
 /// (an isotropic point-light VPL uses `1/4` for the second cosine, i.e. intensity `Φ/4π`).
+/// After the VPLs come the [`DirectionalLight`] columns of [`VplOracle::with_directional`]
+/// (none by default): `ρ_i/π · E_j · max(0, n_i·(−d_j)) · V`, the shadow ray leaving the scene.
 /// Pixels without a gather point are zero rows. The matrix holds only light arriving through
 /// VPLs: an emitter's own radiance seen directly by a pixel is not in it (add it to the image).
 /// `eval_row` and `eval_col` run over rayon; every
@@ -586,6 +689,7 @@ pub struct VplOracle<'a> {
     tracer: &'a RayTracer,
     gather: &'a [Option<GatherPoint>],
     vpls: &'a [Vpl],
+    directional: &'a [DirectionalLight],
     clamp2: f32,
     eps: f32,
     evaluated: AtomicU64,
@@ -638,10 +742,37 @@ impl<'a> VplOracle<'a> {
             tracer,
             gather: &gbuffer.points,
             vpls,
+            directional: &[],
             clamp2: clamp * clamp,
             eps,
             evaluated: AtomicU64::new(0),
         })
+    }
+
+    /// The same oracle with the direct light of `lights` as extra columns after the VPLs
+    /// (column `vpls.len() + k` is `lights[k]`), replacing any set before; see
+    /// [`directional_lights`].
+    ///
+    /// Errors: a non-finite light or a zero direction ([`CoreError::NonFinite`] with its index).
+    pub fn with_directional(self, lights: &'a [DirectionalLight]) -> Result<Self, CoreError> {
+        let bad = lights.iter().position(|l| {
+            !(l.direction.is_finite() && l.irradiance.is_finite() && l.direction != Vec3::ZERO)
+        });
+        if let Some(index) = bad {
+            return Err(CoreError::NonFinite {
+                what: "directional light",
+                index,
+            });
+        }
+        Ok(Self {
+            directional: lights,
+            ..self
+        })
+    }
+
+    /// Number of VPL columns (the directional columns follow them).
+    pub fn vpl_count(&self) -> usize {
+        self.vpls.len()
     }
 
     /// Resets the element counter.
@@ -668,9 +799,19 @@ impl<'a> VplOracle<'a> {
     ///
     /// Errors: an index out of range ([`CoreError::OutOfRange`]), a non-finite result.
     pub fn shading(&self, i: usize, j: usize) -> Result<Vec3, CoreError> {
-        let (g, v) = self.pair(i, j)?;
+        let (g, light) = self.pair(i, j)?;
         let Some(g) = g else {
             return Ok(Vec3::ZERO);
+        };
+        let v = match light {
+            Light::Point(v) => v,
+            Light::Directional(l) => {
+                let cos_i = -g.normal.dot(l.direction.normalize());
+                if cos_i <= 0.0 {
+                    return Ok(Vec3::ZERO);
+                }
+                return self.finite(i, j, g.albedo * l.irradiance * (cos_i / PI));
+            }
         };
         let to = v.position - g.position;
         let d2 = to.length_squared();
@@ -689,12 +830,16 @@ impl<'a> VplOracle<'a> {
             return Ok(Vec3::ZERO);
         }
         let value = g.albedo * v.flux * (cos_i * cos_j / (PI * PI * d2.max(self.clamp2)));
+        self.finite(i, j, value)
+    }
+
+    fn finite(&self, i: usize, j: usize, value: Vec3) -> Result<Vec3, CoreError> {
         if value.is_finite() {
             Ok(value)
         } else {
             Err(CoreError::NonFinite {
                 what: "VPL oracle element",
-                index: i * self.vpls.len() + j,
+                index: i * self.cols() + j,
             })
         }
     }
@@ -704,29 +849,43 @@ impl<'a> VplOracle<'a> {
     ///
     /// Errors: an index out of range ([`CoreError::OutOfRange`]).
     pub fn visible(&self, i: usize, j: usize) -> Result<bool, CoreError> {
-        let (g, v) = self.pair(i, j)?;
+        let (g, light) = self.pair(i, j)?;
         let Some(g) = g else {
             return Ok(false);
         };
         let from = g.position + g.normal * self.eps;
+        let v = match light {
+            Light::Point(v) => v,
+            Light::Directional(l) => {
+                // `+ 0.0` turns a `-0.0` component into `+0.0`: the BVH traversal misses hits
+                // for a ray with a `-0.0` component whose origin lies on that axis' plane.
+                let towards = -l.direction.normalize() + Vec3::ZERO;
+                return Ok(!self.tracer.occluded(from, towards, 0.0, f32::INFINITY));
+            }
+        };
         let target = v.position + v.normal * self.eps;
         let seg = target - from;
         let len = seg.length();
         Ok(!(len > self.eps && self.tracer.occluded(from, seg / len, 0.0, len - self.eps)))
     }
 
-    fn pair(&self, i: usize, j: usize) -> Result<(&Option<GatherPoint>, &Vpl), CoreError> {
+    fn pair(&self, i: usize, j: usize) -> Result<(&Option<GatherPoint>, Light<'_>), CoreError> {
         let g = self.gather.get(i).ok_or(CoreError::OutOfRange {
             what: "oracle row",
             index: i,
             len: self.gather.len(),
         })?;
-        let v = self.vpls.get(j).ok_or(CoreError::OutOfRange {
-            what: "oracle column",
-            index: j,
-            len: self.vpls.len(),
-        })?;
-        Ok((g, v))
+        let light = match self.vpls.get(j) {
+            Some(v) => Light::Point(v),
+            None => Light::Directional(self.directional.get(j - self.vpls.len()).ok_or(
+                CoreError::OutOfRange {
+                    what: "oracle column",
+                    index: j,
+                    len: self.cols(),
+                },
+            )?),
+        };
+        Ok((g, light))
     }
 
     /// The brute-force image: every element, parallel over pixels, summed per pixel in f64 in
@@ -740,7 +899,7 @@ impl<'a> VplOracle<'a> {
             .map(|i| {
                 progress.check()?;
                 let mut sum = [0f64; 3];
-                for j in 0..self.vpls.len() {
+                for j in 0..self.cols() {
                     let e = self.element(i, j)?;
                     for (s, c) in sum.iter_mut().zip(e.to_array()) {
                         *s += f64::from(c);
@@ -750,15 +909,13 @@ impl<'a> VplOracle<'a> {
                 Ok(sum.map(|s| s as f32))
             })
             .collect();
-        self.evaluated.fetch_add(
-            (self.gather.len() * self.vpls.len()) as u64,
-            Ordering::Relaxed,
-        );
+        self.evaluated
+            .fetch_add((self.gather.len() * self.cols()) as u64, Ordering::Relaxed);
         Ok(pixels?.into_iter().flatten().collect())
     }
 
     /// A fingerprint of everything an element depends on except the geometry behind the shadow
-    /// rays: gather points, VPLs, clamp and offset (FNV-1a over their bits).
+    /// rays: gather points, VPLs, directional lights, clamp and offset (FNV-1a over their bits).
     pub fn fingerprint(&self) -> u64 {
         let mut h = 0xcbf2_9ce4_8422_2325u64;
         let mut eat = |x: f32| {
@@ -783,6 +940,12 @@ impl<'a> VplOracle<'a> {
                 .flat_map(|v| v.to_array())
                 .for_each(&mut eat);
         }
+        for l in self.directional {
+            [l.direction, l.irradiance]
+                .iter()
+                .flat_map(|v| v.to_array())
+                .for_each(&mut eat);
+        }
         h
     }
 
@@ -800,7 +963,7 @@ impl<'a> VplOracle<'a> {
         let header = [
             u64::from_le_bytes(*b"PRTVPLR1"),
             self.gather.len() as u64,
-            self.vpls.len() as u64,
+            self.cols() as u64,
             self.fingerprint(),
         ];
         let expected_len = 32 + 12 * self.gather.len();
@@ -839,7 +1002,7 @@ impl MatrixOracle for VplOracle<'_> {
     }
 
     fn cols(&self) -> usize {
-        self.vpls.len()
+        self.vpls.len() + self.directional.len()
     }
 
     fn channels(&self) -> usize {

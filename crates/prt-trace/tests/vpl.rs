@@ -9,8 +9,8 @@ use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_trace::{
-    GBuffer, GatherPoint, Material, PinholeView, RayTracer, Scene, SunSky, TraceError, Vpl,
-    VplOptions, VplOracle, emitted_power, trace_vpls,
+    DirectionalLight, GBuffer, GatherPoint, Material, PinholeView, RayTracer, Scene, SunSky,
+    TraceError, Vpl, VplOptions, VplOracle, directional_lights, emitted_power, trace_vpls,
 };
 
 struct Cornell {
@@ -432,4 +432,122 @@ fn the_reference_image_is_cached_on_disk_and_recomputed_when_the_input_changes()
         Err(TraceError::Io { .. })
     ));
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn sun_and_sky_become_directional_lights_whose_sky_irradiance_is_pi_radiance() {
+    let sun_sky = SunSky {
+        sun_direction: Vec3::new(1.0, -1.0, 0.0),
+        sun_irradiance: Vec3::new(3.0, 2.0, 1.0),
+        sky_radiance: Vec3::new(0.1, 0.2, 0.4),
+    };
+    let lights = directional_lights(&floor_and_wall(false), &sun_sky, 200).unwrap();
+    // The sun, then a 10 × 20 grid of sky directions.
+    assert_eq!(lights.len(), 201);
+    assert_eq!(lights[0].irradiance, sun_sky.sun_irradiance);
+    assert!((lights[0].direction - Vec3::new(1.0, -1.0, 0.0).normalize()).length() < 1e-6);
+    // Every sky direction comes from the upper hemisphere, and their irradiance on an upward
+    // surface is π L (the midpoint rule in cos θ integrates cos θ exactly).
+    assert!(lights[1..].iter().all(|l| l.direction.y < 0.0));
+    let on_floor: Vec3 = lights[1..]
+        .iter()
+        .map(|l| l.irradiance * -l.direction.y)
+        .sum();
+    let expected = sun_sky.sky_radiance * PI;
+    assert!(
+        ((on_floor - expected) / expected).abs().max_element() < 1e-4,
+        "{on_floor} vs {expected}"
+    );
+    // A scene lit by its own emitter needs none; zero sun and sky give none.
+    assert!(
+        directional_lights(&cornell().scene, &sun_sky, 200)
+            .unwrap()
+            .is_empty()
+    );
+    let dark = SunSky {
+        sun_irradiance: Vec3::ZERO,
+        sky_radiance: Vec3::ZERO,
+        ..sun_sky
+    };
+    assert!(
+        directional_lights(&floor_and_wall(false), &dark, 200)
+            .unwrap()
+            .is_empty()
+    );
+    let bad = SunSky {
+        sun_direction: Vec3::NAN,
+        ..sun_sky
+    };
+    assert!(matches!(
+        directional_lights(&floor_and_wall(false), &bad, 8),
+        Err(TraceError::InvalidOption { .. })
+    ));
+}
+
+#[test]
+fn a_directional_column_is_cosine_weighted_direct_light_with_a_shadow_ray() {
+    // Two floor points on either side of the wall x = 0; the sun comes from +x, low.
+    let point = |x: f32| {
+        Some(GatherPoint {
+            position: Vec3::new(x, 0.0, 0.0),
+            normal: Vec3::Y,
+            albedo: Vec3::new(0.5, 0.25, 1.0),
+        })
+    };
+    let gbuffer = GBuffer {
+        width: 2,
+        height: 1,
+        points: vec![point(1.0), point(-1.0)],
+    };
+    let vpls = [Vpl {
+        position: Vec3::new(1.0, 1.0, 1.0),
+        normal: Vec3::NEG_Y,
+        flux: Vec3::ONE,
+        albedo: Vec3::splat(0.5),
+        bounce: 1,
+    }];
+    let sun = [DirectionalLight {
+        direction: Vec3::new(-1.0, -1.0, 0.0).normalize(),
+        irradiance: Vec3::new(2.0, 2.0, 2.0),
+    }];
+    let walled = floor_and_wall(true);
+    let tracer = RayTracer::new(walled.triangles());
+    let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, 0.1, 1e-4)
+        .unwrap()
+        .with_directional(&sun)
+        .unwrap();
+    assert_eq!((oracle.cols(), oracle.vpl_count()), (2, 1));
+    let expected = Vec3::new(0.5, 0.25, 1.0) / PI * 2.0 * (1.0 / 2f32.sqrt());
+    let lit = oracle.element(0, 1).unwrap();
+    assert!(
+        (lit - expected).abs().max_element() < 1e-6,
+        "{lit} vs {expected}"
+    );
+    // The wall shadows the point at x = -1.
+    assert_eq!(oracle.element(1, 1).unwrap(), Vec3::ZERO);
+    let mut column = vec![0.0; 6];
+    oracle.eval_col(1, &mut column).unwrap();
+    assert_eq!(&column[..3], &lit.to_array());
+    let mut row = vec![0.0; 6];
+    oracle.eval_row(0, &mut row).unwrap();
+    assert_eq!(&row[3..], &lit.to_array());
+    assert!(matches!(
+        oracle.element(0, 2),
+        Err(CoreError::OutOfRange {
+            index: 2,
+            len: 2,
+            ..
+        })
+    ));
+    // The fingerprint (hence the reference cache) sees the directional lights.
+    let plain = VplOracle::new(&tracer, &gbuffer, &vpls, 0.1, 1e-4).unwrap();
+    assert_ne!(plain.fingerprint(), oracle.fingerprint());
+    let bad = [DirectionalLight {
+        direction: Vec3::ZERO,
+        irradiance: Vec3::ONE,
+    }];
+    assert!(matches!(
+        plain.with_directional(&bad),
+        Err(CoreError::NonFinite { index: 0, .. })
+    ));
 }
