@@ -2,10 +2,12 @@
 //! directions uniform on the sphere), closest hit and shadow (first hit), on 2 threads, for the
 //! scenes of ../shared/design/anchors.md, next to the anchor figures (obvhs and Embree) and to
 //! obvhs used directly on the same rays in the same run (the anchors come from another machine;
-//! the same-run row separates our overhead from the machine's speed). Rays are generated before
-//! the timed loops.
+//! the same-run row separates our overhead from the machine's speed). prt-trace runs on the
+//! instruction set it detects at run time (x86-64-v3 where the CPU has it) and, for the same-run
+//! ratio, on the build's baseline; single-ray and batched queries. Rays are generated before the
+//! timed loops.
 //!
-//! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow]`
+//! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow|very-slow]`
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -71,6 +73,7 @@ impl DirectObvhs {
         let params = match quality {
             BuildQuality::Fast => BvhBuildParams::fast_build(),
             BuildQuality::Slow => BvhBuildParams::slow_build(),
+            BuildQuality::VerySlow => BvhBuildParams::very_slow_build(),
             _ => BvhBuildParams::medium_build(),
         };
         let bvh = build_cwbvh_from_tris(&input, params, &mut Duration::default());
@@ -105,33 +108,74 @@ struct Throughput {
     occluded: usize,
 }
 
-/// Times closest-hit then shadow queries over all `rays` on the rayon pool.
-fn measure(
+/// Rays per call of the batched queries (bounds the result vectors to ~32 MB).
+const BATCH: usize = 1 << 20;
+
+/// Times `closest` then `shadow` over all `rays`; each returns how many of its rays hit.
+fn measure_counts(
     rays: &[(Vec3, Vec3)],
-    closest: impl Fn(Vec3, Vec3) -> bool + Sync,
-    shadow: impl Fn(Vec3, Vec3) -> bool + Sync,
+    closest: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync),
+    shadow: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync),
 ) -> Throughput {
     let threads = rayon::current_num_threads() as f64;
     let count = rays.len() as f64;
-    let run = |f: &(dyn Fn(Vec3, Vec3) -> bool + Sync)| {
+    let run = |f: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync)| {
         let (t, c) = (Instant::now(), cpu_seconds());
-        let n = rays
-            .par_iter()
-            .with_min_len(4096)
-            .filter(|&&(o, d)| f(o, d))
-            .count();
+        let n = f(rays);
         let wall = count / t.elapsed().as_secs_f64() / 1e6;
         let cpu = count / ((cpu_seconds() - c) / threads) / 1e6;
         (n, [wall, cpu])
     };
-    let (hits, closest) = run(&closest);
-    let (occluded, shadow) = run(&shadow);
+    let (hits, closest) = run(closest);
+    let (occluded, shadow) = run(shadow);
     Throughput {
         closest,
         shadow,
         hits,
         occluded,
     }
+}
+
+/// [`measure_counts`] of single-ray queries run over the rayon pool.
+fn measure(
+    rays: &[(Vec3, Vec3)],
+    closest: impl Fn(Vec3, Vec3) -> bool + Sync,
+    shadow: impl Fn(Vec3, Vec3) -> bool + Sync,
+) -> Throughput {
+    let per_ray = |f: &(dyn Fn(Vec3, Vec3) -> bool + Sync), rays: &[(Vec3, Vec3)]| {
+        rays.par_iter()
+            .with_min_len(4096)
+            .filter(|&&(o, d)| f(o, d))
+            .count()
+    };
+    measure_counts(
+        rays,
+        &|r: &[(Vec3, Vec3)]| per_ray(&closest, r),
+        &|r: &[(Vec3, Vec3)]| per_ray(&shadow, r),
+    )
+}
+
+/// [`measure_counts`] of prt-trace's batched queries (`closest_hits`, `occluded_batch`).
+fn measure_batched(rays: &[(Vec3, Vec3)], tracer: &RayTracer) -> Throughput {
+    measure_counts(
+        rays,
+        &|r: &[(Vec3, Vec3)]| {
+            r.chunks(BATCH)
+                .map(|c| {
+                    let hits = tracer.closest_hits(c, 0.0, f32::INFINITY);
+                    hits.iter().filter(|h| h.is_some()).count()
+                })
+                .sum()
+        },
+        &|r: &[(Vec3, Vec3)]| {
+            r.chunks(BATCH)
+                .map(|c| {
+                    let blocked = tracer.occluded_batch(c, 0.0, f32::INFINITY);
+                    blocked.iter().filter(|&&b| b).count()
+                })
+                .sum()
+        },
+    )
 }
 
 fn main() {
@@ -142,6 +186,7 @@ fn main() {
     let quality = match std::env::args().nth(2).as_deref() {
         Some("fast") => BuildQuality::Fast,
         Some("slow") => BuildQuality::Slow,
+        Some("very-slow") => BuildQuality::VerySlow,
         _ => BuildQuality::Medium,
     };
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
@@ -195,6 +240,17 @@ fn main() {
             |o, d| direct.closest(o, d),
             |o, d| direct.occluded(o, d),
         );
+        let baseline = tracer.clone().with_baseline_instruction_set();
+        let isa = tracer.instruction_set();
+        let lean_base = measure(
+            &rays,
+            |o, d| {
+                baseline
+                    .closest_triangle(o, d, 0.0, f32::INFINITY)
+                    .is_some()
+            },
+            |o, d| baseline.occluded(o, d, 0.0, f32::INFINITY),
+        );
         let lean = measure(
             &rays,
             |o, d| tracer.closest_triangle(o, d, 0.0, f32::INFINITY).is_some(),
@@ -205,15 +261,42 @@ fn main() {
             |o, d| tracer.closest_hit(o, d, 0.0, f32::INFINITY).is_some(),
             |o, d| tracer.occluded(o, d, 0.0, f32::INFINITY),
         );
+        let batched = measure_batched(&rays, &tracer);
         for (implementation, build, m) in [
-            ("obvhs directly (ray_traverse)", direct_build, &base),
-            ("prt-trace closest_triangle", build, &lean),
             (
-                "prt-trace closest_hit (+ barycentrics, normal)",
+                "obvhs directly (ray_traverse)".to_string(),
+                direct_build,
+                &base,
+            ),
+            (
+                "prt-trace closest_triangle, baseline ISA".to_string(),
+                build,
+                &lean_base,
+            ),
+            (format!("prt-trace closest_triangle, {isa}"), build, &lean),
+            (
+                format!("prt-trace closest_hit (+ barycentrics, normal), {isa}"),
                 build,
                 &full,
             ),
+            (
+                format!("prt-trace closest_hits / occluded_batch, {isa}"),
+                build,
+                &batched,
+            ),
         ] {
+            if m.occluded != m.hits {
+                eprintln!(
+                    "{name}, {implementation}: {} closest hits but {} occluded shadow rays",
+                    m.hits, m.occluded
+                );
+            }
+            if m.hits != base.hits {
+                eprintln!(
+                    "{name}, {implementation}: {} closest hits, obvhs directly {}",
+                    m.hits, base.hits
+                );
+            }
             if m.occluded != m.hits {
                 eprintln!(
                     "{name}, {implementation}: {} closest hits but {} occluded shadow rays",
@@ -223,7 +306,7 @@ fn main() {
             table.row(vec![
                 name.into(),
                 scene.triangles().len().to_string(),
-                implementation.into(),
+                implementation,
                 fmt_duration(build),
                 format!("{:.2} ({:.2})", m.closest[0], m.closest[1]),
                 format!("{:.2} ({:.2})", m.shadow[0], m.shadow[1]),
@@ -239,8 +322,9 @@ fn main() {
         }
     }
     println!(
-        "threads: {}, rays: {count}, BVH quality: {quality:?}\n",
-        rayon::current_num_threads()
+        "threads: {}, rays: {count}, BVH quality: {quality:?}, instruction set detected: {}\n",
+        rayon::current_num_threads(),
+        RayTracer::new(&[]).instruction_set()
     );
     println!("{}", table.markdown());
     if let Err(e) = table.write_csv_if_requested("trace_rays") {

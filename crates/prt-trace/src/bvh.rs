@@ -2,11 +2,11 @@
 
 use std::time::Duration;
 
-use glam::{Vec2, Vec3, Vec3A};
+use glam::{UVec2, Vec2, Vec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
-use obvhs::ray::{Ray, RayHit};
+use obvhs::ray::Ray;
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
@@ -22,6 +22,29 @@ pub enum BuildQuality {
     Medium,
     /// `slow_build`: spatial pre-splits and more reinsertion, for the largest ray budgets.
     Slow,
+    /// `very_slow_build`: pre-splits and a full reinsertion pass (obvhs's highest-quality preset).
+    VerySlow,
+}
+
+/// The instruction sets the queries run with, chosen once when a tracer is built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Isa {
+    /// The build target's baseline (SSE2 on x86-64 without `-C target-cpu`).
+    Baseline,
+    /// x86-64-v3, detected at run time: see [`x86_v3`].
+    #[cfg(target_arch = "x86_64")]
+    X86V3,
+}
+
+impl Isa {
+    /// The widest instruction set this CPU supports.
+    fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if x86_v3::detected() {
+            return Isa::X86V3;
+        }
+        Isa::Baseline
+    }
 }
 
 /// The closest intersection of a ray with the scene.
@@ -56,6 +79,7 @@ pub struct RayTracer {
     tris: Vec<RtTriangle>,
     /// Scene triangle index of each slot of `tris`.
     scene_index: Vec<u32>,
+    isa: Isa,
 }
 
 impl std::fmt::Debug for RayTracer {
@@ -86,6 +110,7 @@ impl RayTracer {
                 bvh: None,
                 tris: Vec::new(),
                 scene_index: Vec::new(),
+                isa: Isa::detect(),
             };
         }
         let input: Vec<Triangle> = triangles
@@ -100,6 +125,7 @@ impl RayTracer {
             BuildQuality::Fast => BvhBuildParams::fast_build(),
             BuildQuality::Medium => BvhBuildParams::medium_build(),
             BuildQuality::Slow => BvhBuildParams::slow_build(),
+            BuildQuality::VerySlow => BvhBuildParams::very_slow_build(),
         };
         let bvh = build_cwbvh_from_tris(&input, params, &mut Duration::default());
         let scene_index = bvh.primitive_indices.clone();
@@ -114,6 +140,27 @@ impl RayTracer {
             bvh: Some(bvh),
             tris,
             scene_index,
+            isa: Isa::detect(),
+        }
+    }
+
+    /// The instruction set the queries run with, detected at run time: `"x86-64-v3"` (AVX2,
+    /// FMA, BMI1/2, LZCNT, POPCNT) or `"baseline"` (the build target's). Results are
+    /// bit-identical either way.
+    pub fn instruction_set(&self) -> &'static str {
+        match self.isa {
+            Isa::Baseline => "baseline",
+            #[cfg(target_arch = "x86_64")]
+            Isa::X86V3 => "x86-64-v3",
+        }
+    }
+
+    /// This tracer on the build target's baseline instruction set, whatever the CPU has (to
+    /// measure what the run-time selection gains; the results are the same).
+    pub fn with_baseline_instruction_set(self) -> Self {
+        Self {
+            isa: Isa::Baseline,
+            ..self
         }
     }
 
@@ -151,6 +198,7 @@ impl RayTracer {
         Vec2::new(r.dot(t.e2), r.dot(t.e1)) / t.ng.dot(d)
     }
 
+    /// Closest hit in slot terms, on the instruction set chosen at construction.
     #[inline]
     pub(crate) fn closest_slot(
         &self,
@@ -159,18 +207,91 @@ impl RayTracer {
         tmin: f32,
         tmax: f32,
     ) -> Option<SlotHit> {
-        let bvh = self.bvh.as_ref()?;
-        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
-        let mut hit = RayHit::none();
-        let tris = &self.tris;
-        if bvh.ray_traverse(ray, &mut hit, |r, id| tris[id].intersect(r)) {
-            Some(SlotHit {
-                t: hit.t,
-                slot: hit.primitive_id,
-            })
-        } else {
-            None
+        match self.isa {
+            Isa::Baseline => self.closest_slot_inline(origin, dir, tmin, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed every
+            // feature the function is compiled with.
+            Isa::X86V3 => unsafe { x86_v3::closest_slot(self, origin, dir, tmin, tmax) },
         }
+    }
+
+    /// obvhs's closest-hit traversal (`CwBvh::ray_traverse`), written out with its `traverse!`
+    /// macro so that it is compiled inside each instruction-set wrapper (a shared generic
+    /// instance of `ray_traverse` would be compiled once, for the baseline).
+    #[inline(always)]
+    fn closest_slot_inline(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<SlotHit> {
+        let bvh = self.bvh.as_ref()?;
+        let mut ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
+        let tris = &self.tris;
+        let mut best = None;
+        let mut state = bvh.new_traversal(ray.direction);
+        let mut node;
+        obvhs::traverse!(
+            bvh,
+            node,
+            state,
+            node.intersect_ray(&ray, state.oct_inv4),
+            {
+                let t = tris[state.primitive_id as usize].intersect(&ray);
+                if t < ray.tmax {
+                    best = Some(SlotHit {
+                        t,
+                        slot: state.primitive_id,
+                    });
+                    ray.tmax = t;
+                }
+            }
+        );
+        best
+    }
+
+    /// The full hit record of a slot hit, computed once per ray after traversal.
+    #[inline(always)]
+    fn hit_record(&self, h: SlotHit, origin: Vec3, dir: Vec3) -> Hit {
+        let n = self.slot_normal(h.slot);
+        Hit {
+            t: h.t,
+            triangle: self.scene_triangle(h.slot),
+            barycentrics: self.slot_barycentrics(h.slot, origin, dir),
+            normal: n.normalize_or_zero(),
+            front_face: n.dot(dir) < 0.0,
+        }
+    }
+
+    /// obvhs's any-hit traversal (`CwBvh::ray_traverse_miss`: stops at the first hit), written
+    /// out like [`RayTracer::closest_slot_inline`].
+    #[inline(always)]
+    fn occluded_inline(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> bool {
+        let Some(bvh) = self.bvh.as_ref() else {
+            return false;
+        };
+        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
+        let tris = &self.tris;
+        let mut occluded = false;
+        let mut state = bvh.new_traversal(ray.direction);
+        let mut node;
+        'traversal: {
+            obvhs::traverse!(
+                bvh,
+                node,
+                state,
+                node.intersect_ray(&ray, state.oct_inv4),
+                {
+                    if tris[state.primitive_id as usize].intersect(&ray) < ray.tmax {
+                        occluded = true;
+                        break 'traversal;
+                    }
+                }
+            );
+        }
+        occluded
     }
 
     /// Distance and scene triangle index of the closest hit of the ray `origin + t dir`,
@@ -190,43 +311,147 @@ impl RayTracer {
     }
 
     /// The closest hit of the ray `origin + t dir`, `tmin <= t <= tmax`, if any.
+    #[inline]
     pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Option<Hit> {
         let h = self.closest_slot(origin, dir, tmin, tmax)?;
-        let n = self.slot_normal(h.slot);
-        Some(Hit {
-            t: h.t,
-            triangle: self.scene_triangle(h.slot),
-            barycentrics: self.slot_barycentrics(h.slot, origin, dir),
-            normal: n.normalize_or_zero(),
-            front_face: n.dot(dir) < 0.0,
-        })
+        Some(self.hit_record(h, origin, dir))
     }
 
     /// Whether anything lies on the ray within `[tmin, tmax]` (stops at the first hit found).
     #[inline]
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> bool {
-        let Some(bvh) = self.bvh.as_ref() else {
-            return false;
-        };
-        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
-        let tris = &self.tris;
-        !bvh.ray_traverse_miss(ray, |r, id| tris[id].intersect(r))
+        match self.isa {
+            Isa::Baseline => self.occluded_inline(origin, dir, tmin, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed every
+            // feature the function is compiled with.
+            Isa::X86V3 => unsafe { x86_v3::occluded(self, origin, dir, tmin, tmax) },
+        }
+    }
+
+    /// Closest hits of a chunk of rays into `out` (same length), on the baseline instruction set.
+    #[inline(always)]
+    fn closest_hits_inline(
+        &self,
+        rays: &[(Vec3, Vec3)],
+        tmin: f32,
+        tmax: f32,
+        out: &mut [Option<Hit>],
+    ) {
+        for (o, &(origin, dir)) in out.iter_mut().zip(rays) {
+            *o = self
+                .closest_slot_inline(origin, dir, tmin, tmax)
+                .map(|h| self.hit_record(h, origin, dir));
+        }
+    }
+
+    /// Occlusion of a chunk of rays into `out` (same length), on the baseline instruction set.
+    #[inline(always)]
+    fn occluded_inline_batch(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32, out: &mut [bool]) {
+        for (o, &(origin, dir)) in out.iter_mut().zip(rays) {
+            *o = self.occluded_inline(origin, dir, tmin, tmax);
+        }
     }
 
     /// Closest hits of a batch of rays `(origin, dir)` with `[tmin, tmax]`, in parallel.
     pub fn closest_hits(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32) -> Vec<Option<Hit>> {
-        rays.par_iter()
-            .with_min_len(256)
-            .map(|&(o, d)| self.closest_hit(o, d, tmin, tmax))
-            .collect()
+        let mut out = vec![None; rays.len()];
+        out.par_chunks_mut(BATCH_CHUNK)
+            .zip(rays.par_chunks(BATCH_CHUNK))
+            .for_each(|(out, rays)| match self.isa {
+                Isa::Baseline => self.closest_hits_inline(rays, tmin, tmax, out),
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed
+                // every feature the function is compiled with.
+                Isa::X86V3 => unsafe { x86_v3::closest_hits(self, rays, tmin, tmax, out) },
+            });
+        out
     }
 
     /// Occlusion of a batch of rays `(origin, dir)` with `[tmin, tmax]`, in parallel.
     pub fn occluded_batch(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32) -> Vec<bool> {
-        rays.par_iter()
-            .with_min_len(256)
-            .map(|&(o, d)| self.occluded(o, d, tmin, tmax))
-            .collect()
+        let mut out = vec![false; rays.len()];
+        out.par_chunks_mut(BATCH_CHUNK)
+            .zip(rays.par_chunks(BATCH_CHUNK))
+            .for_each(|(out, rays)| match self.isa {
+                Isa::Baseline => self.occluded_inline_batch(rays, tmin, tmax, out),
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed
+                // every feature the function is compiled with.
+                Isa::X86V3 => unsafe { x86_v3::occluded_batch(self, rays, tmin, tmax, out) },
+            });
+        out
+    }
+}
+
+/// Rays per parallel task of the batched queries (one instruction-set dispatch each).
+const BATCH_CHUNK: usize = 256;
+
+/// The queries compiled for x86-64-v3 (AVX2, FMA, BMI1/2, LZCNT, POPCNT), chosen at run time.
+///
+/// obvhs's traversal is written for SSE2 and is generic code that is compiled in this crate, so
+/// enabling the wider features on these wrappers recompiles it whole (VEX encoding, one-instruction
+/// `count_ones` / `leading_zeros` in the node-group bookkeeping) without a
+/// `-C target-cpu` for the whole build. No arithmetic is contracted or reordered (Rust emits no
+/// fast-math flags), so the results are bit-identical to the baseline's.
+#[cfg(target_arch = "x86_64")]
+mod x86_v3 {
+    use glam::Vec3;
+
+    use super::{Hit, RayTracer, SlotHit};
+
+    /// Whether this CPU has every feature the functions below are compiled with.
+    pub(super) fn detected() -> bool {
+        is_x86_feature_detected!("avx2")
+            && is_x86_feature_detected!("fma")
+            && is_x86_feature_detected!("bmi1")
+            && is_x86_feature_detected!("bmi2")
+            && is_x86_feature_detected!("lzcnt")
+            && is_x86_feature_detected!("popcnt")
+    }
+
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    pub(super) fn closest_slot(
+        tracer: &RayTracer,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<SlotHit> {
+        tracer.closest_slot_inline(origin, dir, tmin, tmax)
+    }
+
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    pub(super) fn occluded(
+        tracer: &RayTracer,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> bool {
+        tracer.occluded_inline(origin, dir, tmin, tmax)
+    }
+
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    pub(super) fn closest_hits(
+        tracer: &RayTracer,
+        rays: &[(Vec3, Vec3)],
+        tmin: f32,
+        tmax: f32,
+        out: &mut [Option<Hit>],
+    ) {
+        tracer.closest_hits_inline(rays, tmin, tmax, out);
+    }
+
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    pub(super) fn occluded_batch(
+        tracer: &RayTracer,
+        rays: &[(Vec3, Vec3)],
+        tmin: f32,
+        tmax: f32,
+        out: &mut [bool],
+    ) {
+        tracer.occluded_inline_batch(rays, tmin, tmax, out);
     }
 }
 
@@ -248,4 +473,101 @@ pub fn brute_force_closest(
         }
     }
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Random rays with origins in and around the Cornell box (`[-1, 1] × [0, 2] × [-1, 1]`),
+    /// one in 50 with an axis-aligned direction (obvhs clamps its reciprocals).
+    fn rays(count: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+        (0..count)
+            .map(|i| {
+                let o = Vec3::new(rng.random(), rng.random(), rng.random()) * 2.4
+                    - Vec3::new(1.2, 0.2, 1.2);
+                let d = if i % 50 == 0 {
+                    Vec3::AXES[i / 50 % 3]
+                } else {
+                    Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0
+                };
+                (o, d.normalize_or(Vec3::Y))
+            })
+            .collect()
+    }
+
+    fn bits(h: &Option<Hit>) -> Option<[u32; 7]> {
+        h.map(|h| {
+            [
+                h.t.to_bits(),
+                h.triangle,
+                h.barycentrics.x.to_bits(),
+                h.barycentrics.y.to_bits(),
+                h.normal.x.to_bits(),
+                h.normal.y.to_bits() ^ h.normal.z.to_bits().rotate_left(7),
+                u32::from(h.front_face),
+            ]
+        })
+    }
+
+    /// The run-time-selected instruction set gives bit-identical results to the baseline, for
+    /// the single-ray and the batched queries, with infinite and finite `tmax`.
+    #[test]
+    fn detected_instruction_set_matches_the_baseline_bit_for_bit() {
+        let scene = crate::Scene::cornell_box();
+        let wide = RayTracer::new(scene.triangles());
+        if wide.isa == Isa::Baseline {
+            eprintln!(
+                "this CPU has no wider instruction set than the baseline: nothing to compare"
+            );
+            return;
+        }
+        let base = wide.clone().with_baseline_instruction_set();
+        let rays = rays(20_000, 3);
+        for tmax in [f32::INFINITY, 0.5] {
+            let a = base.closest_hits(&rays, 1e-3, tmax);
+            let b = wide.closest_hits(&rays, 1e-3, tmax);
+            assert!(a.iter().filter(|h| h.is_some()).count() > rays.len() / 10);
+            assert!(a.iter().zip(&b).all(|(x, y)| bits(x) == bits(y)));
+            let a = base.occluded_batch(&rays, 1e-3, tmax);
+            let b = wide.occluded_batch(&rays, 1e-3, tmax);
+            assert_eq!(a, b);
+            for &(o, d) in rays.iter().take(2000) {
+                assert_eq!(
+                    bits(&base.closest_hit(o, d, 1e-3, tmax)),
+                    bits(&wide.closest_hit(o, d, 1e-3, tmax))
+                );
+                assert_eq!(
+                    base.occluded(o, d, 1e-3, tmax),
+                    wide.occluded(o, d, 1e-3, tmax)
+                );
+            }
+        }
+    }
+
+    /// The written-out traversals return exactly what obvhs's own `ray_traverse` and
+    /// `ray_traverse_miss` return.
+    #[test]
+    fn traversal_matches_obvhs_ray_traverse() {
+        let scene = crate::Scene::cornell_box();
+        let tracer = RayTracer::new(scene.triangles());
+        let Some(bvh) = tracer.bvh.as_ref() else {
+            panic!("the Cornell box has triangles")
+        };
+        for (o, d) in rays(20_000, 5) {
+            let ray = Ray::new(o.into(), d.into(), 0.0, f32::INFINITY);
+            let mut hit = obvhs::ray::RayHit::none();
+            let theirs = bvh
+                .ray_traverse(ray, &mut hit, |r, id| tracer.tris[id].intersect(r))
+                .then_some((hit.t.to_bits(), hit.primitive_id));
+            let ours = tracer
+                .closest_slot(o, d, 0.0, f32::INFINITY)
+                .map(|h| (h.t.to_bits(), h.slot));
+            assert_eq!(ours, theirs);
+            let blocked = !bvh.ray_traverse_miss(ray, |r, id| tracer.tris[id].intersect(r));
+            assert_eq!(tracer.occluded(o, d, 0.0, f32::INFINITY), blocked);
+        }
+    }
 }
