@@ -5,7 +5,12 @@
 //! (default maps: probulator_uffizi, probulator_grace, venice_sunset_1k from ../shared/envmaps;
 //! speeds 1 and 3 degrees per frame; 64 × 64 faces, RGB, area-weighted selection; lighting
 //! area-averaged onto the faces with `Cubemap::default_samples` sub-texel lookups).
-//! Environment: `PRT_CSV_DIR` writes per-frame CSVs.
+//! Environment: `PRT_CSV_DIR` writes per-frame CSVs; `PRT_WAVELET_SIZE` sets the cube face side
+//! (default 64; 32 is the 6 × 32 × 32 lighting of the BRDF-factorisation and CPCA codes the
+//! thesis built on); `PRT_WAVELET_SPEEDS` the degrees per frame (comma-separated, default
+//! `1,3`); `PRT_WAVELET_SAMPLES_X` multiplies the sub-texel lookups per side (default 1; for
+//! checking that resampling noise does not drive the results); `PRT_WAVELET_CURVES=0` skips
+//! the error-vs-terms sweep.
 
 use std::path::Path;
 use std::time::Instant;
@@ -16,7 +21,6 @@ use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, Policy, Weighting};
 
-const SIZE: usize = 64;
 const FRAMES: usize = 200;
 const STOP: usize = 100;
 const WARMUP: usize = 10;
@@ -75,8 +79,8 @@ fn fine_method(
 }
 
 /// Every frame's texels and Haar coefficients (resampled once, shared by all runs).
-fn frames(rotation: &Rotation) -> Vec<(Vec<f32>, Vec<f32>)> {
-    let mut haar = CubemapHaar::new(SIZE).expect("size");
+fn frames(rotation: &Rotation, size: usize) -> Vec<(Vec<f32>, Vec<f32>)> {
+    let mut haar = CubemapHaar::new(size).expect("size");
     (0..FRAMES)
         .map(|t| {
             let texels = rotation.frame(t).expect("frame").into_data();
@@ -87,8 +91,8 @@ fn frames(rotation: &Rotation) -> Vec<(Vec<f32>, Vec<f32>)> {
         .collect()
 }
 
-fn run(frames: &[(Vec<f32>, Vec<f32>)], methods: &mut [Method]) {
-    let mut metric = LightingError::new(SIZE, 3).expect("size");
+fn run(frames: &[(Vec<f32>, Vec<f32>)], size: usize, methods: &mut [Method]) {
+    let mut metric = LightingError::new(size, 3).expect("size");
     for (texels, coeffs) in frames {
         for m in methods.iter_mut() {
             let start = Instant::now();
@@ -118,8 +122,20 @@ fn main() {
     } else {
         args
     };
-    let layout = CubemapLayout::new(SIZE).expect("size");
-    let speeds = [1.0f32, 3.0];
+    let env = |key: &str| std::env::var(key).ok();
+    let size: usize = env("PRT_WAVELET_SIZE").map_or(64, |s| s.parse().expect("face side"));
+    let speeds: Vec<f32> = env("PRT_WAVELET_SPEEDS").map_or(vec![1.0, 3.0], |s| {
+        s.split(',').map(|v| v.parse().expect("degrees")).collect()
+    });
+    let samples_x: usize =
+        env("PRT_WAVELET_SAMPLES_X").map_or(1, |s| s.parse().expect("sample multiplier"));
+    let curves_wanted = env("PRT_WAVELET_CURVES").is_none_or(|v| v != "0");
+    println!("{size} x {size} faces, speeds {speeds:?} deg/frame, sub-texel lookups x{samples_x}");
+    let layout = CubemapLayout::new(size).expect("size");
+    let band_header: Vec<String> = std::iter::once("frame".to_string())
+        .chain((0..layout.band_count()).map(|b| format!("band {b}")))
+        .collect();
+    let band_header: Vec<&str> = band_header.iter().map(|s| s.as_str()).collect();
     let mut summary = Table::new(&[
         "map",
         "deg/frame",
@@ -159,7 +175,9 @@ fn main() {
         };
         for &deg in &speeds {
             let rotation =
-                Rotation::new(map.clone(), SIZE, deg.to_radians(), STOP).expect("rotation");
+                Rotation::new(map.clone(), size, deg.to_radians(), STOP).expect("rotation");
+            let samples = rotation.samples() * samples_x;
+            let rotation = rotation.with_samples(samples).expect("samples");
             let mut methods = vec![
                 method(&layout, "PBI30", 30, Policy::PerBand(BandStrategy::L1Test)),
                 method(
@@ -197,8 +215,8 @@ fn main() {
                 method(&layout, "NWA500", 500, Policy::NonIncremental),
             ];
             let first = name == &maps[0] && deg == speeds[0];
-            let frames = frames(&rotation);
-            run(&frames, &mut methods);
+            let frames = frames(&rotation, size);
+            run(&frames, size, &mut methods);
             let err = |n: &str| &methods.iter().find(|m| m.name == n).expect("method").errors;
             // Two headline PBIs: the thesis' (exhaustive over level bands, optimal per frame for the
             // selection objective) and the best variant (dealer over level x face x quadrant bands).
@@ -270,12 +288,10 @@ fn main() {
                 per_frame.row(row);
             }
             per_frame
-                .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg"))
+                .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg_{size}"))
                 .expect("csv");
             if first {
-                let mut usage = Table::new(&[
-                    "frame", "band 0", "band 1", "band 2", "band 3", "band 4", "band 5", "band 6",
-                ]);
+                let mut usage = Table::new(&band_header);
                 for t in [1, 5, 20, 50, 99, 101, 105, 110, 120] {
                     let mut row = vec![t.to_string()];
                     row.extend(methods[0].band_terms[t].iter().map(|c| c.to_string()));
@@ -287,16 +303,9 @@ fn main() {
                 );
                 let coeffs: Vec<Vec<f32>> = frames[..128].iter().map(|f| f.1.clone()).collect();
                 let energy = band_energy(&coeffs, layout.bands()).expect("energy");
-                let mut e = Table::new(&[
-                    "temporal level",
-                    "band 0",
-                    "band 1",
-                    "band 2",
-                    "band 3",
-                    "band 4",
-                    "band 5",
-                    "band 6",
-                ]);
+                let mut header = band_header.clone();
+                header[0] = "temporal level";
+                let mut e = Table::new(&header);
                 for (lvl, row) in energy.iter().enumerate() {
                     let mut cells = vec![lvl.to_string()];
                     // Each band's energy share per temporal level (columns sum to 1).
@@ -312,7 +321,12 @@ fn main() {
                 );
             }
             // Error vs terms per frame: mean over rotating frames.
-            for terms in [10usize, 20, 30, 60, 100] {
+            let budgets: &[usize] = if curves_wanted {
+                &[10, 20, 30, 60, 100]
+            } else {
+                &[]
+            };
+            for &terms in budgets {
                 let mut ms = vec![
                     method(&layout, "NWA", terms, Policy::NonIncremental),
                     method(&layout, "BI", terms, Policy::Incremental),
@@ -344,7 +358,7 @@ fn main() {
                         Policy::PerBand(BandStrategy::Dealer),
                     ),
                 ];
-                run(&frames, &mut ms);
+                run(&frames, size, &mut ms);
                 let mut row = vec![name.clone(), format!("{deg}"), terms.to_string()];
                 row.extend(
                     ms.iter()

@@ -2,26 +2,42 @@
 //!
 //! The transport `T` (pixels × lighting coefficients, already in the wavelet domain) is
 //! truncated per row to its largest entries and quantised to 16 bits as in Ng, Ramamoorthi and
-//! Hanrahan (2003). It is stored grouped by column (lighting coefficient), since a frame touches
-//! only the columns of its chosen terms. The engine keeps one partial image `B_b = T L̃_b` per
-//! band: an incremental band adds `T_i Δ_i` for its new terms only, a replaced band subtracts
-//! its old partial image from the total, clears it and rebuilds it from its chosen terms.
+//! Hanrahan (2003). It is stored by column (lighting coefficient), since a frame touches only
+//! the columns of its chosen terms: a term reads one contiguous run of entries. The engine keeps
+//! one partial image `B_b = T L̃_b` per band: an incremental band adds `T_i Δ_i` for its new
+//! terms only, a replaced band subtracts its old partial image from the total, clears it and
+//! rebuilds it from its chosen terms.
 //!
-//! Every stored entry is a read-modify-write of one pixel in two images (the band's partial
-//! image and the total), at a pixel chosen by the transport, so a naive column-by-column apply
-//! streams both whole images through the cache once per term. The engine instead works tile by
-//! tile: pixels are cut into tiles of [`SparseTransport::tile_rows`] rows (1024 by default:
-//! 12 KB per RGB image tile, so a partial tile and the total's tile stay in L1), each column's
-//! entries are indexed by tile, and within a tile the terms are applied band by band: a band's
-//! terms are summed into one scratch tile (one scattered update of a pixel per stored entry,
-//! instead of two), which is then added to the band's partial image and the total in one
-//! contiguous pass. The transport bytes read are the same; each image is touched once per band
-//! and frame instead of once per term.
+//! Layout, chosen for the memory traffic of one frame:
+//! - Pixels are cut into tiles of [`SparseTransport::tile_rows`] rows (1024 by default, at most
+//!   65 536), and each column's entries are grouped by tile. An entry is 4 bytes: its row
+//!   *within the tile* (`u16`) and its quantised value (`i16`), read with one load.
+//! - The partial images are stored tile-major (all bands' partial tiles of one pixel tile are
+//!   adjacent), so the tiles are independent and are processed in parallel (rayon); a tile's
+//!   image and partial tiles stay in cache while all of the frame's terms are applied to it.
+//! - Within a tile the terms are applied band by band. A band whose terms hold few entries
+//!   (under a quarter of the pixels) scatters them straight into its partial image and the
+//!   total; a band with many sums them into a scratch tile first (one scattered update per
+//!   entry instead of two) and adds that to both images in one contiguous pass.
+//! - Images store pixels of up to four channels padded to four floats, so that an RGB update
+//!   is one vector multiply-add and the image passes vectorise. The choice is
+//!   made per band and frame from the whole columns' sizes, never per tile, so the result is
+//!   bit-identical for every tile size and thread count.
 
 use prt_core::{MatrixOracle, Progress};
+use rayon::prelude::*;
 
 use crate::WaveletError;
 use crate::approx::{BandMode, FrameUpdate};
+
+/// One stored transport entry: its pixel relative to the first pixel of its tile and its
+/// quantised value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(C, align(4))]
+struct Entry {
+    row: u16,
+    q: i16,
+}
 
 /// A row-truncated, 16-bit-quantised sparse transport matrix stored by column.
 ///
@@ -36,8 +52,7 @@ pub struct SparseTransport {
     /// relative to `col_start[j]` (entries of a column are sorted by row).
     tile_offsets: Vec<u32>,
     col_start: Vec<usize>,
-    row_index: Vec<u32>,
-    quantised: Vec<i16>,
+    entries: Vec<Entry>,
     scale: Vec<f32>,
 }
 
@@ -70,7 +85,7 @@ impl SparseTransport {
         progress.set_len(rows as u64);
         let mut row = vec![0.0f32; cols];
         let mut order: Vec<u32> = Vec::with_capacity(cols);
-        let mut entries: Vec<(u32, u32, f32)> = Vec::new(); // (col, row, value)
+        let mut triplets: Vec<(u32, u32, f32)> = Vec::new(); // (col, row, value)
         for r in 0..rows {
             if progress.is_cancelled() {
                 return Err(WaveletError::Cancelled);
@@ -94,26 +109,26 @@ impl SparseTransport {
                 order.select_nth_unstable_by(keep_per_row - 1, larger);
             }
             order.truncate(keep_per_row);
-            entries.extend(order.iter().map(|&j| (j, r as u32, row[j as usize])));
+            triplets.extend(order.iter().map(|&j| (j, r as u32, row[j as usize])));
             progress.inc(1);
         }
-        entries.sort_unstable_by_key(|e| (e.0, e.1));
+        triplets.sort_unstable_by_key(|e| (e.0, e.1));
         let mut scale = vec![0.0f32; cols];
-        for &(j, _, v) in &entries {
+        for &(j, _, v) in &triplets {
             scale[j as usize] = scale[j as usize].max(v.abs());
         }
         for s in &mut scale {
             *s /= i16::MAX as f32;
         }
         let mut col_start = vec![0usize; cols + 1];
-        for &(j, _, _) in &entries {
+        for &(j, _, _) in &triplets {
             col_start[j as usize + 1] += 1;
         }
         for j in 0..cols {
             col_start[j + 1] += col_start[j];
         }
-        let row_index = entries.iter().map(|e| e.1).collect();
-        let quantised = entries
+        let global_rows: Vec<u32> = triplets.iter().map(|e| e.1).collect();
+        let quantised: Vec<i16> = triplets
             .iter()
             .map(|&(j, _, v)| (v / scale[j as usize]).round().clamp(-32767.0, 32767.0) as i16)
             .collect();
@@ -123,47 +138,68 @@ impl SparseTransport {
             tile_rows: 0,
             tile_offsets: Vec::new(),
             col_start,
-            row_index,
-            quantised,
+            entries: Vec::new(),
             scale,
         };
-        transport.index_tiles(Self::DEFAULT_TILE_ROWS);
+        transport.index_tiles(Self::DEFAULT_TILE_ROWS, &global_rows, &quantised);
         Ok(transport)
     }
 
     /// Pixel rows per tile unless [`Self::with_tile_rows`] says otherwise.
     pub const DEFAULT_TILE_ROWS: usize = 1024;
 
-    /// The same transport with pixel tiles of `tile_rows` rows (clamped to `1..=rows`; `rows`
-    /// means one tile, i.e. the plain column-by-column apply). Only the apply's memory traffic
-    /// changes, never its result.
+    /// The largest tile: an entry stores its row within the tile in 16 bits.
+    pub const MAX_TILE_ROWS: usize = 1 << 16;
+
+    /// The same transport with pixel tiles of `tile_rows` rows (clamped to
+    /// `1..=min(rows, MAX_TILE_ROWS)`; `rows` means one tile, i.e. the plain column-by-column
+    /// apply, when the image has at most [`Self::MAX_TILE_ROWS`] pixels). Only the apply's
+    /// memory traffic and parallelism change, never its result.
     pub fn with_tile_rows(mut self, tile_rows: usize) -> Self {
-        self.index_tiles(tile_rows);
+        let (rows, quantised) = self.global_entries();
+        self.index_tiles(tile_rows, &rows, &quantised);
         self
     }
 
-    /// Pixel rows per tile.
-    pub fn tile_rows(&self) -> usize {
-        self.tile_rows
+    /// Every entry's global row and quantised value, in storage order.
+    fn global_entries(&self) -> (Vec<u32>, Vec<i16>) {
+        let tiles = self.tiles();
+        let mut rows = Vec::with_capacity(self.entries.len());
+        for j in 0..self.cols {
+            for t in 0..tiles {
+                let first = (t * self.tile_rows) as u32;
+                rows.extend(
+                    self.entries[self.tile_range(j, t)]
+                        .iter()
+                        .map(|e| first + e.row as u32),
+                );
+            }
+        }
+        (rows, self.entries.iter().map(|e| e.q).collect())
     }
 
-    /// Number of pixel tiles.
-    pub fn tiles(&self) -> usize {
-        self.rows.div_ceil(self.tile_rows).max(1)
-    }
-
-    fn index_tiles(&mut self, tile_rows: usize) {
-        self.tile_rows = tile_rows.clamp(1, self.rows.max(1));
+    /// Rebuilds the tile index and the tile-relative entries from `rows` (global, sorted
+    /// within each column) and `quantised`.
+    fn index_tiles(&mut self, tile_rows: usize, rows: &[u32], quantised: &[i16]) {
+        self.tile_rows = tile_rows.clamp(1, self.rows.clamp(1, Self::MAX_TILE_ROWS));
         let tiles = self.tiles();
         self.tile_offsets = vec![0; self.cols * (tiles + 1)];
         for j in 0..self.cols {
-            let rows = &self.row_index[self.col_start[j]..self.col_start[j + 1]];
+            let rows = &rows[self.col_start[j]..self.col_start[j + 1]];
             let offsets = &mut self.tile_offsets[j * (tiles + 1)..(j + 1) * (tiles + 1)];
             for (t, o) in offsets.iter_mut().enumerate() {
                 // Entries are sorted by row: the first at or past the tile's first row.
                 *o = rows.partition_point(|&r| (r as usize) < t * self.tile_rows) as u32;
             }
         }
+        self.entries = rows
+            .iter()
+            .zip(quantised)
+            .map(|(&r, &q)| Entry {
+                row: (r as usize % self.tile_rows) as u16,
+                q,
+            })
+            .collect();
     }
 
     /// Rows (pixels).
@@ -176,23 +212,40 @@ impl SparseTransport {
         self.cols
     }
 
-    /// Stored entries.
-    pub fn nnz(&self) -> usize {
-        self.row_index.len()
+    /// Pixel rows per tile.
+    pub fn tile_rows(&self) -> usize {
+        self.tile_rows
     }
 
-    /// Bytes read to apply column `j` once (row indices and quantised values).
+    /// Number of pixel tiles.
+    pub fn tiles(&self) -> usize {
+        self.rows.div_ceil(self.tile_rows).max(1)
+    }
+
+    /// Stored entries.
+    pub fn nnz(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Stored entries of column `j`.
+    fn column_len(&self, j: usize) -> usize {
+        self.col_start[j + 1] - self.col_start[j]
+    }
+
+    /// Bytes read to apply column `j` once (4 per entry: tile-relative row and quantised value).
     pub fn column_bytes(&self, j: usize) -> usize {
-        (self.col_start[j + 1] - self.col_start[j]) * (size_of::<u32>() + size_of::<i16>())
+        self.column_len(j) * size_of::<Entry>()
     }
 
     /// The dequantised matrix, dense and row-major (for tests and small examples).
     pub fn to_dense(&self) -> Vec<f32> {
         let mut out = vec![0.0; self.rows * self.cols];
         for j in 0..self.cols {
-            for e in self.col_start[j]..self.col_start[j + 1] {
-                out[self.row_index[e] as usize * self.cols + j] =
-                    self.quantised[e] as f32 * self.scale[j];
+            for t in 0..self.tiles() {
+                for e in &self.entries[self.tile_range(j, t)] {
+                    let r = t * self.tile_rows + e.row as usize;
+                    out[r * self.cols + j] = e.q as f32 * self.scale[j];
+                }
             }
         }
         out
@@ -203,9 +256,9 @@ impl SparseTransport {
     pub fn column_l1_norms(&self) -> Vec<f32> {
         (0..self.cols)
             .map(|j| {
-                let s: f64 = self.quantised[self.col_start[j]..self.col_start[j + 1]]
+                let s: f64 = self.entries[self.col_start[j]..self.col_start[j + 1]]
                     .iter()
-                    .map(|&q| (q as f64).abs())
+                    .map(|e| (e.q as f64).abs())
                     .sum();
                 (s * self.scale[j] as f64) as f32
             })
@@ -219,46 +272,78 @@ impl SparseTransport {
         self.col_start[j] + offsets[0] as usize..self.col_start[j] + offsets[1] as usize
     }
 
-    /// `delta[(r − first_row)·C + c] += v_c T(r, j)` for the entries of column `j` in tile
-    /// `tile` (whose first pixel is `first_row`) and all `C` channels at once: one scattered
-    /// read-modify-write of `C` adjacent floats per entry.
+    /// `out[row] += s · q(row, j)` over the entries of column `j` in tile `tile` (rows relative
+    /// to the tile) and every image of `out`, whose pixels are padded to four floats: one
+    /// vector load, multiply-add and store per entry and image.
     #[inline]
-    fn add_tile<const C: usize>(&self, j: usize, tile: usize, values: &[f32], delta: &mut [f32]) {
-        let range = self.tile_range(j, tile);
-        let first_row = tile * self.tile_rows;
-        let mut s = [0.0f32; C];
-        for c in 0..C {
-            s[c] = values[c] * self.scale[j];
-        }
-        for (&r, &q) in self.row_index[range.clone()]
-            .iter()
-            .zip(&self.quantised[range])
-        {
-            let q = q as f32;
-            let o = (r as usize - first_row) * C;
-            let pixel = &mut delta[o..o + C];
-            for c in 0..C {
-                pixel[c] += s[c] * q;
+    fn scatter_padded<const IMAGES: usize>(
+        &self,
+        j: usize,
+        tile: usize,
+        s: [f32; 4],
+        mut out: [&mut [[f32; 4]]; IMAGES],
+    ) {
+        for e in &self.entries[self.tile_range(j, tile)] {
+            let q = e.q as f32;
+            for img in out.iter_mut() {
+                let pixel = &mut img[e.row as usize];
+                for c in 0..4 {
+                    pixel[c] += s[c] * q;
+                }
             }
         }
     }
 
-    /// [`Self::add_tile`] for a channel count known only at run time.
-    fn add_tile_any(&self, j: usize, tile: usize, values: &[f32], delta: &mut [f32]) {
-        let range = self.tile_range(j, tile);
-        let first_row = tile * self.tile_rows;
+    /// [`Self::scatter_padded`] for more than four channels (`values.len()` floats per pixel).
+    fn scatter_flat<const IMAGES: usize>(
+        &self,
+        j: usize,
+        tile: usize,
+        values: &[f32],
+        mut out: [&mut [f32]; IMAGES],
+    ) {
         let channels = values.len();
-        for (&r, &q) in self.row_index[range.clone()]
-            .iter()
-            .zip(&self.quantised[range])
-        {
-            let q = q as f32 * self.scale[j];
-            let o = (r as usize - first_row) * channels;
-            for (d, v) in delta[o..o + channels].iter_mut().zip(values) {
-                *d += v * q;
+        for e in &self.entries[self.tile_range(j, tile)] {
+            let q = e.q as f32 * self.scale[j];
+            let o = e.row as usize * channels;
+            for img in out.iter_mut() {
+                for (d, v) in img[o..o + channels].iter_mut().zip(values) {
+                    *d += v * q;
+                }
             }
         }
     }
+
+    /// Adds the terms `(column, term)` of tile `tile` into every image of `out` (pixels of
+    /// [`pixel_stride`]`(channels)` floats; `values[term · channels + c]`).
+    fn scatter_terms<const IMAGES: usize>(
+        &self,
+        tile: usize,
+        channels: usize,
+        terms: impl Iterator<Item = (usize, usize)>,
+        values: &[f32],
+        mut out: [&mut [f32]; IMAGES],
+    ) {
+        for (j, t) in terms {
+            let v = &values[t * channels..(t + 1) * channels];
+            if channels <= 4 {
+                let mut s = [0.0f32; 4];
+                for (s, v) in s.iter_mut().zip(v) {
+                    *s = v * self.scale[j];
+                }
+                let out = out.each_mut().map(|o| o.as_chunks_mut::<4>().0);
+                self.scatter_padded(j, tile, s, out);
+            } else {
+                self.scatter_flat(j, tile, v, out.each_mut().map(|o| &mut **o));
+            }
+        }
+    }
+}
+
+/// Floats per stored pixel: up to four channels are padded to four (an RGB update is one
+/// vector multiply-add, and the image passes vectorise), more are stored as they are.
+fn pixel_stride(channels: usize) -> usize {
+    if channels <= 4 { 4 } else { channels }
 }
 
 /// The incremental relighting engine: applies [`FrameUpdate`]s to per-band partial images.
@@ -266,12 +351,14 @@ impl SparseTransport {
 pub struct Relighter {
     transport: SparseTransport,
     channels: usize,
-    /// `partial[b][r * channels + c]`.
-    partial: Vec<Vec<f32>>,
-    /// `image[r * channels + c]` = Σ_b partial[b].
+    bands: usize,
+    /// Floats per stored pixel ([`pixel_stride`]).
+    stride: usize,
+    /// `image[r * stride + c]` = Σ_b B_b.
     image: Vec<f32>,
-    /// One tile of one band's new contributions (reused every frame).
-    delta: Vec<f32>,
+    /// Partial images, tile-major: tile `t`, band `b` starts at `(t · bands + b) · tile_len`
+    /// with `tile_len = tile_rows · stride` (the last tile padded).
+    partial: Vec<f32>,
 }
 
 impl Relighter {
@@ -287,12 +374,14 @@ impl Relighter {
                 why: "needs channels and bands".into(),
             });
         }
-        let n = transport.rows * channels;
+        let stride = pixel_stride(channels);
+        let tile_len = transport.tile_rows * stride;
         Ok(Self {
             channels,
-            partial: vec![vec![0.0; n]; bands],
-            image: vec![0.0; n],
-            delta: vec![0.0; transport.tile_rows * channels],
+            bands,
+            stride,
+            image: vec![0.0; transport.rows * stride],
+            partial: vec![0.0; transport.tiles() * bands * tile_len],
             transport,
         })
     }
@@ -302,25 +391,75 @@ impl Relighter {
         &self.transport
     }
 
-    /// The image `B = T L̃`, pixel-major (`image[r * channels + c]`).
-    pub fn image(&self) -> &[f32] {
-        &self.image
+    /// A copy of the image `B = T L̃`, pixel-major (`image[r * channels + c]`). (Stored with
+    /// pixels padded to four floats; [`Self::image_into`] fills a caller's buffer instead.)
+    pub fn image(&self) -> Vec<f32> {
+        let mut out = vec![0.0; self.transport.rows * self.channels];
+        self.copy_pixels(&self.image, &mut out);
+        out
+    }
+
+    /// Writes the image `B = T L̃` into `out` (pixel-major, `rows × channels` floats). Errors
+    /// on a length mismatch.
+    pub fn image_into(&self, out: &mut [f32]) -> Result<(), WaveletError> {
+        WaveletError::check_len(
+            "image buffer",
+            self.transport.rows * self.channels,
+            out.len(),
+        )?;
+        self.copy_pixels(&self.image, out);
+        Ok(())
+    }
+
+    /// Band `band`'s partial image `B_b = T L̃_b`, pixel-major like [`Self::image`]. Errors if
+    /// `band` is out of range.
+    pub fn partial_image(&self, band: usize) -> Result<Vec<f32>, WaveletError> {
+        if band >= self.bands {
+            return Err(WaveletError::Invalid {
+                what: "band",
+                why: format!("{band} of {}", self.bands),
+            });
+        }
+        let tile_len = self.transport.tile_rows * self.stride;
+        let stored: Vec<f32> = self
+            .partial
+            .chunks_exact(self.bands * tile_len)
+            .flat_map(|tile| &tile[band * tile_len..(band + 1) * tile_len])
+            .take(self.image.len())
+            .copied()
+            .collect();
+        let mut out = vec![0.0; self.transport.rows * self.channels];
+        self.copy_pixels(&stored, &mut out);
+        Ok(out)
+    }
+
+    /// Drops the padding of stored pixels.
+    fn copy_pixels(&self, stored: &[f32], out: &mut [f32]) {
+        for (o, p) in out
+            .chunks_exact_mut(self.channels)
+            .zip(stored.chunks_exact(self.stride))
+        {
+            o.copy_from_slice(&p[..self.channels]);
+        }
     }
 
     /// Applies one frame's update; returns the bytes of transport columns read (each chosen
     /// column once, for all channels; for comparing the frame's time with the memory-bandwidth
-    /// bound). Errors if the update does not fit the
-    /// engine (band count, channel count, a term's index or band out of range).
+    /// bound). Pixel tiles run in parallel on the rayon pool; the image is the same on any
+    /// number of threads. Errors if the update does not fit the engine (band count, channel
+    /// count, a term's index or band out of range).
     pub fn apply(&mut self, update: &FrameUpdate) -> Result<usize, WaveletError> {
-        WaveletError::check_len("update bands", self.partial.len(), update.modes.len())?;
+        WaveletError::check_len("update bands", self.bands, update.modes.len())?;
         WaveletError::check_len(
             "update values",
             update.terms.len() * self.channels,
             update.values.len(),
         )?;
-        if let Some(t) = update.terms.iter().find(|t| {
-            t.index as usize >= self.transport.cols || t.band as usize >= self.partial.len()
-        }) {
+        if let Some(t) = update
+            .terms
+            .iter()
+            .find(|t| t.index as usize >= self.transport.cols || t.band as usize >= self.bands)
+        {
             return Err(WaveletError::Invalid {
                 what: "update term",
                 why: format!(
@@ -329,52 +468,68 @@ impl Relighter {
                 ),
             });
         }
-        let replaced: Vec<usize> = (0..update.modes.len())
+        let transport = &self.transport;
+        let replaced: Vec<usize> = (0..self.bands)
             .filter(|&b| update.modes[b] == BandMode::Replace)
             .collect();
-        // Terms grouped by band, so that within a tile one partial image tile is hot at a time.
+        // Terms grouped by band, so that within a tile one partial image tile is hot at a time;
+        // per group, whether it goes through the scratch tile (decided on whole columns, so
+        // that every tiling adds the same numbers in the same order).
         let mut order: Vec<usize> = (0..update.terms.len()).collect();
         order.sort_by_key(|&t| update.terms[t].band);
-        let c = self.channels;
-        let transport = &self.transport;
-        for tile in 0..transport.tiles() {
-            let first = tile * transport.tile_rows * c;
-            let pixels = first..((tile + 1) * transport.tile_rows).min(transport.rows) * c;
-            let image = &mut self.image[pixels.clone()];
-            for &b in &replaced {
-                for (img, p) in image.iter_mut().zip(&mut self.partial[b][pixels.clone()]) {
-                    *img -= *p;
-                    *p = 0.0;
-                }
-            }
-            // Band by band: the band's new terms are summed into `delta` (scattered, but
-            // within one L1-resident tile), then added to its partial image and the total in
-            // one contiguous pass.
-            let delta = &mut self.delta[..pixels.len()];
-            for group in order.chunk_by(|&x, &y| update.terms[x].band == update.terms[y].band) {
-                delta.fill(0.0);
-                for &t in group {
-                    let j = update.terms[t].index as usize;
-                    let values = &update.values[t * c..(t + 1) * c];
-                    match c {
-                        1 => transport.add_tile::<1>(j, tile, values, delta),
-                        2 => transport.add_tile::<2>(j, tile, values, delta),
-                        3 => transport.add_tile::<3>(j, tile, values, delta),
-                        4 => transport.add_tile::<4>(j, tile, values, delta),
-                        _ => transport.add_tile_any(j, tile, values, delta),
+        let groups: Vec<(&[usize], bool)> = order
+            .chunk_by(|&x, &y| update.terms[x].band == update.terms[y].band)
+            .map(|group| {
+                let entries: usize = group
+                    .iter()
+                    .map(|&t| transport.column_len(update.terms[t].index as usize))
+                    .sum();
+                (group, 4 * entries > transport.rows)
+            })
+            .collect();
+        let (c, bands) = (self.channels, self.bands);
+        let tile_len = transport.tile_rows * self.stride;
+        self.image
+            .par_chunks_mut(tile_len)
+            .zip(self.partial.par_chunks_mut(bands * tile_len))
+            .enumerate()
+            .for_each_init(
+                || vec![0.0f32; tile_len],
+                |scratch, (tile, (image, partials))| {
+                    let n = image.len();
+                    for &b in &replaced {
+                        let p = &mut partials[b * tile_len..b * tile_len + n];
+                        for (img, p) in image.iter_mut().zip(p) {
+                            *img -= *p;
+                            *p = 0.0;
+                        }
                     }
-                }
-                let band = update.terms[group[0]].band as usize;
-                for ((p, img), d) in self.partial[band][pixels.clone()]
-                    .iter_mut()
-                    .zip(image.iter_mut())
-                    .zip(delta.iter())
-                {
-                    *p += d;
-                    *img += d;
-                }
-            }
-        }
+                    for &(group, via_scratch) in &groups {
+                        let band = update.terms[group[0]].band as usize;
+                        let partial = &mut partials[band * tile_len..band * tile_len + n];
+                        let terms = group.iter().map(|&t| (update.terms[t].index as usize, t));
+                        if via_scratch {
+                            let delta = &mut scratch[..n];
+                            delta.fill(0.0);
+                            transport.scatter_terms(tile, c, terms, &update.values, [delta]);
+                            for ((p, img), d) in
+                                partial.iter_mut().zip(image.iter_mut()).zip(delta.iter())
+                            {
+                                *p += d;
+                                *img += d;
+                            }
+                        } else {
+                            transport.scatter_terms(
+                                tile,
+                                c,
+                                terms,
+                                &update.values,
+                                [partial, &mut *image],
+                            );
+                        }
+                    }
+                },
+            );
         let bytes = update
             .terms
             .iter()

@@ -281,3 +281,82 @@ impl MatrixOracle for NanRow {
         0
     }
 }
+
+#[test]
+fn sparse_bands_scatter_directly_and_threads_never_change_the_image() {
+    // 300 pixels, 2 entries kept per row: a column holds ~15 entries, so single-term bands
+    // scatter straight into the images while many-term bands go through the scratch tile.
+    // Every tiling and every thread count must give bit-identical images, and the partial
+    // images must be the bands' own products.
+    let mut rng = Pcg64::seed_from_u64(11);
+    let (rows, cols) = (300, 40);
+    let oracle = DenseOracle::new(sparse_matrix(rows, cols, 0.3, &mut rng), 1).unwrap();
+    let t = SparseTransport::from_oracle(&oracle, 2, &NoProgress).unwrap();
+    let deq = t.to_dense();
+    let (sizes, sparse_size) = (t.column_bytes(0), 4 * rows / 4);
+    assert!(sizes < sparse_size, "column 0 is sparse: {sizes} bytes");
+    // Band 0 holds one column (direct scatter), band 1 all the others (scratch tile).
+    let bands: Vec<u8> = (0..cols).map(|j| u8::from(j > 0)).collect();
+    let pools: Vec<rayon::ThreadPool> = [1, 3]
+        .iter()
+        .map(|&n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        })
+        .collect();
+    for channels in [1, 3] {
+        let mut engines: Vec<(usize, Relighter)> = [(0, rows), (0, 7), (1, 7), (1, 64)]
+            .iter()
+            .map(|&(pool, n)| {
+                (
+                    pool,
+                    Relighter::new(t.clone().with_tile_rows(n), channels, 2).unwrap(),
+                )
+            })
+            .collect();
+        let mut a = Approximator::new(
+            bands.clone(),
+            vec![1.0; cols],
+            channels,
+            5,
+            Policy::PerBand(BandStrategy::Exhaustive),
+        )
+        .unwrap();
+        let mut lighting: Vec<f32> = (0..cols * channels)
+            .map(|_| rng.random_range(-1.0f32..1.0))
+            .collect();
+        for _ in 0..10 {
+            for v in &mut lighting {
+                *v += rng.random_range(-0.5f32..0.5);
+            }
+            let update = a.step(&lighting).unwrap().clone();
+            for (pool, e) in &mut engines {
+                pools[*pool].install(|| e.apply(&update)).unwrap();
+            }
+            for (_, e) in &engines[1..] {
+                assert_eq!(e.image(), engines[0].1.image(), "{channels} channels");
+            }
+            let engine = &engines[3].1;
+            let approx = a.approximation();
+            for band in 0..2 {
+                let partial = engine.partial_image(band).unwrap();
+                for r in 0..rows {
+                    for c in 0..channels {
+                        let exact: f64 = (0..cols)
+                            .filter(|&j| bands[j] as usize == band)
+                            .map(|j| deq[r * cols + j] as f64 * approx[c * cols + j] as f64)
+                            .sum();
+                        let got = partial[r * channels + c] as f64;
+                        assert!(
+                            (got - exact).abs() <= 1e-4 * (1.0 + exact.abs()),
+                            "band {band} pixel {r}: {got} vs {exact}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(engines[0].1.partial_image(2).is_err());
+    }
+}
