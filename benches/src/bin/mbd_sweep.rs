@@ -2,12 +2,14 @@
 //! (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
 //! solvers' convergence (error vs iterations and time).
 //!
-//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|ridge|all>`
+//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|quality|ridge|all>`
 //!
 //! Environment knobs (so that each run stays a few minutes on a shared machine):
-//! * `MBD_FIELD=synthetic|cornell`: the synthetic manifold field (default) or the built-in
-//!   Cornell box traced by prt-trace at `prt bake`'s defaults (256 rays, 64 cache rays, seed 0),
-//!   cached under `target/mbd_cache/` so that reruns skip the trace.
+//! * `MBD_FIELD=synthetic|cornell|sponza`: the synthetic manifold field (default), the built-in
+//!   Cornell box or Sponza (`../shared/scenes/sponza/Sponza.gltf`) traced by prt-trace at
+//!   `prt bake`'s defaults (256 rays, 64 cache rays, seed 0), cached under `target/mbd_cache/`
+//!   so that reruns skip the trace. Voxels the baker marks invalid (inside geometry; their
+//!   transfer is exactly zero) are left out of the seam metric.
 //! * `MBD_N`: the field's resolution (longest axis for Cornell; default 32).
 //! * `MBD_KNOBS=2,4`: only these ranks (basis sweep) / basis nodes per axis (grid sweep).
 //! * `MBD_METHODS=MBD,BPCA`: only these methods (MBD, PCA, BPCA, WBPCA, CPCA, VQ).
@@ -15,7 +17,11 @@
 //!   X_LABEL` then draws relative MSE against the knob, one line per method (log scale).
 //!
 //! Every row reports wall time and the process CPU time (user + system) of the method; the
-//! load average is printed before and after each sweep.
+//! load average is printed before and after each sweep. "seam ratio" is
+//! `seam_metric_with(.., SeamOptions { denoise_sigma: 1, valid })`'s `ratio()`: the RMS jump of
+//! the error across cluster / basis-cell boundaries over the RMS jump inside them, against the
+//! reference blurred by a Gaussian of one voxel (so that the traced volumes' Monte Carlo noise
+//! does not drown the seams); about 1 when the boundaries cannot be seen.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -24,7 +30,7 @@ use glam::Vec3;
 use prt_benches::{Table, fmt_duration};
 use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, resample_to_grid};
 use prt_mbd::*;
-use prt_trace::{BakeOptions, Scene, TransferBaker};
+use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 
 const DIM: usize = 324;
 /// The transfer vector as four 9 × 9 operators.
@@ -65,22 +71,45 @@ fn synthetic_field(n: usize) -> GridField {
 struct Scores {
     relative_mse: f64,
     operator: f64,
-    seam: f64,
+    seam_ratio: f64,
+    raw_seam_ratio: f64,
+    raw_seam_excess: f64,
 }
 
-fn score(model: &dyn FieldModel, field: &GridField, labels: &[u32]) -> Scores {
+/// A field of the sweeps with its description and the voxels that count for the seam metric.
+struct Input {
+    field: GridField,
+    name: String,
+    /// `None`: every voxel (synthetic fields).
+    valid: Option<Vec<bool>>,
+    /// Blur of the reference for the seam metric: one voxel for traced (noisy) volumes, none
+    /// for the noise-free synthetic field, where the blur's own bias (`σ²/2 ∇²f`) would be the
+    /// largest error of an accurate method.
+    seam_sigma: f64,
+}
+
+fn score(model: &dyn FieldModel, input: &Input, labels: &[u32]) -> Scores {
+    let field = &input.field;
     let options = EvalOptions {
         blocks: BLOCKS.to_vec(),
         ..EvalOptions::default()
     };
     let e = evaluate(model, field, &options).expect("evaluate");
     let recon = resample_to_grid(model, field.dims(), field.bounds()).expect("resample");
-    let seam = seam_metric(field, &recon, labels).expect("seam");
+    let seam = |denoise_sigma: f64| {
+        let options = SeamOptions {
+            denoise_sigma,
+            valid: input.valid.as_deref(),
+        };
+        seam_metric_with(field, &recon, labels, &options).expect("seam")
+    };
     let operator = e.block_relative_frobenius.iter().sum::<f64>() / BLOCKS.len() as f64;
     Scores {
         relative_mse: e.relative_mse,
         operator,
-        seam: seam.boundary,
+        seam_ratio: seam(input.seam_sigma).ratio(),
+        raw_seam_ratio: seam(0.0).ratio(),
+        raw_seam_excess: seam(0.0).excess(),
     }
 }
 
@@ -128,7 +157,9 @@ fn row(sweep: &mut Sweep, knob: usize, method: &str, cost: Cost, s: &Scores, sto
         format!("{:.2} s", cost.cpu),
         format!("{:.3e}", s.relative_mse),
         format!("{:.3e}", s.operator),
-        format!("{:.3e}", s.seam),
+        format!("{:.2}", s.seam_ratio),
+        format!("{:.2}", s.raw_seam_ratio),
+        format!("{:.2e}", s.raw_seam_excess),
         stored.to_string(),
     ]);
 }
@@ -156,14 +187,8 @@ fn knobs(default: &[usize]) -> Vec<usize> {
 
 /// Every enabled method at rank `l` with `b³` basis nodes / blocks / clusters (fewer on a short
 /// axis, as `prt bake` does).
-fn compare(
-    sweep: &mut Sweep,
-    knob: usize,
-    field: &GridField,
-    l: usize,
-    b: usize,
-    iterations: usize,
-) {
+fn compare(sweep: &mut Sweep, knob: usize, input: &Input, l: usize, b: usize, iterations: usize) {
+    let field = &input.field;
     let dims = field.dims();
     let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
     let clusters = nodes.iter().product::<usize>();
@@ -189,7 +214,7 @@ fn compare(
             knob,
             "MBD",
             cost,
-            &score(&model, field, &labels),
+            &score(&model, input, &labels),
             model.stored_scalars(),
         );
     }
@@ -204,7 +229,7 @@ fn compare(
             knob,
             name,
             cost,
-            &score(&m, field, m.labels()),
+            &score(&m, input, m.labels()),
             m.stored_scalars(),
         );
     };
@@ -247,14 +272,16 @@ fn compare(
     });
 }
 
-const HEADER: [&str; 8] = [
+const HEADER: [&str; 10] = [
     "knob",
     "method",
     "time",
     "CPU time",
     "relative MSE",
     "operator rel. Frobenius (mean of 4 blocks)",
-    "seam (boundary jump)",
+    "seam ratio (denoised)",
+    "seam ratio (raw)",
+    "seam excess (raw)",
     "stored scalars",
 ];
 
@@ -266,16 +293,32 @@ fn sweep_n() -> usize {
         .unwrap_or(32)
 }
 
-/// The field of the basis and grid sweeps (`MBD_FIELD`) and its description.
-fn sweep_field() -> (GridField, String) {
+/// The field of the basis, grid, convergence and quality sweeps (`MBD_FIELD`).
+fn sweep_field() -> Input {
     let n = sweep_n();
-    match std::env::var("MBD_FIELD").as_deref() {
-        Ok("cornell") => {
-            let f = cornell_field(n);
-            let [x, y, z] = f.dims();
-            (f, format!("traced Cornell box {x}×{y}×{z} × 324"))
+    let traced = |scene: &str, field: GridField| {
+        let [x, y, z] = field.dims();
+        // The baker zeroes the transfer of invalid voxels (inside geometry).
+        let valid: Vec<bool> = (0..field.num_voxels())
+            .map(|v| field.voxel(v).iter().any(|&t| t != 0.0))
+            .collect();
+        let invalid = valid.iter().filter(|v| !**v).count();
+        Input {
+            name: format!("traced {scene} {x}×{y}×{z} × 324, {invalid} invalid voxels"),
+            field,
+            valid: Some(valid),
+            seam_sigma: 1.0,
         }
-        _ => (synthetic_field(n), format!("synthetic {n}³ × 324")),
+    };
+    match std::env::var("MBD_FIELD").as_deref() {
+        Ok("cornell") => traced("Cornell box", traced_field("cornell", n)),
+        Ok("sponza") => traced("Sponza", traced_field("sponza", n)),
+        _ => Input {
+            field: synthetic_field(n),
+            name: format!("synthetic {n}³ × 324"),
+            valid: None,
+            seam_sigma: 0.0,
+        },
     }
 }
 
@@ -287,16 +330,26 @@ fn cache_dir() -> PathBuf {
         .join("mbd_cache")
 }
 
-/// The built-in Cornell box traced at `n` voxels along its longest axis with `prt bake`'s
-/// defaults, read from the cache when an earlier run wrote it.
-fn cornell_field(n: usize) -> GridField {
-    let path = cache_dir().join(format!("cornell_{n}_r256_c64_s0.f32"));
+/// The built-in Cornell box (`scene = "cornell"`) or Sponza (`"sponza"`) traced at `n` voxels
+/// along its longest axis with `prt bake`'s defaults, read from the cache when an earlier run
+/// wrote it.
+fn traced_field(scene_name: &str, n: usize) -> GridField {
+    let path = cache_dir().join(format!("{scene_name}_{n}_r256_c64_s0.f32"));
     if let Some(field) = read_cached(&path) {
-        eprintln!("Cornell {n}: read {}", path.display());
+        eprintln!("{scene_name} {n}: read {}", path.display());
         return field;
     }
-    let scene = Scene::cornell_box();
-    let bounds = scene.bounds().expect("the Cornell box has triangles");
+    let scene = if scene_name == "sponza" {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shared/scenes/sponza/Sponza.gltf"
+        );
+        Scene::load_gltf(path, &LoadOptions::default())
+            .unwrap_or_else(|e| panic!("cannot load Sponza from {path}: {e}"))
+    } else {
+        Scene::cornell_box()
+    };
+    let bounds = scene.bounds().expect("the scene has triangles");
     let size = bounds.size().to_array();
     let longest = size.iter().copied().fold(0.0f32, f32::max);
     let resolution = size.map(|s| ((s / longest * n as f32).round() as usize).clamp(2, n));
@@ -307,10 +360,10 @@ fn cornell_field(n: usize) -> GridField {
     let (volume, cost) = Cost::measure(|| {
         TransferBaker::new(&scene, options)
             .and_then(|baker| baker.bake(&NoProgress))
-            .expect("Cornell bake")
+            .expect("bake")
     });
     eprintln!(
-        "Cornell {n}: traced {resolution:?} in {:.2} s (CPU {:.2} s)",
+        "{scene_name} {n}: traced {resolution:?} in {:.2} s (CPU {:.2} s)",
         cost.wall, cost.cpu
     );
     if let Err(e) = write_cached(&path, &volume.field) {
@@ -460,10 +513,11 @@ fn plot_csv(args: &[String]) {
 }
 
 fn basis_count() {
-    let (f, name) = sweep_field();
+    let input = sweep_field();
+    let name = &input.name;
     let mut sweep = Sweep::new();
     for l in knobs(&[2, 4, 8, 16]) {
-        compare(&mut sweep, l, &f, l, 5, 64);
+        compare(&mut sweep, l, &input, l, 5, 64);
     }
     finish(
         &sweep,
@@ -473,10 +527,11 @@ fn basis_count() {
 }
 
 fn grid_resolution() {
-    let (f, name) = sweep_field();
+    let input = sweep_field();
+    let name = &input.name;
     let mut sweep = Sweep::new();
     for b in knobs(&[9, 7, 5, 3]) {
-        compare(&mut sweep, b, &f, 8, b, 64);
+        compare(&mut sweep, b, &input, 8, b, 64);
     }
     finish(
         &sweep,
@@ -493,7 +548,13 @@ fn timing() {
         .unwrap_or(64);
     for (n, b) in [(16, 3), (32, 5), (64, 9)] {
         if n <= max {
-            compare(&mut sweep, n, &synthetic_field(n), 8, b, 32);
+            let input = Input {
+                field: synthetic_field(n),
+                name: String::new(),
+                valid: None,
+                seam_sigma: 0.0,
+            };
+            compare(&mut sweep, n, &input, 8, b, 32);
         }
     }
     finish(
@@ -504,7 +565,8 @@ fn timing() {
 }
 
 fn convergence() {
-    let f = synthetic_field(32);
+    let input = sweep_field();
+    let f = &input.field;
     let mut table = Table::new(&["solver", "iterations", "time", "relative MSE"]);
     for (name, pre) in [
         ("stochastic, paper diagonal", Preconditioner::Diagonal),
@@ -524,10 +586,10 @@ fn convergence() {
                 basis_nodes: [5; 3],
                 options,
             }
-            .fit(&f, &NoProgress)
+            .fit(f, &NoProgress)
             .expect("mbd");
             let secs = t.elapsed();
-            let e = evaluate(&model, &f, &EvalOptions::default()).expect("evaluate");
+            let e = evaluate(&model, f, &EvalOptions::default()).expect("evaluate");
             table.row(vec![
                 name.into(),
                 iterations.to_string(),
@@ -548,10 +610,10 @@ fn convergence() {
             basis_nodes: [5; 3],
             options,
         };
-        let (coef, basis) = mbd.kernels(&f).expect("kernels");
-        let (model, _) = solve_als(&f, coef, basis, &mbd.options, &NoProgress).expect("als");
+        let (coef, basis) = mbd.kernels(f).expect("kernels");
+        let (model, _) = solve_als(f, coef, basis, &mbd.options, &NoProgress).expect("als");
         let secs = t.elapsed();
-        let e = evaluate(&model, &f, &EvalOptions::default()).expect("evaluate");
+        let e = evaluate(&model, f, &EvalOptions::default()).expect("evaluate");
         table.row(vec![
             "alternating least squares".into(),
             iterations.to_string(),
@@ -560,10 +622,175 @@ fn convergence() {
         ]);
     }
     println!(
-        "### Convergence (32³ × 324, 5³ nodes, L = 8)\n\n{}",
+        "### Convergence ({}, 5³ nodes, L = 8)\n\n{}",
+        input.name,
         table.markdown()
     );
+    println!("load average after: {}\n", load_average());
     table.write_csv_if_requested("mbd_convergence").ok();
+}
+
+/// `MBD_L` (default 8) or `default`.
+fn env_usize(name: &str, default: usize) -> usize {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Is MBD short of the baselines because it is not converged, badly started or over-regularised?
+/// MBD variants at rank `MBD_L` (default 8) on `MBD_B`³ (default 5³) basis nodes beside BPCA and
+/// CPCA of the same budget, with the loss after 16 / 32 / 64 / 128 iterations.
+fn quality() {
+    let input = sweep_field();
+    let f = &input.field;
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let dims = f.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let mut table = Table::new(&[
+        "method",
+        "iterations",
+        "CPU time",
+        "relative MSE",
+        "seam ratio (denoised)",
+        "seam excess (raw)",
+        "loss after 1 / 16 / 32 / 64 / 128 iterations",
+    ]);
+    let mut add = |name: &str,
+                   iterations: String,
+                   cost: Cost,
+                   model: &dyn FieldModel,
+                   labels: &[u32],
+                   losses: String| {
+        let s = score(model, &input, labels);
+        eprintln!("{name}: {:.3e} in {:.1} s CPU", s.relative_mse, cost.cpu);
+        table.row(vec![
+            name.into(),
+            iterations,
+            format!("{:.2} s", cost.cpu),
+            format!("{:.3e}", s.relative_mse),
+            format!("{:.2}", s.seam_ratio),
+            format!("{:.2e}", s.raw_seam_excess),
+            losses,
+        ]);
+    };
+    let variants: [(&str, MbdOptions); 5] = [
+        (
+            "MBD (default, ≤ 64)",
+            MbdOptions {
+                max_iterations: 64,
+                ..MbdOptions::default()
+            },
+        ),
+        (
+            "MBD, 128 iterations, no early stop",
+            MbdOptions {
+                max_iterations: 128,
+                tolerance: 0.0,
+                ..MbdOptions::default()
+            },
+        ),
+        (
+            "MBD, local-PCA start",
+            MbdOptions {
+                max_iterations: 64,
+                init: Init::LocalPca,
+                ..MbdOptions::default()
+            },
+        ),
+        (
+            "MBD, λ = 1e-6",
+            MbdOptions {
+                max_iterations: 64,
+                lambda: 1e-6,
+                ..MbdOptions::default()
+            },
+        ),
+        (
+            "MBD, λ = 1e-2",
+            MbdOptions {
+                max_iterations: 64,
+                lambda: 1e-2,
+                ..MbdOptions::default()
+            },
+        ),
+    ];
+    for (name, options) in variants {
+        if !enabled("MBD") {
+            continue;
+        }
+        let mbd = Mbd {
+            basis_nodes: nodes,
+            options: MbdOptions { rank: l, ..options },
+        };
+        let ((model, report), cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+        let losses = [1, 16, 32, 64, 128]
+            .map(|i| {
+                report
+                    .history
+                    .get(i - 1)
+                    .map_or("–".into(), |r| format!("{:.4e}", r.loss_after))
+            })
+            .join(" / ");
+        add(
+            name,
+            report.history.len().to_string(),
+            cost,
+            &model,
+            &labels,
+            losses,
+        );
+    }
+    if enabled("ALS") && nodes.iter().product::<usize>() * l <= ALS_MAX_BASIS_UNKNOWNS {
+        let mbd = Mbd {
+            basis_nodes: nodes,
+            options: MbdOptions {
+                rank: l,
+                max_iterations: 8,
+                ..MbdOptions::default()
+            },
+        };
+        let (coef, basis) = mbd.kernels(f).expect("kernels");
+        let ((model, report), cost) =
+            Cost::measure(|| solve_als(f, coef, basis, &mbd.options, &NoProgress).expect("als"));
+        let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+        add(
+            "ALS (voxel centres)",
+            report.history.len().to_string(),
+            cost,
+            &model,
+            &labels,
+            "–".into(),
+        );
+    }
+    let clusters = nodes.iter().product::<usize>();
+    if enabled("BPCA") {
+        let (m, cost) = Cost::measure(|| {
+            BlockPca {
+                rank: l,
+                blocks: nodes,
+                window: 1.0,
+            }
+            .compress(f, &NoProgress)
+            .expect("bpca")
+        });
+        add("BPCA", "–".into(), cost, &m, m.labels(), "–".into());
+    }
+    if enabled("CPCA") {
+        let (m, cost) = Cost::measure(|| {
+            ClusteredPca::new(l, clusters)
+                .compress(f, &NoProgress)
+                .expect("cpca")
+        });
+        add("CPCA", "–".into(), cost, &m, m.labels(), "–".into());
+    }
+    println!(
+        "### MBD variants ({}, L = {l}, {b}³ basis nodes)\n\n{}",
+        input.name,
+        table.markdown()
+    );
+    println!("load average after: {}\n", load_average());
 }
 
 /// MBD at rank 8 and 16 with the default and a 100× smaller ridge λ, beside the global PCA of the
@@ -636,6 +863,7 @@ fn main() {
         "grid" => grid_resolution(),
         "timing" => timing(),
         "convergence" => convergence(),
+        "quality" => quality(),
         "ridge" => ridge(),
         _ => {
             basis_count();

@@ -154,16 +154,22 @@ fn ratio(num: f64, den: f64) -> f64 {
 
 /// How discontinuous a reconstruction's error is across cluster boundaries.
 ///
-/// On the voxel grid, with the error `e_v = f̂_v − f_v` of every voxel, each pair of
-/// face-adjacent voxels `(u, v)` has the error jump `‖e_u − e_v‖²`. Pairs whose voxels lie in
-/// different clusters are *boundary* pairs, the others *interior* pairs.
+/// On the voxel grid, with the error `e_v = f̂_v − f_v` of every voxel (optionally denoised, see
+/// [`SeamOptions`]), each pair of face-adjacent voxels `(u, v)` has the error jump
+/// `‖e_u − e_v‖²`. Pairs whose voxels lie in different clusters are *boundary* pairs, the others
+/// *interior* pairs.
 ///
 /// * `boundary` = `sqrt(mean_boundary ‖e_u − e_v‖² / mean_v ‖f_v‖²)`: the RMS jump of the error
-///   across cluster boundaries, relative to the field's RMS. This is **the seam metric**: a
-///   method whose clusters are fitted independently (BPCA, CPCA) changes its error abruptly
-///   at a boundary, a seamless method (MBD, whose basis moves continuously) does not.
+///   across cluster boundaries, relative to the field's RMS. A method whose clusters are fitted
+///   independently (BPCA, CPCA) changes its error abruptly at a boundary, a seamless method
+///   (MBD, whose basis moves continuously) does not.
 /// * `interior` = the same over interior pairs: what a smooth change of error between neighbours
-///   costs anyway, for comparison.
+///   costs anyway, for comparison. Each axis's interior mean is weighted by that axis's share
+///   of the boundary pairs (all axes alike without boundaries), so an error that changes faster
+///   along one axis than the others does not make boundaries across that axis look like seams.
+/// * [`SeamMetric::ratio`] = `boundary / interior`: about 1 when a viewer cannot tell where the
+///   boundaries are, well above 1 when the error steps there. This is **the seam metric** of the
+///   sweeps (on the denoised error, [`SeamOptions::denoised`]).
 ///
 /// Both are 0 when there is no pair of the kind (a single cluster has no boundary) or the field is
 /// zero (the jumps are then reported unnormalised, so a non-zero error on a zero field is still
@@ -176,16 +182,86 @@ pub struct SeamMetric {
     pub interior: f64,
 }
 
-/// The [`SeamMetric`] of `reconstruction` (on the field's grid, e.g. from
-/// [`prt_core::resample_to_grid`]) with voxel cluster `labels`.
+impl SeamMetric {
+    /// `boundary / interior`: 1 when boundaries look like the inside of clusters. 0 without
+    /// boundary pairs or jumps there; `∞` when only the boundaries jump.
+    pub fn ratio(&self) -> f64 {
+        if self.boundary == 0.0 {
+            0.0
+        } else if self.interior == 0.0 {
+            f64::INFINITY
+        } else {
+            self.boundary / self.interior
+        }
+    }
+    /// `sqrt(max(0, boundary² − interior²))`: the RMS height of the steps at the boundaries
+    /// beyond the jumps seen inside clusters, relative to the field's RMS. Independent noise in
+    /// the reference adds the same mean square to boundary and interior pairs, so it cancels here
+    /// in expectation without any blur (with the sampling error of the two means).
+    pub fn excess(&self) -> f64 {
+        (self.boundary * self.boundary - self.interior * self.interior)
+            .max(0.0)
+            .sqrt()
+    }
+}
+
+/// Options of [`seam_metric_with`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SeamOptions<'a> {
+    /// Standard deviation, in voxels, of a Gaussian blur of the *reference* field before the
+    /// error `f̂_v − (G_σ * f)_v` is taken; 0 uses the raw field.
+    ///
+    /// Why: a traced reference carries Monte Carlo noise that is independent from voxel to voxel.
+    /// A rank-L compressor keeps little of it (its projection onto L of D dimensions), so the
+    /// noise sits in every method's raw error, and its jumps (RMS `√2 σ_noise` per component)
+    /// swamp boundary and interior pairs alike, pulling every ratio towards 1. The blur removes
+    /// it from the reference (14× smaller jumps between neighbours at σ = 1) while the
+    /// reconstruction, whose seams are measured, is left untouched: a step of `f̂` at a boundary
+    /// keeps its full height. The blur is the same everywhere (it does not know the clusters), so
+    /// it cannot create a boundary; it does bend the reference where the field has sharp
+    /// features (walls, shadow edges), which shows in boundary and interior pairs alike.
+    pub denoise_sigma: f64,
+    /// Voxels to include (e.g. a baker's validity mask, `false` inside geometry): pairs with an
+    /// excluded voxel are skipped, and the blur averages over included voxels only (normalised
+    /// convolution). `None`: all voxels.
+    pub valid: Option<&'a [bool]>,
+}
+
+impl SeamOptions<'_> {
+    /// The sweeps' seam metric: the error blurred with a Gaussian of σ = 1 voxel, all voxels.
+    pub fn denoised() -> Self {
+        Self {
+            denoise_sigma: 1.0,
+            valid: None,
+        }
+    }
+}
+
+/// The raw [`SeamMetric`] (no blur, all voxels) of `reconstruction` (on the field's grid, e.g.
+/// from [`prt_core::resample_to_grid`]) with voxel cluster `labels`: [`seam_metric_with`] with
+/// default options.
 ///
 /// # Errors
-/// Grid or dimension mismatch between `field` and `reconstruction`, or `labels.len()` not the
-/// number of voxels.
+/// As [`seam_metric_with`].
 pub fn seam_metric(
     field: &GridField,
     reconstruction: &GridField,
     labels: &[u32],
+) -> Result<SeamMetric, MbdError> {
+    seam_metric_with(field, reconstruction, labels, &SeamOptions::default())
+}
+
+/// The [`SeamMetric`] of `reconstruction` (on the field's grid) with voxel cluster `labels`,
+/// measured on the error blurred by `options.denoise_sigma` over the `options.valid` voxels.
+///
+/// # Errors
+/// Grid or dimension mismatch between `field` and `reconstruction`; `labels` or `options.valid`
+/// not of the number of voxels; a negative or non-finite `denoise_sigma`.
+pub fn seam_metric_with(
+    field: &GridField,
+    reconstruction: &GridField,
+    labels: &[u32],
+    options: &SeamOptions<'_>,
 ) -> Result<SeamMetric, MbdError> {
     if reconstruction.dims() != field.dims() {
         return Err(MbdError::ShapeMismatch {
@@ -202,40 +278,92 @@ pub fn seam_metric(
         }
         .into());
     }
-    if labels.len() != field.num_voxels() {
+    let voxels = field.num_voxels();
+    if labels.len() != voxels {
         return Err(CoreError::LengthMismatch {
             what: "labels",
-            expected: field.num_voxels(),
+            expected: voxels,
             got: labels.len(),
         }
         .into());
     }
+    if let Some(valid) = options.valid
+        && valid.len() != voxels
+    {
+        return Err(CoreError::LengthMismatch {
+            what: "validity mask",
+            expected: voxels,
+            got: valid.len(),
+        }
+        .into());
+    }
+    let sigma = options.denoise_sigma;
+    if !(sigma.is_finite() && sigma >= 0.0) {
+        return Err(MbdError::InvalidOption {
+            what: "denoise_sigma",
+            why: format!("{sigma} is not a finite non-negative number of voxels"),
+        });
+    }
+    let valid = |v: usize| options.valid.is_none_or(|m| m[v]);
+    let d = field.dim();
+    let reference: Vec<f32> = if sigma > 0.0 {
+        let mut values = vec![0.0f32; voxels * d];
+        values
+            .par_chunks_mut(d)
+            .enumerate()
+            .filter(|(v, _)| valid(*v))
+            .for_each(|(v, r)| r.copy_from_slice(field.voxel(v)));
+        blur_masked(values, d, field.dims(), &valid, sigma)
+    } else {
+        Vec::new()
+    };
+    let mut error: Vec<f32> = vec![0.0; voxels * d];
+    error
+        .par_chunks_mut(d)
+        .enumerate()
+        .filter(|(v, _)| valid(*v))
+        .for_each(|(v, e)| {
+            let f = if sigma > 0.0 {
+                &reference[v * d..(v + 1) * d]
+            } else {
+                field.voxel(v)
+            };
+            for ((e, &r), &f) in e.iter_mut().zip(reconstruction.voxel(v)).zip(f) {
+                *e = r - f;
+            }
+        });
+    let err = |v: usize| &error[v * d..(v + 1) * d];
     let dims = field.dims();
     let strides = [1, dims[0], dims[0] * dims[1]];
-    // Per z-slab: [boundary sum, boundary count, interior sum, interior count, energy].
-    let slabs: Vec<[f64; 5]> = (0..dims[2])
+    // Per z-slab: per axis [boundary sum, boundary count, interior sum, interior count], then
+    // [energy, voxels].
+    let slabs: Vec<[f64; 14]> = (0..dims[2])
         .into_par_iter()
         .map(|z| {
-            let mut acc = [0.0f64; 5];
+            let mut acc = [0.0f64; 14];
             for y in 0..dims[1] {
                 for x in 0..dims[0] {
                     let v = field.index(x, y, z);
-                    let fv = field.voxel(v);
-                    let rv = reconstruction.voxel(v);
-                    acc[4] += fv.iter().map(|&a| (a as f64) * (a as f64)).sum::<f64>();
-                    let coords = [x, y, z];
-                    for k in 0..3 {
-                        if coords[k] + 1 >= dims[k] {
+                    if !valid(v) {
+                        continue;
+                    }
+                    acc[12] += field
+                        .voxel(v)
+                        .iter()
+                        .map(|&a| (a as f64) * (a as f64))
+                        .sum::<f64>();
+                    acc[13] += 1.0;
+                    for (k, c) in [x, y, z].into_iter().enumerate() {
+                        let u = v + strides[k];
+                        if c + 1 >= dims[k] || !valid(u) {
                             continue;
                         }
-                        let u = v + strides[k];
-                        let (fu, ru) = (field.voxel(u), reconstruction.voxel(u));
-                        let mut jump = 0.0f64;
-                        for i in 0..fv.len() {
-                            let e = (rv[i] as f64 - fv[i] as f64) - (ru[i] as f64 - fu[i] as f64);
-                            jump += e * e;
-                        }
-                        let slot = if labels[u] != labels[v] { 0 } else { 2 };
+                        let jump: f64 = err(u)
+                            .iter()
+                            .zip(err(v))
+                            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+                            .sum();
+                        let slot = 4 * k + if labels[u] != labels[v] { 0 } else { 2 };
                         acc[slot] += jump;
                         acc[slot + 1] += 1.0;
                     }
@@ -244,26 +372,114 @@ pub fn seam_metric(
             acc
         })
         .collect();
-    let mut acc = [0.0f64; 5];
+    let mut acc = [0.0f64; 14];
     for s in slabs {
         for (a, v) in acc.iter_mut().zip(s) {
             *a += v;
         }
     }
-    let mean_energy = acc[4] / field.num_voxels() as f64;
-    let rel = |sum: f64, count: f64| {
-        if count == 0.0 {
-            0.0
-        } else if mean_energy > 0.0 {
-            (sum / count / mean_energy).sqrt()
+    let axis = |k: usize| &acc[4 * k..4 * k + 4];
+    let sum = |i: usize| (0..3).map(|k| axis(k)[i]).sum::<f64>();
+    let (boundary_sum, boundary_count) = (sum(0), sum(1));
+    let interior_mean = if sum(3) > 0.0 { sum(2) / sum(3) } else { 0.0 };
+    // The interior mean of each axis, weighted by that axis's share of the boundary pairs: what
+    // the boundary pairs would show if boundaries were like the inside of clusters (the error
+    // may change faster along one axis than another).
+    let expected_interior = if boundary_count > 0.0 {
+        (0..3)
+            .map(|k| {
+                let [_, bc, is, ic] = [axis(k)[0], axis(k)[1], axis(k)[2], axis(k)[3]];
+                bc * if ic > 0.0 { is / ic } else { interior_mean }
+            })
+            .sum::<f64>()
+            / boundary_count
+    } else {
+        interior_mean
+    };
+    let mean_energy = if acc[13] > 0.0 {
+        acc[12] / acc[13]
+    } else {
+        0.0
+    };
+    let rel = |mean_square: f64| {
+        if mean_energy > 0.0 {
+            (mean_square / mean_energy).sqrt()
         } else {
-            (sum / count).sqrt()
+            mean_square.sqrt()
         }
     };
     Ok(SeamMetric {
-        boundary: rel(acc[0], acc[1]),
-        interior: rel(acc[2], acc[3]),
+        boundary: if boundary_count > 0.0 {
+            rel(boundary_sum / boundary_count)
+        } else {
+            0.0
+        },
+        interior: rel(expected_interior),
     })
+}
+
+/// `data` (`voxels × d`, excluded voxels zero) blurred by a separable Gaussian of `sigma` voxels
+/// (taps to 3σ) over the included voxels only: each output is the weighted mean of the included
+/// voxels under the kernel, so the box edges and excluded voxels do not pull values towards 0.
+/// Excluded voxels stay 0.
+fn blur_masked(
+    data: Vec<f32>,
+    d: usize,
+    dims: [usize; 3],
+    valid: &(dyn Fn(usize) -> bool + Sync),
+    sigma: f64,
+) -> Vec<f32> {
+    let voxels = dims.iter().product::<usize>();
+    let radius = (3.0 * sigma).ceil() as isize;
+    let taps: Vec<f64> = (-radius..=radius)
+        .map(|t| (-((t * t) as f64) / (2.0 * sigma * sigma)).exp())
+        .collect();
+    // Column d carries the inclusion weight through the same blur.
+    let width = d + 1;
+    let mut rows: Vec<f32> = Vec::with_capacity(voxels * width);
+    for v in 0..voxels {
+        rows.extend_from_slice(&data[v * d..(v + 1) * d]);
+        rows.push(if valid(v) { 1.0 } else { 0.0 });
+    }
+    let strides = [1, dims[0], dims[0] * dims[1]];
+    for axis in 0..3 {
+        let source = &rows;
+        let mut blurred = vec![0.0f32; voxels * width];
+        blurred.par_chunks_mut(width).enumerate().for_each_init(
+            || vec![0.0f64; width],
+            |acc, (v, out)| {
+                let c = ((v / strides[axis]) % dims[axis]) as isize;
+                acc.fill(0.0);
+                for (k, &w) in taps.iter().enumerate() {
+                    let t = c + k as isize - radius;
+                    if t < 0 || t >= dims[axis] as isize {
+                        continue;
+                    }
+                    let u = (v as isize + (t - c) * strides[axis] as isize) as usize;
+                    for (a, &x) in acc.iter_mut().zip(&source[u * width..(u + 1) * width]) {
+                        *a += w * x as f64;
+                    }
+                }
+                for (o, &a) in out.iter_mut().zip(acc.iter()) {
+                    *o = a as f32;
+                }
+            },
+        );
+        rows = blurred;
+    }
+    let mut out = data;
+    out.par_chunks_mut(d).enumerate().for_each(|(v, o)| {
+        let row = &rows[v * width..(v + 1) * width];
+        let weight = row[d];
+        if valid(v) && weight > 0.0 {
+            for (o, &x) in o.iter_mut().zip(&row[..d]) {
+                *o = x / weight;
+            }
+        } else {
+            o.fill(0.0);
+        }
+    });
+    out
 }
 
 /// Cluster labels of a kernel family on the voxels of `field`: the

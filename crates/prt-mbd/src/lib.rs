@@ -77,6 +77,9 @@ pub use baselines::{BlockPca, ClusterModel, ClusteredPca, GlobalPca, KMeansVq, v
 mod hat;
 pub use hat::Mbd;
 pub mod eval;
-pub use eval::{EvalOptions, Evaluation, SeamMetric, evaluate, kernel_labels, seam_metric};
+pub use eval::{
+    EvalOptions, Evaluation, SeamMetric, SeamOptions, evaluate, kernel_labels, seam_metric,
+    seam_metric_with,
+};
 mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};

@@ -270,3 +270,171 @@ fn seam_metric_extremes() {
     let s = seam_metric(&zero, &field, &labels).unwrap();
     assert!(s.boundary > 0.0 && s.boundary.is_finite());
 }
+
+/// `field` plus independent uniform noise of RMS `rms` per component (seeded), like the Monte
+/// Carlo noise of a traced volume.
+fn with_noise(field: &GridField, rms: f32, seed: u64) -> GridField {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let mut noisy = field.clone();
+    // Uniform on [-a, a] has RMS a / √3.
+    let a = rms * 3f32.sqrt();
+    noisy
+        .data_mut()
+        .iter_mut()
+        .for_each(|x| *x += a * (2.0 * rng.random::<f32>() - 1.0));
+    noisy
+}
+
+#[test]
+fn denoised_seam_ratio_separates_bpca_from_mbd_on_a_noisy_field() {
+    let clean = SyntheticField {
+        dims: [16, 16, 16],
+        dim: 16,
+        harmonics: 2,
+        seed: 5,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let rms = (clean.data().iter().map(|&x| x * x).sum::<f32>() / clean.data().len() as f32).sqrt();
+    let field = with_noise(&clean, 0.05 * rms, 3);
+    let bpca = BlockPca {
+        rank: 2,
+        blocks: [3, 3, 3],
+        window: 1.0,
+    }
+    .compress(&field, &NoProgress)
+    .unwrap();
+    let (model, _) = Mbd {
+        basis_nodes: [3, 3, 3],
+        options: MbdOptions {
+            rank: 2,
+            max_iterations: 16,
+            ..MbdOptions::default()
+        },
+    }
+    .fit(&field, &NoProgress)
+    .unwrap();
+    let recon = resample_to_grid(&model, field.dims(), field.bounds()).unwrap();
+    let labels = kernel_labels(model.basis_kernels(), &field).unwrap();
+    let denoised = SeamOptions::denoised();
+    let bpca_raw = seam_metric(&field, bpca.reconstruction(), bpca.labels()).unwrap();
+    let bpca_seam =
+        seam_metric_with(&field, bpca.reconstruction(), bpca.labels(), &denoised).unwrap();
+    let mbd_raw = seam_metric(&field, &recon, &labels).unwrap();
+    let mbd_seam = seam_metric_with(&field, &recon, &labels, &denoised).unwrap();
+    // The noise sits in every error and pulls the raw ratios towards 1; the blur removes it, so
+    // BPCA's steps stand out and MBD's boundaries look like its interior.
+    assert!(
+        bpca_seam.ratio() > 1.5 * bpca_raw.ratio(),
+        "BPCA raw {bpca_raw:?}, denoised {bpca_seam:?}"
+    );
+    assert!(bpca_seam.ratio() > 2.0, "{bpca_seam:?}");
+    assert!(mbd_seam.ratio() < 1.3, "{mbd_seam:?}");
+    assert!(
+        mbd_seam.ratio() < 0.5 * bpca_seam.ratio(),
+        "MBD {mbd_seam:?} (raw {mbd_raw:?}) vs BPCA {bpca_seam:?}"
+    );
+}
+
+#[test]
+fn denoising_the_reference_neither_creates_nor_hides_a_boundary() {
+    let dims = [12, 12, 12];
+    // A constant reference: the normalised blur leaves it exactly as it is, edges included.
+    let field = GridField::from_fn(dims, Aabb::UNIT, 2, |_, out| {
+        out[0] = 1.0;
+        out[1] = 0.5;
+    })
+    .unwrap();
+    // Labels: x < 0.5 and x ≥ 0.5.
+    let labels: Vec<u32> = (0..field.num_voxels())
+        .map(|v| (field.coords(v)[0] >= 6) as u32)
+        .collect();
+    let denoised = SeamOptions::denoised();
+    // A smooth error (a ramp in x): boundaries look exactly like the interior.
+    let ramp = GridField::from_fn(dims, Aabb::UNIT, 2, |p, out| {
+        out[0] = 1.0 + 0.1 * p.x;
+        out[1] = 0.5;
+    })
+    .unwrap();
+    for options in [SeamOptions::default(), denoised] {
+        let s = seam_metric_with(&field, &ramp, &labels, &options).unwrap();
+        assert!((s.ratio() - 1.0).abs() < 1e-4, "{s:?}");
+    }
+    // A step of the error at the boundary: no interior jump, the full step across it.
+    let step = GridField::from_fn(dims, Aabb::UNIT, 2, |p, out| {
+        out[0] = 1.0 + if p.x >= 0.5 { 0.1 } else { 0.0 };
+        out[1] = 0.5;
+    })
+    .unwrap();
+    let step_height = 0.1 / 1.25f64.sqrt();
+    for options in [SeamOptions::default(), denoised] {
+        let s = seam_metric_with(&field, &step, &labels, &options).unwrap();
+        assert_eq!(s.interior, 0.0);
+        assert_eq!(s.ratio(), f64::INFINITY);
+        assert!(
+            (s.boundary - step_height).abs() < 1e-5 * step_height,
+            "{s:?} vs {step_height}"
+        );
+    }
+    // With noise on the reference, the raw metric sees the noise everywhere; denoised, the step
+    // stands out again.
+    let noisy = with_noise(&field, 0.05, 7);
+    let raw = seam_metric(&noisy, &step, &labels).unwrap();
+    let clean = seam_metric_with(&noisy, &step, &labels, &denoised).unwrap();
+    assert!(raw.ratio() < 2.0, "{raw:?}");
+    assert!(clean.ratio() > 3.0 * raw.ratio(), "{clean:?} vs {raw:?}");
+}
+
+#[test]
+fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
+    let field = SyntheticField {
+        dims: [8, 8, 8],
+        dim: 3,
+        harmonics: 1,
+        seed: 2,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let labels: Vec<u32> = (0..512).map(|v| (field.coords(v)[0] >= 4) as u32).collect();
+    let valid: Vec<bool> = (0..512).map(|v| field.coords(v)[1] < 5).collect();
+    let recon = with_noise(&field, 0.05, 1);
+    // Garbage in the excluded voxels (of the field and the reconstruction) changes nothing.
+    let (mut field_garbage, mut recon_garbage) = (field.clone(), recon.clone());
+    for v in (0..512).filter(|&v| !valid[v]) {
+        field_garbage.voxel_mut(v).fill(1e6);
+        recon_garbage.voxel_mut(v).fill(-1e6);
+    }
+    for sigma in [0.0, 1.0] {
+        let options = SeamOptions {
+            denoise_sigma: sigma,
+            valid: Some(&valid),
+        };
+        let s = seam_metric_with(&field, &recon, &labels, &options).unwrap();
+        let g = seam_metric_with(&field_garbage, &recon_garbage, &labels, &options).unwrap();
+        assert!(s.boundary > 0.0 && s.interior > 0.0, "{s:?}");
+        assert!(
+            (s.boundary - g.boundary).abs() <= 1e-9 * s.boundary,
+            "{s:?} vs {g:?}"
+        );
+        assert!(
+            (s.interior - g.interior).abs() <= 1e-9 * s.interior,
+            "{s:?} vs {g:?}"
+        );
+    }
+    for sigma in [-1.0, f64::NAN, f64::INFINITY] {
+        let bad = SeamOptions {
+            denoise_sigma: sigma,
+            valid: None,
+        };
+        assert!(matches!(
+            seam_metric_with(&field, &recon, &labels, &bad),
+            Err(MbdError::InvalidOption { .. })
+        ));
+    }
+    let short = vec![true; 511];
+    let bad = SeamOptions {
+        denoise_sigma: 0.0,
+        valid: Some(&short),
+    };
+    assert!(seam_metric_with(&field, &recon, &labels, &bad).is_err());
+}

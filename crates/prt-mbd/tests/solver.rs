@@ -480,3 +480,31 @@ fn als_decreases_the_loss_and_recovers_exact_fields() {
         "{err}"
     );
 }
+
+#[test]
+fn als_accepts_hat_weights_rounded_off_the_origin() {
+    // The traced Cornell box's grid: 32 × 31 × 32 voxels over bounds away from the origin, where
+    // the f32 hat weights at voxel centres miss 1 by a few 1e-6 (ALS refused this grid).
+    let bounds = Aabb::new(
+        glam::Vec3::new(-1.02, 0.0, -1.04),
+        glam::Vec3::new(1.0, 1.99, 0.99),
+    );
+    let field = SyntheticField {
+        dims: [32, 31, 32],
+        dim: 3,
+        harmonics: 1,
+        seed: 4,
+    }
+    .build(bounds)
+    .unwrap();
+    let mbd = Mbd {
+        basis_nodes: [2, 2, 2],
+        options: MbdOptions {
+            max_iterations: 1,
+            ..quick(1)
+        },
+    };
+    let (coef, basis) = mbd.kernels(&field).unwrap();
+    let (_, report) = solve_als(&field, coef, basis, &mbd.options, &NoProgress).unwrap();
+    assert!(report.history[0].loss_after <= report.history[0].loss_before);
+}
