@@ -8,6 +8,7 @@
 //! timed loops.
 //!
 //! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow|very-slow]`
+use std::hint::black_box;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
@@ -258,7 +259,8 @@ fn main() {
         );
         let full = measure(
             &rays,
-            |o, d| tracer.closest_hit(o, d, 0.0, f32::INFINITY).is_some(),
+            // black_box: the record must be computed, not only tested for presence.
+            |o, d| black_box(tracer.closest_hit(o, d, 0.0, f32::INFINITY)).is_some(),
             |o, d| tracer.occluded(o, d, 0.0, f32::INFINITY),
         );
         let batched = measure_batched(&rays, &tracer);

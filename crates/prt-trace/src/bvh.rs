@@ -6,6 +6,7 @@ use glam::{UVec2, Vec2, Vec3, Vec3A};
 use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
 use obvhs::cwbvh::builder::build_cwbvh_from_tris;
+use obvhs::cwbvh::node::CwBvhNode;
 use obvhs::ray::Ray;
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
@@ -227,28 +228,36 @@ impl RayTracer {
         tmin: f32,
         tmax: f32,
     ) -> Option<SlotHit> {
+        self.closest_slot_with(origin, dir, tmin, tmax, CwBvhNode::intersect_ray)
+    }
+
+    /// [`RayTracer::closest_slot_inline`] with a given child-box test, which must return what
+    /// `CwBvhNode::intersect_ray` returns.
+    #[inline(always)]
+    fn closest_slot_with(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+        node_test: impl Fn(&CwBvhNode, &Ray, u32) -> u32,
+    ) -> Option<SlotHit> {
         let bvh = self.bvh.as_ref()?;
         let mut ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
         let tris = &self.tris;
         let mut best = None;
         let mut state = bvh.new_traversal(ray.direction);
         let mut node;
-        obvhs::traverse!(
-            bvh,
-            node,
-            state,
-            node.intersect_ray(&ray, state.oct_inv4),
-            {
-                let t = tris[state.primitive_id as usize].intersect(&ray);
-                if t < ray.tmax {
-                    best = Some(SlotHit {
-                        t,
-                        slot: state.primitive_id,
-                    });
-                    ray.tmax = t;
-                }
+        obvhs::traverse!(bvh, node, state, node_test(node, &ray, state.oct_inv4), {
+            let t = tris[state.primitive_id as usize].intersect(&ray);
+            if t < ray.tmax {
+                best = Some(SlotHit {
+                    t,
+                    slot: state.primitive_id,
+                });
+                ray.tmax = t;
             }
-        );
+        });
         best
     }
 
@@ -269,6 +278,20 @@ impl RayTracer {
     /// out like [`RayTracer::closest_slot_inline`].
     #[inline(always)]
     fn occluded_inline(&self, origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> bool {
+        self.occluded_with(origin, dir, tmin, tmax, CwBvhNode::intersect_ray)
+    }
+
+    /// [`RayTracer::occluded_inline`] with a given child-box test (see
+    /// [`RayTracer::closest_slot_with`]).
+    #[inline(always)]
+    fn occluded_with(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        tmin: f32,
+        tmax: f32,
+        node_test: impl Fn(&CwBvhNode, &Ray, u32) -> u32,
+    ) -> bool {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
@@ -278,18 +301,12 @@ impl RayTracer {
         let mut state = bvh.new_traversal(ray.direction);
         let mut node;
         'traversal: {
-            obvhs::traverse!(
-                bvh,
-                node,
-                state,
-                node.intersect_ray(&ray, state.oct_inv4),
-                {
-                    if tris[state.primitive_id as usize].intersect(&ray) < ray.tmax {
-                        occluded = true;
-                        break 'traversal;
-                    }
+            obvhs::traverse!(bvh, node, state, node_test(node, &ray, state.oct_inv4), {
+                if tris[state.primitive_id as usize].intersect(&ray) < ray.tmax {
+                    occluded = true;
+                    break 'traversal;
                 }
-            );
+            });
         }
         occluded
     }
@@ -329,27 +346,35 @@ impl RayTracer {
         }
     }
 
-    /// Closest hits of a chunk of rays into `out` (same length), on the baseline instruction set.
+    /// Closest hits of a chunk of rays into `out` (same length).
     #[inline(always)]
-    fn closest_hits_inline(
+    fn closest_hits_with(
         &self,
         rays: &[(Vec3, Vec3)],
         tmin: f32,
         tmax: f32,
         out: &mut [Option<Hit>],
+        node_test: impl Fn(&CwBvhNode, &Ray, u32) -> u32 + Copy,
     ) {
         for (o, &(origin, dir)) in out.iter_mut().zip(rays) {
             *o = self
-                .closest_slot_inline(origin, dir, tmin, tmax)
+                .closest_slot_with(origin, dir, tmin, tmax, node_test)
                 .map(|h| self.hit_record(h, origin, dir));
         }
     }
 
-    /// Occlusion of a chunk of rays into `out` (same length), on the baseline instruction set.
+    /// Occlusion of a chunk of rays into `out` (same length).
     #[inline(always)]
-    fn occluded_inline_batch(&self, rays: &[(Vec3, Vec3)], tmin: f32, tmax: f32, out: &mut [bool]) {
+    fn occluded_batch_with(
+        &self,
+        rays: &[(Vec3, Vec3)],
+        tmin: f32,
+        tmax: f32,
+        out: &mut [bool],
+        node_test: impl Fn(&CwBvhNode, &Ray, u32) -> u32 + Copy,
+    ) {
         for (o, &(origin, dir)) in out.iter_mut().zip(rays) {
-            *o = self.occluded_inline(origin, dir, tmin, tmax);
+            *o = self.occluded_with(origin, dir, tmin, tmax, node_test);
         }
     }
 
@@ -359,7 +384,9 @@ impl RayTracer {
         out.par_chunks_mut(BATCH_CHUNK)
             .zip(rays.par_chunks(BATCH_CHUNK))
             .for_each(|(out, rays)| match self.isa {
-                Isa::Baseline => self.closest_hits_inline(rays, tmin, tmax, out),
+                Isa::Baseline => {
+                    self.closest_hits_with(rays, tmin, tmax, out, CwBvhNode::intersect_ray)
+                }
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed
                 // every feature the function is compiled with.
@@ -374,7 +401,9 @@ impl RayTracer {
         out.par_chunks_mut(BATCH_CHUNK)
             .zip(rays.par_chunks(BATCH_CHUNK))
             .for_each(|(out, rays)| match self.isa {
-                Isa::Baseline => self.occluded_inline_batch(rays, tmin, tmax, out),
+                Isa::Baseline => {
+                    self.occluded_batch_with(rays, tmin, tmax, out, CwBvhNode::intersect_ray)
+                }
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: `Isa::X86V3` is only chosen after `x86_v3::detected()` confirmed
                 // every feature the function is compiled with.
@@ -389,14 +418,19 @@ const BATCH_CHUNK: usize = 256;
 
 /// The queries compiled for x86-64-v3 (AVX2, FMA, BMI1/2, LZCNT, POPCNT), chosen at run time.
 ///
-/// obvhs's traversal is written for SSE2 and is generic code that is compiled in this crate, so
-/// enabling the wider features on these wrappers recompiles it whole (VEX encoding, one-instruction
-/// `count_ones` / `leading_zeros` in the node-group bookkeeping) without a
-/// `-C target-cpu` for the whole build. No arithmetic is contracted or reordered (Rust emits no
-/// fast-math flags), so the results are bit-identical to the baseline's.
+/// obvhs's traversal is generic code compiled in this crate, so enabling the wider features on
+/// these wrappers recompiles it whole (VEX encoding, one-instruction `count_ones` /
+/// `leading_zeros` in the node-group bookkeeping) without a `-C target-cpu` for the whole
+/// build, and [`intersect_node`] tests all 8 child boxes of a node at once. No arithmetic is
+/// contracted or reordered (Rust emits no fast-math flags), so the results are bit-identical
+/// to the baseline's.
 #[cfg(target_arch = "x86_64")]
 mod x86_v3 {
-    use glam::Vec3;
+    use std::arch::x86_64::*;
+
+    use glam::{Vec3, Vec3A};
+    use obvhs::cwbvh::node::CwBvhNode;
+    use obvhs::ray::Ray;
 
     use super::{Hit, RayTracer, SlotHit};
 
@@ -410,6 +444,90 @@ mod x86_v3 {
             && is_x86_feature_detected!("popcnt")
     }
 
+    /// obvhs's lower bound on box entry distances (`cwbvh::node::EPSILON`, crate-private).
+    const BOX_EPSILON: f32 = 0.0001;
+
+    /// `CwBvhNode::intersect_ray` on 8 lanes: obvhs tests the 8 quantised child boxes 4 at a
+    /// time and gathers the hit mask with a branch per child; here one 256-bit pass does the
+    /// same IEEE operations in the same order (so the same bits) and the mask is gathered
+    /// without branches (variable shifts and an OR reduction).
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    #[inline]
+    pub(super) fn intersect_node(node: &CwBvhNode, ray: &Ray, oct_inv4: u32) -> u32 {
+        let extent = Vec3A::new(
+            f32::from_bits(u32::from(node.e[0]) << 23),
+            f32::from_bits(u32::from(node.e[1]) << 23),
+            f32::from_bits(u32::from(node.e[2]) << 23),
+        );
+        let scale = extent * ray.inv_direction;
+        let offset = (Vec3A::from(node.p) - ray.origin) * ray.inv_direction;
+        // 8 quantised planes as f32 lanes.
+        let planes = |q: [u8; 8]| {
+            _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_cvtsi64_si128(i64::from_le_bytes(
+                q,
+            ))))
+        };
+        // Entry and exit distances along one axis: the near plane is the max plane when the
+        // ray runs towards -axis.
+        let axis = |lo: [u8; 8], hi: [u8; 8], negative: bool, scale: f32, offset: f32| {
+            let (near, far) = if negative { (hi, lo) } else { (lo, hi) };
+            let (s, o) = (_mm256_set1_ps(scale), _mm256_set1_ps(offset));
+            (
+                _mm256_add_ps(_mm256_mul_ps(planes(near), s), o),
+                _mm256_add_ps(_mm256_mul_ps(planes(far), s), o),
+            )
+        };
+        let d = ray.direction;
+        let (x0, x1) = axis(
+            node.child_min_x,
+            node.child_max_x,
+            d.x < 0.0,
+            scale.x,
+            offset.x,
+        );
+        let (y0, y1) = axis(
+            node.child_min_y,
+            node.child_max_y,
+            d.y < 0.0,
+            scale.y,
+            offset.y,
+        );
+        let (z0, z1) = axis(
+            node.child_min_z,
+            node.child_max_z,
+            d.z < 0.0,
+            scale.z,
+            offset.z,
+        );
+        let enter = _mm256_max_ps(x0, _mm256_max_ps(y0, z0));
+        let exit = _mm256_min_ps(x1, _mm256_min_ps(y1, z1));
+        let enter = _mm256_max_ps(enter, _mm256_set1_ps(BOX_EPSILON));
+        let exit = _mm256_min_ps(exit, _mm256_set1_ps(ray.tmax));
+        let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OS>(enter, exit));
+
+        let (child_bits8, bit_index8) = node.get_child_and_index_bits(oct_inv4);
+        let lanes = |v: u64| _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(v as i64));
+        let bits = _mm256_and_si256(
+            _mm256_sllv_epi32(lanes(child_bits8), lanes(bit_index8)),
+            hit,
+        );
+        let bits = _mm_or_si128(
+            _mm256_castsi256_si128(bits),
+            _mm256_extracti128_si256::<1>(bits),
+        );
+        let bits = _mm_or_si128(bits, _mm_shuffle_epi32::<0b01_00_11_10>(bits));
+        let bits = _mm_or_si128(bits, _mm_shuffle_epi32::<0b10_11_00_01>(bits));
+        _mm_cvtsi128_si32(bits) as u32
+    }
+
+    /// [`intersect_node`] as the traversal's child-box test (a `#[target_feature]` function
+    /// is not an `Fn`; a closure defined here inherits the features).
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    #[inline]
+    fn node_test() -> impl Fn(&CwBvhNode, &Ray, u32) -> u32 + Copy {
+        |node, ray, oct| intersect_node(node, ray, oct)
+    }
+
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
     pub(super) fn closest_slot(
         tracer: &RayTracer,
@@ -418,7 +536,7 @@ mod x86_v3 {
         tmin: f32,
         tmax: f32,
     ) -> Option<SlotHit> {
-        tracer.closest_slot_inline(origin, dir, tmin, tmax)
+        tracer.closest_slot_with(origin, dir, tmin, tmax, node_test())
     }
 
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
@@ -429,7 +547,7 @@ mod x86_v3 {
         tmin: f32,
         tmax: f32,
     ) -> bool {
-        tracer.occluded_inline(origin, dir, tmin, tmax)
+        tracer.occluded_with(origin, dir, tmin, tmax, node_test())
     }
 
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
@@ -440,7 +558,7 @@ mod x86_v3 {
         tmax: f32,
         out: &mut [Option<Hit>],
     ) {
-        tracer.closest_hits_inline(rays, tmin, tmax, out);
+        tracer.closest_hits_with(rays, tmin, tmax, out, node_test());
     }
 
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
@@ -451,7 +569,7 @@ mod x86_v3 {
         tmax: f32,
         out: &mut [bool],
     ) {
-        tracer.occluded_inline_batch(rays, tmin, tmax, out);
+        tracer.occluded_batch_with(rays, tmin, tmax, out, node_test());
     }
 }
 
@@ -545,6 +663,48 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The 8-wide child-box test returns obvhs's hit mask on every node of a BVH over a random
+    /// triangle soup, for rays from inside and outside it with infinite and finite `tmax`.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn eight_wide_node_test_matches_obvhs_on_every_node() {
+        if !x86_v3::detected() {
+            eprintln!("this CPU lacks x86-64-v3: the 8-wide node test cannot run here");
+            return;
+        }
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut point = || Vec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0;
+        let soup: Vec<[Vec3; 3]> = (0..3000)
+            .map(|_| {
+                let c = point();
+                [c, c + point() * 0.1, c + point() * 0.1]
+            })
+            .collect();
+        let tracer = RayTracer::new(&soup);
+        let Some(bvh) = tracer.bvh.as_ref() else {
+            panic!("the soup has triangles")
+        };
+        assert!(bvh.nodes.len() > 100);
+        let (mut tested, mut hit) = (0usize, 0usize);
+        for (o, d) in rays(300, 13) {
+            for tmax in [f32::INFINITY, 0.3] {
+                let ray = Ray::new(o.into(), d.into(), 0.0, tmax);
+                let oct = bvh.new_traversal(ray.direction).oct_inv4;
+                for node in &bvh.nodes {
+                    // SAFETY: `detected()` confirmed the features `intersect_node` needs.
+                    let ours = unsafe { x86_v3::intersect_node(node, &ray, oct) };
+                    assert_eq!(ours, node.intersect_ray(&ray, oct));
+                    tested += 1;
+                    hit += usize::from(ours != 0);
+                }
+            }
+        }
+        assert!(
+            hit > tested / 1000 && hit < tested,
+            "{hit} of {tested} nodes hit"
+        );
     }
 
     /// The written-out traversals return exactly what obvhs's own `ray_traverse` and
