@@ -3,7 +3,26 @@
 use std::path::Path;
 
 use prt_core::NoProgress;
-use prt_trace::{RayTracer, Scene, Vpl, VplOptions, trace_vpls};
+use prt_trace::{LoadOptions, RayTracer, Scene, Vpl, VplOptions, trace_vpls};
+
+/// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
+/// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is
+/// unknown or cannot be loaded.
+pub fn load_scene(name: &str, manifest: &Path) -> Option<Scene> {
+    match name {
+        "cornell" => Some(Scene::cornell_box()),
+        "sponza" => {
+            let path = manifest.join("../../shared/scenes/sponza/Sponza.gltf");
+            Scene::load_gltf(&path, &LoadOptions::default())
+                .map_err(|e| eprintln!("skipping Sponza: {e}"))
+                .ok()
+        }
+        other => {
+            eprintln!("unknown scene {other} (cornell or sponza)");
+            None
+        }
+    }
+}
 
 /// About `target` VPLs (two bounces, seed 1): a pilot run of 2000 particles measures VPLs per
 /// particle. Panics on a scene without lights (a sweep's setup error).

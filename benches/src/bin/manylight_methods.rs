@@ -4,26 +4,28 @@
 //!
 //! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE]`
 //!
-//! `SCENE` is `cornell` (prt-trace's VPL oracle; the brute-force image is cached in
-//! `target/manylight_cache/` and shared with `manylight_scene`) or `synthetic`
+//! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
+//! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
+//! columns is cached in `target/manylight_cache/` and shared with `manylight_scene`) or `synthetic`
 //! (`SyntheticVplOracle`, `CLAMP` unused). Visibility clustering also evaluates the unshadowed
 //! shading of every pixel against every light (no shadow rays), reported separately. `IMAGE`
 //! (a PNG path) gets reference | row-column | LightSlice at 300 / 900 for the first seed.
 //! `METHODS` (optional, after `IMAGE`, `-` for no image): comma-separated subset of `rowcol`,
-//! `slice`, `vis`, `kmeans` (default all).
+//! `rowcol-skip`, `slice`, `slice-skip` (the `-skip` variants with `UnseenLights::Skip`), `vis`,
+//! `kmeans` (default `rowcol,slice,vis,kmeans`).
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{trace_about, write_strip};
+use prt_benches::manylight::{load_scene, trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_manylight::{
     GatherGeometry, LightSliceConfig, RowColumnConfig, SliceOracle, SyntheticVplOracle,
-    VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
-    row_column_sampling, visibility_clustering,
+    UnseenLights, VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force,
+    light_slice, row_column_sampling, visibility_clustering,
 };
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOracle};
+use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
 use rayon::prelude::*;
 
 /// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
@@ -84,7 +86,14 @@ impl VisibilityOracle for SceneOracle<'_> {
     }
 }
 
-const CONFIGS: [(usize, usize); 4] = [(100, 200), (300, 900), (432, 864), (600, 1200)];
+const CONFIGS: [(usize, usize); 6] = [
+    (100, 200),
+    (300, 900),
+    (432, 864),
+    (400, 1300),
+    (600, 1200),
+    (900, 1800),
+];
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -101,7 +110,9 @@ fn main() {
             .unwrap_or("rowcol,slice,vis,kmeans");
         [
             ("rowcol", "row-column"),
+            ("rowcol-skip", "row-column (skip unseen)"),
             ("slice", "LightSlice"),
+            ("slice-skip", "LightSlice (skip unseen)"),
             ("vis", "visibility (split)"),
             ("kmeans", "visibility (k-means)"),
         ]
@@ -112,25 +123,41 @@ fn main() {
     };
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     match scene_name {
-        "cornell" => {
-            let scene = Scene::cornell_box();
+        "cornell" | "sponza" => {
+            let Some(scene) = load_scene(scene_name, manifest) else {
+                return;
+            };
             let tracer = RayTracer::new(scene.triangles());
             let vpls = trace_about(&scene, &tracer, target_vpls);
+            let directional =
+                directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene");
             let view = PinholeView::for_scene(&scene).expect("non-empty scene");
             let gbuffer =
                 GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite");
-            let (n, m) = (inner.rows(), inner.cols());
             let cache = manifest.join("../target/manylight_cache");
             std::fs::create_dir_all(&cache).expect("cache folder");
-            let file = cache.join(format!("cornell_{width}_{m}_{clamp}.bin"));
+            let file = cache.join(format!("{scene_name}_{width}_{}_{clamp}.bin", vpls.len()));
             let start = Instant::now();
-            let reference = inner
+            let mut reference = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+                .expect("finite")
                 .reference_image_cached(&file, &NoProgress)
                 .expect("reference image");
+            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+                .and_then(|o| o.with_directional(&directional))
+                .expect("finite");
+            let (n, m) = (inner.rows(), inner.cols());
+            let mut column = vec![0.0f32; 3 * n];
+            for j in vpls.len()..m {
+                inner.eval_col(j, &mut column).expect("directional column");
+                for (r, &c) in reference.iter_mut().zip(&column) {
+                    *r += c;
+                }
+            }
             println!(
-                "Cornell box: {width} × {width} pixels, {m} VPLs, clamp {clamp}, {} threads; \
-                 brute force {} ({:.3e} elements; 0 s when cached)\n",
+                "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, clamp \
+                 {clamp}, {} threads; brute force {} ({:.3e} elements; VPL columns cached)\n",
+                vpls.len(),
+                directional.len(),
                 rayon::current_num_threads(),
                 fmt_duration(start.elapsed()),
                 (n * m) as f64
@@ -167,7 +194,7 @@ fn main() {
                 &selected,
             );
         }
-        other => eprintln!("unknown scene {other} (cornell or synthetic)"),
+        other => eprintln!("unknown scene {other} (cornell, sponza or synthetic)"),
     }
 }
 
@@ -200,13 +227,19 @@ fn compare<O: SliceOracle + VisibilityOracle>(
             let start = Instant::now();
             for seed in 0..seeds {
                 let (image, e) = match method {
-                    "row-column" => {
-                        let c = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
+                    "row-column" | "row-column (skip unseen)" => {
+                        let mut c = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
+                        if method.contains("skip") {
+                            c = c.with_unseen(UnseenLights::Skip);
+                        }
                         let r = row_column_sampling(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }
-                    "LightSlice" => {
-                        let c = LightSliceConfig::new(rows, columns).with_seed(seed + 7);
+                    "LightSlice" | "LightSlice (skip unseen)" => {
+                        let mut c = LightSliceConfig::new(rows, columns).with_seed(seed + 7);
+                        if method.contains("skip") {
+                            c = c.with_unseen(UnseenLights::Skip);
+                        }
                         let r = light_slice(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }
@@ -220,13 +253,14 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         (r.image, r.elements)
                     }
                 };
-                elements = e;
+                elements += e;
                 errors.push(relative_frobenius_error(&image, reference).expect("same size"));
                 if seed == 0 {
                     images.push(image);
                 }
             }
             let time = start.elapsed() / seeds.max(1) as u32;
+            let elements = elements / seeds.max(1);
             let mean = errors.iter().sum::<f64>() / errors.len() as f64;
             let max = errors.iter().copied().fold(0.0, f64::max);
             let elements_cell = if extra > 0 {

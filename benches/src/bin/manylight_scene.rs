@@ -2,26 +2,34 @@
 //! Sponza) against the brute-force image: relative RMS error vs elements evaluated, for several
 //! VPL clamp distances (the clamp decides how spiky the matrix is).
 //!
-//! `cargo run --release -p prt-benches --bin manylight_scene -- SCENE WIDTH VPLS CLAMPS [SEEDS] [IMAGE]`
+//! `cargo run --release -p prt-benches --bin manylight_scene -- SCENE WIDTH VPLS CLAMPS [SEEDS] [IMAGE] [UNSEEN] [LIGHT]`
 //!
 //! * `SCENE`: `cornell` (built-in box, lit by its ceiling quad) or `sponza`
 //!   (`../shared/scenes/sponza`, sun and sky);
 //! * `WIDTH`: the image is `WIDTH × WIDTH`; `VPLS`: about this many VPLs (particles with 2
 //!   bounces); `CLAMPS`: comma-separated clamp distances in scene units;
 //! * `SEEDS` (default 2): seeds per configuration (mean and max of the error);
-//! * `IMAGE`: a PNG path: reference | row-column 300/900 | 10× error, for the first clamp.
+//! * `IMAGE`: a PNG path (`-` for none): reference | row-column 300/900 | 10× error, for the
+//!   first clamp;
+//! * `UNSEEN`: comma-separated treatments of lights no sampled row sees, `sample` (default,
+//!   unbiased) and/or `skip` (the paper's estimator), `prt_manylight::UnseenLights`;
+//! * `LIGHT`: `direct` (default) adds the direct light of the sun and sky as columns (the sun
+//!   and 1024 sky directions, `prt_trace::directional_lights`; none for the Cornell box, whose
+//!   direct light is its emitter VPLs); `indirect` leaves the matrix to the VPLs alone, so a
+//!   sun-and-sky scene then has no direct light.
 //!
-//! Brute-force images are cached in `target/manylight_cache/` (keyed by shape and fingerprint),
-//! so that only the first run of a (scene, size, VPLs, clamp) pays for them.
+//! Brute-force images of the VPL columns are cached in `target/manylight_cache/` (keyed by shape
+//! and fingerprint), so that only the first run of a (scene, size, VPLs, clamp) pays for them;
+//! the directional columns' share of the reference is evaluated column by column on every run.
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{trace_about, write_strip};
+use prt_benches::manylight::{load_scene, trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
-use prt_manylight::{RowColumnConfig, row_column_sampling};
-use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene, VplOracle};
+use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
+use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
 
 const CONFIGS: [(usize, usize); 6] = [
     (100, 200),
@@ -31,6 +39,10 @@ const CONFIGS: [(usize, usize); 6] = [
     (600, 1200),
     (900, 1800),
 ];
+
+fn norm(v: &[f32]) -> f64 {
+    v.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt()
+}
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -42,74 +54,100 @@ fn main() {
         .map(|a| a.split(',').filter_map(|c| c.parse().ok()).collect())
         .unwrap_or_else(|| vec![0.05]);
     let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
-    let image_path = args.get(5).map(PathBuf::from);
+    let image_path = args.get(5).filter(|a| *a != "-").map(PathBuf::from);
+    let policies: Vec<(&str, UnseenLights)> = {
+        let wanted = args.get(6).map(String::as_str).unwrap_or("sample");
+        [
+            ("sample", UnseenLights::Sample),
+            ("skip", UnseenLights::Skip),
+        ]
+        .into_iter()
+        .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
+        .collect()
+    };
+    let direct = args.get(7).map(String::as_str) != Some("indirect");
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let scene = match scene_name {
-        "cornell" => Scene::cornell_box(),
-        "sponza" => {
-            let path = manifest.join("../../shared/scenes/sponza/Sponza.gltf");
-            match Scene::load_gltf(&path, &LoadOptions::default()) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("skipping Sponza: {e}");
-                    return;
-                }
-            }
-        }
-        other => {
-            eprintln!("unknown scene {other} (cornell or sponza)");
-            return;
-        }
+    let Some(scene) = load_scene(scene_name, manifest) else {
+        return;
     };
     let tracer = RayTracer::new(scene.triangles());
     let vpls = trace_about(&scene, &tracer, target_vpls);
+    let directional = if direct {
+        directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene")
+    } else {
+        Vec::new()
+    };
     let view = PinholeView::for_scene(&scene).expect("non-empty scene");
     let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
     let cache = manifest.join("../target/manylight_cache");
     std::fs::create_dir_all(&cache).expect("cache folder");
     println!(
-        "{scene_name}: {width} × {width} pixels, {} VPLs, {} threads",
+        "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, {} threads",
         vpls.len(),
+        directional.len(),
         rayon::current_num_threads()
     );
 
     let mut table = Table::new(&[
         "clamp",
+        "unseen lights",
         "rows / columns",
         "elements",
         "fewer elements than brute force",
         "time (mean)",
         "relative RMS error (mean of seeds)",
         "max over seeds",
+        "unseen lights (mean)",
     ]);
     for (c, &clamp) in clamps.iter().enumerate() {
-        let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite input");
-        let (n, m) = (oracle.rows(), oracle.cols());
-        let file = cache.join(format!("{scene_name}_{width}_{m}_{clamp}.bin"));
+        let vpl_oracle =
+            VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite input");
+        let file = cache.join(format!("{scene_name}_{width}_{}_{clamp}.bin", vpls.len()));
         let start = Instant::now();
-        let reference = oracle
+        let mut reference = vpl_oracle
             .reference_image_cached(&file, &NoProgress)
             .expect("reference image");
+        let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+            .and_then(|o| o.with_directional(&directional))
+            .expect("finite input");
+        let (n, m) = (oracle.rows(), oracle.cols());
+        let indirect_norm = norm(&reference);
+        let mut column = vec![0.0f32; 3 * n];
+        for j in vpls.len()..m {
+            oracle.eval_col(j, &mut column).expect("directional column");
+            for (r, &c) in reference.iter_mut().zip(&column) {
+                *r += c;
+            }
+        }
+        println!(
+            "clamp {clamp}: ‖indirect (VPL columns)‖ / ‖reference‖ = {:.4}",
+            indirect_norm / norm(&reference)
+        );
         println!(
             "clamp {clamp}: brute force {} ({:.3e} elements; 0 s when cached)",
             fmt_duration(start.elapsed()),
             (n * m) as f64
         );
         let brute = (n * m) as f64;
-        for (rows, columns) in CONFIGS {
+        for ((policy_name, policy), (rows, columns)) in policies
+            .iter()
+            .flat_map(|&p| CONFIGS.into_iter().map(move |c| (p, c)))
+        {
             if rows > n || columns > m {
                 continue;
             }
-            let mut errors = Vec::new();
-            let mut elements = 0;
+            let (mut errors, mut elements, mut unseen) = (Vec::new(), 0u64, 0usize);
             let start = Instant::now();
             let mut first_image = None;
             for seed in 0..seeds {
-                let config = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
+                let config = RowColumnConfig::new(rows, columns)
+                    .with_seed(seed + 7)
+                    .with_unseen(policy);
                 let estimate =
                     row_column_sampling(&oracle, &config, &NoProgress).expect("valid config");
-                elements = estimate.elements;
+                elements += estimate.elements;
+                unseen += estimate.unseen_lights;
                 errors.push(
                     relative_frobenius_error(&estimate.image, &reference)
                         .expect("images of equal size"),
@@ -118,17 +156,21 @@ fn main() {
                     first_image = Some(estimate.image);
                 }
             }
-            let time = start.elapsed() / seeds.max(1) as u32;
+            let runs = seeds.max(1);
+            let time = start.elapsed() / runs as u32;
+            let elements = elements as f64 / runs as f64;
             let mean = errors.iter().sum::<f64>() / errors.len() as f64;
             let max = errors.iter().copied().fold(0.0, f64::max);
             table.row(vec![
                 format!("{clamp}"),
+                policy_name.to_string(),
                 format!("{rows} / {columns}"),
-                format!("{:.3e}", elements as f64),
-                format!("{:.1}×", brute / elements as f64),
+                format!("{elements:.3e}"),
+                format!("{:.1}×", brute / elements),
                 fmt_duration(time),
                 format!("{:.2}%", 100.0 * mean),
                 format!("{:.2}%", 100.0 * max),
+                format!("{:.0}", unseen as f64 / runs as f64),
             ]);
             if let (0, (300, 900), Some(path), Some(image)) =
                 (c, (rows, columns), &image_path, first_image)

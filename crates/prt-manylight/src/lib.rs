@@ -10,7 +10,9 @@
 //!   Many-Light Problem" (SIGGRAPH 2007): a few hundred sampled rows give a reduced matrix;
 //!   lights are clustered by their reduced columns ([`cluster_columns`], cost [`cluster_cost`]);
 //!   one full column per cluster, drawn proportionally to its reduced norm and weighted by the
-//!   inverse probability, gives an unbiased image estimate.
+//!   inverse probability, gives an unbiased image estimate. Lights that no sampled row sees are
+//!   drawn uniformly (unbiased, [`UnseenLights::Sample`]) or skipped as in the paper
+//!   ([`UnseenLights::Skip`]: unbiased for the seen lights, no heavy tail from unseen ones).
 //! * [`tensor_clustering`] — Hašan, Velázquez-Armendáriz, Pellacini and Bala, "Tensor
 //!   Clustering for Rendering Many-Light Animations" (EGSR 2008): rows sampled in every frame of
 //!   an animation, rectangular clusters (lights × frame range) split in lights or in time by
@@ -62,7 +64,8 @@ pub use lightslice::{
 };
 pub use reduced::{ReducedMatrix, stratified_rows};
 pub use rowcol::{
-    Representative, RowColumnConfig, RowColumnEstimate, brute_force, row_column_sampling,
+    Representative, RowColumnConfig, RowColumnEstimate, UnseenLights, brute_force,
+    row_column_sampling,
 };
 pub use synthetic::SyntheticVplOracle;
 pub use tensor::{TensorCluster, TensorConfig, TensorEstimate, tensor_clustering};

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::cluster::split_until;
 use crate::reduced::{check_requests, check_shape};
-use crate::{ManyLightError, ReducedMatrix, cluster_columns};
+use crate::{ManyLightError, ReducedMatrix, UnseenLights, cluster_columns};
 
 /// A [`MatrixOracle`] that LightSlice can slice: it evaluates a column on a subset of rows
 /// only, and may tell where each row's gather point is so that slices group pixels of similar
@@ -77,6 +77,8 @@ pub struct LightSliceConfig {
     pub split_lines: usize,
     /// Seed of every random choice.
     pub seed: u64,
+    /// The treatment of lights that no sampled row sees (as in row-column sampling).
+    pub unseen: UnseenLights,
 }
 
 impl LightSliceConfig {
@@ -90,12 +92,18 @@ impl LightSliceConfig {
             neighbours: 8,
             split_lines: 3,
             seed: 0,
+            unseen: UnseenLights::Sample,
         }
     }
 
     /// The same configuration with another seed.
     pub fn with_seed(self, seed: u64) -> Self {
         Self { seed, ..self }
+    }
+
+    /// The same configuration with another treatment of unseen lights.
+    pub fn with_unseen(self, unseen: UnseenLights) -> Self {
+        Self { unseen, ..self }
     }
 }
 
@@ -108,7 +116,8 @@ pub struct LightSliceEstimate {
     pub rows: Vec<usize>,
     /// The rows of every slice, each in increasing order.
     pub slices: Vec<Vec<usize>>,
-    /// Representative columns rendered per slice.
+    /// Representative columns rendered per slice (without the skipped clusters of unseen lights
+    /// with [`UnseenLights::Skip`]).
     pub clusters_per_slice: Vec<usize>,
     /// Matrix elements evaluated: `slices × cols` for the reduced matrix plus, per slice, its
     /// rows times its representatives.
@@ -136,13 +145,14 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///    whose centroids are nearest to its own (itself included), up to `local_clusters`: each
 ///    slice gets the clustering that fits its part of the image.
 /// 4. Each local cluster draws one representative proportionally to its reduced norm over all
-///    sampled rows (uniformly in a cluster of zero columns), as the authors' implementation
-///    does — the local rows decide the clusters, the global norms are the robust importance —
-///    and the slice's pixels of its column, scaled by the inverse probability, are added to
-///    the slice.
+///    sampled rows (uniformly in a cluster of zero columns, which [`UnseenLights::Skip`] skips
+///    instead), as the authors' implementation does — the local rows decide the clusters, the
+///    global norms are the robust importance — and the slice's pixels of its column, scaled by
+///    the inverse probability, are added to the slice.
 ///
-/// Unbiased given the rows and clusterings (every light has a non-zero probability and its
-/// inverse as weight); exact when `local_clusters == cols`. The cost is
+/// Unbiased given the rows and clusterings with [`UnseenLights::Sample`] (every light has a
+/// non-zero probability and its inverse as weight; with `Skip`, unbiased for the seen lights'
+/// columns); exact when `local_clusters == cols`. The cost is
 /// `slices × cols + local_clusters × rows` elements, the same as row-column sampling with
 /// `slices` rows and `local_clusters` columns, but the clusters adapt to each slice. Slices are
 /// processed in parallel, each with its own generator derived from the seed, so a seed gives
@@ -212,8 +222,13 @@ pub fn light_slice(
             )?;
             let mut acc = vec![0.0f64; pixels.len() * channels];
             let mut column = vec![0.0f32; pixels.len() * channels];
+            let mut rendered = 0;
             for members in &clusters {
                 let (j, weight) = pick_global(members, global_norms, &mut rng);
+                if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
+                    continue;
+                }
+                rendered += 1;
                 oracle.eval_col_rows(j, pixels, &mut column)?;
                 if let Some(k) = column.iter().position(|v| !v.is_finite()) {
                     return Err(ManyLightError::NonFinite {
@@ -227,7 +242,7 @@ pub fn light_slice(
                 }
             }
             progress.inc(1);
-            Ok((acc.into_iter().map(|a| a as f32).collect(), clusters.len()))
+            Ok((acc.into_iter().map(|a| a as f32).collect(), rendered))
         })
         .collect::<Result<_, ManyLightError>>()?;
     let mut image = vec![0.0f32; n * channels];

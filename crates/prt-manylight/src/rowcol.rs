@@ -9,6 +9,25 @@ use crate::{Clustering, ManyLightError, ReducedMatrix, cluster_columns, stratifi
 /// Columns evaluated together (in parallel) before they are accumulated in order.
 const COLUMN_BATCH: usize = 32;
 
+/// What [`row_column_sampling`] does with *unseen* lights, whose reduced column is zero (no
+/// sampled row sees them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum UnseenLights {
+    /// Keep them in clusters of their own, each represented by one light drawn uniformly and
+    /// weighted by the cluster's size: the estimate stays unbiased, but one unseen light that
+    /// does light part of the image is then scaled by the number of unseen lights (tens of
+    /// thousands in a scene whose view sees a small part of the lit geometry), a heavy tail.
+    #[default]
+    Sample,
+    /// Never draw them, as the paper's estimator does (a representative is drawn with
+    /// probability `‖ρ_j‖ / Σ_C ‖ρ‖`, zero for an unseen light): the image then estimates,
+    /// without bias, the sum of the *seen* lights' columns and misses the unseen lights'
+    /// contribution (light that reaches only pixels between the sampled rows). Exact in
+    /// expectation when every non-zero column is seen, e.g. when all rows are sampled.
+    Skip,
+}
+
 /// The knobs of [`row_column_sampling`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RowColumnConfig {
@@ -22,6 +41,8 @@ pub struct RowColumnConfig {
     pub split_lines: usize,
     /// Seed of every random choice (rows, centres, projections, representatives).
     pub seed: u64,
+    /// The treatment of lights that no sampled row sees.
+    pub unseen: UnseenLights,
 }
 
 impl RowColumnConfig {
@@ -32,12 +53,18 @@ impl RowColumnConfig {
             columns,
             split_lines: 3,
             seed: 0,
+            unseen: UnseenLights::Sample,
         }
     }
 
     /// The same configuration with another seed.
     pub fn with_seed(self, seed: u64) -> Self {
         Self { seed, ..self }
+    }
+
+    /// The same configuration with another treatment of unseen lights.
+    pub fn with_unseen(self, unseen: UnseenLights) -> Self {
+        Self { unseen, ..self }
     }
 }
 
@@ -64,11 +91,14 @@ pub struct RowColumnEstimate {
     pub clustering: Clustering,
     /// The total [`crate::cluster_cost`] of the clustering on the sampled rows.
     pub clustering_cost: f64,
-    /// One representative per cluster, in cluster order.
+    /// One representative per cluster, in cluster order (none for the clusters of unseen
+    /// lights with [`UnseenLights::Skip`]).
     pub representatives: Vec<Representative>,
     /// Matrix elements evaluated: `rows × cols` for the reduced matrix plus `rows_total`
     /// per representative.
     pub elements: u64,
+    /// Lights whose reduced column is zero (seen by no sampled row).
+    pub unseen_lights: usize,
 }
 
 /// Many-light rendering by matrix row-column sampling (Hasan, Pellacini and Bala, "Matrix
@@ -80,12 +110,17 @@ pub struct RowColumnEstimate {
 /// 2. clusters the lights by their reduced columns ([`cluster_columns`]): sampling clustering
 ///    then top-down splits by random projection, minimising `Σ ‖ρ_i‖‖ρ_j‖‖ρ̂_i − ρ̂_j‖²`;
 /// 3. draws one representative per cluster with probability `‖ρ_j‖ / Σ_C ‖ρ‖` and adds its
-///    full column scaled by `Σ_C ‖ρ‖ / ‖ρ_j‖` (a cluster of zero reduced columns draws uniformly
-///    and scales by its size).
+///    full column scaled by `Σ_C ‖ρ‖ / ‖ρ_j‖`. Unseen lights (zero reduced columns) are clustered
+///    apart; with [`UnseenLights::Sample`] (the default) each of their clusters draws uniformly
+///    and scales by its size, with [`UnseenLights::Skip`] (the paper's estimator) they are
+///    never drawn and cost no column.
 ///
-/// Given the rows and the clustering, the estimate is unbiased: every light has a non-zero
-/// probability of representing its cluster and its weight is the inverse of that probability.
-/// With `columns == cols` every cluster is one light of weight 1 and the result is exact.
+/// Given the rows and the clustering, the estimate is unbiased with [`UnseenLights::Sample`]:
+/// every light has a non-zero probability of representing its cluster and its weight is the
+/// inverse of that probability. With [`UnseenLights::Skip`] it is an unbiased estimate of the
+/// seen lights' columns only. With `columns == cols` every cluster is one light of weight 1 and
+/// the result is exact (a skipped unseen light then has a zero column on the sampled rows, which
+/// are all rows when `rows == rows_total`).
 ///
 /// Work is `rows × cols + columns × rows_total` element evaluations (`elements` in the result),
 /// rows and columns evaluated in parallel. The result depends only on the oracle and the
@@ -118,7 +153,13 @@ pub fn row_column_sampling(
         progress,
     )?;
     let clustering_cost = clustering.cost(&reduced);
-    let representatives = pick_representatives(&reduced, &clustering, &mut rng);
+    let mut representatives = pick_representatives(&reduced, &clustering, &mut rng);
+    let unseen_lights = reduced.norms().iter().filter(|&&a| a == 0.0).count();
+    if config.unseen == UnseenLights::Skip {
+        // Drawn after every other choice, so that Skip and Sample share rows, clusters and the
+        // seen clusters' representatives for a seed.
+        representatives.retain(|r| reduced.norms()[r.column] > 0.0);
+    }
     progress.message("row-column sampling: representative columns");
     let image = accumulate_columns(oracle, &representatives, progress)?;
     let elements = (reduced.rows().len() * m) as u64 + (representatives.len() * n) as u64;
@@ -130,6 +171,7 @@ pub fn row_column_sampling(
         clustering_cost,
         representatives,
         elements,
+        unseen_lights,
     })
 }
 

@@ -3,7 +3,8 @@
 use ndarray::Array2;
 use prt_core::{DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
-    LightSliceConfig, ManyLightError, SliceOracle, SyntheticVplOracle, brute_force, light_slice,
+    LightSliceConfig, ManyLightError, SliceOracle, SyntheticVplOracle, UnseenLights, brute_force,
+    light_slice,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -72,6 +73,53 @@ fn check_unbiased(oracle: &dyn SliceOracle, config: LightSliceConfig, runs: u64)
             "pixel value {k}: {m} vs {}",
             exact[k]
         );
+    }
+}
+
+#[test]
+fn skipping_unseen_lights_sums_exactly_the_seen_columns() {
+    // Odd columns are spikes on one row each; with 5 slices of 40 rows most are unseen.
+    let mut data = dense(40, 30, 3).data().clone();
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    for j in (1..30).step_by(2) {
+        let hit = rng.random_range(0..40);
+        for i in 0..40 {
+            for c in 0..3 {
+                data[[i, j * 3 + c]] = if i == hit { 4.0 } else { 0.0 };
+            }
+        }
+    }
+    let oracle = DenseOracle::new(data.clone(), 3).unwrap();
+    for seed in 0..3 {
+        let config = LightSliceConfig::new(5, 30)
+            .with_seed(seed)
+            .with_unseen(UnseenLights::Skip);
+        let estimate = light_slice(&oracle, &config, &NoProgress).unwrap();
+        let seen: Vec<bool> = (0..30)
+            .map(|j| {
+                estimate
+                    .rows
+                    .iter()
+                    .any(|&i| (0..3).any(|c| data[[i, j * 3 + c]] != 0.0))
+            })
+            .collect();
+        let seen_count = seen.iter().filter(|&&s| s).count();
+        assert!(
+            seen_count < 25,
+            "most spikes fall between the 5 sampled rows"
+        );
+        assert!(estimate.clusters_per_slice.iter().all(|&c| c == seen_count));
+        assert_eq!(estimate.elements, (5 * 30 + 40 * seen_count) as u64);
+        for i in 0..40 {
+            for c in 0..3 {
+                let want: f64 = (0..30)
+                    .filter(|&j| seen[j])
+                    .map(|j| data[[i, j * 3 + c]] as f64)
+                    .sum();
+                let got = estimate.image[i * 3 + c] as f64;
+                assert!((got - want).abs() < 1e-4 * (1.0 + want), "{got} vs {want}");
+            }
+        }
     }
 }
 

@@ -6,7 +6,7 @@ use ndarray::Array2;
 use proptest::prelude::*;
 use prt_core::{AtomicProgress, CoreError, DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
-    ManyLightError, ReducedMatrix, RowColumnConfig, SyntheticVplOracle, brute_force,
+    ManyLightError, ReducedMatrix, RowColumnConfig, SyntheticVplOracle, UnseenLights, brute_force,
     cluster_columns, cluster_cost, row_column_sampling, split_cluster, stratified_rows,
 };
 use rand::{Rng, SeedableRng};
@@ -111,10 +111,78 @@ fn check_unbiased(oracle: &dyn MatrixOracle, config: RowColumnConfig, runs: u64)
     );
 }
 
+/// A `rows × cols` RGB matrix whose odd columns are spikes (one non-zero row each) over a
+/// dense low-rank background in the even columns.
+fn spiky(rows: usize, cols: usize, seed: u64) -> DenseOracle {
+    let mut data = dense(rows, cols, 2, seed).data().clone();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed + 100);
+    for j in (1..cols).step_by(2) {
+        let hit = rng.random_range(0..rows);
+        for i in 0..rows {
+            for c in 0..3 {
+                data[[i, j * 3 + c]] = if i == hit { 5.0 + c as f32 } else { 0.0 };
+            }
+        }
+    }
+    DenseOracle::new(data, 3).unwrap()
+}
+
+#[test]
+fn skipping_unseen_lights_sums_exactly_the_seen_columns() {
+    let oracle = spiky(40, 30, 11);
+    let data = oracle.data().clone();
+    for seed in 0..4 {
+        let config = RowColumnConfig::new(6, 30).with_seed(seed);
+        let sample = row_column_sampling(&oracle, &config, &NoProgress).unwrap();
+        let skip = row_column_sampling(
+            &oracle,
+            &config.with_unseen(UnseenLights::Skip),
+            &NoProgress,
+        )
+        .unwrap();
+        assert_eq!(sample.rows, skip.rows);
+        let seen: Vec<bool> = (0..30)
+            .map(|j| {
+                sample
+                    .rows
+                    .iter()
+                    .any(|&i| (0..3).any(|c| data[[i, j * 3 + c]] != 0.0))
+            })
+            .collect();
+        let unseen = seen.iter().filter(|&&s| !s).count();
+        assert!(unseen > 5, "the spikes should mostly fall between 6 rows");
+        assert_eq!((sample.unseen_lights, skip.unseen_lights), (unseen, unseen));
+        // One light per cluster: Sample is exact; Skip drops exactly the unseen columns, and
+        // evaluates no column for them.
+        assert_eq!(skip.representatives.len(), 30 - unseen);
+        assert_eq!(skip.elements, (6 * 30 + (30 - unseen) * 40) as u64);
+        for i in 0..40 {
+            for c in 0..3 {
+                let all: f64 = (0..30).map(|j| data[[i, j * 3 + c]] as f64).sum();
+                let seen_sum: f64 = (0..30)
+                    .filter(|&j| seen[j])
+                    .map(|j| data[[i, j * 3 + c]] as f64)
+                    .sum();
+                assert!((sample.image[i * 3 + c] as f64 - all).abs() < 1e-4 * (1.0 + all));
+                assert!((skip.image[i * 3 + c] as f64 - seen_sum).abs() < 1e-4 * (1.0 + seen_sum));
+            }
+        }
+    }
+}
+
+#[test]
+fn skipping_unseen_lights_is_unbiased_when_every_row_is_sampled() {
+    let oracle = spiky(12, 40, 12);
+    let config = RowColumnConfig::new(12, 9).with_unseen(UnseenLights::Skip);
+    check_unbiased(&oracle, config, 400);
+}
+
 #[test]
 fn unbiased_on_low_rank_and_full_rank_matrices() {
     check_unbiased(&dense(24, 60, 2, 5), RowColumnConfig::new(4, 8), 400);
     check_unbiased(&dense(24, 60, 0, 6), RowColumnConfig::new(6, 10), 400);
+    // Spikes that most rows miss: unseen lights are sampled uniformly, still unbiased.
+    check_unbiased(&spiky(24, 60, 7), RowColumnConfig::new(4, 10), 400);
 }
 
 #[test]
