@@ -10,7 +10,8 @@
 //! thesis built on); `PRT_WAVELET_SPEEDS` the degrees per frame (comma-separated, default
 //! `1,3`); `PRT_WAVELET_SAMPLES_X` multiplies the sub-texel lookups per side (default 1; for
 //! checking that resampling noise does not drive the results); `PRT_WAVELET_CURVES=0` skips
-//! the error-vs-terms sweep.
+//! the error-vs-terms sweep; `PRT_WAVELET_WEIGHT=support` selects by `|c|` × support solid angle
+//! instead of the basis function's L1 norm (see `selection_weights`).
 
 use std::path::Path;
 use std::time::Instant;
@@ -19,7 +20,7 @@ use prt_benches::Table;
 use prt_sphere::LatLongMap;
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
-use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, Policy, Weighting};
+use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, Policy};
 
 const FRAMES: usize = 200;
 const STOP: usize = 100;
@@ -42,10 +43,32 @@ struct Method {
     seconds: f64,
 }
 
+/// Selection weights: `l1` (default) the L1 norm of each basis function on the sphere
+/// (`Weighting::Area`, which bounds the area-weighted L1 error), or `support` (environment
+/// `PRT_WAVELET_WEIGHT=support`) that times the support's side in texels, i.e. `|c|` times the
+/// support's solid angle for a normalised Haar coefficient — Ng et al.'s "area weighting" read
+/// literally, which favours coarse coefficients.
+fn selection_weights(layout: &CubemapLayout, size: usize) -> Vec<f32> {
+    let support = std::env::var("PRT_WAVELET_WEIGHT").is_ok_and(|w| w == "support");
+    layout
+        .area_weights()
+        .iter()
+        .zip(layout.bands())
+        .map(|(&w, &b)| {
+            if support {
+                w * (size >> (b.max(1) - 1)) as f32
+            } else {
+                w
+            }
+        })
+        .collect()
+}
+
 fn method(layout: &CubemapLayout, name: &str, terms: usize, policy: Policy) -> Method {
+    let weights = selection_weights(layout, layout.size());
     Method {
         name: name.to_string(),
-        approx: Approximator::for_cubemap(layout, 3, Weighting::Area, terms, policy)
+        approx: Approximator::new(layout.bands().to_vec(), weights, 3, terms, policy)
             .expect("valid config"),
         errors: Vec::new(),
         band_terms: Vec::new(),
@@ -63,7 +86,7 @@ fn fine_method(
 ) -> Method {
     let approx = Approximator::new(
         layout.level_face_tile_bands(tiles).expect("tiles"),
-        layout.area_weights().to_vec(),
+        selection_weights(layout, layout.size()),
         3,
         terms,
         policy,

@@ -118,10 +118,14 @@ impl Cubemap {
     }
 
     /// Sub-texel samples per side that [`Self::from_lat_long`] needs for a lat-long map `width`
-    /// texels wide on `size × size` faces: about two lookups per lat-long texel along the
-    /// equator, at least 4 × 4 and at most 16 × 16 per cube texel.
+    /// texels wide on `size × size` faces: about four lookups per lat-long texel along the
+    /// equator (a cube texel spans about `width / (4 size)` lat-long texels there, and fewer
+    /// towards the poles, where lat-long texels narrow and a small light is missed or caught
+    /// depending on its phase), at least 4 × 4 and at most 16 × 16 per cube texel. Two lookups
+    /// per texel left probulator_grace on 32 × 32 faces with resampling noise of 30-40% of its
+    /// frame-to-frame change under a 1°/frame rotation (the `wavelet_resample` bench).
     pub fn default_samples(width: usize, size: usize) -> usize {
-        width.div_ceil(2 * size.max(1)).clamp(4, 16)
+        width.div_ceil(size.max(1)).clamp(4, 16)
     }
 
     /// Resamples an RGB lat-long map rotated by `angle` radians about +Y (the content moves
