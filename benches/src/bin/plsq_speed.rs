@@ -174,63 +174,117 @@ fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32]) {
     let _ = t1.write_csv_if_requested("plsq_speed_single");
 }
 
+/// CPU seconds of the whole process so far (user + system, all threads; Linux
+/// `/proc/self/stat`, clock ticks of 10 ms), or `None` elsewhere.
+fn process_cpu_secs() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(String::from))
+        .unwrap_or_default()
+}
+
 fn batch_scaling(basis: &SgBasis) {
-    // 2. Batch scaling: 65536 encoders, 16 rounds of one sample each.
-    let encoders = 65536;
-    let rounds = 16;
-    let bdirs = sobol_sphere(encoders * rounds / 16, 1);
-    let bdirs: Vec<Vec3> = (0..encoders * rounds)
-        .map(|i| bdirs[(i * 7919) % bdirs.len()])
-        .collect();
-    let bvals: Vec<f32> = bdirs.iter().flat_map(|d| signal(*d)).collect();
+    // 2. Batch scaling, two workloads:
+    //  - runs: a 128 × 128 lightmap, a pass of 64 samples per texel in one `add_sample_runs`
+    //    call (each block of 16 texels takes its 64 samples while its state is in cache);
+    //  - rounds (the earlier measurement): 65536 encoders, 16 rounds of one sample each
+    //    through `add_samples`, which streams the whole state through memory per round.
     let mut t2 = Table::new(&[
+        "workload",
         "threads",
-        "wall time (65536 encoders × 16 samples)",
-        "updates/s",
-        "speed-up",
+        "wall time (median)",
+        "CPU time (process)",
+        "updates/s (wall)",
+        "speed-up (wall)",
         "load average (1 min)",
     ]);
-    let load = || {
-        std::fs::read_to_string("/proc/loadavg")
-            .ok()
-            .and_then(|s| s.split_whitespace().next().map(String::from))
-            .unwrap_or_default()
+    let cfg = cfg(1.0, Sweep::GaussSeidel);
+    let rounds_workload = {
+        let (encoders, rounds) = (65536usize, 16usize);
+        let d = sobol_sphere(encoders * rounds / 16, 1);
+        let d: Vec<Vec3> = (0..encoders * rounds)
+            .map(|i| d[(i * 7919) % d.len()])
+            .collect();
+        let v: Vec<f32> = d.iter().flat_map(|x| signal(*x)).collect();
+        (encoders, rounds, d, v)
     };
-    let mut base = 0.0;
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .expect("pool");
-        let t = pool.install(|| {
-            median_time(7, || {
-                let mut batch =
-                    BatchEncoder::new_sg(basis, 3, encoders, cfg(1.0, Sweep::GaussSeidel))
-                        .expect("valid");
-                for r in 0..rounds {
-                    let range = r * encoders..(r + 1) * encoders;
-                    batch
-                        .add_samples(
-                            &bdirs[range.clone()],
-                            &bvals[3 * range.start..3 * range.end],
-                            None,
-                        )
-                        .expect("finite");
+    let runs_workload = {
+        let (encoders, per) = (16384usize, 64usize);
+        let d = sobol_sphere(encoders * per, 2);
+        let v: Vec<f32> = d.iter().flat_map(|x| signal(*x)).collect();
+        (encoders, per, d, v)
+    };
+    for workload in ["runs", "rounds"] {
+        let mut base = 0.0;
+        for threads in [1usize, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            let fit = || match workload {
+                "runs" => {
+                    let (encoders, per, d, v) = &runs_workload;
+                    let mut batch = BatchEncoder::new_sg(basis, 3, *encoders, cfg).expect("valid");
+                    batch.add_sample_runs(*per, d, v, None).expect("finite");
+                    batch.total_weight(0)
                 }
-                batch.total_weight(0)
-            })
-        });
-        let secs = t.as_secs_f64();
-        if threads == 1 {
-            base = secs;
+                _ => {
+                    let (encoders, rounds, d, v) = &rounds_workload;
+                    let mut batch = BatchEncoder::new_sg(basis, 3, *encoders, cfg).expect("valid");
+                    for r in 0..*rounds {
+                        let range = r * encoders..(r + 1) * encoders;
+                        batch
+                            .add_samples(
+                                &d[range.clone()],
+                                &v[3 * range.start..3 * range.end],
+                                None,
+                            )
+                            .expect("finite");
+                    }
+                    batch.total_weight(0)
+                }
+            };
+            let updates = match workload {
+                "runs" => runs_workload.0 * runs_workload.1,
+                _ => rounds_workload.0 * rounds_workload.1,
+            };
+            let reps = 9;
+            let (t, cpu) = pool.install(|| {
+                let c0 = process_cpu_secs();
+                // `median_time` runs `fit` once more to warm up.
+                let t = median_time(reps, fit);
+                let cpu = process_cpu_secs()
+                    .zip(c0)
+                    .map(|(c1, c0)| Duration::from_secs_f64((c1 - c0) / (reps + 1) as f64));
+                (t, cpu)
+            });
+            let secs = t.as_secs_f64();
+            if threads == 1 {
+                base = secs;
+            }
+            let label = match workload {
+                "runs" => "16384 encoders × 64-sample run, one call",
+                _ => "65536 encoders × 16 one-sample rounds (earlier)",
+            };
+            t2.row(vec![
+                label.into(),
+                threads.to_string(),
+                fmt_duration(t),
+                cpu.map_or("–".into(), fmt_duration),
+                format!("{:.1} M", updates as f64 / secs / 1e6),
+                format!("{:.2}x", base / secs),
+                load_average(),
+            ]);
         }
-        t2.row(vec![
-            threads.to_string(),
-            fmt_duration(t),
-            format!("{:.1} M", (encoders * rounds) as f64 / secs / 1e6),
-            format!("{:.2}x", base / secs),
-            load(),
-        ]);
     }
     println!("{}", t2.markdown());
     let _ = t2.write_csv_if_requested("plsq_speed_batch");

@@ -126,25 +126,52 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
 
     /// Adds one sample to every encoder: `dirs[e]`, `values[e·channels..]`, weight `weights[e]`
     /// (1 when `None`; a zero weight leaves that encoder untouched). All input is validated
-    /// before any state changes.
+    /// before any state changes. The same as [`Self::add_sample_runs`] with one sample per
+    /// encoder.
     pub fn add_samples(
         &mut self,
         dirs: &[Vec3],
         values: &[f32],
         weights: Option<&[f32]>,
     ) -> Result<(), PlsqError> {
+        self.add_sample_runs(1, dirs, values, weights)
+    }
+
+    /// Adds a run of `per_encoder` samples to every encoder (a pass of `per_encoder` samples per
+    /// lightmap texel or probe), encoder-major: sample `k` of encoder `e` is `dirs[e·per_encoder
+    /// + k]`, its values `values[(e·per_encoder + k)·channels..]`, its weight
+    /// `weights[e·per_encoder + k]` (1 when `None`; 0 skips that sample). Each encoder takes its
+    /// samples in order `k = 0, 1, ..`, so the result is bit-identical to `per_encoder` calls
+    /// of [`Self::add_samples`], one per `k`; but the work is split over blocks of [`LANES`]
+    /// encoders and a block applies all its samples while its state is in cache, which is what
+    /// lets a second core help (one-sample rounds over a large batch are memory-bound). Blocks
+    /// are fixed, so the result does not depend on the thread count. All input is validated
+    /// before any state changes; `per_encoder == 0` is a no-op.
+    pub fn add_sample_runs(
+        &mut self,
+        per_encoder: usize,
+        dirs: &[Vec3],
+        values: &[f32],
+        weights: Option<&[f32]>,
+    ) -> Result<(), PlsqError> {
         let (n, ch, k) = (self.count, self.channels, self.basis.len());
-        if dirs.len() != n {
+        let samples = n.checked_mul(per_encoder).ok_or_else(|| {
+            PlsqError::invalid(
+                "samples per encoder",
+                format!("{n} × {per_encoder} overflows"),
+            )
+        })?;
+        if dirs.len() != samples {
             return Err(PlsqError::LengthMismatch {
                 what: "sample directions",
-                expected: n,
+                expected: samples,
                 got: dirs.len(),
             });
         }
-        if values.len() != n * ch {
+        if values.len() != samples * ch {
             return Err(PlsqError::LengthMismatch {
                 what: "sample values",
-                expected: n * ch,
+                expected: samples * ch,
                 got: values.len(),
             });
         }
@@ -158,10 +185,10 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
             }
         }
         if let Some(w) = weights {
-            if w.len() != n {
+            if w.len() != samples {
                 return Err(PlsqError::LengthMismatch {
                     what: "sample weights",
-                    expected: n,
+                    expected: samples,
                     got: w.len(),
                 });
             }
@@ -172,6 +199,9 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                     format!("weight {i} is negative"),
                 ));
             }
+        }
+        if per_encoder == 0 {
+            return Ok(());
         }
         let basis = self.basis;
         let cfg = self.config;
@@ -187,44 +217,48 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                 |scratch, (block, ((coeffs, integrals), wsum))| {
                     let first = block * LANES;
                     let lanes = LANES.min(n - first);
-                    let mut w = [0.0f32; LANES];
-                    for l in 0..lanes {
-                        w[l] = weights.map_or(1.0, |ws| ws[first + l]);
-                    }
-                    let mut block_dirs = [Vec3::ZERO; LANES];
-                    block_dirs[..lanes].copy_from_slice(&dirs[first..first + lanes]);
-                    scratch.values.fill(0.0);
-                    for l in 0..lanes {
-                        for c in 0..ch {
-                            scratch.values[c * LANES + l] = values[(first + l) * ch + c];
+                    for run in 0..per_encoder {
+                        // Sample `run` of each encoder of the block.
+                        let at = |l: usize| (first + l) * per_encoder + run;
+                        let mut w = [0.0f32; LANES];
+                        let mut block_dirs = [Vec3::ZERO; LANES];
+                        for l in 0..lanes {
+                            w[l] = weights.map_or(1.0, |ws| ws[at(l)]);
+                            block_dirs[l] = dirs[at(l)];
                         }
-                    }
-                    let block = Block {
-                        coeffs,
-                        integrals,
-                        wsum,
-                    };
-                    let lanes_in = Lanes {
-                        dirs: &block_dirs,
-                        w: &w,
-                        count: lanes,
-                        with_values: true,
-                    };
-                    update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
-                    if cfg.hemisphere {
-                        let mirrored = block_dirs.map(|d| -d);
+                        scratch.values.fill(0.0);
+                        for l in 0..lanes {
+                            for c in 0..ch {
+                                scratch.values[c * LANES + l] = values[at(l) * ch + c];
+                            }
+                        }
                         let block = Block {
-                            coeffs,
-                            integrals,
-                            wsum,
+                            coeffs: &mut *coeffs,
+                            integrals: &mut *integrals,
+                            wsum: &mut *wsum,
                         };
                         let lanes_in = Lanes {
-                            dirs: &mirrored,
+                            dirs: &block_dirs,
                             w: &w,
                             count: lanes,
-                            with_values: false,
+                            with_values: true,
                         };
                         update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
+                        if cfg.hemisphere {
+                            let mirrored = block_dirs.map(|d| -d);
+                            let block = Block {
+                                coeffs: &mut *coeffs,
+                                integrals: &mut *integrals,
+                                wsum: &mut *wsum,
+                            };
+                            let lanes_in = Lanes {
+                                dirs: &mirrored,
+                                w: &w,
+                                count: lanes,
+                                with_values: false,
+                            };
+                            update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
+                        }
                     }
                 },
             );

@@ -652,3 +652,93 @@ fn sg_encoder_blocking_does_not_change_the_result() {
         assert_eq!(whole.total_weight(), weighted.total_weight());
     }
 }
+
+/// A run of samples per encoder is the same as one round per sample index, bit for bit, on
+/// any thread count, for the generic and the SG fast path (with weights, zeros among them,
+/// and hemisphere mirrors); lengths are checked before anything changes.
+#[test]
+fn batch_sample_runs_equal_rounds_on_any_thread_count() {
+    let basis = SgBasis::spiral(12, 6.0).unwrap();
+    let (count, per) = (37, 9);
+    let all = sobol_sphere(count * per, 5);
+    let values: Vec<f32> = all.iter().flat_map(|d| signal(*d)).collect();
+    let weight = |e: usize, k: usize| {
+        if (e + k).is_multiple_of(4) {
+            0.0
+        } else {
+            1.0 + (k % 3) as f32
+        }
+    };
+    let w: Vec<f32> = (0..count * per).map(|i| weight(i / per, i % per)).collect();
+    for cfg in [
+        EncoderConfig::paper(),
+        EncoderConfig {
+            hemisphere: true,
+            non_negative: true,
+            ..EncoderConfig::probulator_running_average()
+        },
+    ] {
+        for fast in [false, true] {
+            let make = || {
+                if fast {
+                    BatchEncoder::new_sg(&basis, 3, count, cfg).unwrap()
+                } else {
+                    BatchEncoder::new(&basis, 3, count, cfg).unwrap()
+                }
+            };
+            let runs = |threads: usize| {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                pool.install(|| {
+                    let mut batch = make();
+                    batch.add_sample_runs(per, &all, &values, Some(&w)).unwrap();
+                    (0..count)
+                        .map(|e| batch.coefficients(e).unwrap())
+                        .collect::<Vec<_>>()
+                })
+            };
+            let one = runs(1);
+            assert_eq!(one, runs(2), "{cfg:?}, fast {fast}");
+            let mut rounds = make();
+            for k in 0..per {
+                let idx = |e: usize| e * per + k;
+                let d: Vec<Vec3> = (0..count).map(|e| all[idx(e)]).collect();
+                let v: Vec<f32> = (0..count)
+                    .flat_map(|e| values[3 * idx(e)..3 * idx(e) + 3].to_vec())
+                    .collect();
+                let wk: Vec<f32> = (0..count).map(|e| w[idx(e)]).collect();
+                rounds.add_samples(&d, &v, Some(&wk)).unwrap();
+            }
+            for e in 0..count {
+                assert_eq!(rounds.coefficients(e).unwrap(), one[e], "encoder {e}");
+                // A hemisphere mirror sample carries the weight of its sample.
+                let mirrors = if cfg.hemisphere { 2.0 } else { 1.0 };
+                let expected: f32 = mirrors * (0..per).map(|k| weight(e, k)).sum::<f32>();
+                assert_eq!(rounds.total_weight(e), Some(expected));
+            }
+            assert!(one.iter().flatten().any(|&c| c != 0.0));
+        }
+    }
+    let mut batch = BatchEncoder::new_sg(&basis, 3, count, EncoderConfig::paper()).unwrap();
+    assert_eq!(
+        batch.add_sample_runs(per, &all[1..], &values[3..], None),
+        Err(PlsqError::LengthMismatch {
+            what: "sample directions",
+            expected: count * per,
+            got: count * per - 1
+        })
+    );
+    let mut bad = values.clone();
+    bad[3 * (5 * per + 2) + 1] = f32::INFINITY;
+    assert!(matches!(
+        batch.add_sample_runs(per, &all, &bad, None),
+        Err(PlsqError::NonFinite {
+            what: "sample value",
+            ..
+        })
+    ));
+    batch.add_sample_runs(0, &[], &[], None).unwrap();
+    assert_eq!(batch.total_weight(0), Some(0.0), "nothing was applied");
+}
