@@ -57,13 +57,17 @@ pub(crate) fn principal_subspace(
     }
     if n >= d || n == 0 {
         let gram = gram_columns(x);
-        let eig = sym_eig(gram.view()).map_err(|e| linalg_error("principal subspace", e))?;
-        Ok(eig.vectors.slice(s![.., ..rank]).t().mapv(|v| v as f32))
+        match sym_eig(gram.view()) {
+            Ok(eig) => Ok(eig.vectors.slice(s![.., ..rank]).t().mapv(|v| v as f32)),
+            Err(_) => subspace_by_svd(x, rank),
+        }
     } else {
         // Gram of the rows: X Xᵀ = U Σ² Uᵀ, and the right singular vectors are Xᵀ U / σ.
         let xd = x.mapv(|v| v as f64);
         let gram = xd.dot(&xd.t());
-        let eig = sym_eig(gram.view()).map_err(|e| linalg_error("principal subspace", e))?;
+        let Ok(eig) = sym_eig(gram.view()) else {
+            return subspace_by_svd(x, rank);
+        };
         let mut out = Array2::<f64>::zeros((rank, d));
         let mut filled = 0;
         let s_max = eig.values.first().copied().unwrap_or(0.0).max(0.0);
@@ -78,6 +82,27 @@ pub(crate) fn principal_subspace(
         complete_orthonormal(&mut out, filled);
         Ok(out.mapv(|v| v as f32))
     }
+}
+
+/// The fallback when the eigensolver of the Gram matrix does not converge (seen on blocks of a
+/// traced Sponza volume that are nearly all invalid, zero voxels): the right singular vectors
+/// of `x` itself, completed to an orthonormal set where `x` has fewer than `rank` directions.
+fn subspace_by_svd(x: ArrayView2<'_, f32>, rank: usize) -> Result<Array2<f32>, MbdError> {
+    let d = x.ncols();
+    let xd = x.mapv(|v| v as f64);
+    let svd = prt_linalg::thin_svd(xd.view()).map_err(|e| linalg_error("principal subspace", e))?;
+    let mut out = Array2::<f64>::zeros((rank, d));
+    let s_max = svd.s.first().copied().unwrap_or(0.0);
+    let mut filled = 0;
+    for (k, &sigma) in svd.s.iter().enumerate() {
+        if filled == rank || sigma <= s_max * 1e-6 || sigma <= 0.0 {
+            break;
+        }
+        out.row_mut(filled).assign(&svd.vt.row(k));
+        filled += 1;
+    }
+    complete_orthonormal(&mut out, filled);
+    Ok(out.mapv(|v| v as f32))
 }
 
 /// Fills rows `filled..` of `basis` (whose first `filled` rows are orthonormal) with unit
@@ -158,5 +183,48 @@ pub(crate) fn cholesky_solve_in_place(a: &[f64], b: &mut [f64], n: usize, cols: 
         }
         let d = a[i * n + i];
         b[i * cols..(i + 1) * cols].iter_mut().for_each(|v| *v /= d);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    /// `BᵀB` of orthonormal rows `b`: the projector onto their span.
+    fn projector(b: &Array2<f32>) -> Array2<f64> {
+        let b = b.mapv(f64::from);
+        b.t().dot(&b)
+    }
+
+    #[test]
+    fn the_svd_fallback_finds_the_same_subspace() {
+        let mut rng = Pcg64Mcg::seed_from_u64(3);
+        // Tall (more rows than columns) and wide blocks, both with many zero rows as in a
+        // traced volume's invalid voxels, and rank-deficient (3 directions, rank 5 asked).
+        for (n, d) in [(60, 12), (12, 40)] {
+            let directions: Vec<f32> = (0..3 * d).map(|_| rng.random::<f32>() - 0.5).collect();
+            let mut x = Array2::<f32>::zeros((n, d));
+            for mut row in x.rows_mut().into_iter().skip(n / 2) {
+                let c: [f32; 3] = [rng.random(), rng.random(), rng.random()];
+                for (k, v) in row.iter_mut().enumerate() {
+                    *v = (0..3).map(|j| c[j] * directions[j * d + k]).sum();
+                }
+            }
+            let by_eig = principal_subspace(x.view(), 3).unwrap();
+            let by_svd = subspace_by_svd(x.view(), 3).unwrap();
+            let gap = (projector(&by_eig) - projector(&by_svd)).mapv(f64::abs);
+            assert!(gap.iter().all(|&g| g < 1e-4), "n = {n}, d = {d}");
+            // Asked for more than the block holds: completed to an orthonormal set.
+            let five = subspace_by_svd(x.view(), 5).unwrap().mapv(f64::from);
+            let gram = five.dot(&five.t());
+            for i in 0..5 {
+                for j in 0..5 {
+                    let expected = if i == j { 1.0 } else { 0.0 };
+                    assert!((gram[[i, j]] - expected).abs() < 1e-5, "{gram}");
+                }
+            }
+        }
     }
 }

@@ -438,3 +438,48 @@ fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
     };
     assert!(seam_metric_with(&field, &recon, &labels, &bad).is_err());
 }
+
+#[test]
+fn blocks_of_zero_voxels_are_handled() {
+    // Like a traced volume whose voxels inside geometry are invalid (zero transfer): whole
+    // blocks are zero. Both branches of the subspace fit: more voxels than D, and fewer.
+    for dim in [4, 324] {
+        let mut field = SyntheticField {
+            dims: [12, 12, 12],
+            dim,
+            harmonics: 2,
+            seed: 3,
+        }
+        .build(Aabb::UNIT)
+        .unwrap();
+        for v in 0..field.num_voxels() {
+            if field.coords(v)[0] < 6 {
+                field.voxel_mut(v).fill(0.0);
+            }
+        }
+        let bpca = BlockPca {
+            rank: 2,
+            blocks: [2, 2, 2],
+            window: 1.0,
+        }
+        .compress(&field, &NoProgress)
+        .unwrap();
+        for v in (0..field.num_voxels()).filter(|&v| field.coords(v)[0] < 6) {
+            assert!(bpca.reconstruction().voxel(v).iter().all(|&x| x == 0.0));
+        }
+        let e = rel(&bpca, &field);
+        assert!(e.is_finite() && e < 0.5, "D = {dim}: {e}");
+        let (mbd, _) = Mbd {
+            basis_nodes: [3, 3, 3],
+            options: MbdOptions {
+                rank: 2,
+                max_iterations: 4,
+                init: Init::LocalPca,
+                ..MbdOptions::default()
+            },
+        }
+        .fit(&field, &NoProgress)
+        .unwrap();
+        assert!(rel(&mbd, &field).is_finite());
+    }
+}
