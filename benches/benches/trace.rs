@@ -1,4 +1,5 @@
-//! Ray throughput of prt-trace's CWBVH (closest hit and shadow) and a small Cornell bake.
+//! Ray throughput of prt-trace's CWBVH (closest hit and shadow, on the detected and the baseline
+//! instruction set) and a small Cornell bake.
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
 use prt_core::NoProgress;
@@ -31,6 +32,14 @@ fn rays(c: &mut Criterion) {
     });
     group.bench_function("shadow", |b| {
         b.iter(|| tracer.occluded_batch(&batch, 0.0, f32::INFINITY))
+    });
+    // The same queries without the run-time-selected instruction set (when it is wider).
+    let baseline = tracer.clone().with_baseline_instruction_set();
+    group.bench_function("closest_baseline_isa", |b| {
+        b.iter(|| baseline.closest_hits(&batch, 0.0, f32::INFINITY))
+    });
+    group.bench_function("shadow_baseline_isa", |b| {
+        b.iter(|| baseline.occluded_batch(&batch, 0.0, f32::INFINITY))
     });
     group.finish();
 }

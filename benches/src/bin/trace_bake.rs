@@ -1,13 +1,19 @@
 //! Bakes the Cornell box (32³) and Sponza (64³) transfer volumes, prints timings, Mrays/s and
 //! peak RSS, and writes the horizontal-slice pictures of docs/images/trace_*.png.
 //!
-//! `cargo run --release -p prt-benches --bin trace_bake [cornell|sponza|sponza128|all] [rays] [cache rays]`
+//! `cargo run --release -p prt-benches --bin trace_bake [cornell|sponza|sponza128|all] [rays] [cache rays] [fast|medium|slow|very-slow]`
+//!
+//! The last argument is the BVH build quality (default `medium`, the baker's default); the
+//! pictures are written for the default quality only.
 use std::path::Path;
 use std::time::Instant;
 
 use prt_benches::{Table, fmt_duration};
 use prt_core::NoProgress;
-use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker, TransferVolume, constant_sky};
+use prt_trace::{
+    BakeOptions, BuildQuality, LoadOptions, RayTracer, Scene, TransferBaker, TransferVolume,
+    constant_sky,
+};
 
 fn peak_rss_mib() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
@@ -78,6 +84,12 @@ fn main() {
         .nth(3)
         .and_then(|s| s.parse().ok())
         .unwrap_or(64);
+    let quality = match std::env::args().nth(4).as_deref() {
+        Some("fast") => BuildQuality::Fast,
+        Some("slow") => BuildQuality::Slow,
+        Some("very-slow") => BuildQuality::VerySlow,
+        _ => BuildQuality::Medium,
+    };
     let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
     let images = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/images");
     let mut table = Table::new(&[
@@ -90,7 +102,7 @@ fn main() {
         "tracing",
         "total (wall)",
         "total (CPU)",
-        "Mrays/s",
+        "Mrays/s wall (CPU-normalised)",
         "invalid",
         "peak RSS",
     ]);
@@ -128,6 +140,7 @@ fn main() {
             rays_per_voxel: rays,
             cache_rays,
             seed: 1,
+            build_quality: quality,
             ..Default::default()
         };
         let t = Instant::now();
@@ -152,11 +165,15 @@ fn main() {
             fmt_duration(s.voxel_time),
             fmt_duration(total),
             format!("{cpu:.2} s"),
-            format!("{:.2}", s.mrays_per_second()),
+            format!(
+                "{:.2} ({:.2})",
+                s.mrays_per_second(),
+                s.rays() as f64 / (cpu / rayon::current_num_threads() as f64) / 1e6
+            ),
             s.invalid_voxels.to_string(),
             format!("{:.0} MiB", peak_rss_mib()),
         ]);
-        if res <= 64 {
+        if res <= 64 && quality == BuildQuality::Medium {
             let iy = match name {
                 "cornell" => res * 3 / 10, // y ≈ 0.6: between the short box's top and the tall box's
                 _ => res / 8,              // just above Sponza's ground floor
@@ -164,6 +181,11 @@ fn main() {
             write_slice(&volume, iy, &images.join(format!("trace_{name}_slice.png")));
         }
     }
+    println!(
+        "threads: {}, BVH quality: {quality:?}, instruction set: {}\n",
+        rayon::current_num_threads(),
+        RayTracer::new(&[]).instruction_set()
+    );
     println!("{}", table.markdown());
     if let Err(e) = table.write_csv_if_requested("trace_bake") {
         eprintln!("csv: {e}");

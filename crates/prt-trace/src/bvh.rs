@@ -191,12 +191,14 @@ impl RayTracer {
     /// Barycentrics `(u, v)` (weights of v1, v2) of the hit of `ray` on a slot.
     #[inline]
     pub(crate) fn slot_barycentrics(&self, slot: u32, origin: Vec3, dir: Vec3) -> Vec2 {
-        // `RtTriangle::compute_barycentric` without building a `Ray`, whose three reciprocals
-        // it would not use (this runs once per closest hit).
+        // The `u`, `v` of `RtTriangle::intersect`, bit for bit (the same operations, one
+        // reciprocal), recomputed once per ray after traversal rather than kept for every
+        // accepted candidate.
         let t = &self.tris[slot as usize];
         let d = Vec3A::from(dir);
         let r = d.cross(t.v0 - Vec3A::from(origin));
-        Vec2::new(r.dot(t.e2), r.dot(t.e1)) / t.ng.dot(d)
+        let inv_det = 1.0 / t.ng.dot(d);
+        Vec2::new(r.dot(t.e2) * inv_det, r.dot(t.e1) * inv_det)
     }
 
     /// Closest hit in slot terms, on the instruction set chosen at construction.

@@ -9,7 +9,9 @@
 //!   a ground plane under open sky, a closed box, the empty scene.
 //! * **Ray queries** ([`RayTracer`]): a compressed wide BVH (obvhs CWBVH, Ylitie et al. 2017)
 //!   with the triangles reordered into BVH order; closest hits and occlusion (stopping at the
-//!   first hit), single or batched over rayon.
+//!   first hit), single or batched over rayon. Where the CPU has x86-64-v3 (AVX2, FMA, BMI,
+//!   LZCNT, POPCNT; detected at run time, see [`RayTracer::instruction_set`]) the traversal runs
+//!   compiled for it with an 8-wide child-box test, with bit-identical results.
 //! * **The baker** ([`TransferBaker`]): for every voxel centre `x` of a grid, with real SH of
 //!   order 3 (9 coefficients, [`sh9`], evaluated by `prt-sphere`) for distant sky light,
 //!   - direct transfer `D_ij = ∫ V(x, ω) Y_i(ω) Y_j(ω) dω` (sky visibility), and
