@@ -8,6 +8,10 @@
 //! so that noise can be compared with the change an incremental update has to follow.
 //!
 //! `cargo run --release -p prt-benches --bin wavelet_resample [-- maps...]`
+//!
+//! With `PRT_WAVELET_SERIES=map,deg,size` it prints instead, for frames 1..100 of that rotation,
+//! each band's frame-to-frame change `Σ w|c_t − c_{t−1}|` as a share of the band's own norm, to
+//! show which frames are temporally incoherent at which levels.
 
 use std::path::Path;
 
@@ -36,7 +40,59 @@ fn band_norms(layout: &CubemapLayout, a: &[f32], b: Option<&[f32]>) -> Vec<f64> 
     out
 }
 
+/// Per-frame, per-band relative change of one rotation (see the module docs).
+fn series(spec: &str) {
+    let parts: Vec<&str> = spec.split(',').collect();
+    let [name, deg, size] = parts[..] else {
+        eprintln!("PRT_WAVELET_SERIES wants map,deg,size");
+        return;
+    };
+    let (deg, size): (f32, usize) = (deg.parse().expect("degrees"), size.parse().expect("size"));
+    let Some(map) = load(name) else {
+        eprintln!("skipping {name}: ../shared/envmaps/{name}.hdr not readable");
+        return;
+    };
+    let layout = CubemapLayout::new(size).expect("size");
+    let mut haar = CubemapHaar::new(size).expect("size");
+    let samples = Cubemap::default_samples(map.width(), size);
+    let mut frame = |t: usize| {
+        let angle = (deg * t as f32).to_radians();
+        let mut c = Cubemap::from_lat_long(&map, size, angle, samples)
+            .expect("frame")
+            .into_data();
+        haar.forward(&mut c).expect("transform");
+        c
+    };
+    let mut header = vec!["frame".to_string()];
+    header.extend((0..layout.band_count()).map(|b| format!("band {b}")));
+    let header: Vec<&str> = header.iter().map(|s| s.as_str()).collect();
+    let mut table = Table::new(&header);
+    let mut previous = frame(0);
+    for t in 1..100 {
+        let current = frame(t);
+        let change = band_norms(&layout, &current, Some(&previous));
+        let norm = band_norms(&layout, &current, None);
+        let mut row = vec![t.to_string()];
+        row.extend(
+            change
+                .iter()
+                .zip(&norm)
+                .map(|(c, n)| format!("{:.3}", c / n)),
+        );
+        table.row(row);
+        previous = current;
+    }
+    println!(
+        "\n### Relative change per frame and band, {name}, {deg} deg/frame, {size} x {size} faces\n\n{}",
+        table.markdown()
+    );
+}
+
 fn main() {
+    if let Ok(spec) = std::env::var("PRT_WAVELET_SERIES") {
+        series(&spec);
+        return;
+    }
     let args: Vec<String> = std::env::args().skip(1).collect();
     let maps: Vec<String> = if args.is_empty() {
         vec![
