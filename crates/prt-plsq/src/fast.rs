@@ -244,12 +244,39 @@ impl<const C: usize> SgEncoder<C> {
         if self.block.len == 0 {
             return;
         }
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx2")
+                && std::is_x86_feature_detected!("fma")
+                && !portable_forced()
+            {
+                // SAFETY: the CPU supports AVX2 and FMA, checked on the line above.
+                unsafe { self.apply_block_avx2() };
+            } else {
+                self.apply_block_any();
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        self.apply_block_any();
+        self.block.len = 0;
+    }
+
+    /// [`Self::apply_block_any`] compiled for AVX2 and FMA (8-wide). Measured faster than an
+    /// AVX-512 build of the same code on this workload (1.27 vs 1.45 ms per 20000 samples),
+    /// and AVX2 target features need no newer compiler than the workspace's 1.88.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn apply_block_avx2(&mut self) {
+        self.apply_block_any();
+    }
+
+    #[inline(always)]
+    fn apply_block_any(&mut self) {
         // 12 and 16 lobes (one lane group) get a copy with a constant trip count.
         match self.px.len() {
             LANE => self.apply_block::<1>(),
             _ => self.apply_block::<0>(),
         }
-        self.block.len = 0;
     }
 
     /// `GROUPS` is the number of lane groups when known at compile time (0: read it).
@@ -354,6 +381,9 @@ impl<const C: usize> SgEncoder<C> {
                         let co = &mut self.coeffs[c][..padded];
                         let delta = values[s][c] - dot(b, co);
                         for (co, g) in co.chunks_exact_mut(LANE).zip(g.chunks_exact(LANE)) {
+                            // A local copy of the gains: the compiler cannot tell that they
+                            // do not alias the coefficients and would emit scalar code.
+                            let g = lanes(g);
                             for l in 0..LANE {
                                 let new = co[l] + g[l] * delta;
                                 co[l] = if cfg.non_negative { new.max(0.0) } else { new };
@@ -368,8 +398,12 @@ impl<const C: usize> SgEncoder<C> {
                 for s in 0..n {
                     let row = s * padded..(s + 1) * padded;
                     let (b, denom, sh) = (&basis[row.clone()], &gain[row.clone()], &share[row]);
-                    let mut delta: [f32; C] =
-                        std::array::from_fn(|c| values[s][c] - dot(b, &self.coeffs[c][..padded]));
+                    // A loop, not `array::from_fn`: its closure is not inlined into the
+                    // instruction-set variants.
+                    let mut delta = [0.0f32; C];
+                    for c in 0..C {
+                        delta[c] = values[s][c] - dot(b, &self.coeffs[c][..padded]);
+                    }
                     for i in 0..self.lobes {
                         if b[i] == 0.0 {
                             continue;
@@ -413,6 +447,22 @@ fn dot(a: &[f32], b: &[f32]) -> f32 {
     acc[0]
 }
 
+/// Whether the baseline block function is forced (tests compare it with the wide one).
+#[cfg(not(test))]
+#[inline(always)]
+fn portable_forced() -> bool {
+    false
+}
+
+#[cfg(test)]
+use tests::portable_forced;
+
+/// One lane group of a slice of length `LANE`.
+#[inline(always)]
+fn lanes(v: &[f32]) -> [f32; LANE] {
+    std::array::from_fn(|l| v[l])
+}
+
 fn offset(e: PlsqError, by: usize) -> PlsqError {
     match e {
         PlsqError::NonFinite { what, index } => PlsqError::NonFinite {
@@ -420,5 +470,69 @@ fn offset(e: PlsqError, by: usize) -> PlsqError {
             index: index + by,
         },
         other => other,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::cell::Cell;
+
+    use glam::Vec3;
+    use prt_core::NoProgress;
+    use prt_sphere::SgBasis;
+
+    use super::SgEncoder;
+    use crate::{EncoderConfig, Sweep, Update};
+
+    thread_local! {
+        static PORTABLE: Cell<bool> = const { Cell::new(false) };
+    }
+
+    /// Whether this thread's test asked for the baseline block function.
+    pub(super) fn portable_forced() -> bool {
+        PORTABLE.with(Cell::get)
+    }
+
+    /// The AVX2 build of the block function performs the same operations as the baseline
+    /// build: the fits agree bit for bit (Rust never fuses `a * b + c`).
+    #[test]
+    fn instruction_set_variants_agree_bit_for_bit() {
+        let basis = SgBasis::spiral(12, 6.0).unwrap();
+        let dirs = prt_sphere::sampling::halton_sphere(999);
+        let values: Vec<f32> = dirs
+            .iter()
+            .flat_map(|d| {
+                [
+                    1.0 + d.y,
+                    (4.0 * (d.x - 1.0)).exp() * 50.0,
+                    0.25 - 0.1 * d.z,
+                ]
+            })
+            .collect();
+        for cfg in [
+            EncoderConfig::paper(),
+            EncoderConfig {
+                sweep: Sweep::Jacobi,
+                update: Update::Residual { acceleration: 3.0 },
+                ..EncoderConfig::paper()
+            },
+            EncoderConfig {
+                hemisphere: true,
+                non_negative: true,
+                ..EncoderConfig::probulator_running_average()
+            },
+        ] {
+            let fit = |portable: bool| {
+                PORTABLE.with(|p| p.set(portable));
+                let mut enc = SgEncoder::<3>::new(&basis, cfg).unwrap();
+                enc.add_samples(&dirs, &values, None, &NoProgress).unwrap();
+                enc.add_sample(Vec3::Z, [2.0, 0.0, 1.0], 0.5).unwrap();
+                PORTABLE.with(|p| p.set(false));
+                enc.coefficients()
+            };
+            let (wide, portable) = (fit(false), fit(true));
+            assert!(wide.iter().any(|&c| c != 0.0));
+            assert_eq!(wide, portable, "{cfg:?}");
+        }
     }
 }
