@@ -33,7 +33,9 @@
 //!   [`BlockPca`] (BPCA, and WBPCA with `window = 2`), [`ClusteredPca`] (Sloan et al. 2003),
 //!   [`KMeansVq`].
 //! * [`evaluate`] (relative MSE on dense jittered samples, per-block operator Frobenius error) and
-//!   [`seam_metric`] (the error's jump across cluster boundaries).
+//!   [`seam_metric_with`] (the error's jump across cluster boundaries against the jumps inside
+//!   them, optionally against a denoised reference and over a validity mask; [`seam_metric`] is
+//!   the raw form).
 //! * [`SyntheticField`]: smooth fields on curved manifolds in R^D, for tests and experiments.
 //!
 //! ## Extremes
