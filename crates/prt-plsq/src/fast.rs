@@ -58,6 +58,10 @@ const BLOCK: usize = 16;
 /// channel) and the update `b_i += g_i Δ` remain. The state after the block is the paper's
 /// state after its samples (coefficients, integrals, total weight); blocking only reorders
 /// independent arithmetic.
+///
+/// The block function is compiled for the baseline and for AVX2 + FMA and chosen at run time;
+/// both perform the same IEEE operations in the same order (Rust never contracts `a * b + c`
+/// into an FMA), so the result does not depend on the CPU.
 #[derive(Debug, Clone)]
 pub struct SgEncoder<const C: usize> {
     /// Number of lobes; lobe arrays are padded to a multiple of `LANE`.
