@@ -78,9 +78,20 @@ pub struct RayTracer {
     bvh: Option<CwBvh>,
     /// Triangles in BVH leaf order, so that a leaf's primitive ids index them directly.
     tris: Vec<RtTriangle>,
-    /// Scene triangle index of each slot of `tris`.
-    scene_index: Vec<u32>,
+    /// Scene triangle index and unit normal of each slot of `tris`.
+    slot_info: Vec<SlotInfo>,
     isa: Isa,
+}
+
+/// What a closest hit reports about its slot beyond the intersection test, precomputed so that
+/// the hit record costs one 16-byte load instead of a gather and a square root per ray.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(16))]
+struct SlotInfo {
+    /// Unit winding normal (`(v1 - v0) × (v2 - v0)` normalised; zero if degenerate).
+    normal: Vec3,
+    /// Index of the triangle in the scene.
+    scene: u32,
 }
 
 impl std::fmt::Debug for RayTracer {
@@ -110,7 +121,7 @@ impl RayTracer {
             return Self {
                 bvh: None,
                 tris: Vec::new(),
-                scene_index: Vec::new(),
+                slot_info: Vec::new(),
                 isa: Isa::detect(),
             };
         }
@@ -129,18 +140,28 @@ impl RayTracer {
             BuildQuality::VerySlow => BvhBuildParams::very_slow_build(),
         };
         let bvh = build_cwbvh_from_tris(&input, params, &mut Duration::default());
-        let scene_index = bvh.primitive_indices.clone();
-        let tris = scene_index
+        let tris: Vec<RtTriangle> = bvh
+            .primitive_indices
             .iter()
             .map(|&i| {
                 let t = &input[i as usize];
                 RtTriangle::new(t.v0, t.v1, t.v2)
             })
             .collect();
+        let slot_info = bvh
+            .primitive_indices
+            .iter()
+            .zip(&tris)
+            // RtTriangle's ng = -(v1 - v0) × (v2 - v0) (see `slot_normal`).
+            .map(|(&scene, t)| SlotInfo {
+                normal: Vec3::from(-t.ng).normalize_or_zero(),
+                scene,
+            })
+            .collect();
         Self {
             bvh: Some(bvh),
             tris,
-            scene_index,
+            slot_info,
             isa: Isa::detect(),
         }
     }
@@ -172,7 +193,7 @@ impl RayTracer {
 
     /// Scene triangle index of a BVH slot.
     pub(crate) fn scene_triangle(&self, slot: u32) -> u32 {
-        self.scene_index[slot as usize]
+        self.slot_info[slot as usize].scene
     }
 
     /// Vertices of a BVH slot's triangle.
@@ -266,13 +287,14 @@ impl RayTracer {
     /// The full hit record of a slot hit, computed once per ray after traversal.
     #[inline(always)]
     fn hit_record(&self, h: SlotHit, origin: Vec3, dir: Vec3) -> Hit {
-        let n = self.slot_normal(h.slot);
+        let info = self.slot_info[h.slot as usize];
         Hit {
             t: h.t,
-            triangle: self.scene_triangle(h.slot),
+            triangle: info.scene,
             barycentrics: self.slot_barycentrics(h.slot, origin, dir),
-            normal: n.normalize_or_zero(),
-            front_face: n.dot(dir) < 0.0,
+            normal: info.normal,
+            // From the unnormalised normal (in cache after the hit test), as before.
+            front_face: self.slot_normal(h.slot).dot(dir) < 0.0,
         }
     }
 
@@ -707,6 +729,32 @@ mod tests {
             hit > tested / 1000 && hit < tested,
             "{hit} of {tested} nodes hit"
         );
+    }
+
+    /// The hit record names the scene triangle that was hit, its unit winding normal and the
+    /// facing, and its barycentrics reproduce the hit point.
+    #[test]
+    fn hit_record_describes_the_scene_triangle() {
+        let scene = crate::Scene::cornell_box();
+        let tracer = RayTracer::new(scene.triangles());
+        let mut hits = 0;
+        for (o, d) in rays(5000, 17) {
+            let Some(h) = tracer.closest_hit(o, d, 1e-3, f32::INFINITY) else {
+                continue;
+            };
+            hits += 1;
+            let [v0, v1, v2] = scene.triangles()[h.triangle as usize];
+            let n = (v1 - v0).cross(v2 - v0).normalize();
+            assert!((h.normal - n).length() < 1e-5, "{} vs {n}", h.normal);
+            assert_eq!(h.front_face, n.dot(d) < 0.0);
+            let p = v0 + (v1 - v0) * h.barycentrics.x + (v2 - v0) * h.barycentrics.y;
+            assert!(
+                (p - (o + d * h.t)).length() < 1e-4,
+                "{p} vs {}",
+                o + d * h.t
+            );
+        }
+        assert!(hits > 2500, "{hits} hits");
     }
 
     /// The written-out traversals return exactly what obvhs's own `ray_traverse` and
