@@ -3,16 +3,17 @@
 //! rows with the full-column norm; for each run it lists the representatives whose weighted
 //! column carries the largest share of the image.
 //!
-//! The matrix holds the VPL columns only (no directional lights): the tail is in them.
+//! With `direct`, the sun and sky's directional columns are added (as `manylight_scene` does),
+//! and the worst clusters' exact error is measured by evaluating all their members.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS]`
+//! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS] [direct]`
 use std::path::Path;
 
 use prt_benches::manylight::{load_scene, trace_about};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{ReducedMatrix, RowColumnConfig, row_column_sampling, stratified_rows};
-use prt_trace::{GBuffer, PinholeView, RayTracer, VplOracle};
+use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -29,6 +30,7 @@ fn main() {
     let rows: usize = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(100);
     let cols: usize = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(200);
     let seeds: u64 = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(3);
+    let direct = args.get(7).map(String::as_str) == Some("direct");
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(scene) = load_scene(scene_name, manifest) else {
         return;
@@ -37,14 +39,30 @@ fn main() {
     let vpls = trace_about(&scene, &tracer, target);
     let view = PinholeView::for_scene(&scene).expect("non-empty scene");
     let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-    let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite input");
+    let directional = if direct {
+        directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene")
+    } else {
+        Vec::new()
+    };
+    let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+        .and_then(|o| o.with_directional(&directional))
+        .expect("finite input");
     let (n, m) = (oracle.rows(), oracle.cols());
     let file = manifest.join(format!(
-        "../target/manylight_cache/{scene_name}_{width}_{m}_{clamp}.bin"
+        "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
+        vpls.len()
     ));
-    let reference = oracle
+    let mut reference = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+        .expect("finite input")
         .reference_image_cached(&file, &NoProgress)
         .expect("reference");
+    let mut col = vec![0.0f32; 3 * n];
+    for j in vpls.len()..m {
+        oracle.eval_col(j, &mut col).expect("column");
+        for (r, &c) in reference.iter_mut().zip(&col) {
+            *r += c;
+        }
+    }
     let ref_norm = norm(&reference);
     let ref_sum: f64 = reference.iter().map(|&v| v as f64).sum();
     println!(
@@ -56,7 +74,6 @@ fn main() {
     let sampled_rows = stratified_rows(n, rows, &mut rng);
     let reduced = ReducedMatrix::sample(&oracle, sampled_rows, &NoProgress).expect("rows");
     let probe: Vec<usize> = (0..2000).map(|k| (k * 7919 + 13) % m).collect();
-    let mut col = vec![0.0f32; 3 * n];
     let mut stats = Vec::new();
     for &j in &probe {
         oracle.eval_col(j, &mut col).expect("column");
@@ -104,13 +121,13 @@ fn main() {
         }
     );
     for s in by_sum.iter().take(8) {
-        let v = &vpls[s.0];
+        let kind = match vpls.get(s.0) {
+            Some(v) => format!("bounce {} pos {:?} n {:?}", v.bounce, v.position, v.normal),
+            None => "directional".to_string(),
+        };
         println!(
-            "  vpl {} bounce {} pos {:?} n {:?} sum {:.3e} ({:.2}% of ref) full {:.3e} reduced·s {:.3e} lit px {}",
+            "  light {} {kind} sum {:.3e} ({:.2}% of ref) full {:.3e} reduced·s {:.3e} lit px {}",
             s.0,
-            v.bounce,
-            v.position,
-            v.normal,
             s.1,
             100.0 * s.1 / ref_sum,
             s.2,
@@ -137,18 +154,60 @@ fn main() {
             estimate.image.iter().map(|&v| v as f64).sum::<f64>() / ref_sum
         );
         let red = ReducedMatrix::sample(&oracle, estimate.rows.clone(), &NoProgress).expect("rows");
+        if direct {
+            let sun = vpls.len() as u32;
+            for (k, members) in estimate.clustering.clusters().iter().enumerate() {
+                if members.contains(&sun) {
+                    let total: f64 = members.iter().map(|&j| red.norms()[j as usize]).sum();
+                    println!(
+                        "  the sun's cluster {k}: {} members, Σ reduced norms {total:.3e}, sun's {:.3e}, representative {:?}",
+                        members.len(),
+                        red.norms()[sun as usize],
+                        estimate.representatives.get(k)
+                    );
+                }
+            }
+        }
         for &(share, k) in shares.iter().take(5) {
             let rep = estimate.representatives[k];
-            let v = &vpls[rep.column];
+            let members = &estimate.clustering.clusters()[k];
+            let kind = match vpls.get(rep.column) {
+                Some(v) => format!("bounce {} pos {:?}", v.bounce, v.position),
+                None => format!("directional {}", rep.column - vpls.len()),
+            };
+            // The cluster's exact contribution and the error of its weighted representative.
+            let cluster_error = (members.len() <= 4000).then(|| {
+                let mut exact = vec![0.0f64; 3 * n];
+                for &j in members {
+                    oracle.eval_col(j as usize, &mut col).expect("column");
+                    for (e, &c) in exact.iter_mut().zip(&col) {
+                        *e += c as f64;
+                    }
+                }
+                oracle.eval_col(rep.column, &mut col).expect("column");
+                let err: f64 = exact
+                    .iter()
+                    .zip(&col)
+                    .map(|(e, &c)| (rep.weight * c as f64 - e).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                let directional_members = members
+                    .iter()
+                    .filter(|&&j| j as usize >= vpls.len())
+                    .count();
+                format!(
+                    "cluster error {:.2}% of ‖ref‖, {directional_members} directional members",
+                    100.0 * err / ref_norm
+                )
+            });
             println!(
-                "  rep {} share {:.1}% weight {:.1} cluster {} reduced norm {:.3e} bounce {} pos {:?}",
+                "  rep {} share {:.1}% weight {:.1} cluster {} reduced norm {:.3e} {kind} {}",
                 rep.column,
                 100.0 * share,
                 rep.weight,
                 rep.cluster_size,
                 red.norms()[rep.column],
-                v.bounce,
-                v.position
+                cluster_error.unwrap_or_default()
             );
         }
     }

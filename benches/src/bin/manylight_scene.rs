@@ -15,8 +15,9 @@
 //!   unbiased) and/or `skip` (the paper's estimator), `prt_manylight::UnseenLights`;
 //! * `LIGHT`: `direct` (default) adds the direct light of the sun and sky as columns (the sun
 //!   and 1024 sky directions, `prt_trace::directional_lights`; none for the Cornell box, whose
-//!   direct light is its emitter VPLs); `indirect` leaves the matrix to the VPLs alone, so a
-//!   sun-and-sky scene then has no direct light.
+//!   direct light is its emitter VPLs); `exact-sun` does the same but evaluates the sun's column
+//!   in full (one column, `pixels` elements, counted) and samples the other lights; `indirect`
+//!   leaves the matrix to the VPLs alone, so a sun-and-sky scene then has no direct light.
 //!
 //! Brute-force images of the VPL columns are cached in `target/manylight_cache/` (keyed by shape
 //! and fingerprint), so that only the first run of a (scene, size, VPLs, clamp) pays for them;
@@ -65,7 +66,8 @@ fn main() {
         .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
         .collect()
     };
-    let direct = args.get(7).map(String::as_str) != Some("indirect");
+    let light = args.get(7).map(String::as_str).unwrap_or("direct");
+    let direct = light != "indirect";
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(scene) = load_scene(scene_name, manifest) else {
@@ -99,6 +101,7 @@ fn main() {
         "relative RMS error (mean of seeds)",
         "max over seeds",
         "unseen lights (mean)",
+        "error / ‖sampled lights' image‖ (mean)",
     ]);
     for (c, &clamp) in clamps.iter().enumerate() {
         let vpl_oracle =
@@ -124,12 +127,44 @@ fn main() {
             "clamp {clamp}: ‖indirect (VPL columns)‖ / ‖reference‖ = {:.4}",
             indirect_norm / norm(&reference)
         );
+        // `exact-sun`: the first directional light (the sun) as an exact column, the rest
+        // sampled.
+        let exact = usize::from(light == "exact-sun" && !directional.is_empty());
+        let sampled = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+            .and_then(|o| o.with_directional(&directional[exact..]))
+            .expect("finite input");
+        let mut exact_image = vec![0.0f32; 3 * n];
+        // ‖reference‖ / ‖reference − exact columns‖: the error relative to the sampled part.
+        let sampled_scale = |exact_image: &[f32]| {
+            let rest: Vec<f32> = reference
+                .iter()
+                .zip(exact_image)
+                .map(|(r, e)| r - e)
+                .collect();
+            norm(&reference) / norm(&rest)
+        };
+        for j in vpls.len()..vpls.len() + exact {
+            oracle.eval_col(j, &mut column).expect("directional column");
+            let lit = column
+                .chunks(3)
+                .filter(|p| p.iter().any(|&v| v > 0.0))
+                .count();
+            println!(
+                "exact column {j}: {lit} of {n} pixels lit ({:.2}%), ‖column‖ / ‖reference‖ = {:.3}",
+                100.0 * lit as f64 / n as f64,
+                norm(&column) / norm(&reference)
+            );
+            for (e, &c) in exact_image.iter_mut().zip(&column) {
+                *e += c;
+            }
+        }
         println!(
             "clamp {clamp}: brute force {} ({:.3e} elements; 0 s when cached)",
             fmt_duration(start.elapsed()),
             (n * m) as f64
         );
         let brute = (n * m) as f64;
+        let scale = sampled_scale(&exact_image);
         for ((policy_name, policy), (rows, columns)) in policies
             .iter()
             .flat_map(|&p| CONFIGS.into_iter().map(move |c| (p, c)))
@@ -144,9 +179,12 @@ fn main() {
                 let config = RowColumnConfig::new(rows, columns)
                     .with_seed(seed + 7)
                     .with_unseen(policy);
-                let estimate =
-                    row_column_sampling(&oracle, &config, &NoProgress).expect("valid config");
-                elements += estimate.elements;
+                let mut estimate =
+                    row_column_sampling(&sampled, &config, &NoProgress).expect("valid config");
+                for (v, &e) in estimate.image.iter_mut().zip(&exact_image) {
+                    *v += e;
+                }
+                elements += estimate.elements + (exact * n) as u64;
                 unseen += estimate.unseen_lights;
                 errors.push(
                     relative_frobenius_error(&estimate.image, &reference)
@@ -171,6 +209,7 @@ fn main() {
                 format!("{:.2}%", 100.0 * mean),
                 format!("{:.2}%", 100.0 * max),
                 format!("{:.0}", unseen as f64 / runs as f64),
+                format!("{:.2}%", 100.0 * mean * scale),
             ]);
             if let (0, (300, 900), Some(path), Some(image)) =
                 (c, (rows, columns), &image_path, first_image)
