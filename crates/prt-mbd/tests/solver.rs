@@ -508,3 +508,54 @@ fn als_accepts_hat_weights_rounded_off_the_origin() {
     let (_, report) = solve_als(&field, coef, basis, &mbd.options, &NoProgress).unwrap();
     assert!(report.history[0].loss_after <= report.history[0].loss_before);
 }
+
+#[test]
+fn als_stays_bounded_where_most_voxels_are_zero() {
+    // Like a traced volume with invalid (zero) voxels through it (60 % here), so some basis
+    // nodes see little. On the traced Sponza volume the undamped basis step grew the basis there
+    // (exact at the voxel centres, wrong between them) and ended 5.5x above its global-PCA
+    // start; this smaller field does not reproduce that blow-up (it passes undamped too), so it
+    // guards the property, not the Sponza case (measured in docs/results.md).
+    let mut field = SyntheticField {
+        dims: [20, 20, 20],
+        dim: 96,
+        harmonics: 3,
+        seed: 8,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    for v in 0..field.num_voxels() {
+        let [x, y, z] = field.coords(v);
+        if (x * 7 + y * 3 + z * 5) % 5 < 3 {
+            field.voxel_mut(v).fill(0.0);
+        }
+    }
+    let options = MbdOptions {
+        max_iterations: 2,
+        tolerance: 0.0,
+        ..quick(8)
+    };
+    let mbd = Mbd {
+        basis_nodes: [5, 5, 5],
+        options: options.clone(),
+    };
+    let start = {
+        let (coef, basis) = mbd.kernels(&field).unwrap();
+        let none = MbdOptions {
+            max_iterations: 0,
+            ..options.clone()
+        };
+        solve_als(&field, coef, basis, &none, &NoProgress)
+            .unwrap()
+            .0
+    };
+    let (coef, basis) = mbd.kernels(&field).unwrap();
+    let (model, _) = solve_als(&field, coef, basis, &options, &NoProgress).unwrap();
+    let error = |m: &dyn FieldModel| {
+        evaluate(m, &field, &EvalOptions::default())
+            .unwrap()
+            .relative_mse
+    };
+    let (before, after) = (error(&start), error(&model));
+    assert!(after < before, "ALS {after:.3e} vs its start {before:.3e}");
+}
