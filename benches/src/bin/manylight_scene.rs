@@ -2,7 +2,7 @@
 //! Sponza) against the brute-force image: relative RMS error vs elements evaluated, for several
 //! VPL clamp distances (the clamp decides how spiky the matrix is).
 //!
-//! `cargo run --release -p prt-benches --bin manylight_scene -- SCENE WIDTH VPLS CLAMPS [SEEDS] [IMAGE] [UNSEEN] [LIGHT]`
+//! `cargo run --release -p prt-benches --bin manylight_scene -- SCENE WIDTH VPLS CLAMPS [SEEDS] [IMAGE] [UNSEEN] [LIGHT] [BUDGETS]`
 //!
 //! * `SCENE`: `cornell` (built-in box, lit by its ceiling quad) or `sponza`
 //!   (`../shared/scenes/sponza`, sun and sky);
@@ -17,7 +17,9 @@
 //!   and 1024 sky directions, `prt_trace::directional_lights`; none for the Cornell box, whose
 //!   direct light is its emitter VPLs); `exact-sun` does the same but evaluates the sun's column
 //!   in full (one column, `pixels` elements, counted) and samples the other lights; `indirect`
-//!   leaves the matrix to the VPLs alone, so a sun-and-sky scene then has no direct light.
+//!   leaves the matrix to the VPLs alone, so a sun-and-sky scene then has no direct light;
+//! * `BUDGETS`: comma-separated `rows/columns` settings to run (default: the six of the paper's
+//!   range, 100/200 .. 900/1800).
 //!
 //! Brute-force images of the VPL columns are cached in `target/manylight_cache/` (keyed by shape
 //! and fingerprint), so that only the first run of a (scene, size, VPLs, clamp) pays for them;
@@ -68,6 +70,16 @@ fn main() {
     };
     let light = args.get(7).map(String::as_str).unwrap_or("direct");
     let direct = light != "indirect";
+    let budgets: Vec<(usize, usize)> = match args.get(8) {
+        Some(list) => list
+            .split(',')
+            .filter_map(|b| {
+                let (r, c) = b.split_once('/')?;
+                Some((r.parse().ok()?, c.parse().ok()?))
+            })
+            .collect(),
+        None => CONFIGS.to_vec(),
+    };
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(scene) = load_scene(scene_name, manifest) else {
@@ -167,7 +179,7 @@ fn main() {
         let scale = sampled_scale(&exact_image);
         for ((policy_name, policy), (rows, columns)) in policies
             .iter()
-            .flat_map(|&p| CONFIGS.into_iter().map(move |c| (p, c)))
+            .flat_map(|&p| budgets.iter().map(move |&c| (p, c)))
         {
             if rows > n || columns > m {
                 continue;
