@@ -266,7 +266,7 @@ impl RayTracer {
         node_test: impl Fn(&CwBvhNode, &Ray, u32) -> u32,
     ) -> Option<SlotHit> {
         let bvh = self.bvh.as_ref()?;
-        let mut ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
+        let mut ray = query_ray(origin, dir, tmin, tmax);
         let tris = &self.tris;
         let mut best = None;
         let mut state = bvh.new_traversal(ray.direction);
@@ -319,7 +319,7 @@ impl RayTracer {
         let Some(bvh) = self.bvh.as_ref() else {
             return false;
         };
-        let ray = Ray::new(Vec3A::from(origin), Vec3A::from(dir), tmin, tmax);
+        let ray = query_ray(origin, dir, tmin, tmax);
         let tris = &self.tris;
         let mut occluded = false;
         let mut state = bvh.new_traversal(ray.direction);
@@ -595,6 +595,22 @@ mod x86_v3 {
     ) {
         tracer.occluded_batch_with(rays, tmin, tmax, out, node_test());
     }
+}
+
+/// The obvhs ray of a query, with `-0.0` direction components made `+0.0`.
+///
+/// obvhs picks a node's near and far planes from the traversal octant (`direction < 0.0`, false
+/// for `-0.0`) but takes the reciprocal's sign from the sign bit (`-1 / ε` for `-0.0`), so an
+/// axis-parallel ray with a `-0.0` component swapped them and missed every box.
+#[inline(always)]
+fn query_ray(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Ray {
+    // Adding +0.0 maps -0.0 to +0.0 and leaves every other value as it is.
+    Ray::new(
+        Vec3A::from(origin),
+        Vec3A::from(dir + Vec3::ZERO),
+        tmin,
+        tmax,
+    )
 }
 
 /// Closest hit by testing every triangle (the reference for the BVH's tests and sweeps).

@@ -857,9 +857,7 @@ impl<'a> VplOracle<'a> {
         let v = match light {
             Light::Point(v) => v,
             Light::Directional(l) => {
-                // `+ 0.0` turns a `-0.0` component into `+0.0`: the BVH traversal misses hits
-                // for a ray with a `-0.0` component whose origin lies on that axis' plane.
-                let towards = -l.direction.normalize() + Vec3::ZERO;
+                let towards = -l.direction.normalize();
                 return Ok(!self.tracer.occluded(from, towards, 0.0, f32::INFINITY));
             }
         };

@@ -187,3 +187,39 @@ proptest! {
         prop_assert!(!tracer.occluded(p, -d, eps, h.t));
     }
 }
+
+#[test]
+fn axis_parallel_rays_with_signed_zero_components_hit() {
+    // A ceiling of 4 x 4 unit quads at y = 1; rays straight up from y = 0 and straight down from
+    // y = 2 with every sign of zero in x and z (a sun straight overhead gives `-0.0` components).
+    // obvhs alone misses every one with a `-0.0` component (its octant and reciprocal disagree).
+    let mut tris = Vec::new();
+    for i in 0..4 {
+        for k in 0..4 {
+            let (x, z) = (i as f32, k as f32);
+            let [a, b, c, d] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
+                .map(|(u, v)| Vec3::new(x + u, 1.0, z + v));
+            tris.extend([[a, b, c], [a, c, d]]);
+        }
+    }
+    let tracer = RayTracer::new(&tris);
+    let zeros = [0.0f32, -0.0];
+    // Origins off the triangles' edges (an edge hit is the triangle test's business). A ray
+    // running exactly along an edge on the scene's far faces still misses (the box test's far
+    // plane is at t = 0 there): a grazing hit on the boundary, left as obvhs has it.
+    for i in 0..16 {
+        for k in 0..16 {
+            for (y, up) in [(0.0, 1.0), (2.0, -1.0)] {
+                let o = Vec3::new(i as f32 * 0.25 + 0.1, y, k as f32 * 0.25 + 0.2);
+                for (zx, zz) in zeros.iter().flat_map(|&a| zeros.map(|b| (a, b))) {
+                    let d = Vec3::new(zx, up, zz);
+                    let slow = brute_force_closest(&tris, o, d, 0.0, f32::INFINITY);
+                    let fast = tracer.closest_triangle(o, d, 0.0, f32::INFINITY);
+                    assert_eq!(slow.map(|(_, t)| t), Some(1.0), "brute force o={o} d={d:?}");
+                    assert_eq!(fast.map(|(t, _)| t), Some(1.0), "o={o} d={d:?}");
+                    assert!(tracer.occluded(o, d, 0.0, f32::INFINITY), "o={o} d={d:?}");
+                }
+            }
+        }
+    }
+}
