@@ -1,9 +1,20 @@
-//! Helpers shared by the many-light sweeps: VPL tracing to a target count and image strips.
+//! Helpers shared by the many-light sweeps: the budget list, VPL tracing to a target count and image strips.
 
 use std::path::Path;
 
 use prt_core::NoProgress;
 use prt_trace::{LoadOptions, RayTracer, Scene, Vpl, VplOptions, trace_vpls};
+
+/// The (rows, columns) budgets of the sweep, from 100/200 to 900/1800 (300/900 is the
+/// paper's; 432/864 and 400/1300 sit near 50x fewer elements at 256²).
+pub const BUDGETS: [(usize, usize); 6] = [
+    (100, 200),
+    (300, 900),
+    (432, 864),
+    (400, 1300),
+    (600, 1200),
+    (900, 1800),
+];
 
 /// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
 /// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is

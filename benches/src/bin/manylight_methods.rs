@@ -16,7 +16,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{load_scene, trace_about, write_strip};
+use prt_benches::manylight::{BUDGETS, load_scene, trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
@@ -85,15 +85,6 @@ impl VisibilityOracle for SceneOracle<'_> {
         Ok(if self.inner.visible(i, j)? { 1.0 } else { 0.0 })
     }
 }
-
-const CONFIGS: [(usize, usize); 6] = [
-    (100, 200),
-    (300, 900),
-    (432, 864),
-    (400, 1300),
-    (600, 1200),
-    (900, 1800),
-];
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -217,7 +208,7 @@ fn compare<O: SliceOracle + VisibilityOracle>(
         "max over seeds",
     ]);
     let kmeans = VisibilityClusterMethod::KMeans { iterations: 4 };
-    for (rows, columns) in CONFIGS {
+    for (rows, columns) in BUDGETS {
         if rows > oracle.rows() || columns > oracle.cols() {
             continue;
         }

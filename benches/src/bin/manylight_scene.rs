@@ -27,21 +27,12 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{load_scene, trace_about, write_strip};
+use prt_benches::manylight::{BUDGETS, load_scene, trace_about, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
 use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
-
-const CONFIGS: [(usize, usize); 6] = [
-    (100, 200),
-    (300, 900),
-    (432, 864),
-    (400, 1300),
-    (600, 1200),
-    (900, 1800),
-];
 
 fn norm(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt()
@@ -78,7 +69,7 @@ fn main() {
                 Some((r.parse().ok()?, c.parse().ok()?))
             })
             .collect(),
-        None => CONFIGS.to_vec(),
+        None => BUDGETS.to_vec(),
     };
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
