@@ -608,7 +608,7 @@ fn map_least_squares_reproduces_a_function_in_the_span() {
 }
 
 /// Blocking reorders only independent arithmetic: one sample at a time, the whole stream at
-/// once (blocks of 16) and a stream with zero weights all give the same state, bit for bit.
+/// once (blocks of 64) and a stream with zero weights all give the same state, bit for bit.
 #[test]
 fn sg_encoder_blocking_does_not_change_the_result() {
     use prt_plsq::SgEncoder;
