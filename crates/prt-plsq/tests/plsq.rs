@@ -650,6 +650,11 @@ fn sg_encoder_blocking_does_not_change_the_result() {
         assert_eq!(whole.coefficients(), single.coefficients(), "{cfg:?}");
         assert_eq!(whole.coefficients(), weighted.coefficients(), "{cfg:?}");
         assert_eq!(whole.total_weight(), weighted.total_weight());
+        // Explicit unit weights (copied into the blocks in runs) equal no weights.
+        let mut unit = SgEncoder::<3>::new(&basis, cfg).unwrap();
+        unit.add_samples(&dirs, &values, Some(&vec![1.0; dirs.len()]), &NoProgress)
+            .unwrap();
+        assert_eq!(whole.coefficients(), unit.coefficients(), "{cfg:?}");
     }
 }
 
