@@ -331,8 +331,52 @@ impl<const C: usize> SgEncoder<C> {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     fn apply_residual_block_x86_64_v3(&mut self, acceleration: f32) {
-        use v3::*;
+        // The configuration becomes constant parameters, so that the per-sample code has no
+        // branches on it (measured 1.07x).
         let cfg = self.config;
+        match (cfg.sweep == Sweep::GaussSeidel, cfg.non_negative) {
+            (true, true) => self.residual_block_v3_for::<true, true>(acceleration),
+            (true, false) => self.residual_block_v3_for::<true, false>(acceleration),
+            (false, true) => self.residual_block_v3_for::<false, true>(acceleration),
+            (false, false) => self.residual_block_v3_for::<false, false>(acceleration),
+        }
+    }
+
+    /// [`Self::apply_residual_block_x86_64_v3`] for one sweep and projection, choosing the
+    /// denominator.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn residual_block_v3_for<const GAUSS_SEIDEL: bool, const NON_NEGATIVE: bool>(
+        &mut self,
+        acceleration: f32,
+    ) {
+        use v3::{CLAMPED, EXACT, LERP_FROM_ONE};
+        match self.config.denominator {
+            Denominator::LerpFromOne => self
+                .residual_block_v3::<GAUSS_SEIDEL, NON_NEGATIVE, LERP_FROM_ONE>(acceleration, 0.0),
+            Denominator::Clamped { floor } => {
+                self.residual_block_v3::<GAUSS_SEIDEL, NON_NEGATIVE, CLAMPED>(acceleration, floor)
+            }
+            Denominator::Exact => {
+                self.residual_block_v3::<GAUSS_SEIDEL, NON_NEGATIVE, EXACT>(acceleration, 0.0)
+            }
+        }
+    }
+
+    /// The block loop of [`Self::apply_residual_block_x86_64_v3`]; `DENOMINATOR` is one of
+    /// `v3`'s denominator constants, `floor` the clamped denominator's floor.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn residual_block_v3<
+        const GAUSS_SEIDEL: bool,
+        const NON_NEGATIVE: bool,
+        const DENOMINATOR: u8,
+    >(
+        &mut self,
+        acceleration: f32,
+        floor: f32,
+    ) {
+        use v3::*;
         let n = self.block.len;
         let lobes = Lobes {
             px: load16(&self.px),
@@ -349,9 +393,15 @@ impl<const C: usize> SgEncoder<C> {
         for s in 0..n {
             total_weight += b.weights[s];
             let share = b.weights[s] / total_weight;
-            let [basis, gain] =
-                sample_gains(&lobes, &mut integrals, b.dirs[s], share, cfg, acceleration);
-            update_coefficients(&mut coeffs, basis, gain, &b.values[s], cfg);
+            let [basis, gain] = sample_gains::<GAUSS_SEIDEL, DENOMINATOR>(
+                &lobes,
+                &mut integrals,
+                b.dirs[s],
+                share,
+                floor,
+                acceleration,
+            );
+            update_coefficients::<C, NON_NEGATIVE>(&mut coeffs, basis, gain, &b.values[s]);
         }
         self.total_weight = total_weight;
         store16(&mut self.integrals, integrals);
@@ -547,7 +597,13 @@ mod v3 {
     use glam::Vec3;
 
     use super::LANE;
-    use crate::encoder::{Denominator, EncoderConfig, Sweep};
+
+    /// [`crate::Denominator`] as a constant parameter: lerped from 1.
+    pub(super) const LERP_FROM_ONE: u8 = 0;
+    /// Clamped to a floor times the true mean.
+    pub(super) const CLAMPED: u8 = 1;
+    /// The true mean.
+    pub(super) const EXACT: u8 = 2;
 
     /// The lobe constants of one lane group.
     pub(super) struct Lobes {
@@ -654,12 +710,12 @@ mod v3 {
     /// the residual update.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    pub(super) fn sample_gains(
+    pub(super) fn sample_gains<const GAUSS_SEIDEL: bool, const DENOMINATOR: u8>(
         lobes: &Lobes,
         integrals: &mut [__m256; 2],
         d: Vec3,
         share: f32,
-        cfg: EncoderConfig,
+        floor: f32,
         acceleration: f32,
     ) -> [[__m256; 2]; 2] {
         let (dx, dy, dz) = (
@@ -684,19 +740,18 @@ mod v3 {
             let est = integrals[h];
             let est = _mm256_fmadd_ps(_mm256_fmsub_ps(b, b, est), sh, est);
             integrals[h] = est;
-            let denom = match cfg.denominator {
-                Denominator::Clamped { floor } => {
-                    _mm256_max_ps(est, _mm256_mul_ps(_mm256_set1_ps(floor), lobes.means[h]))
-                }
-                Denominator::LerpFromOne => _mm256_fmadd_ps(_mm256_sub_ps(one, sh), est, sh),
-                Denominator::Exact => lobes.means[h],
+            let denom = match DENOMINATOR {
+                CLAMPED => _mm256_max_ps(est, _mm256_mul_ps(_mm256_set1_ps(floor), lobes.means[h])),
+                LERP_FROM_ONE => _mm256_fmadd_ps(_mm256_sub_ps(one, sh), est, sh),
+                EXACT => lobes.means[h],
+                _ => unreachable!("denominator constant {DENOMINATOR}"),
             };
             let s = _mm256_div_ps(_mm256_mul_ps(sh, b), denom);
             basis[h] = b;
             step[h] = _mm256_and_ps(nonzero, s);
         }
         let alpha = _mm256_set1_ps(acceleration);
-        let gain = if cfg.sweep == Sweep::GaussSeidel {
+        let gain = if GAUSS_SEIDEL {
             // g_i = α Π_{j<i} (1 − step_j B_j) step_i: an exclusive prefix product across
             // the 16 lanes, padding lanes contributing factors of 1.
             let before = exclusive_prefix_product16([
@@ -729,12 +784,11 @@ mod v3 {
     /// channels four at a time.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
-    pub(super) fn update_coefficients<const C: usize>(
+    pub(super) fn update_coefficients<const C: usize, const NON_NEGATIVE: bool>(
         coeffs: &mut [[__m256; 2]; C],
         basis: [__m256; 2],
         gain: [__m256; 2],
         values: &[f32; C],
-        cfg: EncoderConfig,
     ) {
         for first in (0..C).step_by(4) {
             let channels = first..C.min(first + 4);
@@ -757,7 +811,7 @@ mod v3 {
                     _mm256_fmadd_ps(gain[0], delta, lo),
                     _mm256_fmadd_ps(gain[1], delta, hi),
                 ];
-                if cfg.non_negative {
+                if NON_NEGATIVE {
                     next = next.map(|x| _mm256_max_ps(x, _mm256_setzero_ps()));
                 }
                 coeffs[c] = next;
