@@ -323,11 +323,10 @@ impl<const C: usize> SgEncoder<C> {
 
     /// The residual update for one lane group (up to 16 lobes) with explicit AVX2 + FMA
     /// vectors: the integrals and the `C × 16` coefficients stay in registers over the block,
-    /// the Gauss-Seidel prefix product is a scan across the lanes, and each sample's
-    /// coefficient-independent work is issued right before its residual and update, so that
-    /// the out-of-order core overlaps it with the previous sample's dependency chain (dot
-    /// product, horizontal sum, update); explicitly pipelining it 1-4 samples ahead measured
-    /// no faster.
+    /// the Gauss-Seidel prefix product is a scan across the lanes, and the
+    /// coefficient-independent work of the next sample is issued before the residual and
+    /// update of the current one, so that it fills the pipeline while the residual's
+    /// dependency chain (dot product, horizontal sum, update) waits.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     fn apply_residual_block_x86_64_v3(&mut self, acceleration: f32) {
@@ -390,17 +389,24 @@ impl<const C: usize> SgEncoder<C> {
         let mut coeffs: [[__m256; 2]; C] = std::array::from_fn(|c| load16(&self.coeffs[c]));
         let mut total_weight = self.total_weight;
         let b = &self.block;
-        for s in 0..n {
+        let mut prepare = |s: usize| {
             total_weight += b.weights[s];
             let share = b.weights[s] / total_weight;
-            let [basis, gain] = sample_gains::<GAUSS_SEIDEL, DENOMINATOR>(
+            sample_gains::<GAUSS_SEIDEL, DENOMINATOR>(
                 &lobes,
                 &mut integrals,
                 b.dirs[s],
                 share,
                 floor,
                 acceleration,
-            );
+            )
+        };
+        let mut pending = prepare(0);
+        for s in 0..n {
+            let [basis, gain] = pending;
+            if s + 1 < n {
+                pending = prepare(s + 1);
+            }
             update_coefficients::<C, NON_NEGATIVE>(&mut coeffs, basis, gain, &b.values[s]);
         }
         self.total_weight = total_weight;
