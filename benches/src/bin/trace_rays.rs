@@ -112,15 +112,18 @@ struct Throughput {
 /// Rays per call of the batched queries (bounds the result vectors to ~32 MB).
 const BATCH: usize = 1 << 20;
 
+/// A batch query under test: traces the rays it is given and returns how many hit.
+type RayCounter<'a> = dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync + 'a;
+
 /// Times `closest` then `shadow` over all `rays`; each returns how many of its rays hit.
 fn measure_counts(
     rays: &[(Vec3, Vec3)],
-    closest: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync),
-    shadow: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync),
+    closest: &RayCounter<'_>,
+    shadow: &RayCounter<'_>,
 ) -> Throughput {
     let threads = rayon::current_num_threads() as f64;
     let count = rays.len() as f64;
-    let run = |f: &(dyn Fn(&[(Vec3, Vec3)]) -> usize + Sync)| {
+    let run = |f: &RayCounter<'_>| {
         let (t, c) = (Instant::now(), cpu_seconds());
         let n = f(rays);
         let wall = count / t.elapsed().as_secs_f64() / 1e6;
