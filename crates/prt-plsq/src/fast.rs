@@ -738,7 +738,7 @@ mod v3 {
                 dx,
                 _mm256_fmadd_ps(lobes.py[h], dy, _mm256_mul_ps(lobes.pz[h], dz)),
             );
-            let arg = _mm256_mul_ps(lobes.lambda[h], _mm256_sub_ps(cos, one));
+            let arg = _mm256_fmsub_ps(lobes.lambda[h], cos, lobes.lambda[h]);
             let b = _mm256_mul_ps(lobes.live[h], exp8(arg));
             // A lobe that evaluates to exactly 0 is skipped, as in the generic encoder.
             let nonzero = _mm256_cmp_ps::<_CMP_NEQ_OQ>(b, zero);
