@@ -322,7 +322,7 @@ impl<const C: usize> SgEncoder<C> {
     }
 
     /// The residual update for one lane group (up to 16 lobes) with explicit AVX2 + FMA
-    /// vectors: the integrals and the `C × 16` coefficients stay in registers over the block,
+    /// vectors: the integrals and the `C × 16` coefficients are held as vectors over the block,
     /// the Gauss-Seidel prefix product is a scan across the lanes, and the
     /// coefficient-independent work of the next sample is issued before the residual and
     /// update of the current one, so that it fills the pipeline while the residual's
@@ -401,6 +401,7 @@ impl<const C: usize> SgEncoder<C> {
                 acceleration,
             )
         };
+        // `n >= 1`: `flush` returns early on an empty block.
         let mut pending = prepare(0);
         for s in 0..n {
             let [basis, gain] = pending;
