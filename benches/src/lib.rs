@@ -9,6 +9,35 @@ use std::time::{Duration, Instant};
 
 pub mod manylight;
 
+/// User + system CPU seconds of this whole process so far, all threads (Linux `/proc/self/stat`,
+/// 100 ticks per second); NaN where `/proc` is unavailable. On a shared machine the CPU time of
+/// a run is what free cores would take, while the wall time also counts the waits for a core.
+pub fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name (which may contain spaces); utime and stime
+    // are fields 14 and 15 of the file, 11 and 12 after the name.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (ticks(11), ticks(12)) {
+        (Some(user), Some(system)) => (user + system) / 100.0,
+        _ => f64::NAN,
+    }
+}
+
+/// Nanoseconds the calling thread has spent on a CPU (Linux `/proc/thread-self/schedstat`), or
+/// `None` elsewhere: single-thread timings that other processes on the machine do not inflate.
+pub fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 /// Runs `f` `reps` times after one warm-up call and returns the median wall time.
 pub fn median_time<T>(reps: usize, mut f: impl FnMut() -> T) -> Duration {
     std::hint::black_box(f());

@@ -16,7 +16,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use ndarray::{Array1, Array2, Axis, s};
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::NoProgress;
 use prt_linalg::synthetic::low_rank_matrix;
 use prt_linalg::{
@@ -100,26 +100,6 @@ fn main() -> BoxResult<()> {
 fn best_time<T>(reps: usize, mut f: impl FnMut() -> T) -> Duration {
     std::hint::black_box(f());
     best_time_no_warmup(reps, f)
-}
-
-/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
-/// ticks per second; 0 elsewhere). On a shared machine the CPU time of a one-thread run is what
-/// an idle core would take, while the wall time also counts the waits for a core.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let fields: Vec<&str> = stat
-        .rsplit_once(')')
-        .map_or("", |(_, rest)| rest)
-        .split_whitespace()
-        .collect();
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    (ticks(11) + ticks(12)) / 100.0
 }
 
 /// [`best_time`] plus the mean CPU time per run (of the whole process: the calling thread

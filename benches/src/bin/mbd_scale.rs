@@ -12,25 +12,13 @@
 use std::sync::Mutex;
 use std::time::Instant;
 
+use prt_benches::cpu_seconds;
 use prt_core::{Aabb, FieldModel, Progress};
 use prt_mbd::{EvalOptions, Mbd, MbdOptions, SyntheticField, evaluate};
 
 /// Linear SH (4 coefficients) for R, G and B.
 const DIM: usize = 12;
 const RANK: usize = 3;
-
-/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
-/// ticks per second).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
-    match (ticks(11), ticks(12)) {
-        (Some(user), Some(system)) => (user + system) / 100.0,
-        _ => f64::NAN,
-    }
-}
 
 /// A `/proc/self/status` memory line (`VmRSS`, `VmHWM`) in GiB.
 fn memory_gib(key: &str) -> f64 {

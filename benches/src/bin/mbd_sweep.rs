@@ -30,7 +30,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use glam::Vec3;
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, resample_to_grid};
 use prt_mbd::*;
 use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
@@ -38,20 +38,6 @@ use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 const DIM: usize = 324;
 /// The transfer vector as four 9 × 9 operators.
 const BLOCKS: [usize; 4] = [81, 81, 81, 81];
-
-/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
-/// ticks per second).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the command name (which is in parentheses and may contain spaces).
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
-    match (ticks(11), ticks(12)) {
-        (Some(user), Some(system)) => (user + system) / 100.0,
-        _ => f64::NAN,
-    }
-}
 
 /// The 1, 5 and 15 minute load averages.
 fn load_average() -> String {

@@ -13,7 +13,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use glam::Vec3;
-use prt_benches::{Table, fmt_duration, median_time};
+use prt_benches::{Table, cpu_seconds, fmt_duration, median_time, thread_cpu_ns};
 use prt_core::NoProgress;
 use prt_plsq::{
     BatchEncoder, Denominator, EncoderConfig, LatLongFrame, ProgressiveEncoder, SgEncoder, Sweep,
@@ -29,17 +29,6 @@ fn signal(d: Vec3) -> [f32; 3] {
         0.3 + 0.3 * d.y + sun,
         0.5 + 0.1 * d.x,
     ]
-}
-
-/// Nanoseconds this thread has spent on a CPU (Linux `/proc/thread-self/schedstat`), so that
-/// single-thread figures are not inflated by other processes on a shared machine.
-fn thread_cpu_ns() -> Option<u64> {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()?
-        .split_whitespace()
-        .next()?
-        .parse()
-        .ok()
 }
 
 /// Mean on-CPU time of `f`, run until at least 0.5 s of CPU time has accumulated (schedstat is
@@ -174,17 +163,6 @@ fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32]) {
     let _ = t1.write_csv_if_requested("plsq_speed_single");
 }
 
-/// CPU seconds of the whole process so far (user + system, all threads; Linux
-/// `/proc/self/stat`, clock ticks of 10 ms), or `None` elsewhere.
-fn process_cpu_secs() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = stat.rsplit_once(')')?.1;
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
-
 fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")
         .ok()
@@ -259,12 +237,12 @@ fn batch_scaling(basis: &SgBasis) {
             };
             let reps = 9;
             let (t, cpu) = pool.install(|| {
-                let c0 = process_cpu_secs();
+                let c0 = cpu_seconds();
                 // `median_time` runs `fit` once more to warm up.
                 let t = median_time(reps, fit);
-                let cpu = process_cpu_secs()
-                    .zip(c0)
-                    .map(|(c1, c0)| Duration::from_secs_f64((c1 - c0) / (reps + 1) as f64));
+                let cpu = Some((cpu_seconds() - c0) / (reps + 1) as f64)
+                    .filter(|c| c.is_finite())
+                    .map(Duration::from_secs_f64);
                 (t, cpu)
             });
             let secs = t.as_secs_f64();

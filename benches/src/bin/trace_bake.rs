@@ -8,7 +8,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::NoProgress;
 use prt_trace::{
     BakeOptions, BuildQuality, LoadOptions, RayTracer, Scene, TransferBaker, TransferVolume,
@@ -22,21 +22,6 @@ fn peak_rss_mib() -> f64 {
         .find_map(|l| l.strip_prefix("VmHWM:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
-/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`,
-/// 100 ticks per second): on a shared machine, CPU time / 2 is the wall time 2 free cores need.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| {
-        f.get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(f64::NAN)
-    };
-    (ticks(11) + ticks(12)) / 100.0
 }
 
 /// Two panels side by side: sky visibility (grey) and mean indirect radiance under a unit

@@ -19,24 +19,10 @@ use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_trace::{BuildQuality, LoadOptions, RayTracer, Scene};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
-
-/// CPU time (user + system) of this process so far, in seconds (Linux `/proc/self/stat`, 100
-/// ticks per second). On a shared machine, rays / (CPU time / 2) estimates what 2 free cores do.
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let rest = stat.rsplit(')').next().unwrap_or("");
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| {
-        f.get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(f64::NAN)
-    };
-    (ticks(11) + ticks(12)) / 100.0
-}
 
 fn random_rays(scene: &Scene, count: usize, seed: u64) -> Vec<(Vec3, Vec3)> {
     let Some(b) = scene.bounds() else {

@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use prt_benches::{Table, fmt_duration, median_time};
+use prt_benches::{Table, fmt_duration, median_time, thread_cpu_ns};
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_wavelet::{
     Approximator, BandStrategy, CubemapHaar, CubemapLayout, Daubechies4, Policy, Relighter,
@@ -84,7 +84,7 @@ fn read_bandwidth() -> f64 {
     // would count waiting), falling back to wall time where schedstat is unavailable.
     let mut times: Vec<Duration> = (0..6)
         .map(|_| {
-            let (cpu, wall) = (thread_cpu(), std::time::Instant::now());
+            let (cpu, wall) = (thread_cpu_ns(), std::time::Instant::now());
             let mut acc = [0.0f32; 32];
             for c in data.chunks_exact(32) {
                 for k in 0..32 {
@@ -92,7 +92,7 @@ fn read_bandwidth() -> f64 {
                 }
             }
             std::hint::black_box(acc);
-            let cpu = thread_cpu().saturating_sub(cpu);
+            let cpu = Duration::from_nanos(thread_cpu_ns().zip(cpu).map_or(0, |(b, a)| b - a));
             if cpu.is_zero() { wall.elapsed() } else { cpu }
         })
         .collect();
@@ -112,15 +112,6 @@ fn process_cpu() -> Duration {
         .filter_map(|s| s.split_whitespace().next()?.parse::<u64>().ok())
         .map(Duration::from_nanos)
         .sum()
-}
-
-/// CPU time of the calling thread so far (Linux: `/proc/thread-self/schedstat`, nanoseconds on
-/// the CPU; zero elsewhere), so that timings on a shared machine can be told from waiting.
-fn thread_cpu() -> Duration {
-    std::fs::read_to_string("/proc/thread-self/schedstat")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse().ok())
-        .map_or(Duration::ZERO, Duration::from_nanos)
 }
 
 fn main() {
