@@ -72,61 +72,10 @@ fn residual(q: &[f64], s: &[f32], out: &mut [f32]) {
 /// Gaussian standard deviation of the denoising blur, in voxels.
 pub const BLUR_SIGMA: f64 = 1.0;
 
-/// The field blurred with a separable Gaussian of [`BLUR_SIGMA`] voxels (radius 2σ) over valid
-/// voxels only (normalised convolution); invalid voxels are zero.
+/// The field blurred with a separable Gaussian of [`BLUR_SIGMA`] voxels over valid voxels only
+/// (normalised convolution; invalid voxels are zero): prt-mbd's denoised seam reference.
 pub fn smooth(field: &GridField, valid: &[bool]) -> Result<GridField> {
-    ensure!(valid.len() == field.num_voxels(), "validity mask size");
-    let dims = field.dims();
-    let d = field.dim();
-    let radius = (2.0 * BLUR_SIGMA).ceil() as isize;
-    let taps: Vec<f64> = (-radius..=radius)
-        .map(|t| (-((t * t) as f64) / (2.0 * BLUR_SIGMA * BLUR_SIGMA)).exp())
-        .collect();
-    // Column d holds the validity weight, blurred alongside the values.
-    let width = d + 1;
-    let mut data: Vec<f32> = Vec::with_capacity(field.num_voxels() * width);
-    for (v, &ok) in valid.iter().enumerate() {
-        let m = if ok { 1.0 } else { 0.0 };
-        data.extend(field.voxel(v).iter().map(|&x| x * m));
-        data.push(m);
-    }
-    let strides = [1, dims[0], dims[0] * dims[1]];
-    for axis in 0..3 {
-        let source = &data;
-        let blurred: Vec<f32> = (0..field.num_voxels())
-            .into_par_iter()
-            .flat_map_iter(|v| {
-                let c = field.coords(v)[axis] as isize;
-                let mut acc = vec![0.0f64; width];
-                for (k, &w) in taps.iter().enumerate() {
-                    let t = c + k as isize - radius;
-                    if t < 0 || t >= dims[axis] as isize {
-                        continue;
-                    }
-                    let u = (v as isize + (t - c) * strides[axis] as isize) as usize;
-                    let row = &source[u * width..(u + 1) * width];
-                    acc.iter_mut()
-                        .zip(row)
-                        .for_each(|(a, &x)| *a += w * x as f64);
-                }
-                acc.into_iter().map(|a| a as f32)
-            })
-            .collect();
-        data = blurred;
-    }
-    let mut out = GridField::new(dims, field.bounds(), d)?;
-    for (v, &ok) in valid.iter().enumerate() {
-        let row = &data[v * width..(v + 1) * width];
-        if ok && row[d] > 0.0 {
-            let m = row[d];
-            out.voxel_mut(v)
-                .iter_mut()
-                .zip(&row[..d])
-                .for_each(|(o, &x)| *o = x / m);
-        }
-    }
-    out.check_finite()?;
-    Ok(out)
+    Ok(prt_mbd::blur_valid(field, valid, BLUR_SIGMA)?)
 }
 
 /// The seam view of one method.

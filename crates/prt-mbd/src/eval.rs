@@ -418,6 +418,39 @@ pub fn seam_metric_with(
     })
 }
 
+/// `field` blurred by a separable Gaussian of `sigma` voxels (taps to 3σ) over the voxels where
+/// `valid` is true only: each output is the weighted mean of the valid voxels under the kernel,
+/// so the box edges and invalid voxels do not pull values towards 0. Invalid voxels are 0;
+/// `sigma <= 0` only zeroes them. This is the denoised reference [`seam_metric_with`] measures
+/// against (see [`SeamOptions`]).
+///
+/// # Errors
+/// `valid` not one flag per voxel.
+pub fn blur_valid(field: &GridField, valid: &[bool], sigma: f64) -> Result<GridField, MbdError> {
+    if valid.len() != field.num_voxels() {
+        return Err(MbdError::ShapeMismatch {
+            what: "validity mask",
+            expected: vec![field.num_voxels()],
+            got: vec![valid.len()],
+        });
+    }
+    let d = field.dim();
+    let mut values = vec![0.0f32; field.num_voxels() * d];
+    values
+        .par_chunks_mut(d)
+        .enumerate()
+        .filter(|(v, _)| valid[*v])
+        .for_each(|(v, r)| r.copy_from_slice(field.voxel(v)));
+    if sigma > 0.0 {
+        values = blur_masked(values, d, field.dims(), &|v| valid[v], sigma);
+    }
+    let mut out = GridField::new(field.dims(), field.bounds(), d)?;
+    for (v, x) in values.chunks_exact(d).enumerate() {
+        out.voxel_mut(v).copy_from_slice(x);
+    }
+    Ok(out)
+}
+
 /// `data` (`voxels × d`, excluded voxels zero) blurred by a separable Gaussian of `sigma` voxels
 /// (taps to 3σ) over the included voxels only: each output is the weighted mean of the included
 /// voxels under the kernel, so the box edges and excluded voxels do not pull values towards 0.

@@ -80,8 +80,8 @@ mod hat;
 pub use hat::Mbd;
 pub mod eval;
 pub use eval::{
-    EvalOptions, Evaluation, SeamMetric, SeamOptions, evaluate, kernel_labels, seam_metric,
-    seam_metric_with,
+    EvalOptions, Evaluation, SeamMetric, SeamOptions, blur_valid, evaluate, kernel_labels,
+    seam_metric, seam_metric_with,
 };
 mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};
