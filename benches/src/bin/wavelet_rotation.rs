@@ -2,37 +2,71 @@
 //! `stop` frames, then static, measured by the per-frame area-weighted L1 lighting error.
 //!
 //! `cargo run --release -p prt-benches --bin wavelet_rotation [-- maps... ]`
-//! (default maps: probulator_uffizi, probulator_grace, venice_sunset_1k from ../shared/envmaps;
-//! speeds 1 and 3 degrees per frame; 64 × 64 faces, RGB, area-weighted selection; lighting
-//! area-averaged onto the faces with `Cubemap::default_samples` sub-texel lookups).
+//! (default maps: every `.hdr` in ../shared/envmaps; speeds 0.5, 1 and 3 degrees per frame;
+//! 64 × 64 faces, RGB, area-weighted selection; lighting area-averaged onto the faces with
+//! `Cubemap::default_samples` sub-texel lookups). Each distinct rotation angle of a map is
+//! resampled once (the static frames repeat the stop angle, and 1°/frame's first 50 angles are
+//! 0.5°/frame's even ones), frames in parallel, then a map's speeds run in parallel (rayon;
+//! results do not depend on the thread count).
 //! Environment: `PRT_CSV_DIR` writes per-frame CSVs; `PRT_WAVELET_SIZE` sets the cube face side
 //! (default 64; 32 is the 6 × 32 × 32 lighting of the BRDF-factorisation and CPCA codes the
 //! thesis built on); `PRT_WAVELET_SPEEDS` the degrees per frame (comma-separated, default
-//! `1,3`); `PRT_WAVELET_SAMPLES_X` multiplies the sub-texel lookups per side (default 1; for
+//! `0.5,1,3`); `PRT_WAVELET_SAMPLES_X` multiplies the sub-texel lookups per side (default 1; for
 //! checking that resampling noise does not drive the results); `PRT_WAVELET_CURVES=0` skips
 //! the error-vs-terms sweep; `PRT_WAVELET_WEIGHT=support` selects by `|c|` × support solid angle
-//! instead of the basis function's L1 norm (see `selection_weights`).
+//! instead of the basis function's L1 norm (see `selection_weights`). The figure 5.3 / 5.4
+//! analyses are printed for probulator_uffizi at 1°/frame when that run is in the sweep, else
+//! for the first run.
 
-use std::path::Path;
+use std::collections::HashMap;
+use std::path::PathBuf;
 use std::time::Instant;
 
-use prt_benches::Table;
+use prt_benches::{Table, cpu_seconds, thread_cpu_ns};
 use prt_sphere::LatLongMap;
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{Approximator, BandStrategy, CubemapHaar, CubemapLayout, Policy};
+use rayon::prelude::*;
 
 const FRAMES: usize = 200;
 const STOP: usize = 100;
 const WARMUP: usize = 10;
+/// The PBI variant the target columns report (dealer over level × face × quadrant bands).
+const BEST: &str = "PBI30 dealer level x face x quadrant";
+/// The thesis' PBI (exhaustive over wavelet-level bands), in brackets beside it.
+const THESIS: &str = "PBI30x";
 
-fn load(name: &str) -> Option<LatLongMap> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/envmaps")
-        .join(format!("{name}.hdr"));
-    let img = image::open(&path).ok()?.into_rgb32f();
+fn envmap_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps")
+}
+
+/// Every `.hdr` map of ../shared/envmaps, by name.
+fn all_maps() -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(envmap_dir())
+        .map(|dir| {
+            dir.filter_map(|e| {
+                let path = e.ok()?.path();
+                (path.extension()? == "hdr")
+                    .then(|| path.file_stem()?.to_str().map(String::from))?
+            })
+            .collect()
+        })
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+/// The map, or why it cannot be used.
+fn load(name: &str) -> Result<LatLongMap, String> {
+    let path = envmap_dir().join(format!("{name}.hdr"));
+    let img = image::open(&path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .into_rgb32f();
     let (w, h) = img.dimensions();
-    LatLongMap::new(w as usize, h as usize, img.into_raw()).ok()
+    let map = LatLongMap::new(w as usize, h as usize, img.into_raw())
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(map)
 }
 
 struct Method {
@@ -101,29 +135,59 @@ fn fine_method(
     }
 }
 
-/// Every frame's texels and Haar coefficients (resampled once, shared by all runs).
-fn frames(rotation: &Rotation, size: usize) -> Vec<(Vec<f32>, Vec<f32>)> {
-    let mut haar = CubemapHaar::new(size).expect("size");
-    (0..FRAMES)
-        .map(|t| {
-            let texels = rotation.frame(t).expect("frame").into_data();
-            let mut coeffs = texels.clone();
-            haar.forward(&mut coeffs).expect("transform");
-            (texels, coeffs)
-        })
-        .collect()
+/// One frame's texels and Haar coefficients.
+struct Frame {
+    texels: Vec<f32>,
+    coeffs: Vec<f32>,
 }
 
-fn run(frames: &[(Vec<f32>, Vec<f32>)], size: usize, methods: &mut [Method]) {
+/// The frames of every rotation: each distinct angle (by bit pattern) resampled and transformed
+/// once, in parallel; `order[r][t]` indexes rotation `r`'s frame `t`.
+fn frames(rotations: &[Rotation], size: usize) -> (Vec<Frame>, Vec<Vec<usize>>) {
+    let mut first_use: HashMap<u32, usize> = HashMap::new();
+    let mut work: Vec<(usize, usize)> = Vec::new();
+    let mut order = Vec::with_capacity(rotations.len());
+    for (r, rotation) in rotations.iter().enumerate() {
+        let mut indices = Vec::with_capacity(FRAMES);
+        for t in 0..FRAMES {
+            let next = work.len();
+            let i = *first_use.entry(rotation.angle(t).to_bits()).or_insert(next);
+            if i == next {
+                work.push((r, t));
+            }
+            indices.push(i);
+        }
+        order.push(indices);
+    }
+    let frames = work
+        .par_iter()
+        .map_init(
+            || CubemapHaar::new(size).expect("size"),
+            |haar, &(r, t)| {
+                let texels = rotations[r].frame(t).expect("frame").into_data();
+                let mut coeffs = texels.clone();
+                haar.forward(&mut coeffs).expect("transform");
+                Frame { texels, coeffs }
+            },
+        )
+        .collect();
+    (frames, order)
+}
+
+fn run(frames: &[&Frame], size: usize, methods: &mut [Method]) {
     let mut metric = LightingError::new(size, 3).expect("size");
-    for (texels, coeffs) in frames {
+    for frame in frames {
         for m in methods.iter_mut() {
-            let start = Instant::now();
-            let update = m.approx.step(coeffs).expect("step");
-            m.seconds += start.elapsed().as_secs_f64();
+            // Thread CPU time where available: the machine is shared.
+            let (wall, cpu) = (Instant::now(), thread_cpu_ns());
+            let update = m.approx.step(&frame.coeffs).expect("step");
+            m.seconds += match (cpu, thread_cpu_ns()) {
+                (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+                _ => wall.elapsed().as_secs_f64(),
+            };
             m.band_terms.push(update.terms_per_band());
             let e = metric
-                .error(m.approx.approximation(), texels)
+                .error(m.approx.approximation(), &frame.texels)
                 .expect("metric");
             m.errors.push(e);
         }
@@ -134,31 +198,271 @@ fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
 
+/// Rows of every table for one map and speed.
+#[derive(Default)]
+struct Report {
+    summary: Vec<Vec<String>>,
+    targets: Vec<String>,
+    strategies: Vec<Vec<String>>,
+    curves: Vec<Vec<String>>,
+    analysis: Option<String>,
+}
+
+fn evaluate(
+    name: &str,
+    deg: f32,
+    frames: &[&Frame],
+    layout: &CubemapLayout,
+    curves_wanted: bool,
+    analyse: bool,
+) -> Report {
+    let size = layout.size();
+    let mut report = Report::default();
+    let mut methods = vec![
+        method(layout, "PBI30", 30, Policy::PerBand(BandStrategy::L1Test)),
+        method(
+            layout,
+            THESIS,
+            30,
+            Policy::PerBand(BandStrategy::Exhaustive),
+        ),
+        method(layout, "PBI30d", 30, Policy::PerBand(BandStrategy::Dealer)),
+        fine_method(
+            layout,
+            1,
+            "PBI30 dealer level x face",
+            30,
+            Policy::PerBand(BandStrategy::Dealer),
+        ),
+        fine_method(
+            layout,
+            1,
+            "PBI30 L1 test level x face",
+            30,
+            Policy::PerBand(BandStrategy::L1Test),
+        ),
+        fine_method(layout, 2, BEST, 30, Policy::PerBand(BandStrategy::Dealer)),
+        fine_method(
+            layout,
+            1,
+            "PBI30 exhaustive level x face",
+            30,
+            Policy::PerBand(BandStrategy::Exhaustive),
+        ),
+        fine_method(
+            layout,
+            2,
+            "PBI30 exhaustive level x face x quadrant",
+            30,
+            Policy::PerBand(BandStrategy::Exhaustive),
+        ),
+        method(layout, "BI30", 30, Policy::Incremental),
+        method(layout, "NWA30", 30, Policy::NonIncremental),
+        method(layout, "NWA60", 60, Policy::NonIncremental),
+        method(layout, "NWA100", 100, Policy::NonIncremental),
+        method(layout, "NWA500", 500, Policy::NonIncremental),
+    ];
+    run(frames, size, &mut methods);
+    let err = |n: &str| &methods.iter().find(|m| m.name == n).expect("method").errors;
+    let pbi_l1 = err("PBI30");
+    let (bi, nwa60, nwa100, nwa500) = (err("BI30"), err("NWA60"), err("NWA100"), err("NWA500"));
+    let rotating = WARMUP..STOP;
+    let wins = |pbi: &[f64]| rotating.clone().filter(|&t| pbi[t] < nwa60[t]).count();
+    let ghosts = |pbi: &[f64]| {
+        (50..FRAMES)
+            .filter(|&t| pbi[t] > bi[t] * (1.0 + 1e-9))
+            .count()
+    };
+    let converge = |pbi: &[f64]| (STOP..FRAMES).find(|&t| pbi[t] < nwa500[t]);
+    let fmt_converge =
+        |t: Option<usize>| t.map_or("never".to_string(), |t| format!("+{}", t - STOP));
+    // Two headline PBIs: the thesis' (exhaustive over level bands, optimal per frame for the
+    // selection objective) and the best variant (dealer over level x face x quadrant bands).
+    for (label, key) in [
+        ("exhaustive, level bands", THESIS),
+        ("dealer, level x face x quadrant", BEST),
+    ] {
+        let pbi = err(key);
+        let extra = if key == THESIS {
+            let wins_l1 = wins(pbi_l1);
+            format!(" ({wins_l1} L1 test)")
+        } else {
+            String::new()
+        };
+        report.summary.push(vec![
+            name.to_string(),
+            format!("{deg}"),
+            label.to_string(),
+            format!("{}/{}{extra}", wins(pbi), rotating.len()),
+            format!("{:.4}", mean(&pbi[rotating.clone()])),
+            format!("{:.4}", mean(&nwa60[rotating.clone()])),
+            format!("{:.4}", mean(&nwa100[rotating.clone()])),
+            format!("{:.4}", mean(&bi[rotating.clone()])),
+            format!("{}/{}", ghosts(pbi), FRAMES - 50),
+            converge(pbi).map_or("never".to_string(), |t| format!("{} (+{})", t, t - STOP)),
+        ]);
+    }
+    let (best, thesis) = (err(BEST), err(THESIS));
+    let worst = rotating
+        .clone()
+        .map(|t| best[t] / nwa60[t])
+        .fold(0.0, f64::max);
+    let ratio = |pbi: &[f64]| mean(&pbi[rotating.clone()]) / mean(&nwa100[rotating.clone()]);
+    report.targets = vec![
+        name.to_string(),
+        format!("{deg}"),
+        format!("{}/90 ({}/90)", wins(best), wins(thesis)),
+        format!("{worst:.3}"),
+        format!("{:.2} ({:.2})", ratio(best), ratio(thesis)),
+        format!("{}/150 ({}/150)", ghosts(best), ghosts(thesis)),
+        format!(
+            "{} ({})",
+            fmt_converge(converge(best)),
+            fmt_converge(converge(thesis))
+        ),
+    ];
+    for m in methods.iter().filter(|m| m.name.starts_with("PBI")) {
+        let worst = rotating
+            .clone()
+            .map(|t| m.errors[t] / nwa60[t])
+            .fold(0.0, f64::max);
+        report.strategies.push(vec![
+            name.to_string(),
+            format!("{deg}"),
+            m.name.clone(),
+            format!("{}/{}", wins(&m.errors), rotating.len()),
+            format!("{worst:.3}"),
+            format!("{:.4}", mean(&m.errors[rotating.clone()])),
+            format!("{:.2}", ratio(&m.errors)),
+            format!("{:.4}", mean(&m.errors[STOP..STOP + 30])),
+            format!("{:.1} µs", m.seconds / FRAMES as f64 * 1e6),
+        ]);
+    }
+    let header: Vec<&str> = std::iter::once("frame")
+        .chain(methods.iter().map(|m| m.name.as_str()))
+        .collect();
+    let mut per_frame = Table::new(&header);
+    for t in 0..FRAMES {
+        let mut row = vec![t.to_string()];
+        row.extend(methods.iter().map(|m| format!("{:.5}", m.errors[t])));
+        per_frame.row(row);
+    }
+    per_frame
+        .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg_{size}"))
+        .expect("csv");
+    if analyse {
+        report.analysis = Some(analysis(name, deg, frames, layout, &methods[0]));
+    }
+    // Error vs terms per frame: mean over rotating frames.
+    let budgets: &[usize] = if curves_wanted {
+        &[10, 20, 30, 60, 100]
+    } else {
+        &[]
+    };
+    for &terms in budgets {
+        let mut ms = vec![
+            method(layout, "NWA", terms, Policy::NonIncremental),
+            method(layout, "BI", terms, Policy::Incremental),
+            method(layout, "PBI", terms, Policy::PerBand(BandStrategy::L1Test)),
+            method(
+                layout,
+                "PBIx",
+                terms,
+                Policy::PerBand(BandStrategy::Exhaustive),
+            ),
+            method(layout, "PBId", terms, Policy::PerBand(BandStrategy::Dealer)),
+            fine_method(
+                layout,
+                1,
+                "PBIf",
+                terms,
+                Policy::PerBand(BandStrategy::Dealer),
+            ),
+            fine_method(
+                layout,
+                2,
+                "PBIq",
+                terms,
+                Policy::PerBand(BandStrategy::Dealer),
+            ),
+        ];
+        run(frames, size, &mut ms);
+        let mut row = vec![name.to_string(), format!("{deg}"), terms.to_string()];
+        row.extend(
+            ms.iter()
+                .map(|m| format!("{:.4}", mean(&m.errors[rotating.clone()]))),
+        );
+        report.curves.push(row);
+    }
+    report
+}
+
+/// Figure 5.3 (terms per band per frame of `pbi`) and figure 5.4 (spatio-temporal band energy).
+fn analysis(
+    name: &str,
+    deg: f32,
+    frames: &[&Frame],
+    layout: &CubemapLayout,
+    pbi: &Method,
+) -> String {
+    let band_header: Vec<String> = std::iter::once("frame".to_string())
+        .chain((0..layout.band_count()).map(|b| format!("band {b}")))
+        .collect();
+    let mut band_header: Vec<&str> = band_header.iter().map(|s| s.as_str()).collect();
+    let mut usage = Table::new(&band_header);
+    for t in [1, 5, 20, 50, 99, 101, 105, 110, 120] {
+        let mut row = vec![t.to_string()];
+        row.extend(pbi.band_terms[t].iter().map(|c| c.to_string()));
+        usage.row(row);
+    }
+    let coeffs: Vec<Vec<f32>> = frames[..128].iter().map(|f| f.coeffs.clone()).collect();
+    let energy = band_energy(&coeffs, layout.bands()).expect("energy");
+    band_header[0] = "temporal level";
+    let mut e = Table::new(&band_header);
+    for (lvl, row) in energy.iter().enumerate() {
+        let mut cells = vec![lvl.to_string()];
+        // Each band's energy share per temporal level (columns sum to 1).
+        cells.extend(row.iter().enumerate().map(|(b, v)| {
+            let col: f64 = energy.iter().map(|r| r[b]).sum();
+            format!("{:.2e}", v / col)
+        }));
+        e.row(cells);
+    }
+    format!(
+        "\n### PBI30 (L1 test) terms per band per frame, {name}, {deg} deg/frame (figure 5.3)\n\n{}\n\n### Spatio-temporal band energy, first 128 frames, {name}, {deg} deg/frame (figure 5.4; share of each spatial band's energy per temporal level)\n\n{}",
+        usage.markdown(),
+        e.markdown()
+    )
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let maps: Vec<String> = if args.is_empty() {
-        vec![
-            "probulator_uffizi".into(),
-            "probulator_grace".into(),
-            "venice_sunset_1k".into(),
-        ]
-    } else {
-        args
-    };
+    let maps = if args.is_empty() { all_maps() } else { args };
     let env = |key: &str| std::env::var(key).ok();
     let size: usize = env("PRT_WAVELET_SIZE").map_or(64, |s| s.parse().expect("face side"));
-    let speeds: Vec<f32> = env("PRT_WAVELET_SPEEDS").map_or(vec![1.0, 3.0], |s| {
+    let speeds: Vec<f32> = env("PRT_WAVELET_SPEEDS").map_or(vec![0.5, 1.0, 3.0], |s| {
         s.split(',').map(|v| v.parse().expect("degrees")).collect()
     });
     let samples_x: usize =
         env("PRT_WAVELET_SAMPLES_X").map_or(1, |s| s.parse().expect("sample multiplier"));
     let curves_wanted = env("PRT_WAVELET_CURVES").is_none_or(|v| v != "0");
-    println!("{size} x {size} faces, speeds {speeds:?} deg/frame, sub-texel lookups x{samples_x}");
+    println!(
+        "{size} x {size} faces, speeds {speeds:?} deg/frame, sub-texel lookups x{samples_x}, maps {maps:?}, load average {}",
+        load_average()
+    );
+    let (wall, cpu) = (Instant::now(), cpu_seconds());
     let layout = CubemapLayout::new(size).expect("size");
-    let band_header: Vec<String> = std::iter::once("frame".to_string())
-        .chain((0..layout.band_count()).map(|b| format!("band {b}")))
-        .collect();
-    let band_header: Vec<&str> = band_header.iter().map(|s| s.as_str()).collect();
+    let analysed = if maps.iter().any(|m| m == "probulator_uffizi") && speeds.contains(&1.0) {
+        ("probulator_uffizi".to_string(), 1.0)
+    } else {
+        (maps.first().cloned().unwrap_or_default(), speeds[0])
+    };
     let mut summary = Table::new(&[
         "map",
         "deg/frame",
@@ -170,6 +474,15 @@ fn main() {
         "mean BI30",
         "frames after 50 with PBI30 > BI30",
         "first frame after stop with PBI30 < NWA500",
+    ]);
+    let mut targets = Table::new(&[
+        "map",
+        "deg/frame",
+        "PBI30 < NWA60, rotating frames",
+        "worst frame PBI30 / NWA60",
+        "mean PBI30 / mean NWA100",
+        "after 50: PBI30 > BI30",
+        "PBI30 < NWA500 after the stop",
     ]);
     let mut curves = Table::new(&[
         "map",
@@ -187,210 +500,71 @@ fn main() {
         "map",
         "deg/frame",
         "PBI strategy",
+        "PBI30 < NWA60, rotating frames",
+        "worst frame PBI30 / NWA60",
         "mean error rotating",
+        "mean / mean NWA100",
         "mean error frames 100-130",
-        "step time",
+        "step time (thread CPU)",
     ]);
+    let mut skipped = Vec::new();
     for name in &maps {
-        let Some(map) = load(name) else {
-            eprintln!("skipping {name}: ../shared/envmaps/{name}.hdr not readable");
-            continue;
+        let map = match load(name) {
+            Ok(map) => map,
+            Err(why) => {
+                eprintln!("skipping {name}: {why}");
+                skipped.push(format!("{name}: {why}"));
+                continue;
+            }
         };
-        for &deg in &speeds {
-            let rotation =
-                Rotation::new(map.clone(), size, deg.to_radians(), STOP).expect("rotation");
-            let samples = rotation.samples() * samples_x;
-            let rotation = rotation.with_samples(samples).expect("samples");
-            let mut methods = vec![
-                method(&layout, "PBI30", 30, Policy::PerBand(BandStrategy::L1Test)),
-                method(
-                    &layout,
-                    "PBI30x",
-                    30,
-                    Policy::PerBand(BandStrategy::Exhaustive),
-                ),
-                method(&layout, "PBI30d", 30, Policy::PerBand(BandStrategy::Dealer)),
-                fine_method(
-                    &layout,
-                    1,
-                    "PBI30 dealer level x face",
-                    30,
-                    Policy::PerBand(BandStrategy::Dealer),
-                ),
-                fine_method(
-                    &layout,
-                    1,
-                    "PBI30 L1 test level x face",
-                    30,
-                    Policy::PerBand(BandStrategy::L1Test),
-                ),
-                fine_method(
-                    &layout,
-                    2,
-                    "PBI30 dealer level x face x quadrant",
-                    30,
-                    Policy::PerBand(BandStrategy::Dealer),
-                ),
-                method(&layout, "BI30", 30, Policy::Incremental),
-                method(&layout, "NWA30", 30, Policy::NonIncremental),
-                method(&layout, "NWA60", 60, Policy::NonIncremental),
-                method(&layout, "NWA100", 100, Policy::NonIncremental),
-                method(&layout, "NWA500", 500, Policy::NonIncremental),
-            ];
-            let first = name == &maps[0] && deg == speeds[0];
-            let frames = frames(&rotation, size);
-            run(&frames, size, &mut methods);
-            let err = |n: &str| &methods.iter().find(|m| m.name == n).expect("method").errors;
-            // Two headline PBIs: the thesis' (exhaustive over level bands, optimal per frame for the
-            // selection objective) and the best variant (dealer over level x face x quadrant bands).
-            let pbi_l1 = err("PBI30");
-            let (bi, nwa60, nwa100, nwa500) =
-                (err("BI30"), err("NWA60"), err("NWA100"), err("NWA500"));
-            let rotating = WARMUP..STOP;
-            for (label, key) in [
-                ("exhaustive, level bands", "PBI30x"),
-                (
-                    "dealer, level x face x quadrant",
-                    "PBI30 dealer level x face x quadrant",
-                ),
-            ] {
-                let pbi = err(key);
-                let wins = rotating.clone().filter(|&t| pbi[t] < nwa60[t]).count();
-                let ghost = (50..FRAMES)
-                    .filter(|&t| pbi[t] > bi[t] * (1.0 + 1e-9))
-                    .count();
-                let converge = (STOP..FRAMES)
-                    .find(|&t| pbi[t] < nwa500[t])
-                    .map_or("never".to_string(), |t| format!("{} (+{})", t, t - STOP));
-                let extra = if key == "PBI30x" {
-                    let wins_l1 = rotating.clone().filter(|&t| pbi_l1[t] < nwa60[t]).count();
-                    format!(" ({wins_l1} L1 test)")
-                } else {
-                    String::new()
-                };
-                summary.row(vec![
-                    name.clone(),
-                    format!("{deg}"),
-                    label.to_string(),
-                    format!("{wins}/{}{extra}", rotating.len()),
-                    format!("{:.4}", mean(&pbi[rotating.clone()])),
-                    format!("{:.4}", mean(&nwa60[rotating.clone()])),
-                    format!("{:.4}", mean(&nwa100[rotating.clone()])),
-                    format!("{:.4}", mean(&bi[rotating.clone()])),
-                    format!("{ghost}/{}", FRAMES - 50),
-                    converge,
-                ]);
+        let map_start = Instant::now();
+        let rotations: Vec<Rotation> = speeds
+            .iter()
+            .map(|&deg| {
+                let rotation =
+                    Rotation::new(map.clone(), size, deg.to_radians(), STOP).expect("rotation");
+                let samples = rotation.samples() * samples_x;
+                rotation.with_samples(samples).expect("samples")
+            })
+            .collect();
+        let (frames, order) = frames(&rotations, size);
+        let resampled = map_start.elapsed();
+        let reports: Vec<Report> = speeds
+            .par_iter()
+            .zip(&order)
+            .map(|(&deg, order)| {
+                let frames: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
+                let analyse = (name, deg) == (&analysed.0, analysed.1);
+                evaluate(name, deg, &frames, &layout, curves_wanted, analyse)
+            })
+            .collect();
+        eprintln!(
+            "{name}: {}x{} texels, {} x {} lookups per cube texel, {} distinct frames resampled in {:.1} s, all in {:.1} s (wall)",
+            map.width(),
+            map.height(),
+            rotations[0].samples(),
+            rotations[0].samples(),
+            frames.len(),
+            resampled.as_secs_f64(),
+            map_start.elapsed().as_secs_f64()
+        );
+        for report in reports {
+            if let Some(text) = &report.analysis {
+                println!("{text}");
             }
-            for m in methods.iter().filter(|m| m.name.starts_with("PBI")) {
-                strategy_table.row(vec![
-                    name.clone(),
-                    format!("{deg}"),
-                    m.name.clone(),
-                    format!("{:.4}", mean(&m.errors[rotating.clone()])),
-                    format!("{:.4}", mean(&m.errors[STOP..STOP + 30])),
-                    format!("{:.1} µs", m.seconds / FRAMES as f64 * 1e6),
-                ]);
-            }
-            let mut per_frame = Table::new(&[
-                "frame",
-                "PBI30 L1 test",
-                "PBI30 exhaustive",
-                "PBI30 dealer",
-                "PBI30 dealer level x face",
-                "PBI30 L1 test level x face",
-                "PBI30 dealer level x face x quadrant",
-                "BI30",
-                "NWA30",
-                "NWA60",
-                "NWA100",
-                "NWA500",
-            ]);
-            for t in 0..FRAMES {
-                let mut row = vec![t.to_string()];
-                row.extend(methods.iter().map(|m| format!("{:.5}", m.errors[t])));
-                per_frame.row(row);
-            }
-            per_frame
-                .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg_{size}"))
-                .expect("csv");
-            if first {
-                let mut usage = Table::new(&band_header);
-                for t in [1, 5, 20, 50, 99, 101, 105, 110, 120] {
-                    let mut row = vec![t.to_string()];
-                    row.extend(methods[0].band_terms[t].iter().map(|c| c.to_string()));
-                    usage.row(row);
-                }
-                println!(
-                    "\n### PBI30 (L1 test) terms per band per frame, {name}, {deg} deg/frame (figure 5.3)\n\n{}",
-                    usage.markdown()
-                );
-                let coeffs: Vec<Vec<f32>> = frames[..128].iter().map(|f| f.1.clone()).collect();
-                let energy = band_energy(&coeffs, layout.bands()).expect("energy");
-                let mut header = band_header.clone();
-                header[0] = "temporal level";
-                let mut e = Table::new(&header);
-                for (lvl, row) in energy.iter().enumerate() {
-                    let mut cells = vec![lvl.to_string()];
-                    // Each band's energy share per temporal level (columns sum to 1).
-                    cells.extend(row.iter().enumerate().map(|(b, v)| {
-                        let col: f64 = energy.iter().map(|r| r[b]).sum();
-                        format!("{:.2e}", v / col)
-                    }));
-                    e.row(cells);
-                }
-                println!(
-                    "\n### Spatio-temporal band energy, first 128 frames, {name}, {deg} deg/frame (figure 5.4; share of each spatial band's energy per temporal level)\n\n{}",
-                    e.markdown()
-                );
-            }
-            // Error vs terms per frame: mean over rotating frames.
-            let budgets: &[usize] = if curves_wanted {
-                &[10, 20, 30, 60, 100]
-            } else {
-                &[]
-            };
-            for &terms in budgets {
-                let mut ms = vec![
-                    method(&layout, "NWA", terms, Policy::NonIncremental),
-                    method(&layout, "BI", terms, Policy::Incremental),
-                    method(&layout, "PBI", terms, Policy::PerBand(BandStrategy::L1Test)),
-                    method(
-                        &layout,
-                        "PBIx",
-                        terms,
-                        Policy::PerBand(BandStrategy::Exhaustive),
-                    ),
-                    method(
-                        &layout,
-                        "PBId",
-                        terms,
-                        Policy::PerBand(BandStrategy::Dealer),
-                    ),
-                    fine_method(
-                        &layout,
-                        1,
-                        "PBIf",
-                        terms,
-                        Policy::PerBand(BandStrategy::Dealer),
-                    ),
-                    fine_method(
-                        &layout,
-                        2,
-                        "PBIq",
-                        terms,
-                        Policy::PerBand(BandStrategy::Dealer),
-                    ),
-                ];
-                run(&frames, size, &mut ms);
-                let mut row = vec![name.clone(), format!("{deg}"), terms.to_string()];
-                row.extend(
-                    ms.iter()
-                        .map(|m| format!("{:.4}", mean(&m.errors[rotating.clone()]))),
-                );
-                curves.row(row);
-            }
+            report.summary.into_iter().for_each(|r| summary.row(r));
+            targets.row(report.targets);
+            report
+                .strategies
+                .into_iter()
+                .for_each(|r| strategy_table.row(r));
+            report.curves.into_iter().for_each(|r| curves.row(r));
         }
     }
+    println!(
+        "\n### Targets (rotating frames = {WARMUP}..{STOP}; dealer over level x face x quadrant bands, the thesis' exhaustive PBI over level bands in brackets)\n\n{}",
+        targets.markdown()
+    );
     println!(
         "\n### Rotating map: 100 frames rotating, 100 static (rotating frames = {WARMUP}..{STOP})\n\n{}",
         summary.markdown()
@@ -399,12 +573,26 @@ fn main() {
         "\n### PBI band strategies (30 terms)\n\n{}",
         strategy_table.markdown()
     );
+    if curves_wanted {
+        println!(
+            "\n### Error vs terms per frame (mean area-weighted L1 over rotating frames {WARMUP}..{STOP})\n\n{}",
+            curves.markdown()
+        );
+    }
+    for s in &skipped {
+        println!("skipped {s}");
+    }
     println!(
-        "\n### Error vs terms per frame (mean area-weighted L1 over rotating frames {WARMUP}..{STOP})\n\n{}",
-        curves.markdown()
+        "\n{:.0} s wall, {:.0} s CPU (all threads), load average {}",
+        wall.elapsed().as_secs_f64(),
+        cpu_seconds() - cpu,
+        load_average()
     );
     summary
         .write_csv_if_requested("wavelet_rotation_summary")
+        .expect("csv");
+    targets
+        .write_csv_if_requested("wavelet_rotation_targets")
         .expect("csv");
     curves
         .write_csv_if_requested("wavelet_rotation_curves")

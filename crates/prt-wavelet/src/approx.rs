@@ -41,8 +41,12 @@ pub enum BandMode {
 /// How PBI decides each band's mode.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BandStrategy {
-    /// Try all `2^bands` assignments and keep the one whose `k` best terms leave the least
-    /// weighted L1 out (optimal for that objective; cost `2^bands × k × bands` per frame).
+    /// The best of all `2^bands` mode assignments: the one whose `k` best terms leave the least
+    /// weighted L1 out (optimal for that objective). Found without enumerating them: a band
+    /// holding `n` terms leaves the lesser of its two modes' errors, so the optimum is the
+    /// split of `k` terms over the bands minimising the sum, a dynamic programme over bands in
+    /// `O(bands × k²)` per frame (the thesis enumerates the assignments, which limits it to
+    /// few bands; this scales to [`crate::CubemapLayout::level_face_tile_bands`]).
     Exhaustive,
     /// Incremental exactly when the band's weighted L1 residual `‖L_b − L̃_b‖` is no larger than
     /// its weighted L1 norm `‖L_b‖` (the thesis' simple per-band test); then the `k` best terms.
@@ -50,8 +54,8 @@ pub enum BandStrategy {
     /// Deal the `k` terms one at a time to the band whose error drops most by one more term,
     /// the error of a band holding `n` terms being the better of its two modes; each band then
     /// takes its dealt number of terms in its better mode. (Our greedy reading of the thesis'
-    /// dealer; unlike [`BandStrategy::Exhaustive`] it scales to many bands, e.g.
-    /// [`crate::CubemapLayout::level_face_bands`].)
+    /// dealer: `O(bands × k)` per frame, not optimal when a band's error falls slowly for its
+    /// first terms, e.g. a replaced band that only pays off after several.)
     Dealer,
 }
 
@@ -165,14 +169,6 @@ impl Approximator {
             });
         }
         let band_count = bands.iter().map(|&b| b as usize + 1).max().unwrap_or(1);
-        if let (Policy::PerBand(BandStrategy::Exhaustive), true) = (policy, band_count > 20) {
-            return Err(WaveletError::Invalid {
-                what: "policy",
-                why: format!(
-                    "exhaustive search over {band_count} bands (2^{band_count} assignments)"
-                ),
-            });
-        }
         let mut band_members = vec![Vec::new(); band_count];
         for (i, &b) in bands.iter().enumerate() {
             band_members[b as usize].push(i as u32);
@@ -262,7 +258,10 @@ impl Approximator {
                     .collect(),
                 None,
             ),
-            Policy::PerBand(BandStrategy::Exhaustive) => (exhaustive(&inc, &rep, k), None),
+            Policy::PerBand(BandStrategy::Exhaustive) => {
+                let (modes, counts) = optimal_split(&inc, &rep, k);
+                (modes, Some(counts))
+            }
             Policy::PerBand(BandStrategy::Dealer) => {
                 let (modes, counts) = deal(&inc, &rep, k);
                 (modes, Some(counts))
@@ -466,68 +465,84 @@ fn merge_best(lists: &[&Candidates], k: usize) -> Vec<u32> {
     out
 }
 
-/// Sum of the `k` best scores over lists (a `k`-way merge of the prefix sums' increments).
-fn best_sum(lists: &[&Candidates], k: usize) -> f64 {
-    let mut pos = vec![0usize; lists.len()];
-    let mut sum = 0.0;
-    for _ in 0..k {
-        let mut pick: Option<(usize, f32)> = None;
-        for (l, list) in lists.iter().enumerate() {
-            if let Some(&(s, _)) = list.best.get(pos[l])
-                && pick.is_none_or(|(_, ps)| s > ps)
-            {
-                pick = Some((l, s));
-            }
-        }
-        match pick {
-            Some((l, s)) => {
-                pos[l] += 1;
-                sum += s as f64;
-            }
-            None => break,
-        }
-    }
-    sum
+/// Weighted L1 left out of a band's candidate list when its `n` best are taken.
+fn left_out(list: &Candidates, n: usize) -> f64 {
+    list.total - list.prefix[n.min(list.best.len())]
 }
 
-fn exhaustive(inc: &[Candidates], rep: &[Candidates], k: usize) -> Vec<BandMode> {
-    let bands = inc.len();
-    let mut best: Option<(f64, u32)> = None;
-    let mut lists: Vec<&Candidates> = Vec::with_capacity(bands);
-    for mask in 0..(1u32 << bands) {
-        lists.clear();
-        let mut total = 0.0;
-        for b in 0..bands {
-            let l = if mask & (1 << b) != 0 {
-                &rep[b]
-            } else {
-                &inc[b]
-            };
-            total += l.total;
-            lists.push(l);
-        }
-        let left = total - best_sum(&lists, k);
-        // Ties keep the earlier mask, i.e. prefer incremental bands (cheaper to keep coherent).
-        if best.is_none_or(|(e, _)| left < e) {
-            best = Some((left, mask));
-        }
+/// The mode of a band holding `n` terms: the one leaving less out (incremental on a tie, which
+/// keeps the band coherent).
+fn better_mode(inc: &Candidates, rep: &Candidates, n: usize) -> BandMode {
+    if left_out(inc, n) <= left_out(rep, n) {
+        BandMode::Incremental
+    } else {
+        BandMode::Replace
     }
-    let mask = best.map_or(0, |b| b.1);
-    (0..bands)
-        .map(|b| {
-            if mask & (1 << b) != 0 {
-                BandMode::Replace
-            } else {
-                BandMode::Incremental
+}
+
+/// Modes and term counts whose `k` terms leave the least out over all `2^bands` assignments.
+/// For a fixed assignment the best `k` terms are a split of `k` over the bands (each band's
+/// list is sorted, so taking its best `n` is optimal), and a band holding `n` terms does best in
+/// its better mode, so the optimum is `min Σ_b E_b(n_b)` subject to `Σ n_b ≤ k` with
+/// `E_b(n) = min(inc_b(n), rep_b(n))`: a knapsack solved over bands in `O(bands × k²)`. Ties
+/// keep fewer terms in the earlier bands.
+fn optimal_split(inc: &[Candidates], rep: &[Candidates], k: usize) -> (Vec<BandMode>, Vec<usize>) {
+    let bands = inc.len();
+    // least[j]: the least the bands so far leave out with at most j terms; take[b][j]: the terms
+    // band b holds in that optimum.
+    let mut least = vec![0.0f64; k + 1];
+    let mut next = vec![0.0f64; k + 1];
+    let mut take = vec![0usize; bands * (k + 1)];
+    let mut band_err = Vec::with_capacity(k + 1);
+    for b in 0..bands {
+        let available = inc[b].best.len().max(rep[b].best.len()).min(k);
+        band_err.clear();
+        band_err.extend((0..=available).map(|n| left_out(&inc[b], n).min(left_out(&rep[b], n))));
+        for j in 0..=k {
+            let (mut best, mut best_n) = (f64::INFINITY, 0);
+            for (n, e) in band_err.iter().enumerate().take(j + 1) {
+                let total = least[j - n] + e;
+                if total < best {
+                    (best, best_n) = (total, n);
+                }
             }
-        })
-        .collect()
+            next[j] = best;
+            take[b * (k + 1) + j] = best_n;
+        }
+        std::mem::swap(&mut least, &mut next);
+    }
+    let mut counts = vec![0usize; bands];
+    let mut j = k;
+    for b in (0..bands).rev() {
+        counts[b] = take[b * (k + 1) + j];
+        j -= counts[b];
+    }
+    modes_and_counts(inc, rep, counts)
+}
+
+/// Each band's better mode for its count, and the count cut to what that mode's list holds.
+fn modes_and_counts(
+    inc: &[Candidates],
+    rep: &[Candidates],
+    mut counts: Vec<usize>,
+) -> (Vec<BandMode>, Vec<usize>) {
+    let modes: Vec<BandMode> = (0..inc.len())
+        .map(|b| better_mode(&inc[b], &rep[b], counts[b]))
+        .collect();
+    for (b, count) in counts.iter_mut().enumerate() {
+        let list = if modes[b] == BandMode::Incremental {
+            &inc[b]
+        } else {
+            &rep[b]
+        };
+        *count = (*count).min(list.best.len());
+    }
+    (modes, counts)
 }
 
 fn deal(inc: &[Candidates], rep: &[Candidates], k: usize) -> (Vec<BandMode>, Vec<usize>) {
     let bands = inc.len();
-    let err = |l: &Candidates, n: usize| l.total - l.prefix[n.min(l.best.len())];
-    let band_err = |b: usize, n: usize| err(&inc[b], n).min(err(&rep[b], n));
+    let band_err = |b: usize, n: usize| left_out(&inc[b], n).min(left_out(&rep[b], n));
     let mut counts = vec![0usize; bands];
     for _ in 0..k {
         let mut pick: Option<(usize, f64)> = None;
@@ -546,22 +561,5 @@ fn deal(inc: &[Candidates], rep: &[Candidates], k: usize) -> (Vec<BandMode>, Vec
             None => break,
         }
     }
-    let modes: Vec<BandMode> = (0..bands)
-        .map(|b| {
-            if err(&inc[b], counts[b]) <= err(&rep[b], counts[b]) {
-                BandMode::Incremental
-            } else {
-                BandMode::Replace
-            }
-        })
-        .collect();
-    for b in 0..bands {
-        let list = if modes[b] == BandMode::Incremental {
-            &inc[b]
-        } else {
-            &rep[b]
-        };
-        counts[b] = counts[b].min(list.best.len());
-    }
-    (modes, counts)
+    modes_and_counts(inc, rep, counts)
 }
