@@ -784,6 +784,213 @@ fn quality() {
     println!("load average after: {}\n", load_average());
 }
 
+/// Where does the stochastic solver end, and how fast does it get there? Rank `MBD_L` (8) on
+/// `MBD_B`³ (5³) nodes, `MBD_ITERS` (512) iterations without early stop, for each averaging
+/// window in `MBD_WINDOWS` (default `0,16`; 0 = the last iterate). The error at the
+/// checkpoints is the final relative MSE scaled by the ratio of the held-out data terms of the
+/// model the solver would return then (fixed held-out samples), so one run gives the whole
+/// curve; with `MBD_HISTORY_DIR` the per-iteration history is written as CSV.
+fn floor() {
+    let input = sweep_field();
+    let f = &input.field;
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let iterations = env_usize("MBD_ITERS", 512);
+    let dims = f.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let windows: Vec<usize> = std::env::var("MBD_WINDOWS")
+        .unwrap_or_else(|_| "0,16".into())
+        .split(',')
+        .filter_map(|v| v.trim().parse().ok())
+        .collect();
+    let checkpoints: Vec<usize> = [8, 16, 32, 64, 128, 256, 512, 1024, 2048]
+        .into_iter()
+        .filter(|&c| c <= iterations)
+        .collect();
+    let mut header = vec!["average window".to_string(), "CPU time".into()];
+    header.extend(checkpoints.iter().map(|c| format!("error at {c}")));
+    header.push("final relative MSE".into());
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut table = Table::new(&header);
+    for average_window in windows {
+        let mbd = Mbd {
+            basis_nodes: nodes,
+            options: MbdOptions {
+                rank: l,
+                max_iterations: iterations,
+                tolerance: 0.0,
+                average_window,
+                jitter: env_usize("MBD_JITTER", 1) != 0,
+                momentum_basis: env_usize("MBD_MB", 0) as f32 / 100.0,
+                momentum_coefficients: env_usize("MBD_MC", 0) as f32 / 100.0,
+                ..MbdOptions::default()
+            },
+        };
+        let ((model, report), cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        let e = evaluate(&model, f, &EvalOptions::default()).expect("evaluate");
+        let last = report.history.last().map_or(1.0, |r| r.held_out);
+        let mut cells = vec![average_window.to_string(), format!("{:.1} s", cost.cpu)];
+        cells.extend(checkpoints.iter().map(|&c| {
+            report.history.get(c - 1).map_or("–".into(), |r| {
+                format!("{:.3e}", e.relative_mse * r.held_out / last)
+            })
+        }));
+        cells.push(format!("{:.4e}", e.relative_mse));
+        eprintln!("window {average_window}: {cells:?}");
+        table.row(cells);
+        if let Ok(dir) = std::env::var("MBD_HISTORY_DIR") {
+            let mut csv = String::from(
+                "iteration,elapsed,loss_before,data_before,loss_after,held_out,step\n",
+            );
+            for (i, r) in report.history.iter().enumerate() {
+                csv += &format!(
+                    "{i},{},{},{},{},{},{}\n",
+                    r.elapsed, r.loss_before, r.data_before, r.loss_after, r.held_out, r.step
+                );
+            }
+            let path = PathBuf::from(dir).join(format!("floor_{average_window}.csv"));
+            std::fs::create_dir_all(path.parent().unwrap_or(std::path::Path::new("."))).ok();
+            std::fs::write(&path, csv).ok();
+        }
+    }
+    println!(
+        "### Long runs ({}, L = {l}, {b}³ basis nodes)\n\n{}",
+        input.name,
+        table.markdown()
+    );
+    println!("load average after: {}\n", load_average());
+}
+
+/// Where is each method's error on a traced volume? Rank `MBD_L` (8), `MBD_B`³ (5³) nodes /
+/// blocks / clusters; every method's reconstruction is sampled at the voxel centres and its
+/// squared error summed by the voxel's distance to the nearest invalid voxel (Chebyshev, in
+/// voxels: 0 = invalid, 1 = touching an invalid voxel, ..., capped at 4). The same bins and
+/// the same normalisation (the field's total energy) for every method; "valid only" is the
+/// relative MSE at valid voxel centres against the valid voxels' energy.
+fn walls() {
+    let input = sweep_field();
+    let f = &input.field;
+    let Some(valid) = input.valid.as_deref() else {
+        eprintln!("walls: needs a traced field (MBD_FIELD=cornell|sponza)");
+        return;
+    };
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let iterations = env_usize("MBD_ITERS", 128);
+    let dims = f.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    const CAP: usize = 4;
+    // Chebyshev distance to the nearest invalid voxel, capped.
+    let distance: Vec<usize> = (0..f.num_voxels())
+        .map(|v| {
+            if !valid[v] {
+                return 0;
+            }
+            let (x, y, z) = (
+                v % dims[0],
+                (v / dims[0]) % dims[1],
+                v / (dims[0] * dims[1]),
+            );
+            (1..CAP)
+                .find(|&r| {
+                    let lo = |c: usize| c.saturating_sub(r);
+                    let hi = |c: usize, n: usize| (c + r).min(n - 1);
+                    (lo(z)..=hi(z, dims[2])).any(|k| {
+                        (lo(y)..=hi(y, dims[1])).any(|j| {
+                            (lo(x)..=hi(x, dims[0]))
+                                .any(|i| !valid[i + dims[0] * (j + dims[1] * k)])
+                        })
+                    })
+                })
+                .unwrap_or(CAP)
+        })
+        .collect();
+    let energy = |keep: &dyn Fn(usize) -> bool| -> f64 {
+        (0..f.num_voxels())
+            .filter(|&v| keep(v))
+            .map(|v| {
+                f.voxel(v)
+                    .iter()
+                    .map(|&x| f64::from(x).powi(2))
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    let total = energy(&|_| true);
+    let mut header = vec!["method".to_string(), "relative MSE (jittered)".into()];
+    header.push("valid only (centres)".into());
+    header.extend((0..=CAP).map(|d| {
+        let count = distance.iter().filter(|&&x| x == d).count();
+        let share = energy(&|v| distance[v] == d) / total;
+        let name = if d == CAP {
+            format!("≥ {CAP}")
+        } else {
+            d.to_string()
+        };
+        format!(
+            "distance {name} ({count} voxels, {:.0} % of energy)",
+            100.0 * share
+        )
+    }));
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut table = Table::new(&header);
+    let mut add = |name: &str, model: &dyn FieldModel| {
+        let e = evaluate(model, f, &EvalOptions::default()).expect("evaluate");
+        let recon = resample_to_grid(model, dims, f.bounds()).expect("resample");
+        let mut bins = [0.0f64; CAP + 1];
+        for v in 0..f.num_voxels() {
+            let err: f64 = f
+                .voxel(v)
+                .iter()
+                .zip(recon.voxel(v))
+                .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+                .sum();
+            bins[distance[v]] += err;
+        }
+        let valid_only = bins[1..].iter().sum::<f64>() / energy(&|v| valid[v]);
+        let mut cells = vec![
+            name.to_string(),
+            format!("{:.3e}", e.relative_mse),
+            format!("{valid_only:.3e}"),
+        ];
+        cells.extend(bins.iter().map(|&x| format!("{:.2e}", x / total)));
+        eprintln!("{cells:?}");
+        table.row(cells);
+    };
+    if enabled("MBD") {
+        let mbd = Mbd {
+            basis_nodes: nodes,
+            options: MbdOptions {
+                rank: l,
+                max_iterations: iterations,
+                ..MbdOptions::default()
+            },
+        };
+        let (model, _) = mbd.fit(f, &NoProgress).expect("mbd");
+        add(&format!("MBD (≤ {iterations} iterations)"), &model);
+    }
+    if enabled("BPCA") {
+        let m = BlockPca {
+            rank: l,
+            blocks: nodes,
+            window: 1.0,
+        }
+        .compress(f, &NoProgress)
+        .expect("bpca");
+        add("BPCA", &m);
+    }
+    if enabled("CPCA") {
+        let m = ClusteredPca::new(l, nodes.iter().product())
+            .compress(f, &NoProgress)
+            .expect("cpca");
+        add("CPCA", &m);
+    }
+    println!(
+        "### Error by distance to the nearest invalid voxel ({}, L = {l}, {b}³ nodes), share of the field's energy at voxel centres\n\n{}",
+        input.name,
+        table.markdown()
+    );
+    println!("load average after: {}\n", load_average());
+}
+
 /// MBD at rank 8 and 16 with the default and a 100× smaller ridge λ, beside the global PCA of the
 /// same rank that MBD starts from: does the solver end above its own starting point, and is the
 /// ridge the cause?
@@ -856,6 +1063,8 @@ fn main() {
         "convergence" => convergence(),
         "quality" => quality(),
         "ridge" => ridge(),
+        "floor" => floor(),
+        "walls" => walls(),
         _ => {
             basis_count();
             grid_resolution();

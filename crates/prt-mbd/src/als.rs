@@ -103,12 +103,13 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
             d,
             progress,
         )?;
-        let loss_after = problem
-            .evaluate(&centres, &coefficients, &basis, false, progress)?
-            .loss();
+        let after = problem.evaluate(&centres, &coefficients, &basis, false, progress)?;
+        let loss_after = after.loss();
         report.history.push(IterationRecord {
             loss_before,
+            data_before: before.data_loss,
             loss_after,
+            held_out: after.data_loss,
             step: 1.0,
             elapsed: start.elapsed().as_secs_f64(),
         });
