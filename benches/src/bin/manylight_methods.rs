@@ -2,22 +2,34 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
 //! columns is cached in `target/manylight_cache/` and shared with `manylight_scene`) or `synthetic`
 //! (`SyntheticVplOracle`, `CLAMP` unused). Visibility clustering also evaluates the unshadowed
 //! shading of every pixel against every light (no shadow rays), reported separately. `IMAGE`
-//! (a PNG path) gets reference | row-column | LightSlice at 300 / 900 for the first seed.
-//! `METHODS` (optional, after `IMAGE`, `-` for no image): comma-separated subset of `rowcol`,
-//! `rowcol-skip`, `slice`, `slice-skip` (the `-skip` variants with `UnseenLights::Skip`), `vis`,
-//! `kmeans` (default `rowcol,slice,vis,kmeans`).
+//! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
+//! errors at the first budget, for the first seed.
+//! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
+//!   `slice-skip`, `slice-groups` (the `-skip` variants with `UnseenLights::Skip`, the `-groups`
+//!   ones with `UnseenLights::Groups(columns / GROUP_DIVISOR)`), `vis`, `kmeans` (default
+//!   `rowcol,slice,vis,kmeans`);
+//! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
+//!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
+//!   and the methods sample the other lights, as in `manylight_scene`;
+//! * `BUDGETS`: comma-separated `rows/columns` (default: the six of the paper's range);
+//! * `FIRST_SEED` (default 7): seeds `FIRST_SEED .. FIRST_SEED + SEEDS` (settings are chosen on
+//!   seeds 1..6 and reported on 7..12). Every seed's error is printed as it finishes;
+//! * `GROUP_DIVISOR` (default 16): the `-groups` methods cut the unseen lights into
+//!   `columns / GROUP_DIVISOR` groups (at least 1), out of the column budget.
+//!
+//! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use prt_benches::manylight::{BUDGETS, load_scene, trace_about, write_strip};
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_manylight::{
@@ -102,8 +114,10 @@ fn main() {
         [
             ("rowcol", "row-column"),
             ("rowcol-skip", "row-column (skip unseen)"),
+            ("rowcol-groups", "row-column (grouped unseen)"),
             ("slice", "LightSlice"),
             ("slice-skip", "LightSlice (skip unseen)"),
+            ("slice-groups", "LightSlice (grouped unseen)"),
             ("vis", "visibility (split)"),
             ("kmeans", "visibility (k-means)"),
         ]
@@ -111,6 +125,34 @@ fn main() {
         .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
         .map(|(_, name)| name)
         .collect()
+    };
+    let exact_sun = match args.get(7).map(String::as_str).unwrap_or("direct") {
+        "direct" => false,
+        "exact-sun" => true,
+        other => {
+            eprintln!("unknown LIGHT {other} (direct or exact-sun)");
+            return;
+        }
+    };
+    let budgets: Vec<(usize, usize)> = match args.get(8) {
+        Some(list) => list
+            .split(',')
+            .filter_map(|b| {
+                let (r, c) = b.split_once('/')?;
+                Some((r.parse().ok()?, c.parse().ok()?))
+            })
+            .collect(),
+        None => BUDGETS.to_vec(),
+    };
+    let first_seed: u64 = args.get(9).and_then(|a| a.parse().ok()).unwrap_or(7);
+    let group_divisor: usize = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(16);
+    let run = Run {
+        group_divisor: group_divisor.max(1),
+        width,
+        seeds: first_seed..first_seed + seeds,
+        image_path: image_path.as_deref(),
+        methods: &selected,
+        budgets: &budgets,
     };
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     match scene_name {
@@ -133,38 +175,47 @@ fn main() {
                 .expect("finite")
                 .reference_image_cached(&file, &NoProgress)
                 .expect("reference image");
-            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+            let full = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
                 .and_then(|o| o.with_directional(&directional))
                 .expect("finite");
-            let (n, m) = (inner.rows(), inner.cols());
+            let (n, m) = (full.rows(), full.cols());
             let mut column = vec![0.0f32; 3 * n];
+            // The sun is the first directional light; with `exact-sun` its column is kept apart
+            // as the exact part of every estimate.
+            let exact = usize::from(exact_sun && !directional.is_empty());
+            let mut exact_image = vec![0.0f32; 3 * n];
             for j in vpls.len()..m {
-                inner.eval_col(j, &mut column).expect("directional column");
+                full.eval_col(j, &mut column).expect("directional column");
                 for (r, &c) in reference.iter_mut().zip(&column) {
                     *r += c;
                 }
+                if j < vpls.len() + exact {
+                    exact_image.copy_from_slice(&column);
+                }
             }
             println!(
-                "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, clamp \
-                 {clamp}, {} threads; brute force {} ({:.3e} elements; VPL columns cached)\n",
+                "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights ({exact} \
+                 exact), clamp {clamp}, {} threads; brute force {} ({:.3e} elements; VPL columns \
+                 cached)\n",
                 vpls.len(),
                 directional.len(),
                 rayon::current_num_threads(),
                 fmt_duration(start.elapsed()),
                 (n * m) as f64
             );
+            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+                .and_then(|o| o.with_directional(&directional[exact..]))
+                .expect("finite");
             let oracle = SceneOracle {
                 inner,
                 gbuffer: &gbuffer,
             };
-            compare(
-                &oracle,
-                &reference,
-                width,
-                seeds,
-                image_path.as_deref(),
-                &selected,
-            );
+            let exact = Exact {
+                image: exact_image,
+                elements: (exact * n) as u64,
+                columns: exact,
+            };
+            compare(&oracle, &reference, &exact, &run);
         }
         "synthetic" => {
             let oracle = SyntheticVplOracle::new(width, width, target_vpls, 1);
@@ -176,66 +227,87 @@ fn main() {
                 rayon::current_num_threads(),
                 fmt_duration(start.elapsed()),
             );
-            compare(
-                &oracle,
-                &reference,
-                width,
-                seeds,
-                image_path.as_deref(),
-                &selected,
-            );
+            let exact = Exact {
+                image: vec![0.0; reference.len()],
+                elements: 0,
+                columns: 0,
+            };
+            compare(&oracle, &reference, &exact, &run);
         }
         other => eprintln!("unknown scene {other} (cornell, sponza or synthetic)"),
     }
 }
 
+/// The settings of a comparison run.
+struct Run<'a> {
+    width: usize,
+    group_divisor: usize,
+    seeds: std::ops::Range<u64>,
+    image_path: Option<&'a Path>,
+    methods: &'a [&'static str],
+    budgets: &'a [(usize, usize)],
+}
+
+/// The columns evaluated exactly (outside the methods' oracle): their image, elements and count.
+struct Exact {
+    image: Vec<f32>,
+    elements: u64,
+    columns: usize,
+}
+
 fn compare<O: SliceOracle + VisibilityOracle>(
     oracle: &O,
     reference: &[f32],
-    width: usize,
-    seeds: u64,
-    image_path: Option<&Path>,
-    methods: &[&str],
+    exact: &Exact,
+    run: &Run<'_>,
 ) {
-    let brute = (oracle.rows() * oracle.cols()) as f64;
+    let brute = (oracle.rows() * (oracle.cols() + exact.columns)) as f64;
     let mut table = Table::new(&[
         "method",
         "rows / columns",
         "elements (shadow rays)",
         "fewer than brute force",
-        "time (mean)",
+        "time (mean) [CPU]",
         "relative RMS error (mean of seeds)",
         "max over seeds",
     ]);
     let kmeans = VisibilityClusterMethod::KMeans { iterations: 4 };
-    for (rows, columns) in BUDGETS {
+    let seeds = run.seeds.end.saturating_sub(run.seeds.start).max(1);
+    let unseen_for = |method: &str, columns: usize| {
+        if method.contains("skip") {
+            UnseenLights::Skip
+        } else if method.contains("grouped") {
+            UnseenLights::Groups((columns / run.group_divisor).max(1))
+        } else {
+            UnseenLights::Sample
+        }
+    };
+    for (b, &(rows, columns)) in run.budgets.iter().enumerate() {
         if rows > oracle.rows() || columns > oracle.cols() {
             continue;
         }
         let mut images: Vec<Vec<f32>> = Vec::new();
-        for &method in methods {
+        for &method in run.methods {
             let (mut errors, mut elements, mut extra) = (Vec::new(), 0u64, 0u64);
-            let start = Instant::now();
-            for seed in 0..seeds {
-                let (image, e) = match method {
-                    "row-column" | "row-column (skip unseen)" => {
-                        let mut c = RowColumnConfig::new(rows, columns).with_seed(seed + 7);
-                        if method.contains("skip") {
-                            c = c.with_unseen(UnseenLights::Skip);
-                        }
+            let (start, cpu_start) = (Instant::now(), cpu_seconds());
+            for seed in run.seeds.clone() {
+                let (mut image, e) = match method {
+                    m if m.starts_with("row-column") => {
+                        let c = RowColumnConfig::new(rows, columns)
+                            .with_seed(seed)
+                            .with_unseen(unseen_for(method, columns));
                         let r = row_column_sampling(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }
-                    "LightSlice" | "LightSlice (skip unseen)" => {
-                        let mut c = LightSliceConfig::new(rows, columns).with_seed(seed + 7);
-                        if method.contains("skip") {
-                            c = c.with_unseen(UnseenLights::Skip);
-                        }
+                    m if m.starts_with("LightSlice") => {
+                        let c = LightSliceConfig::new(rows, columns)
+                            .with_seed(seed)
+                            .with_unseen(unseen_for(method, columns));
                         let r = light_slice(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }
                     _ => {
-                        let mut c = VisibilityConfig::new(rows, columns).with_seed(seed + 7);
+                        let mut c = VisibilityConfig::new(rows, columns).with_seed(seed);
                         if method.contains("k-means") {
                             c = c.with_method(kmeans);
                         }
@@ -244,14 +316,24 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         (r.image, r.elements)
                     }
                 };
+                for (v, &e) in image.iter_mut().zip(&exact.image) {
+                    *v += e;
+                }
+                let e = e + exact.elements;
                 elements += e;
-                errors.push(relative_frobenius_error(&image, reference).expect("same size"));
-                if seed == 0 {
+                let error = relative_frobenius_error(&image, reference).expect("same size");
+                println!(
+                    "  seed {seed}: {method} {rows}/{columns}: {e} elements, {:.2}%",
+                    100.0 * error
+                );
+                errors.push(error);
+                if seed == run.seeds.start {
                     images.push(image);
                 }
             }
-            let time = start.elapsed() / seeds.max(1) as u32;
-            let elements = elements / seeds.max(1);
+            let time = start.elapsed() / seeds as u32;
+            let cpu = (cpu_seconds() - cpu_start) / seeds as f64;
+            let elements = elements / seeds;
             let mean = errors.iter().sum::<f64>() / errors.len() as f64;
             let max = errors.iter().copied().fold(0.0, f64::max);
             let elements_cell = if extra > 0 {
@@ -264,14 +346,28 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                 format!("{rows} / {columns}"),
                 elements_cell,
                 format!("{:.1}×", brute / elements as f64),
-                fmt_duration(time),
+                format!("{} [{cpu:.1} s]", fmt_duration(time)),
                 format!("{:.2}%", 100.0 * mean),
                 format!("{:.2}%", 100.0 * max),
             ]);
             println!("{method} {rows}/{columns}: {:.2}%", 100.0 * mean);
         }
-        if let (Some(path), (300, 900), 2..) = (image_path, (rows, columns), images.len()) {
-            write_strip(path, width, reference, &images[..2]);
+        if let (Some(path), 0, 2..) = (run.image_path, b, images.len()) {
+            let errors: Vec<Vec<f32>> = images[..2]
+                .iter()
+                .map(|image| {
+                    reference
+                        .iter()
+                        .zip(image)
+                        .map(|(a, b)| 10.0 * (a - b).abs())
+                        .collect()
+                })
+                .collect();
+            let panels = [images[0].clone(), images[1].clone()]
+                .into_iter()
+                .chain(errors)
+                .collect::<Vec<_>>();
+            write_strip(path, run.width, reference, &panels);
         }
     }
     println!("\n{}", table.markdown());

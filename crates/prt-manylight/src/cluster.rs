@@ -34,6 +34,12 @@ impl Clustering {
         self.clusters.is_empty()
     }
 
+    /// Replaces the clusters of unseen lights (all reduced norms zero) by `groups` groups of
+    /// consecutive lights; see [`regroup_unseen`].
+    pub(crate) fn regroup_unseen(&mut self, norms: &[f64], groups: usize) {
+        regroup_unseen(&mut self.clusters, norms, groups);
+    }
+
     /// The total cost, the sum of [`cluster_cost`] over the clusters.
     pub fn cost(&self, reduced: &ReducedMatrix) -> f64 {
         self.clusters.iter().map(|c| cluster_cost(reduced, c)).sum()
@@ -49,6 +55,29 @@ impl Clustering {
 /// Zero columns contribute nothing. Column indices out of range are ignored.
 pub fn cluster_cost(reduced: &ReducedMatrix, members: &[u32]) -> f64 {
     set_cost(reduced, members)
+}
+
+/// Replaces the clusters whose members all have a zero norm (unseen lights) by
+/// `max(groups, clusters removed)` groups (at most one per light) of consecutive light
+/// indices, appended after the other clusters, which keep their order. Nothing changes when
+/// there are no such clusters.
+pub(crate) fn regroup_unseen(clusters: &mut Vec<Vec<u32>>, norms: &[f64], groups: usize) {
+    let before = clusters.len();
+    let mut unseen: Vec<u32> = Vec::new();
+    clusters.retain(|c| {
+        let zero = c.iter().all(|&j| norms[j as usize] == 0.0);
+        if zero {
+            unseen.extend_from_slice(c);
+        }
+        !zero
+    });
+    if unseen.is_empty() {
+        return;
+    }
+    unseen.sort_unstable();
+    let len = unseen.len();
+    let k = groups.max(before - clusters.len()).min(len);
+    clusters.extend((0..k).map(|g| unseen[g * len / k..(g + 1) * len / k].to_vec()));
 }
 
 /// Reduced columns as the clustering sees them: the columns of a [`ReducedMatrix`], or of a

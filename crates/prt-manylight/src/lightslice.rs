@@ -3,7 +3,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use crate::cluster::split_until;
+use crate::cluster::{regroup_unseen, split_until};
 use crate::reduced::{check_requests, check_shape};
 use crate::{ManyLightError, ReducedMatrix, UnseenLights, cluster_columns};
 
@@ -150,7 +150,11 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///    global norms are the robust importance — and the slice's pixels of its column, scaled by
 ///    the inverse probability, are added to the slice.
 ///
-/// Unbiased given the rows and clusterings with [`UnseenLights::Sample`] (every light has a
+/// With [`UnseenLights::Groups`], each slice cuts the globally unseen lights into that many
+/// groups of consecutive lights (out of its `local_clusters`), one uniform draw each.
+///
+/// Unbiased given the rows and clusterings with [`UnseenLights::Sample`] and
+/// [`UnseenLights::Groups`] (every light has a
 /// non-zero probability and its inverse as weight; with `Skip`, unbiased for the seen lights'
 /// columns); exact when `local_clusters == cols`. The cost is
 /// `slices × cols + local_clusters × rows` elements, the same as row-column sampling with
@@ -179,6 +183,7 @@ pub fn light_slice(
         ),
         ("neighbours", "neighbours", config.neighbours, usize::MAX),
     ])?;
+    config.unseen.check(config.local_clusters)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("lightslice: slices");
     let (slices, centroids) = make_slices(oracle, config.slices);
@@ -198,6 +203,11 @@ pub fn light_slice(
     )?;
     let slice_seed: u64 = rng.random();
     let global_norms = reduced.norms();
+    let unseen = global_norms.iter().filter(|&&a| a == 0.0).count();
+    let groups = config
+        .unseen
+        .groups(unseen, m - unseen, config.local_clusters);
+    let local_budget = config.local_clusters + 1 - groups;
     let window = config.neighbours.min(slices.len());
 
     progress.message("lightslice: slices");
@@ -215,11 +225,14 @@ pub fn light_slice(
             split_until(
                 &local,
                 &mut clusters,
-                config.local_clusters,
+                local_budget,
                 config.split_lines,
                 &mut rng,
                 progress,
             )?;
+            if let UnseenLights::Groups(_) = config.unseen {
+                regroup_unseen(&mut clusters, global_norms, groups);
+            }
             let mut acc = vec![0.0f64; pixels.len() * channels];
             let mut column = vec![0.0f32; pixels.len() * channels];
             let mut rendered = 0;

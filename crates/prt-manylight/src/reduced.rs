@@ -185,27 +185,27 @@ impl ReducedMatrix {
             .collect();
         let channels = self.channels;
         let dim = positions.len() * channels;
+        // Entry offsets into a full reduced column, in the order of the selected column.
+        let offsets: Vec<usize> = positions
+            .iter()
+            .flat_map(|&p| p * channels..(p + 1) * channels)
+            .collect();
         let mut data = vec![0.0f32; self.cols() * dim];
-        for (j, dst) in data
-            .chunks_exact_mut(dim.max(1))
-            .enumerate()
-            .take(self.cols())
-        {
-            let src = self.column(j);
-            for (k, &p) in positions.iter().enumerate() {
-                dst[k * channels..(k + 1) * channels]
-                    .copy_from_slice(&src[p * channels..(p + 1) * channels]);
+        let mut norms = vec![0.0f64; self.cols()];
+        if dim > 0 {
+            for (j, (dst, norm)) in data.chunks_exact_mut(dim).zip(&mut norms).enumerate() {
+                // A zero column stays zero on any subset of its rows (most lights of a scene
+                // whose view sees little of the lit geometry): nothing to copy.
+                if self.norms[j] == 0.0 {
+                    continue;
+                }
+                let src = self.column(j);
+                for (d, &o) in dst.iter_mut().zip(&offsets) {
+                    *d = src[o];
+                }
+                *norm = dst.iter().map(|&v| v as f64 * v as f64).sum::<f64>().sqrt();
             }
         }
-        let norms = data
-            .chunks_exact(dim.max(1))
-            .map(|col| col.iter().map(|&v| v as f64 * v as f64).sum::<f64>().sqrt())
-            .collect::<Vec<f64>>();
-        let norms = if dim == 0 {
-            vec![0.0; self.cols()]
-        } else {
-            norms
-        };
         let rows = positions.iter().map(|&p| self.rows[p]).collect();
         ReducedMatrix {
             rows,

@@ -26,6 +26,46 @@ pub enum UnseenLights {
     /// contribution (light that reaches only pixels between the sampled rows). Exact in
     /// expectation when every non-zero column is seen, e.g. when all rows are sampled.
     Skip,
+    /// Like `Sample`, but the unseen lights are cut into `k` groups of consecutive light
+    /// indices (fewer if there are fewer unseen lights), each represented by one light drawn
+    /// uniformly and weighted by the group's size: still unbiased, with about `1/k` of the
+    /// variance of `Sample`'s single draw (stratified sampling of the unseen lights). The groups
+    /// come out of the column budget: the seen lights get `k − 1` clusters fewer. Worth it when
+    /// many lights are unseen and some of them light small parts of the image (Sponza at 400
+    /// rows: 92% of the lights unseen, the expected error of `Sample`'s one draw 2.7× that of
+    /// all the seen clusters together). `Groups(1)` samples like `Sample`; `k` must be at least 1 and at
+    /// most the column (cluster) budget, and the seen lights keep at least one cluster.
+    Groups(usize),
+}
+
+impl UnseenLights {
+    /// Checks the group count of [`UnseenLights::Groups`] against the column budget.
+    pub(crate) fn check(self, columns: usize) -> Result<(), ManyLightError> {
+        match self {
+            UnseenLights::Groups(0) => Err(ManyLightError::ZeroSamples {
+                what: "unseen light groups",
+            }),
+            UnseenLights::Groups(k) if k > columns => Err(ManyLightError::TooMany {
+                what: "unseen light groups",
+                requested: k,
+                available: columns,
+            }),
+            _ => Ok(()),
+        }
+    }
+
+    /// The groups of `unseen` unseen lights in a budget of `columns` clusters, of which the
+    /// `seen` lights keep at least one: the clustering is asked for `columns − groups + 1`
+    /// clusters (it keeps one for the unseen lights), then [`UnseenLights::Groups`] regroups
+    /// them. 1 for the other variants.
+    pub(crate) fn groups(self, unseen: usize, seen: usize, columns: usize) -> usize {
+        match self {
+            UnseenLights::Groups(k) if unseen > 0 => {
+                k.min(unseen).min(columns - usize::from(seen > 0)).max(1)
+            }
+            _ => 1,
+        }
+    }
 }
 
 /// The knobs of [`row_column_sampling`].
@@ -112,10 +152,12 @@ pub struct RowColumnEstimate {
 /// 3. draws one representative per cluster with probability `‖ρ_j‖ / Σ_C ‖ρ‖` and adds its
 ///    full column scaled by `Σ_C ‖ρ‖ / ‖ρ_j‖`. Unseen lights (zero reduced columns) are clustered
 ///    apart; with [`UnseenLights::Sample`] (the default) each of their clusters draws uniformly
-///    and scales by its size, with [`UnseenLights::Skip`] (the paper's estimator) they are
-///    never drawn and cost no column.
+///    and scales by its size, with [`UnseenLights::Groups`] they are cut into that many groups
+///    of consecutive lights, each drawing uniformly, and with [`UnseenLights::Skip`] (the
+///    paper's estimator) they are never drawn and cost no column.
 ///
-/// Given the rows and the clustering, the estimate is unbiased with [`UnseenLights::Sample`]:
+/// Given the rows and the clustering, the estimate is unbiased with [`UnseenLights::Sample`]
+/// and [`UnseenLights::Groups`]:
 /// every light has a non-zero probability of representing its cluster and its weight is the
 /// inverse of that probability. With [`UnseenLights::Skip`] it is an unbiased estimate of the
 /// seen lights' columns only. With `columns == cols` every cluster is one light of weight 1 and
@@ -140,21 +182,28 @@ pub fn row_column_sampling(
         ("row", "rows", config.rows, n),
         ("column", "columns", config.columns, m),
     ])?;
+    config.unseen.check(config.columns)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("row-column sampling: reduced matrix");
     let rows = stratified_rows(n, config.rows, &mut rng);
     let reduced = ReducedMatrix::sample(oracle, rows, progress)?;
+    let unseen_lights = reduced.norms().iter().filter(|&&a| a == 0.0).count();
     progress.message("row-column sampling: clustering");
-    let clustering = cluster_columns(
+    let groups = config
+        .unseen
+        .groups(unseen_lights, m - unseen_lights, config.columns);
+    let mut clustering = cluster_columns(
         &reduced,
-        config.columns,
+        config.columns + 1 - groups,
         config.split_lines,
         &mut rng,
         progress,
     )?;
+    if let UnseenLights::Groups(_) = config.unseen {
+        clustering.regroup_unseen(reduced.norms(), groups);
+    }
     let clustering_cost = clustering.cost(&reduced);
     let mut representatives = pick_representatives(&reduced, &clustering, &mut rng);
-    let unseen_lights = reduced.norms().iter().filter(|&&a| a == 0.0).count();
     if config.unseen == UnseenLights::Skip {
         // Drawn after every other choice, so that Skip and Sample share rows, clusters and the
         // seen clusters' representatives for a seed.

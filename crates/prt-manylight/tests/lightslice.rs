@@ -3,8 +3,8 @@
 use ndarray::Array2;
 use prt_core::{DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
-    LightSliceConfig, ManyLightError, SliceOracle, SyntheticVplOracle, UnseenLights, brute_force,
-    light_slice,
+    LightSliceConfig, ManyLightError, ReducedMatrix, SliceOracle, SyntheticVplOracle, UnseenLights,
+    brute_force, light_slice,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -131,6 +131,52 @@ fn unbiased_on_dense_and_vpl_like_matrices() {
     // pixel's mean was 5.3 standard errors low, at 3000 every pixel is within 5.
     let oracle = SyntheticVplOracle::new(8, 8, 400, 3);
     check_unbiased(&oracle, LightSliceConfig::new(8, 24), 3000);
+}
+
+/// `dense` with its odd columns replaced by spikes (one non-zero row each): lights that most
+/// sampled rows miss.
+fn spiky(rows: usize, cols: usize, seed: u64) -> DenseOracle {
+    let mut data = dense(rows, cols, seed).data().clone();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed + 100);
+    for j in (1..cols).step_by(2) {
+        let hit = rng.random_range(0..rows);
+        for i in 0..rows {
+            for c in 0..3 {
+                data[[i, j * 3 + c]] = if i == hit { 4.0 + c as f32 } else { 0.0 };
+            }
+        }
+    }
+    DenseOracle::new(data, 3).unwrap()
+}
+
+#[test]
+fn grouped_unseen_lights_stay_unbiased_within_the_budget() {
+    let oracle = spiky(24, 50, 5);
+    let config = LightSliceConfig::new(4, 12).with_unseen(UnseenLights::Groups(3));
+    check_unbiased(&oracle, config, 400);
+    let estimate = light_slice(&oracle, &config, &NoProgress).unwrap();
+    assert!(estimate.clusters_per_slice.iter().all(|&c| c <= 12));
+    let bad = |k| {
+        light_slice(
+            &oracle,
+            &config.with_unseen(UnseenLights::Groups(k)),
+            &NoProgress,
+        )
+    };
+    assert_eq!(
+        bad(0),
+        Err(ManyLightError::ZeroSamples {
+            what: "unseen light groups"
+        })
+    );
+    assert_eq!(
+        bad(13),
+        Err(ManyLightError::TooMany {
+            what: "unseen light groups",
+            requested: 13,
+            available: 12
+        })
+    );
 }
 
 #[test]
@@ -263,4 +309,28 @@ fn slices_follow_the_geometry_and_partition_the_rows() {
         light_slice(&abstract_matrix, &LightSliceConfig::new(4, 5), &NoProgress).unwrap();
     let ranges: Vec<Vec<usize>> = (0..4).map(|s| (s * 5..(s + 1) * 5).collect()).collect();
     assert_eq!(estimate.slices, ranges);
+}
+
+#[test]
+fn selected_rows_equal_a_reduced_matrix_sampled_on_them() {
+    // Every fifth column of `dense` is zero: those skip the copy and must stay zero.
+    let oracle = dense(40, 25, 3);
+    let rows = vec![3, 17, 8, 39, 0, 22];
+    let reduced = ReducedMatrix::sample(&oracle, rows.clone(), &NoProgress).unwrap();
+    for positions in [vec![0, 2, 5], vec![4, 1], vec![5, 4, 3, 2, 1, 0], vec![]] {
+        let selected = reduced.select_rows(&positions);
+        let picked: Vec<usize> = positions.iter().map(|&p| rows[p]).collect();
+        assert_eq!(selected.rows(), picked.as_slice());
+        assert_eq!(selected.cols(), 25);
+        if picked.is_empty() {
+            assert!(selected.norms().iter().all(|&a| a == 0.0));
+            continue;
+        }
+        let direct = ReducedMatrix::sample(&oracle, picked, &NoProgress).unwrap();
+        assert_eq!(selected, direct, "positions {positions:?}");
+        assert!((0..25).step_by(5).all(|j| selected.norms()[j] == 0.0));
+        assert!(selected.norms()[1] > 0.0);
+    }
+    // Positions out of range are skipped.
+    assert_eq!(reduced.select_rows(&[1, 6, 99]).rows(), &[17]);
 }

@@ -416,6 +416,25 @@ fn bad_input_is_a_typed_error() {
         run(&ok, 5, 0),
         Err(ManyLightError::ZeroSamples { what: "column" })
     );
+    let grouped = |k| {
+        let config = RowColumnConfig::new(5, 8).with_unseen(UnseenLights::Groups(k));
+        row_column_sampling(&ok, &config, &NoProgress)
+    };
+    assert_eq!(
+        grouped(0),
+        Err(ManyLightError::ZeroSamples {
+            what: "unseen light groups"
+        })
+    );
+    assert_eq!(
+        grouped(9),
+        Err(ManyLightError::TooMany {
+            what: "unseen light groups",
+            requested: 9,
+            available: 8
+        })
+    );
+    assert!(grouped(8).is_ok());
     assert_eq!(
         run(&ok, 11, 5),
         Err(ManyLightError::TooMany {
@@ -568,5 +587,93 @@ fn huge_dynamic_range_stays_finite_and_exact_at_full_clustering() {
             .representatives
             .iter()
             .all(|r| r.weight.is_finite() && r.weight >= 1.0)
+    );
+}
+
+#[test]
+fn grouped_unseen_lights_stay_unbiased() {
+    let config = RowColumnConfig::new(4, 10).with_unseen(UnseenLights::Groups(4));
+    check_unbiased(&spiky(24, 60, 7), config, 400);
+}
+
+#[test]
+fn grouped_unseen_lights_are_consecutive_groups_within_the_budget() {
+    let oracle = spiky(40, 61, 13);
+    // (requested groups, seed, groups): 20 of a 20-cluster budget leaves the seen lights one.
+    for (k, seed, groups) in [(1, 0, 1), (3, 1, 3), (7, 2, 7), (20, 3, 19)] {
+        let config = RowColumnConfig::new(5, 20)
+            .with_seed(seed)
+            .with_unseen(UnseenLights::Groups(k));
+        let estimate = row_column_sampling(&oracle, &config, &NoProgress).unwrap();
+        let reduced = ReducedMatrix::sample(&oracle, estimate.rows.clone(), &NoProgress).unwrap();
+        let unseen: Vec<&Vec<u32>> = estimate
+            .clustering
+            .clusters()
+            .iter()
+            .filter(|c| c.iter().all(|&j| reduced.norms()[j as usize] == 0.0))
+            .collect();
+        assert!(
+            estimate.unseen_lights > 20,
+            "most spikes fall between 5 rows"
+        );
+        assert_eq!(unseen.len(), groups, "groups of unseen lights");
+        let (small, large) = unseen.iter().fold((usize::MAX, 0), |(s, l), c| {
+            (s.min(c.len()), l.max(c.len()))
+        });
+        assert!(large - small <= 1, "group sizes {small}..{large}");
+        for c in &unseen {
+            assert!(c.windows(2).all(|w| w[0] < w[1]));
+        }
+        let mut all: Vec<u32> = unseen.iter().flat_map(|c| c.iter().copied()).collect();
+        all.sort_unstable();
+        assert!(all.windows(2).all(|w| w[0] < w[1]) && all.len() == estimate.unseen_lights);
+        // A partition of all lights, one representative per cluster, within the budget.
+        let members: usize = estimate.clustering.clusters().iter().map(Vec::len).sum();
+        assert_eq!(members, 61);
+        assert!(estimate.representatives.len() <= 20);
+        assert_eq!(estimate.representatives.len(), estimate.clustering.len());
+        assert_eq!(
+            estimate.elements,
+            (5 * 61 + estimate.representatives.len() * 40) as u64
+        );
+    }
+}
+
+/// Mean squared error over `runs` seeds, and its standard error.
+fn mean_squared_error(oracle: &dyn MatrixOracle, config: RowColumnConfig, runs: u64) -> (f64, f64) {
+    let exact = brute_force(oracle, &NoProgress).unwrap();
+    let errors: Vec<f64> = (0..runs)
+        .map(|seed| {
+            let estimate =
+                row_column_sampling(oracle, &config.with_seed(seed), &NoProgress).unwrap();
+            estimate
+                .image
+                .iter()
+                .zip(&exact)
+                .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+                .sum()
+        })
+        .collect();
+    let n = runs as f64;
+    let mean = errors.iter().sum::<f64>() / n;
+    let var = errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+#[test]
+fn grouped_unseen_lights_lower_the_error_when_unseen_lights_dominate_it() {
+    // 100 spikes, 4 rows of 48: about 92 spikes unseen, each lighting one pixel. One uniform
+    // draw scales one spike by ~92; eight groups scale eight spikes by ~12 each.
+    let oracle = spiky(48, 200, 21);
+    let sample = mean_squared_error(&oracle, RowColumnConfig::new(4, 20), 300);
+    let grouped = mean_squared_error(
+        &oracle,
+        RowColumnConfig::new(4, 20).with_unseen(UnseenLights::Groups(8)),
+        300,
+    );
+    // Both within 4 standard errors of their means; the grouped error at most half.
+    assert!(
+        grouped.0 + 4.0 * grouped.1 < 0.5 * (sample.0 - 4.0 * sample.1),
+        "sample {sample:?}, grouped {grouped:?}"
     );
 }
