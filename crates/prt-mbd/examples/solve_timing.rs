@@ -5,7 +5,8 @@
 //!
 //! e.g. `-- 64 9 32 8` (the paper's Figure 8 size) or `-- 16 5 64 8,16` (rank sweep). CPU time
 //! is the process's user + system time during the fit (Linux `/proc/self/stat`), summed over
-//! threads. `MBD_HISTORY=1` also prints the loss of every iteration.
+//! threads. `MBD_HISTORY=1` also prints the loss of every iteration; `MBD_PLAIN=1` turns off
+//! momentum and iterate averaging (the session-3 solver, for same-load comparisons).
 use std::time::Instant;
 
 use prt_core::{Aabb, NoProgress};
@@ -42,12 +43,17 @@ fn main() {
         rayon::current_num_threads()
     );
     for rank in ranks {
-        let options = MbdOptions {
+        let mut options = MbdOptions {
             rank,
             max_iterations: iterations,
             tolerance: 0.0,
             ..MbdOptions::default()
         };
+        if std::env::var_os("MBD_PLAIN").is_some() {
+            options.momentum_basis = 0.0;
+            options.momentum_coefficients = 0.0;
+            options.average_window = 0;
+        }
         let (wall, cpu) = (Instant::now(), cpu_seconds());
         let (model, report) = Mbd {
             basis_nodes: [nodes; 3],

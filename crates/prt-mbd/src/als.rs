@@ -9,8 +9,8 @@ use prt_linalg::cholesky_solve;
 use rayon::prelude::*;
 
 use crate::objective::{Preconditioner, Problem, Samples};
-use crate::solver::Stopping;
 use crate::solver::{IterationRecord, MbdOptions, SolveReport, initialise, validate};
+use crate::solver::{Stopping, relative_to};
 use crate::subspace::{cholesky_in_place, cholesky_solve_in_place, linalg_error};
 use crate::{MbdError, MbdModel};
 
@@ -74,6 +74,15 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
     };
     let (mut coefficients, mut basis) = initialise(&problem, options)?;
     let centres = Samples::draw(field, &basis_kernels, 0, 0, false);
+    let energy = problem
+        .evaluate(
+            &centres,
+            &vec![0.0; coefficients.len()],
+            &basis,
+            false,
+            progress,
+        )?
+        .data_loss;
     let mut report = SolveReport {
         init_seconds: start.elapsed().as_secs_f64(),
         ..SolveReport::default()
@@ -109,7 +118,7 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
             loss_before,
             data_before: before.data_loss,
             loss_after,
-            held_out: after.data_loss,
+            held_out: Some(relative_to(after.data_loss, energy)),
             step: 1.0,
             elapsed: start.elapsed().as_secs_f64(),
         });

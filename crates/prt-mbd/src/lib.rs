@@ -29,6 +29,9 @@
 //!   [`Preconditioner::Diagonal`] is the paper's. Every kernel's curvature gets a
 //!   Levenberg-Marquardt floor of `1e-5` of its mean diagonal: above the field's local rank the
 //!   blocks are singular, and the floor keeps f32 rounding from becoming huge basis steps.
+//!   Also beyond the paper: heavy-ball momentum on the step, the returned model averaged over
+//!   the last iterates (each iteration refits its own samples, so single iterates scatter), and
+//!   a stopping rule on the averaged model's error on a fixed held-out sample set.
 //! * Baselines, each a [`prt_core::Compressor`] with the same storage budget: [`GlobalPca`],
 //!   [`BlockPca`] (BPCA, and WBPCA with `window = 2`), [`ClusteredPca`] (Sloan et al. 2003),
 //!   [`KMeansVq`].
@@ -73,7 +76,9 @@ pub mod objective;
 mod solver;
 mod subspace;
 
-pub use solver::{Init, IterationRecord, MbdOptions, Preconditioner, SolveReport, solve};
+pub use solver::{
+    HELD_OUT_INTERVAL, Init, IterationRecord, MbdOptions, Preconditioner, SolveReport, solve,
+};
 mod baselines;
 pub use baselines::{BlockPca, ClusterModel, ClusteredPca, GlobalPca, KMeansVq, voxel_centre_box};
 mod hat;
