@@ -57,8 +57,8 @@
 //! total energy 4.4 to 10.9 across frames of a 1°/frame rotation), which is temporal
 //! incoherence of the resampling, not of the lighting, and defeats incremental updates. Here
 //! each texel is the solid-angle-weighted mean of `samples × samples` lookups
-//! ([`Cubemap::default_samples`]: two per lat-long texel, at least 4 × 4); the energy then
-//! stays within 1%.
+//! ([`Cubemap::default_samples`]: about four per lat-long texel, 4 × 4 to 16 × 16); the energy
+//! then stays within 1%.
 //!
 //! Errors are [`WaveletError`]s: sizes that are not powers of two, mismatched faces or buffers,
 //! and non-finite lighting (naming the face, texel and channel) are reported, never panicked on.
