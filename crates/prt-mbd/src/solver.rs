@@ -99,11 +99,12 @@ impl Default for MbdOptions {
     }
 }
 
-/// The stopping rule shared by the solvers: stop once an iteration's loss decrease, relative to
-/// the data term before it, stays below `tolerance` for `patience` consecutive iterations, or the
-/// data term reaches zero. Relative to the data term and not the whole loss, because at high
-/// accuracy the ridge term `λ/2 ‖c‖²` dominates the loss while barely moving, which made a
-/// rank-16 fit stop after four iterations with the data error still falling fast.
+/// The stopping rule of [`crate::solve_als`], whose loss is deterministic (the stochastic solver
+/// used it until session 4): stop once an iteration's loss decrease, relative to the data term
+/// before it, stays below `tolerance` for `patience` consecutive iterations, or the data term
+/// reaches zero. Relative to the data term and not the whole loss, because at high accuracy the
+/// ridge term `λ/2 ‖c‖²` dominates the loss while barely moving, which made a rank-16 fit stop
+/// after four iterations with the data error still falling fast.
 #[derive(Debug, Default)]
 pub(crate) struct Stopping {
     calm: usize,
