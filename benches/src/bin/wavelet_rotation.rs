@@ -24,7 +24,7 @@ use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use prt_benches::{Table, cpu_seconds, thread_cpu_ns};
+use prt_benches::{Table, cpu_seconds};
 use prt_sphere::LatLongMap;
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
@@ -216,13 +216,9 @@ fn run(frames: &[&Frame], size: usize, methods: &mut [Method]) {
     let mut metric = LightingError::new(size, 3).expect("size");
     for frame in frames {
         for m in methods.iter_mut() {
-            // Thread CPU time where available: the machine is shared.
-            let (wall, cpu) = (Instant::now(), thread_cpu_ns());
+            let start = Instant::now();
             let update = m.approx.step(&frame.coeffs).expect("step");
-            m.seconds += match (cpu, thread_cpu_ns()) {
-                (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
-                _ => wall.elapsed().as_secs_f64(),
-            };
+            m.seconds += start.elapsed().as_secs_f64();
             m.band_terms.push(update.terms_per_band());
             let e = metric
                 .error(m.approx.approximation(), &frame.texels)
@@ -617,7 +613,7 @@ fn main() {
         "mean error rotating",
         "mean / mean NWA100",
         "mean error frames 100-130",
-        "step time (thread CPU)",
+        "step time (wall, loaded machine)",
     ]);
     let mut skipped = Vec::new();
     for name in &maps {
