@@ -11,8 +11,9 @@
 //!   lights are clustered by their reduced columns ([`cluster_columns`], cost [`cluster_cost`]);
 //!   one full column per cluster, drawn proportionally to its reduced norm and weighted by the
 //!   inverse probability, gives an unbiased image estimate. Lights that no sampled row sees are
-//!   drawn uniformly (unbiased, [`UnseenLights::Sample`]) or skipped as in the paper
-//!   ([`UnseenLights::Skip`]: unbiased for the seen lights, no heavy tail from unseen ones).
+//!   drawn uniformly (unbiased, [`UnseenLights::Sample`]; [`UnseenLights::Groups`] draws one
+//!   per group of them) or skipped as in the paper ([`UnseenLights::Skip`]: unbiased for the
+//!   seen lights, no heavy tail from unseen ones).
 //! * [`tensor_clustering`] — Hašan, Velázquez-Armendáriz, Pellacini and Bala, "Tensor
 //!   Clustering for Rendering Many-Light Animations" (EGSR 2008): rows sampled in every frame of
 //!   an animation, rectangular clusters (lights × frame range) split in lights or in time by

@@ -143,7 +143,9 @@ const NORMAL_WEIGHT: f32 = 0.3;
 /// 3. **Local refinement**: for each slice, the global clusters are split further
 ///    ([`crate::split_cluster`], highest cost first) on the rows of the `neighbours` slices
 ///    whose centroids are nearest to its own (itself included), up to `local_clusters`: each
-///    slice gets the clustering that fits its part of the image.
+///    slice gets the clustering that fits its part of the image. The clusters of globally
+///    unseen lights (zero on every sampled row) are left whole unless the seen lights are all
+///    alone: split by index at cost 0, they would otherwise take the seen lights' clusters.
 /// 4. Each local cluster draws one representative proportionally to its reduced norm over all
 ///    sampled rows (uniformly in a cluster of zero columns, which [`UnseenLights::Skip`] skips
 ///    instead), as the authors' implementation does — the local rows decide the clusters, the
@@ -221,15 +223,32 @@ pub fn light_slice(
                 slice_seed.wrapping_add((s as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
             );
             let local = reduced.select_rows(&nearest(&centroids, s, window));
-            let mut clusters = global.clusters().to_vec();
+            // The local rows refine the seen lights' clusters first: the globally unseen lights
+            // are zero on every sampled row, so splitting them (by index, at cost 0) would take
+            // clusters from the seen lights. They are split only with what the seen lights
+            // cannot use (all alone), and follow the seen clusters.
+            let (mut clusters, mut unseen_clusters): (Vec<Vec<u32>>, Vec<Vec<u32>>) = global
+                .clusters()
+                .iter()
+                .cloned()
+                .partition(|c| c.iter().any(|&j| global_norms[j as usize] > 0.0));
             split_until(
                 &local,
                 &mut clusters,
-                local_budget,
+                local_budget.saturating_sub(unseen_clusters.len()),
                 config.split_lines,
                 &mut rng,
                 progress,
             )?;
+            split_until(
+                &local,
+                &mut unseen_clusters,
+                local_budget.saturating_sub(clusters.len()),
+                config.split_lines,
+                &mut rng,
+                progress,
+            )?;
+            clusters.append(&mut unseen_clusters);
             if let UnseenLights::Groups(_) = config.unseen {
                 regroup_unseen(&mut clusters, global_norms, groups);
             }

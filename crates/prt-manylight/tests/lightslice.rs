@@ -334,3 +334,43 @@ fn selected_rows_equal_a_reduced_matrix_sampled_on_them() {
     // Positions out of range are skipped.
     assert_eq!(reduced.select_rows(&[1, 6, 99]).rows(), &[17]);
 }
+
+#[test]
+fn unseen_lights_leave_the_local_budget_to_the_seen_ones() {
+    // Every light is a spike (one non-zero row, same colour): on a slice's own row every
+    // cluster costs 0, so only the order of the splits decides who gets the clusters.
+    let (rows, cols) = (24, 100);
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let mut data = Array2::<f32>::zeros((rows, cols * 3));
+    for j in 0..cols {
+        let hit = rng.random_range(0..rows);
+        for c in 0..3 {
+            data[[hit, j * 3 + c]] = 4.0 + c as f32;
+        }
+    }
+    let oracle = DenseOracle::new(data, 3).unwrap();
+    let config = LightSliceConfig {
+        neighbours: 1,
+        global_clusters: 3,
+        ..LightSliceConfig::new(6, 10)
+    }
+    .with_unseen(UnseenLights::Skip);
+    for seed in 0..4 {
+        let estimate = light_slice(&oracle, &config.with_seed(seed), &NoProgress).unwrap();
+        let seen = (0..cols)
+            .filter(|&j| {
+                estimate
+                    .rows
+                    .iter()
+                    .any(|&i| oracle.data()[[i, j * 3]] != 0.0)
+            })
+            .count();
+        assert!(seen >= 10 && seen < cols, "{seen} seen lights");
+        // All but the one cluster of unseen lights are rendered, in every slice.
+        assert!(
+            estimate.clusters_per_slice.iter().all(|&c| c == 9),
+            "seed {seed}: {:?}",
+            estimate.clusters_per_slice
+        );
+    }
+}
