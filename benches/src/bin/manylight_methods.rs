@@ -12,9 +12,10 @@
 //! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
 //! errors at the first budget, for the first seed.
 //! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
-//!   `slice-skip`, `slice-groups` (the `-skip` variants with `UnseenLights::Skip`, the `-groups`
-//!   ones with `UnseenLights::Groups(columns / GROUP_DIVISOR)`), `vis`, `kmeans` (default
-//!   `rowcol,slice,vis,kmeans`);
+//!   `slice-skip`, `slice-groups`, `slice-skip-local` (the `-skip` variants with
+//!   `UnseenLights::Skip`, the `-groups` ones with `UnseenLights::Groups(columns /
+//!   GROUP_DIVISOR)`, `-local` with `LightSliceConfig::local_importance`), `vis`, `kmeans`
+//!   (default `rowcol,slice,vis,kmeans`);
 //! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
 //!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
 //!   and the methods sample the other lights, as in `manylight_scene`;
@@ -118,6 +119,10 @@ fn main() {
             ("slice", "LightSlice"),
             ("slice-skip", "LightSlice (skip unseen)"),
             ("slice-groups", "LightSlice (grouped unseen)"),
+            (
+                "slice-skip-local",
+                "LightSlice (skip unseen, local importance)",
+            ),
             ("vis", "visibility (split)"),
             ("kmeans", "visibility (k-means)"),
         ]
@@ -302,7 +307,8 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                     m if m.starts_with("LightSlice") => {
                         let c = LightSliceConfig::new(rows, columns)
                             .with_seed(seed)
-                            .with_unseen(unseen_for(method, columns));
+                            .with_unseen(unseen_for(method, columns))
+                            .with_local_importance(method.contains("local"));
                         let r = light_slice(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }

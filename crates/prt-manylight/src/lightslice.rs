@@ -79,6 +79,11 @@ pub struct LightSliceConfig {
     pub seed: u64,
     /// The treatment of lights that no sampled row sees (as in row-column sampling).
     pub unseen: UnseenLights,
+    /// Draw each slice's representatives from the even mixture of two probabilities, the
+    /// members' norms over the slice's local rows and over all sampled rows, instead of the
+    /// latter alone: the local rows say which lights matter to this slice, the global norms
+    /// bound every weight to twice the global draw's (still unbiased).
+    pub local_importance: bool,
 }
 
 impl LightSliceConfig {
@@ -93,6 +98,16 @@ impl LightSliceConfig {
             split_lines: 3,
             seed: 0,
             unseen: UnseenLights::Sample,
+            local_importance: false,
+        }
+    }
+
+    /// The same configuration with or without the local rows in the representatives'
+    /// probability ([`LightSliceConfig::local_importance`]).
+    pub fn with_local_importance(self, local_importance: bool) -> Self {
+        Self {
+            local_importance,
+            ..self
         }
     }
 
@@ -256,7 +271,8 @@ pub fn light_slice(
             let mut column = vec![0.0f32; pixels.len() * channels];
             let mut rendered = 0;
             for members in &clusters {
-                let (j, weight) = pick_global(members, global_norms, &mut rng);
+                let local_norms = config.local_importance.then(|| local.norms());
+                let (j, weight) = pick(members, global_norms, local_norms, &mut rng);
                 if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
                     continue;
                 }
@@ -419,27 +435,44 @@ fn nearest(centroids: &[[f32; 6]], s: usize, window: usize) -> Vec<usize> {
 }
 
 /// A representative of `members` drawn proportionally to its norm over all sampled rows
-/// (uniformly in a cluster of zero columns), with the inverse of its probability. Local
-/// clusters only split global ones, and the global clustering keeps zero columns apart, so a
-/// cluster is either all zero or all positive.
-fn pick_global(members: &[u32], norms: &[f64], rng: &mut impl Rng) -> (usize, f64) {
+/// (uniformly in a cluster of zero columns), or, with `local` norms whose sum over the cluster
+/// is positive, from the even mixture of that and the draw proportional to the local norms;
+/// returned with the inverse of its probability. Local clusters only split global ones, and
+/// the global clustering keeps zero columns apart, so a cluster is either all zero or all
+/// positive (globally; a local norm is zero only where the global one is or the local rows
+/// miss the light).
+fn pick(members: &[u32], norms: &[f64], local: Option<&[f64]>, rng: &mut impl Rng) -> (usize, f64) {
     let total: f64 = members.iter().map(|&j| norms[j as usize]).sum();
     if total <= 0.0 {
         let k = rng.random_range(0..members.len());
         return (members[k] as usize, members.len() as f64);
     }
-    let u = rng.random::<f64>() * total;
+    let local = local
+        .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
+        .filter(|&(_, t)| t > 0.0);
+    // One uniform number picks the distribution (first half: global) and the light within it.
+    let u = rng.random::<f64>();
+    let (weights, sum, u) = match local {
+        Some((l, t)) if u >= 0.5 => (l, t, 2.0 * u - 1.0),
+        Some(_) => (norms, total, 2.0 * u),
+        None => (norms, total, u),
+    };
+    let target = u * sum;
     let mut running = 0.0;
     let mut pick = members[0];
     for &j in members {
-        let a = norms[j as usize];
+        let a = weights[j as usize];
         if a > 0.0 {
             pick = j;
             running += a;
-            if u < running {
+            if target < running {
                 break;
             }
         }
     }
-    (pick as usize, total / norms[pick as usize])
+    let j = pick as usize;
+    match local {
+        Some((l, t)) => (j, 1.0 / (0.5 * norms[j] / total + 0.5 * l[j] / t)),
+        None => (j, total / norms[j]),
+    }
 }

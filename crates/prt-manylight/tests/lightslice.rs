@@ -180,6 +180,27 @@ fn grouped_unseen_lights_stay_unbiased_within_the_budget() {
 }
 
 #[test]
+fn local_importance_stays_unbiased_and_exact() {
+    let config = LightSliceConfig::new(6, 8).with_local_importance(true);
+    check_unbiased(&dense(24, 50, 2), config, 400);
+    let local = LightSliceConfig {
+        neighbours: 2,
+        ..LightSliceConfig::new(4, 12).with_local_importance(true)
+    };
+    check_unbiased(&spiky(24, 50, 6), local, 400);
+    // One light per cluster: probability 1 from both halves of the mixture.
+    let oracle = dense(30, 20, 1);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let all = LightSliceConfig {
+        global_clusters: 5,
+        neighbours: 2,
+        ..LightSliceConfig::new(6, 20).with_local_importance(true)
+    };
+    let estimate = light_slice(&oracle, &all, &NoProgress).unwrap();
+    assert!(relative_error(&estimate.image, &exact) < 1e-6);
+}
+
+#[test]
 fn error_falls_with_more_slices_and_clusters() {
     let oracle = SyntheticVplOracle::new(24, 24, 3000, 4);
     let exact = brute_force(&oracle, &NoProgress).unwrap();
