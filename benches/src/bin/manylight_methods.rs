@@ -2,7 +2,7 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
@@ -23,7 +23,9 @@
 //! * `FIRST_SEED` (default 7): seeds `FIRST_SEED .. FIRST_SEED + SEEDS` (settings are chosen on
 //!   seeds 1..6 and reported on 7..12). Every seed's error is printed as it finishes;
 //! * `GROUP_DIVISOR` (default 16): the `-groups` methods cut the unseen lights into
-//!   `columns / GROUP_DIVISOR` groups (at least 1), out of the column budget.
+//!   `columns / GROUP_DIVISOR` groups (at least 1), out of the column budget;
+//! * `NEIGHBOURS` (default 8, `LightSliceConfig::neighbours`): the slices whose rows refine a
+//!   slice's clustering.
 //!
 //! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
@@ -151,7 +153,9 @@ fn main() {
     };
     let first_seed: u64 = args.get(9).and_then(|a| a.parse().ok()).unwrap_or(7);
     let group_divisor: usize = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(16);
+    let neighbours: usize = args.get(11).and_then(|a| a.parse().ok()).unwrap_or(8);
     let run = Run {
+        neighbours: neighbours.max(1),
         group_divisor: group_divisor.max(1),
         width,
         seeds: first_seed..first_seed + seeds,
@@ -247,6 +251,7 @@ fn main() {
 struct Run<'a> {
     width: usize,
     group_divisor: usize,
+    neighbours: usize,
     seeds: std::ops::Range<u64>,
     image_path: Option<&'a Path>,
     methods: &'a [&'static str],
@@ -305,10 +310,13 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         (r.image, r.elements)
                     }
                     m if m.starts_with("LightSlice") => {
-                        let c = LightSliceConfig::new(rows, columns)
-                            .with_seed(seed)
-                            .with_unseen(unseen_for(method, columns))
-                            .with_local_importance(method.contains("local"));
+                        let c = LightSliceConfig {
+                            neighbours: run.neighbours,
+                            ..LightSliceConfig::new(rows, columns)
+                        }
+                        .with_seed(seed)
+                        .with_unseen(unseen_for(method, columns))
+                        .with_local_importance(method.contains("local"));
                         let r = light_slice(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }
