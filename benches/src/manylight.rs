@@ -1,9 +1,13 @@
-//! Helpers shared by the many-light sweeps: the budget list, VPL tracing to a target count and image strips.
+//! Helpers shared by the many-light sweeps: the budget list, VPL tracing to a target count, the
+//! cached brute-force reference and image strips.
 
 use std::path::Path;
 
-use prt_core::NoProgress;
-use prt_trace::{LoadOptions, RayTracer, Scene, Vpl, VplOptions, trace_vpls};
+use prt_core::{MatrixOracle, NoProgress};
+use prt_trace::{
+    DirectionalLight, GBuffer, LoadOptions, RayTracer, Scene, Vpl, VplOptions, VplOracle,
+    trace_vpls,
+};
 
 /// The (rows, columns) budgets of the sweep, from 100/200 to 900/1800 (300/900 is the
 /// paper's; 432/864 and 400/1300 sit near 50x fewer elements at 256²).
@@ -15,6 +19,71 @@ pub const BUDGETS: [(usize, usize); 6] = [
     (600, 1200),
     (900, 1800),
 ];
+
+/// Parses a comma-separated `rows/columns` list (`300/900,432/864`; malformed entries are
+/// skipped); no list gives [`BUDGETS`].
+pub fn parse_budgets(list: Option<&str>) -> Vec<(usize, usize)> {
+    match list {
+        Some(list) => list
+            .split(',')
+            .filter_map(|b| {
+                let (r, c) = b.split_once('/')?;
+                Some((r.parse().ok()?, c.parse().ok()?))
+            })
+            .collect(),
+        None => BUDGETS.to_vec(),
+    }
+}
+
+/// The brute-force image of the VPL oracle with `directional` columns after the VPL ones.
+pub struct Reference {
+    /// The sum of every column, RGB per pixel.
+    pub image: Vec<f32>,
+    /// The sum of the VPL columns alone (the indirect light).
+    pub vpl_image: Vec<f32>,
+    /// The first directional column (the sun); zeros without directional lights.
+    pub sun: Vec<f32>,
+}
+
+/// The reference of a sweep: the VPL columns' sum is read from the on-disk cache `file` (or
+/// computed by brute force and written there: minutes at 256² × 10⁵ VPLs), the directional
+/// columns (about a thousand) are evaluated here. Panics on a setup error, as a sweep does.
+pub fn reference_image(
+    tracer: &RayTracer,
+    gbuffer: &GBuffer,
+    vpls: &[Vpl],
+    directional: &[DirectionalLight],
+    clamp: f32,
+    file: &Path,
+) -> Reference {
+    if let Some(folder) = file.parent() {
+        std::fs::create_dir_all(folder).expect("cache folder");
+    }
+    let vpl_image = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
+        .expect("finite input")
+        .reference_image_cached(file, &NoProgress)
+        .expect("reference image");
+    let full = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
+        .and_then(|o| o.with_directional(directional))
+        .expect("finite input");
+    let mut image = vpl_image.clone();
+    let mut sun = vec![0.0f32; image.len()];
+    let mut column = vec![0.0f32; image.len()];
+    for j in vpls.len()..full.cols() {
+        full.eval_col(j, &mut column).expect("directional column");
+        for (r, &c) in image.iter_mut().zip(&column) {
+            *r += c;
+        }
+        if j == vpls.len() {
+            sun.copy_from_slice(&column);
+        }
+    }
+    Reference {
+        image,
+        vpl_image,
+        sun,
+    }
+}
 
 /// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
 /// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is

@@ -9,7 +9,7 @@
 //! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS] [direct]`
 use std::path::Path;
 
-use prt_benches::manylight::{load_scene, trace_about};
+use prt_benches::manylight::{load_scene, reference_image, trace_about};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{ReducedMatrix, RowColumnConfig, row_column_sampling, stratified_rows};
@@ -52,17 +52,8 @@ fn main() {
         "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
         vpls.len()
     ));
-    let mut reference = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
-        .expect("finite input")
-        .reference_image_cached(&file, &NoProgress)
-        .expect("reference");
+    let reference = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file).image;
     let mut col = vec![0.0f32; 3 * n];
-    for j in vpls.len()..m {
-        oracle.eval_col(j, &mut col).expect("column");
-        for (r, &c) in reference.iter_mut().zip(&col) {
-            *r += c;
-        }
-    }
     let ref_norm = norm(&reference);
     let ref_sum: f64 = reference.iter().map(|&v| v as f64).sum();
     println!(

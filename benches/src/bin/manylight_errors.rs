@@ -16,7 +16,7 @@
 //! thousand) per seed on top of the run itself.
 use std::path::Path;
 
-use prt_benches::manylight::{load_scene, trace_about};
+use prt_benches::manylight::{Reference, load_scene, reference_image, trace_about};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
@@ -62,29 +62,17 @@ fn main() {
     let view = PinholeView::for_scene(&scene).expect("non-empty scene");
     let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
     let directional = directional_lights(&scene, &SunSky::default(), 1024).expect("scene");
-    let full = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
-        .and_then(|o| o.with_directional(&directional))
-        .expect("finite input");
-    let n = full.rows();
     let file = manifest.join(format!(
         "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
         vpls.len()
     ));
-    let mut reference = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
-        .expect("finite input")
-        .reference_image_cached(&file, &NoProgress)
-        .expect("reference");
+    let Reference {
+        image: reference,
+        sun,
+        ..
+    } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
+    let n = reference.len() / 3;
     let mut col = vec![0.0f32; 3 * n];
-    let mut sun = vec![0.0f32; 3 * n];
-    for j in vpls.len()..full.cols() {
-        full.eval_col(j, &mut col).expect("column");
-        for (r, &c) in reference.iter_mut().zip(&col) {
-            *r += c;
-        }
-        if j == vpls.len() {
-            sun.copy_from_slice(&col);
-        }
-    }
     let ref_norm = reference
         .iter()
         .map(|&v| v as f64 * v as f64)

@@ -31,7 +31,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{BUDGETS, load_scene, trace_about, write_strip};
+use prt_benches::manylight::{
+    Reference, load_scene, parse_budgets, reference_image, trace_about, write_strip,
+};
 use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
@@ -141,16 +143,7 @@ fn main() {
             return;
         }
     };
-    let budgets: Vec<(usize, usize)> = match args.get(8) {
-        Some(list) => list
-            .split(',')
-            .filter_map(|b| {
-                let (r, c) = b.split_once('/')?;
-                Some((r.parse().ok()?, c.parse().ok()?))
-            })
-            .collect(),
-        None => BUDGETS.to_vec(),
-    };
+    let budgets = parse_budgets(args.get(8).map(String::as_str));
     let first_seed: u64 = args.get(9).and_then(|a| a.parse().ok()).unwrap_or(7);
     let group_divisor: usize = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(16);
     let neighbours: usize = args.get(11).and_then(|a| a.parse().ok()).unwrap_or(8);
@@ -176,32 +169,21 @@ fn main() {
             let view = PinholeView::for_scene(&scene).expect("non-empty scene");
             let gbuffer =
                 GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-            let cache = manifest.join("../target/manylight_cache");
-            std::fs::create_dir_all(&cache).expect("cache folder");
-            let file = cache.join(format!("{scene_name}_{width}_{}_{clamp}.bin", vpls.len()));
+            let file = manifest.join(format!(
+                "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
+                vpls.len()
+            ));
             let start = Instant::now();
-            let mut reference = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
-                .expect("finite")
-                .reference_image_cached(&file, &NoProgress)
-                .expect("reference image");
-            let full = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
-                .and_then(|o| o.with_directional(&directional))
-                .expect("finite");
-            let (n, m) = (full.rows(), full.cols());
-            let mut column = vec![0.0f32; 3 * n];
+            let Reference {
+                image: reference,
+                sun,
+                ..
+            } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
+            let (n, m) = (reference.len() / 3, vpls.len() + directional.len());
             // The sun is the first directional light; with `exact-sun` its column is kept apart
             // as the exact part of every estimate.
             let exact = usize::from(exact_sun && !directional.is_empty());
-            let mut exact_image = vec![0.0f32; 3 * n];
-            for j in vpls.len()..m {
-                full.eval_col(j, &mut column).expect("directional column");
-                for (r, &c) in reference.iter_mut().zip(&column) {
-                    *r += c;
-                }
-                if j < vpls.len() + exact {
-                    exact_image.copy_from_slice(&column);
-                }
-            }
+            let exact_image = if exact > 0 { sun } else { vec![0.0f32; 3 * n] };
             println!(
                 "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights ({exact} \
                  exact), clamp {clamp}, {} threads; brute force {} ({:.3e} elements; VPL columns \

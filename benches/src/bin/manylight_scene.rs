@@ -27,7 +27,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{BUDGETS, load_scene, trace_about, write_strip};
+use prt_benches::manylight::{
+    Reference, load_scene, parse_budgets, reference_image, trace_about, write_strip,
+};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
@@ -61,16 +63,7 @@ fn main() {
     };
     let light = args.get(7).map(String::as_str).unwrap_or("direct");
     let direct = light != "indirect";
-    let budgets: Vec<(usize, usize)> = match args.get(8) {
-        Some(list) => list
-            .split(',')
-            .filter_map(|b| {
-                let (r, c) = b.split_once('/')?;
-                Some((r.parse().ok()?, c.parse().ok()?))
-            })
-            .collect(),
-        None => BUDGETS.to_vec(),
-    };
+    let budgets = parse_budgets(args.get(8).map(String::as_str));
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(scene) = load_scene(scene_name, manifest) else {
@@ -86,7 +79,6 @@ fn main() {
     let view = PinholeView::for_scene(&scene).expect("non-empty scene");
     let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
     let cache = manifest.join("../target/manylight_cache");
-    std::fs::create_dir_all(&cache).expect("cache folder");
     println!(
         "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, {} threads",
         vpls.len(),
@@ -107,28 +99,21 @@ fn main() {
         "error / ‖sampled lights' image‖ (mean)",
     ]);
     for (c, &clamp) in clamps.iter().enumerate() {
-        let vpl_oracle =
-            VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4).expect("finite input");
         let file = cache.join(format!("{scene_name}_{width}_{}_{clamp}.bin", vpls.len()));
         let start = Instant::now();
-        let mut reference = vpl_oracle
-            .reference_image_cached(&file, &NoProgress)
-            .expect("reference image");
+        let Reference {
+            image: reference,
+            vpl_image,
+            ..
+        } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
         let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
             .and_then(|o| o.with_directional(&directional))
             .expect("finite input");
         let (n, m) = (oracle.rows(), oracle.cols());
-        let indirect_norm = norm(&reference);
         let mut column = vec![0.0f32; 3 * n];
-        for j in vpls.len()..m {
-            oracle.eval_col(j, &mut column).expect("directional column");
-            for (r, &c) in reference.iter_mut().zip(&column) {
-                *r += c;
-            }
-        }
         println!(
             "clamp {clamp}: ‖indirect (VPL columns)‖ / ‖reference‖ = {:.4}",
-            indirect_norm / norm(&reference)
+            norm(&vpl_image) / norm(&reference)
         );
         // `exact-sun`: the first directional light (the sun) as an exact column, the rest
         // sampled.
