@@ -270,8 +270,8 @@ pub fn light_slice(
             let mut acc = vec![0.0f64; pixels.len() * channels];
             let mut column = vec![0.0f32; pixels.len() * channels];
             let mut rendered = 0;
+            let local_norms = config.local_importance.then(|| local.norms());
             for members in &clusters {
-                let local_norms = config.local_importance.then(|| local.norms());
                 let (j, weight) = pick(members, global_norms, local_norms, &mut rng);
                 if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
                     continue;

@@ -232,30 +232,21 @@ impl<'b, B: SphericalBasis + ?Sized> BatchEncoder<'b, B> {
                                 scratch.values[c * LANES + l] = values[at(l) * ch + c];
                             }
                         }
-                        let block = Block {
-                            coeffs: &mut *coeffs,
-                            integrals: &mut *integrals,
-                            wsum: &mut *wsum,
-                        };
-                        let lanes_in = Lanes {
-                            dirs: &block_dirs,
-                            w: &w,
-                            count: lanes,
-                            with_values: true,
-                        };
-                        update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
-                        if cfg.hemisphere {
-                            let mirrored = block_dirs.map(|d| -d);
+                        // The sample itself, then (hemisphere mode) its mirror with no value.
+                        let mirrored = cfg.hemisphere.then(|| block_dirs.map(|d| -d));
+                        let passes = std::iter::once((&block_dirs, true))
+                            .chain(mirrored.as_ref().map(|m| (m, false)));
+                        for (pass_dirs, with_values) in passes {
                             let block = Block {
                                 coeffs: &mut *coeffs,
                                 integrals: &mut *integrals,
                                 wsum: &mut *wsum,
                             };
                             let lanes_in = Lanes {
-                                dirs: &mirrored,
+                                dirs: pass_dirs,
                                 w: &w,
                                 count: lanes,
-                                with_values: false,
+                                with_values,
                             };
                             update_block(basis, sg, &cfg, true_means, block, scratch, lanes_in);
                         }
