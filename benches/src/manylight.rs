@@ -1,12 +1,12 @@
-//! Helpers shared by the many-light sweeps: the budget list, VPL tracing to a target count, the
-//! cached brute-force reference and image strips.
+//! Helpers shared by the many-light sweeps: the budget list, the scene set-up (VPLs traced to a
+//! target count, G-buffer), the cached brute-force reference and image strips.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use prt_core::{MatrixOracle, NoProgress};
 use prt_trace::{
-    DirectionalLight, GBuffer, LoadOptions, RayTracer, Scene, Vpl, VplOptions, VplOracle,
-    trace_vpls,
+    DirectionalLight, GBuffer, LoadOptions, PinholeView, RayTracer, Scene, SunSky, Vpl, VplOptions,
+    VplOracle, directional_lights, trace_vpls,
 };
 
 /// The (rows, columns) budgets of the sweep, from 100/200 to 900/1800 (300/900 is the
@@ -45,50 +45,10 @@ pub struct Reference {
     pub sun: Vec<f32>,
 }
 
-/// The reference of a sweep: the VPL columns' sum is read from the on-disk cache `file` (or
-/// computed by brute force and written there: minutes at 256² × 10⁵ VPLs), the directional
-/// columns (about a thousand) are evaluated here. Panics on a setup error, as a sweep does.
-pub fn reference_image(
-    tracer: &RayTracer,
-    gbuffer: &GBuffer,
-    vpls: &[Vpl],
-    directional: &[DirectionalLight],
-    clamp: f32,
-    file: &Path,
-) -> Reference {
-    if let Some(folder) = file.parent() {
-        std::fs::create_dir_all(folder).expect("cache folder");
-    }
-    let vpl_image = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-        .expect("finite input")
-        .reference_image_cached(file, &NoProgress)
-        .expect("reference image");
-    let full = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-        .and_then(|o| o.with_directional(directional))
-        .expect("finite input");
-    let mut image = vpl_image.clone();
-    let mut sun = vec![0.0f32; image.len()];
-    let mut column = vec![0.0f32; image.len()];
-    for j in vpls.len()..full.cols() {
-        full.eval_col(j, &mut column).expect("directional column");
-        for (r, &c) in image.iter_mut().zip(&column) {
-            *r += c;
-        }
-        if j == vpls.len() {
-            sun.copy_from_slice(&column);
-        }
-    }
-    Reference {
-        image,
-        vpl_image,
-        sun,
-    }
-}
-
 /// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
 /// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is
 /// unknown or cannot be loaded.
-pub fn load_scene(name: &str, manifest: &Path) -> Option<Scene> {
+fn load_scene(name: &str, manifest: &Path) -> Option<Scene> {
     match name {
         "cornell" => Some(Scene::cornell_box()),
         "sponza" => {
@@ -104,9 +64,88 @@ pub fn load_scene(name: &str, manifest: &Path) -> Option<Scene> {
     }
 }
 
+/// What every many-light sweep sets up: the scene, its ray tracer, about `target` VPLs and the
+/// G-buffer of its default view at `width` × `width` pixels.
+pub struct SweepScene {
+    /// The scene.
+    pub scene: Scene,
+    /// Its BVH.
+    pub tracer: RayTracer,
+    /// The VPLs ([`trace_about`]).
+    pub vpls: Vec<Vpl>,
+    /// One gather point per pixel of the default view.
+    pub gbuffer: GBuffer,
+    /// Where the brute-force references of this scene and size are cached, a file per clamp.
+    cache_stem: PathBuf,
+}
+
+impl SweepScene {
+    /// The scene `name` ([`load_scene`]; `None` when it cannot be used) with its tracer, VPLs
+    /// and G-buffer. Panics on a setup error, as a sweep does.
+    pub fn load(name: &str, manifest: &Path, width: usize, target: usize) -> Option<Self> {
+        let scene = load_scene(name, manifest)?;
+        let tracer = RayTracer::new(scene.triangles());
+        let vpls = trace_about(&scene, &tracer, target);
+        let view = PinholeView::for_scene(&scene).expect("non-empty scene");
+        let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
+        let cache_stem = manifest.join(format!(
+            "../target/manylight_cache/{name}_{width}_{}",
+            vpls.len()
+        ));
+        Some(Self {
+            scene,
+            tracer,
+            vpls,
+            gbuffer,
+            cache_stem,
+        })
+    }
+
+    /// The reference of a sweep at `clamp` with `directional` columns after the VPL ones: the
+    /// VPL columns' sum is read from the on-disk cache (or computed by brute force and written
+    /// there: minutes at 256² × 10⁵ VPLs), the directional columns (about a thousand) are
+    /// evaluated here.
+    pub fn reference(&self, directional: &[DirectionalLight], clamp: f32) -> Reference {
+        let file = PathBuf::from(format!("{}_{clamp}.bin", self.cache_stem.display()));
+        if let Some(folder) = file.parent() {
+            std::fs::create_dir_all(folder).expect("cache folder");
+        }
+        let (tracer, gbuffer, vpls) = (&self.tracer, &self.gbuffer, &self.vpls);
+        let vpl_image = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
+            .expect("finite input")
+            .reference_image_cached(&file, &NoProgress)
+            .expect("reference image");
+        let full = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
+            .and_then(|o| o.with_directional(directional))
+            .expect("finite input");
+        let mut image = vpl_image.clone();
+        let mut sun = vec![0.0f32; image.len()];
+        let mut column = vec![0.0f32; image.len()];
+        for j in vpls.len()..full.cols() {
+            full.eval_col(j, &mut column).expect("directional column");
+            for (r, &c) in image.iter_mut().zip(&column) {
+                *r += c;
+            }
+            if j == vpls.len() {
+                sun.copy_from_slice(&column);
+            }
+        }
+        Reference {
+            image,
+            vpl_image,
+            sun,
+        }
+    }
+
+    /// The default sun and 1024 sky directions as directional lights, the sun first.
+    pub fn sun_sky(&self) -> Vec<DirectionalLight> {
+        directional_lights(&self.scene, &SunSky::default(), 1024).expect("non-empty scene")
+    }
+}
+
 /// About `target` VPLs (two bounces, seed 1): a pilot run of 2000 particles measures VPLs per
 /// particle. Panics on a scene without lights (a sweep's setup error).
-pub fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<Vpl> {
+fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<Vpl> {
     let options = |particles| VplOptions {
         particles,
         max_bounces: 2,

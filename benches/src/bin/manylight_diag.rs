@@ -9,11 +9,11 @@
 //! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS] [direct]`
 use std::path::Path;
 
-use prt_benches::manylight::{load_scene, reference_image, trace_about};
+use prt_benches::manylight::SweepScene;
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{ReducedMatrix, RowColumnConfig, row_column_sampling, stratified_rows};
-use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
+use prt_trace::VplOracle;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -32,27 +32,21 @@ fn main() {
     let seeds: u64 = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(3);
     let direct = args.get(7).map(String::as_str) == Some("direct");
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(scene) = load_scene(scene_name, manifest) else {
+    let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
         return;
     };
-    let tracer = RayTracer::new(scene.triangles());
-    let vpls = trace_about(&scene, &tracer, target);
-    let view = PinholeView::for_scene(&scene).expect("non-empty scene");
-    let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-    let directional = if direct {
-        directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene")
-    } else {
-        Vec::new()
-    };
-    let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+    let directional = if direct { setup.sun_sky() } else { Vec::new() };
+    let SweepScene {
+        tracer,
+        vpls,
+        gbuffer,
+        ..
+    } = &setup;
+    let oracle = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
         .and_then(|o| o.with_directional(&directional))
         .expect("finite input");
     let (n, m) = (oracle.rows(), oracle.cols());
-    let file = manifest.join(format!(
-        "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
-        vpls.len()
-    ));
-    let reference = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file).image;
+    let reference = setup.reference(&directional, clamp).image;
     let mut col = vec![0.0f32; 3 * n];
     let ref_norm = norm(&reference);
     let ref_sum: f64 = reference.iter().map(|&v| v as f64).sum();

@@ -16,11 +16,11 @@
 //! thousand) per seed on top of the run itself.
 use std::path::Path;
 
-use prt_benches::manylight::{Reference, load_scene, reference_image, trace_about};
+use prt_benches::manylight::{Reference, SweepScene};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
-use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
+use prt_trace::VplOracle;
 
 /// Mixture weights λ of the uniform draw in the representatives' probability whose expected
 /// error is reported (0: the paper's `p ∝ ‖ρ_j‖`; 1: uniform).
@@ -54,23 +54,21 @@ fn main() {
     let probe: usize = args.get(7).and_then(|a| a.parse().ok()).unwrap_or(500);
     let groups: usize = args.get(8).and_then(|a| a.parse().ok()).unwrap_or(1);
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(scene) = load_scene(scene_name, manifest) else {
+    let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
         return;
     };
-    let tracer = RayTracer::new(scene.triangles());
-    let vpls = trace_about(&scene, &tracer, target);
-    let view = PinholeView::for_scene(&scene).expect("non-empty scene");
-    let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-    let directional = directional_lights(&scene, &SunSky::default(), 1024).expect("scene");
-    let file = manifest.join(format!(
-        "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
-        vpls.len()
-    ));
+    let directional = setup.sun_sky();
+    let SweepScene {
+        tracer,
+        vpls,
+        gbuffer,
+        ..
+    } = &setup;
     let Reference {
         image: reference,
         sun,
         ..
-    } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
+    } = setup.reference(&directional, clamp);
     let n = reference.len() / 3;
     let mut col = vec![0.0f32; 3 * n];
     let ref_norm = reference
@@ -78,7 +76,7 @@ fn main() {
         .map(|&v| v as f64 * v as f64)
         .sum::<f64>()
         .sqrt();
-    let sampled = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+    let sampled = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
         .and_then(|o| o.with_directional(&directional[1..]))
         .expect("finite input");
     let m = sampled.cols();
@@ -171,7 +169,7 @@ fn main() {
                     .sum();
                 *x += inverse - s2;
             }
-            terms.push((e2, inverse_p - s2, s2.sqrt(), k, kind(rep.column, &vpls)));
+            terms.push((e2, inverse_p - s2, s2.sqrt(), k, kind(rep.column, vpls)));
         }
         // The unseen lights' exact sum is what the seen clusters leave of the sampled image.
         let unseen_exact: Vec<f64> = rest.iter().zip(&seen_sum).map(|(r, s)| r - s).collect();

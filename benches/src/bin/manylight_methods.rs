@@ -31,9 +31,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{
-    Reference, load_scene, parse_budgets, reference_image, trace_about, write_strip,
-};
+use prt_benches::manylight::{Reference, SweepScene, parse_budgets, write_strip};
 use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
@@ -42,7 +40,7 @@ use prt_manylight::{
     UnseenLights, VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force,
     light_slice, row_column_sampling, visibility_clustering,
 };
-use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
+use prt_trace::{GBuffer, VplOracle};
 use rayon::prelude::*;
 
 /// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
@@ -159,26 +157,22 @@ fn main() {
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     match scene_name {
         "cornell" | "sponza" => {
-            let Some(scene) = load_scene(scene_name, manifest) else {
+            let Some(setup) = SweepScene::load(scene_name, manifest, width, target_vpls) else {
                 return;
             };
-            let tracer = RayTracer::new(scene.triangles());
-            let vpls = trace_about(&scene, &tracer, target_vpls);
-            let directional =
-                directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene");
-            let view = PinholeView::for_scene(&scene).expect("non-empty scene");
-            let gbuffer =
-                GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-            let file = manifest.join(format!(
-                "../target/manylight_cache/{scene_name}_{width}_{}_{clamp}.bin",
-                vpls.len()
-            ));
+            let directional = setup.sun_sky();
+            let SweepScene {
+                tracer,
+                vpls,
+                gbuffer,
+                ..
+            } = &setup;
             let start = Instant::now();
             let Reference {
                 image: reference,
                 sun,
                 ..
-            } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
+            } = setup.reference(&directional, clamp);
             let (n, m) = (reference.len() / 3, vpls.len() + directional.len());
             // The sun is the first directional light; with `exact-sun` its column is kept apart
             // as the exact part of every estimate.
@@ -194,13 +188,10 @@ fn main() {
                 fmt_duration(start.elapsed()),
                 (n * m) as f64
             );
-            let inner = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+            let inner = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
                 .and_then(|o| o.with_directional(&directional[exact..]))
                 .expect("finite");
-            let oracle = SceneOracle {
-                inner,
-                gbuffer: &gbuffer,
-            };
+            let oracle = SceneOracle { inner, gbuffer };
             let exact = Exact {
                 image: exact_image,
                 elements: (exact * n) as u64,

@@ -27,14 +27,12 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{
-    Reference, load_scene, parse_budgets, reference_image, trace_about, write_strip,
-};
+use prt_benches::manylight::{Reference, SweepScene, parse_budgets, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
-use prt_trace::{GBuffer, PinholeView, RayTracer, SunSky, VplOracle, directional_lights};
+use prt_trace::VplOracle;
 
 fn norm(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt()
@@ -66,19 +64,16 @@ fn main() {
     let budgets = parse_budgets(args.get(8).map(String::as_str));
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(scene) = load_scene(scene_name, manifest) else {
+    let Some(setup) = SweepScene::load(scene_name, manifest, width, target_vpls) else {
         return;
     };
-    let tracer = RayTracer::new(scene.triangles());
-    let vpls = trace_about(&scene, &tracer, target_vpls);
-    let directional = if direct {
-        directional_lights(&scene, &SunSky::default(), 1024).expect("non-empty scene")
-    } else {
-        Vec::new()
-    };
-    let view = PinholeView::for_scene(&scene).expect("non-empty scene");
-    let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-    let cache = manifest.join("../target/manylight_cache");
+    let directional = if direct { setup.sun_sky() } else { Vec::new() };
+    let SweepScene {
+        tracer,
+        vpls,
+        gbuffer,
+        ..
+    } = &setup;
     println!(
         "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, {} threads",
         vpls.len(),
@@ -99,14 +94,13 @@ fn main() {
         "error / ‖sampled lights' image‖ (mean)",
     ]);
     for (c, &clamp) in clamps.iter().enumerate() {
-        let file = cache.join(format!("{scene_name}_{width}_{}_{clamp}.bin", vpls.len()));
         let start = Instant::now();
         let Reference {
             image: reference,
             vpl_image,
             ..
-        } = reference_image(&tracer, &gbuffer, &vpls, &directional, clamp, &file);
-        let oracle = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+        } = setup.reference(&directional, clamp);
+        let oracle = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
             .and_then(|o| o.with_directional(&directional))
             .expect("finite input");
         let (n, m) = (oracle.rows(), oracle.cols());
@@ -118,7 +112,7 @@ fn main() {
         // `exact-sun`: the first directional light (the sun) as an exact column, the rest
         // sampled.
         let exact = usize::from(light == "exact-sun" && !directional.is_empty());
-        let sampled = VplOracle::new(&tracer, &gbuffer, &vpls, clamp, 1e-4)
+        let sampled = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
             .and_then(|o| o.with_directional(&directional[exact..]))
             .expect("finite input");
         let mut exact_image = vec![0.0f32; 3 * n];

@@ -176,10 +176,15 @@ fn knobs(default: &[usize]) -> Vec<usize> {
 
 /// Every enabled method at rank `l` with `b³` basis nodes / blocks / clusters (fewer on a short
 /// axis, as `prt bake` does).
+/// `b` basis nodes per axis, or one per voxel (at least 2) along an axis with fewer voxels.
+fn basis_nodes(field: &GridField, b: usize) -> [usize; 3] {
+    let dims = field.dims();
+    [0, 1, 2].map(|k| b.min(dims[k].max(2)))
+}
+
 fn compare(sweep: &mut Sweep, knob: usize, input: &Input, l: usize, b: usize, iterations: usize) {
     let field = &input.field;
-    let dims = field.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(field, b);
     let clusters = nodes.iter().product::<usize>();
     if enabled("MBD") {
         eprintln!("{knob}: fitting MBD");
@@ -634,8 +639,7 @@ fn quality() {
     let input = sweep_field();
     let f = &input.field;
     let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
-    let dims = f.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(f, b);
     let mut table = Table::new(&[
         "method",
         "iterations",
@@ -797,8 +801,7 @@ fn floor() {
     let f = &input.field;
     let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
     let iterations = env_usize("MBD_ITERS", 512);
-    let dims = f.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(f, b);
     let windows: Vec<usize> = std::env::var("MBD_WINDOWS")
         .unwrap_or_else(|_| "0,16".into())
         .split(',')
@@ -895,7 +898,7 @@ fn walls() {
     let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
     let iterations = env_usize("MBD_ITERS", 128);
     let dims = f.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(f, b);
     const CAP: usize = 4;
     // Chebyshev distance to the nearest invalid voxel, capped.
     let distance: Vec<usize> = (0..f.num_voxels())
