@@ -71,7 +71,7 @@ pub struct SweepScene {
     pub scene: Scene,
     /// Its BVH.
     pub tracer: RayTracer,
-    /// The VPLs ([`trace_about`]).
+    /// About `target` VPLs: two bounces from the lights, seed 1.
     pub vpls: Vec<Vpl>,
     /// One gather point per pixel of the default view.
     pub gbuffer: GBuffer,
@@ -80,8 +80,9 @@ pub struct SweepScene {
 }
 
 impl SweepScene {
-    /// The scene `name` ([`load_scene`]; `None` when it cannot be used) with its tracer, VPLs
-    /// and G-buffer. Panics on a setup error, as a sweep does.
+    /// The scene `name` (`cornell`, or `sponza` from ../shared; `None`, with the reason on
+    /// stderr, when it cannot be used) with its tracer, VPLs and G-buffer. Panics on a setup
+    /// error, as a sweep does.
     pub fn load(name: &str, manifest: &Path, width: usize, target: usize) -> Option<Self> {
         let scene = load_scene(name, manifest)?;
         let tracer = RayTracer::new(scene.triangles());
