@@ -63,14 +63,14 @@ fn main() {
         .expect("fit");
         let wall = wall.elapsed().as_secs_f64();
         let cpu = match (cpu, cpu_seconds()) {
-            (Some(a), Some(b)) => format!("{:.1} s", b - a),
+            (Some(a), Some(b)) => format!("{:.2} s", b - a),
             _ => "n/a".into(),
         };
         let error = evaluate(&model, &field, &EvalOptions::default())
             .expect("evaluate")
             .relative_mse;
         println!(
-            "L = {rank}: wall {wall:.1} s, CPU {cpu}, init {:.2} s, relative MSE {error:.3e}",
+            "L = {rank}: wall {wall:.3} s, CPU {cpu}, init {:.3} s, relative MSE {error:.3e}",
             report.init_seconds
         );
         if std::env::var_os("MBD_HISTORY").is_some() {

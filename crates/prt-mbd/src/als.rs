@@ -73,16 +73,9 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
         preconditioner: Preconditioner::Diagonal,
     };
     let (mut coefficients, mut basis) = initialise(&problem, options)?;
-    let centres = Samples::draw(field, &basis_kernels, 0, 0, false);
-    let energy = problem
-        .evaluate(
-            &centres,
-            &vec![0.0; coefficients.len()],
-            &basis,
-            false,
-            progress,
-        )?
-        .data_loss;
+    let mut centres = Samples::draw(field, &basis_kernels, 0, 0, false);
+    problem.prepare(&mut centres)?;
+    let energy = problem.target_energy(&centres, progress)?;
     let mut report = SolveReport {
         init_seconds: start.elapsed().as_secs_f64(),
         ..SolveReport::default()

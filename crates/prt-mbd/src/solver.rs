@@ -219,36 +219,35 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
         ..SolveReport::default()
     };
     progress.set_len(options.max_iterations as u64);
-    let held_out = Samples::draw(
+    let mut held_out = Samples::draw(
         field,
         &basis_kernels,
         options.seed,
         HELD_OUT_STREAM,
         options.jitter,
     );
-    let held_out_energy = problem
-        .evaluate(
-            &held_out,
-            &vec![0.0; coefficients.len()],
-            &basis,
-            false,
-            progress,
-        )?
-        .data_loss;
+    problem.prepare(&mut held_out)?;
+    let held_out_energy = problem.target_energy(&held_out, progress)?;
     let mut average = IterateAverage::new(options.average_window, &coefficients, &basis);
     let mut trial_c = vec![0.0f32; coefficients.len()];
     let mut trial_b = vec![0.0f32; basis.len()];
     let mut velocity_c = vec![0.0f32; coefficients.len()];
     let mut velocity_b = vec![0.0f32; basis.len()];
+    let mut previous_samples = None;
     for iteration in 0..options.max_iterations {
         progress.check()?;
-        let samples = Samples::draw(
+        let mut samples = Samples::draw(
             field,
             &basis_kernels,
             options.seed,
             iteration as u64,
             options.jitter,
         );
+        if let Some(previous) = previous_samples.take() {
+            samples.recycle(previous);
+        }
+        // Evaluated at least twice (gradient, then the line search).
+        problem.prepare(&mut samples)?;
         let eval = problem.evaluate(&samples, &coefficients, &basis, true, progress)?;
         let loss_before = eval.loss();
         if !loss_before.is_finite() {
@@ -288,6 +287,7 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
                 step *= 0.5;
             }
         }
+        previous_samples = Some(samples);
         let loss_after = match accepted {
             Some(loss) => {
                 for ((u, &new), &old) in velocity_c.iter_mut().zip(&trial_c).zip(&coefficients) {
