@@ -104,6 +104,9 @@ pub(crate) struct Geometry {
     phi_off: Vec<usize>,
     phi_idx: Vec<u32>,
     phi_w: Vec<f32>,
+    /// The coefficient kernels the group touches, sorted, and each weight's position in them.
+    coef_nodes: Vec<u32>,
+    phi_local: Vec<u32>,
     /// The cell's basis nodes, sorted.
     basis_nodes: Vec<u32>,
     /// ψ of every sample over the cell's nodes (`S × nb`).
@@ -120,6 +123,9 @@ struct KernelScratch {
     psi_off: Vec<usize>,
     psi_idx: Vec<u32>,
     psi_w: Vec<f32>,
+    psi_local: Vec<u32>,
+    /// Scratch of [`local_indices`].
+    marks: Vec<u32>,
 }
 
 impl Samples {
@@ -338,22 +344,33 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             k.psi_w.extend_from_slice(&k.psi.weights);
             k.psi_off.push(k.psi_idx.len());
         }
-        sorted_unique_into(&k.psi_idx, &mut g.basis_nodes);
+        local_indices(
+            &g.phi_idx,
+            &mut g.coef_nodes,
+            &mut g.phi_local,
+            &mut k.marks,
+        );
+        local_indices(
+            &k.psi_idx,
+            &mut g.basis_nodes,
+            &mut k.psi_local,
+            &mut k.marks,
+        );
         let nb = g.basis_nodes.len();
         g.psi_dense.clear();
         g.psi_dense.resize(s_len * nb, 0.0);
         for s in 0..s_len {
             let psi_row = &mut g.psi_dense[s * nb..(s + 1) * nb];
             for j in k.psi_off[s]..k.psi_off[s + 1] {
-                let node = g.basis_nodes.binary_search(&k.psi_idx[j]).unwrap_or(0);
-                psi_row[node] += k.psi_w[j];
+                psi_row[k.psi_local[j] as usize] += k.psi_w[j];
             }
         }
-        g.target.clear();
         if targets {
-            let d = self.dim();
-            g.target.resize(s_len * d, 0.0);
+            // Every row is overwritten, so a recycled buffer of the same size is not cleared.
+            g.target.resize(s_len * self.dim(), 0.0);
             self.blend_targets(points, ids, &mut g.target)?;
+        } else {
+            g.target.clear();
         }
         Ok(())
     }
@@ -687,7 +704,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         let mut gram = matrix(&mut sc.gram, nbl, nbl);
         general_mat_mul(1.0, &bg, &bg.t(), 0.0, &mut gram);
 
-        let coef_nodes = sorted_unique(&g.phi_idx);
+        let coef_nodes = g.coef_nodes.clone();
         let nc = coef_nodes.len();
         let mut grad_c = vec![0.0f64; nc * l];
         let mut hess_c = vec![0.0f64; nc * l * w];
@@ -719,22 +736,26 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         let mut bb = vec![0.0f64; l * w];
         for s in 0..s_len {
             br.fill(0.0);
-            for (j, &wj) in g.psi_dense[s * nb..(s + 1) * nb].iter().enumerate() {
+            let q_row = &sc.q[s * nbl..(s + 1) * nbl];
+            for (&wj, q_j) in g.psi_dense[s * nb..(s + 1) * nb]
+                .iter()
+                .zip(q_row.chunks_exact(l))
+            {
                 if wj == 0.0 {
                     continue;
                 }
-                for li in 0..l {
-                    br[li] += wj as f64 * q[[s, j * l + li]] as f64;
+                for (b, &v) in br.iter_mut().zip(q_j) {
+                    *b += wj as f64 * v as f64;
                 }
             }
-            let row = bbt.row(s);
-            for li in 0..l {
-                if w == 1 {
-                    bb[li] = row[li * l + li] as f64;
-                } else {
-                    for lj in 0..l {
-                        bb[li * l + lj] = row[li * l + lj] as f64;
-                    }
+            let row = &sc.bbt[s * l * l..(s + 1) * l * l];
+            if w == 1 {
+                for (li, b) in bb.iter_mut().enumerate() {
+                    *b = row[li * l + li] as f64;
+                }
+            } else {
+                for (b, &v) in bb.iter_mut().zip(row) {
+                    *b = v as f64;
                 }
             }
             let phi_w = &g.phi_w[g.phi_off[s]..g.phi_off[s + 1]];
@@ -743,8 +764,11 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             } else {
                 0.0
             };
-            for (&node, &weight) in g.phi_idx[g.phi_off[s]..g.phi_off[s + 1]].iter().zip(phi_w) {
-                let local = coef_nodes.binary_search(&node).unwrap_or(0);
+            for (&local, &weight) in g.phi_local[g.phi_off[s]..g.phi_off[s + 1]]
+                .iter()
+                .zip(phi_w)
+            {
+                let local = local as usize;
                 let weight = weight as f64;
                 let scale = if lumped {
                     2.0 * weight * overlap
@@ -774,17 +798,44 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
     }
 }
 
-fn sorted_unique(indices: &[u32]) -> Vec<u32> {
-    let mut v = Vec::new();
-    sorted_unique_into(indices, &mut v);
-    v
-}
-
-fn sorted_unique_into(indices: &[u32], out: &mut Vec<u32>) {
-    out.clear();
-    out.extend_from_slice(indices);
-    out.sort_unstable();
-    out.dedup();
+/// The distinct `indices`, sorted, into `nodes`, and each index's position in them into
+/// `local`. Kernel indices of one basis cell span a narrow range, so a table over that range
+/// replaces sorting and searching (falling back to them for a sparse spread).
+fn local_indices(
+    indices: &[u32],
+    nodes: &mut Vec<u32>,
+    local: &mut Vec<u32>,
+    marks: &mut Vec<u32>,
+) {
+    nodes.clear();
+    local.clear();
+    let (Some(&lo), Some(&hi)) = (indices.iter().min(), indices.iter().max()) else {
+        return;
+    };
+    let span = (hi - lo) as usize + 1;
+    if span <= 4 * indices.len() + 64 {
+        marks.clear();
+        marks.resize(span, u32::MAX);
+        for &i in indices {
+            marks[(i - lo) as usize] = 0;
+        }
+        for (offset, mark) in marks.iter_mut().enumerate() {
+            if *mark == 0 {
+                *mark = nodes.len() as u32;
+                nodes.push(lo + offset as u32);
+            }
+        }
+        local.extend(indices.iter().map(|&i| marks[(i - lo) as usize]));
+    } else {
+        nodes.extend_from_slice(indices);
+        nodes.sort_unstable();
+        nodes.dedup();
+        local.extend(
+            indices
+                .iter()
+                .map(|i| nodes.binary_search(i).unwrap_or(0) as u32),
+        );
+    }
 }
 
 #[cfg(test)]
