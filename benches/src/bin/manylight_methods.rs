@@ -2,7 +2,7 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
@@ -12,9 +12,10 @@
 //! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
 //! errors at the first budget, for the first seed.
 //! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
-//!   `slice-skip`, `slice-groups`, `slice-skip-local` (the `-skip` variants with
-//!   `UnseenLights::Skip`, the `-groups` ones with `UnseenLights::Groups(columns /
-//!   GROUP_DIVISOR)`, `-local` with `LightSliceConfig::local_importance`), `vis`, `kmeans`
+//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-skip-spread` (the `-skip`
+//!   variants with `UnseenLights::Skip`, the `-groups` ones with `UnseenLights::Groups(columns /
+//!   GROUP_DIVISOR)`, `-local` with `LightSliceConfig::local_importance`, `-spread` with
+//!   `SliceSplit::Spread`), `vis`, `kmeans`
 //!   (default `rowcol,slice,vis,kmeans`);
 //! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
 //!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
@@ -25,81 +26,26 @@
 //! * `GROUP_DIVISOR` (default 16): the `-groups` methods cut the unseen lights into
 //!   `columns / GROUP_DIVISOR` groups (at least 1), out of the column budget;
 //! * `NEIGHBOURS` (default 8, `LightSliceConfig::neighbours`): the slices whose rows refine a
-//!   slice's clustering.
+//!   slice's clustering;
+//! * `GLOBAL_PERCENT` (default 50, `LightSliceConfig::new`'s): LightSlice's global clusters in
+//!   percent of its local clusters;
+//! * `ADAPTIVE_PERCENT` (default 0, `LightSliceConfig::adaptive_percent`): the percent of
+//!   LightSlice's representatives spread over the slices by brightness.
 //!
 //! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{Reference, SweepScene, parse_budgets, write_strip};
+use prt_benches::manylight::{Reference, SceneOracle, SweepScene, parse_budgets, write_strip};
 use prt_benches::{Table, cpu_seconds, fmt_duration};
+use prt_core::NoProgress;
 use prt_core::metrics::relative_frobenius_error;
-use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_manylight::{
-    GatherGeometry, LightSliceConfig, RowColumnConfig, SliceOracle, SyntheticVplOracle,
-    UnseenLights, VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force,
-    light_slice, row_column_sampling, visibility_clustering,
+    LightSliceConfig, RowColumnConfig, SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights,
+    VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
+    row_column_sampling, visibility_clustering,
 };
-use prt_trace::{GBuffer, VplOracle};
-use rayon::prelude::*;
-
-/// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
-/// clustering.
-struct SceneOracle<'a> {
-    inner: VplOracle<'a>,
-    gbuffer: &'a GBuffer,
-}
-
-impl MatrixOracle for SceneOracle<'_> {
-    fn rows(&self) -> usize {
-        self.inner.rows()
-    }
-    fn cols(&self) -> usize {
-        self.inner.cols()
-    }
-    fn channels(&self) -> usize {
-        3
-    }
-    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_row(i, out)
-    }
-    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_col(j, out)
-    }
-    fn elements_evaluated(&self) -> u64 {
-        self.inner.elements_evaluated()
-    }
-}
-
-impl SliceOracle for SceneOracle<'_> {
-    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
-        out.par_chunks_mut(3)
-            .zip(rows.par_iter())
-            .with_min_len(64)
-            .try_for_each(|(o, &i)| {
-                o.copy_from_slice(&self.inner.element(i, j)?.to_array());
-                Ok(())
-            })
-    }
-
-    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
-        let g = self.gbuffer.points.get(i).copied().flatten()?;
-        Some(GatherGeometry {
-            position: g.position.to_array(),
-            normal: g.normal.to_array(),
-        })
-    }
-}
-
-impl VisibilityOracle for SceneOracle<'_> {
-    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        out.copy_from_slice(&self.inner.shading(i, j)?.to_array());
-        Ok(())
-    }
-    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
-        Ok(if self.inner.visible(i, j)? { 1.0 } else { 0.0 })
-    }
-}
+use prt_trace::VplOracle;
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -121,6 +67,10 @@ fn main() {
             ("slice", "LightSlice"),
             ("slice-skip", "LightSlice (skip unseen)"),
             ("slice-groups", "LightSlice (grouped unseen)"),
+            (
+                "slice-skip-spread",
+                "LightSlice (skip unseen, spread slices)",
+            ),
             (
                 "slice-skip-local",
                 "LightSlice (skip unseen, local importance)",
@@ -145,7 +95,11 @@ fn main() {
     let first_seed: u64 = args.get(9).and_then(|a| a.parse().ok()).unwrap_or(7);
     let group_divisor: usize = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(16);
     let neighbours: usize = args.get(11).and_then(|a| a.parse().ok()).unwrap_or(8);
+    let global_percent: usize = args.get(12).and_then(|a| a.parse().ok()).unwrap_or(50);
+    let adaptive_percent: u32 = args.get(13).and_then(|a| a.parse().ok()).unwrap_or(0);
     let run = Run {
+        adaptive_percent: adaptive_percent.min(100),
+        global_percent: global_percent.clamp(1, 100),
         neighbours: neighbours.max(1),
         group_divisor: group_divisor.max(1),
         width,
@@ -225,6 +179,8 @@ struct Run<'a> {
     width: usize,
     group_divisor: usize,
     neighbours: usize,
+    global_percent: usize,
+    adaptive_percent: u32,
     seeds: std::ops::Range<u64>,
     image_path: Option<&'a Path>,
     methods: &'a [&'static str],
@@ -285,11 +241,18 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                     m if m.starts_with("LightSlice") => {
                         let c = LightSliceConfig {
                             neighbours: run.neighbours,
+                            global_clusters: (columns * run.global_percent / 100).max(1),
                             ..LightSliceConfig::new(rows, columns)
                         }
                         .with_seed(seed)
                         .with_unseen(unseen_for(method, columns))
-                        .with_local_importance(method.contains("local"));
+                        .with_local_importance(method.contains("local"))
+                        .with_adaptive_percent(run.adaptive_percent)
+                        .with_split(if method.contains("spread") {
+                            SliceSplit::Spread
+                        } else {
+                            SliceSplit::Largest
+                        });
                         let r = light_slice(oracle, &c, &NoProgress).expect("valid");
                         (r.image, r.elements)
                     }

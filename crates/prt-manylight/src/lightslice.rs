@@ -84,6 +84,29 @@ pub struct LightSliceConfig {
     /// latter alone: the local rows say which lights matter to this slice, the global norms
     /// bound every weight to twice the global draw's (still unbiased).
     pub local_importance: bool,
+    /// Percent (0–100) of the representatives' element budget (`local_clusters` × pixels)
+    /// handed out to the slices in proportion to their brightness — the mean, over the sampled
+    /// rows of the slice and its `neighbours`, of the row's exact pixel value (the sum of its
+    /// elements over every light and channel) — instead of equally. 0 (the default) gives every
+    /// slice `local_clusters` representatives, as the paper does. See [`light_slice`], step 4.
+    pub adaptive_percent: u32,
+    /// Which slice the median splits cut next ([`SliceSplit`]).
+    pub split: SliceSplit,
+}
+
+/// The order in which [`light_slice`] cuts the pixels into slices (step 1).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
+pub enum SliceSplit {
+    /// The slice with the most pixels first (ties to the lowest index): slices of equal size
+    /// (within a factor 2), whatever their geometry.
+    #[default]
+    Largest,
+    /// The slice of largest spread first: the sum over its pixels of the squared distance of
+    /// their 6-D features (position and weighted normal) to the slice's centroid, as in
+    /// variance-based median cut. Slices over varied geometry (curved surfaces, edges, far
+    /// walls) are cut finer and get more sampled rows; flat, near ones stay larger.
+    Spread,
 }
 
 impl LightSliceConfig {
@@ -99,6 +122,22 @@ impl LightSliceConfig {
             seed: 0,
             unseen: UnseenLights::Sample,
             local_importance: false,
+            adaptive_percent: 0,
+            split: SliceSplit::Largest,
+        }
+    }
+
+    /// The same configuration with another slicing order ([`SliceSplit`]).
+    pub fn with_split(self, split: SliceSplit) -> Self {
+        Self { split, ..self }
+    }
+
+    /// The same configuration with `percent` of the representatives' budget spread over the
+    /// slices by brightness ([`LightSliceConfig::adaptive_percent`]).
+    pub fn with_adaptive_percent(self, percent: u32) -> Self {
+        Self {
+            adaptive_percent: percent,
+            ..self
         }
     }
 
@@ -132,10 +171,11 @@ pub struct LightSliceEstimate {
     /// The rows of every slice, each in increasing order.
     pub slices: Vec<Vec<usize>>,
     /// Representative columns rendered per slice (without the skipped clusters of unseen lights
-    /// with [`UnseenLights::Skip`]).
+    /// with [`UnseenLights::Skip`]); `local_clusters` at most in every slice unless
+    /// [`LightSliceConfig::adaptive_percent`] is positive.
     pub clusters_per_slice: Vec<usize>,
     /// Matrix elements evaluated: `slices × cols` for the reduced matrix plus, per slice, its
-    /// rows times its representatives.
+    /// rows times its representatives (at most `local_clusters × rows` in all).
     pub elements: u64,
 }
 
@@ -148,7 +188,8 @@ const NORMAL_WEIGHT: f32 = 0.3;
 /// Problem", SIGGRAPH Asia 2011).
 ///
 /// 1. **Slices**: the pixels are cut into `slices` groups of similar gather-point geometry by
-///    median splits (largest slice first, along the axis of largest extent) in the 6-D space of
+///    median splits (largest slice first, or with [`SliceSplit::Spread`] the slice of largest
+///    spread; along the axis of largest extent) in the 6-D space of
 ///    position (scaled to a unit bounding-box diagonal) and normal (weighted by 0.3). Pixels
 ///    without a gather point form a slice of their own; an oracle without any geometry is cut
 ///    into contiguous row ranges. One row per slice is drawn uniformly, giving the reduced
@@ -161,7 +202,18 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///    slice gets the clustering that fits its part of the image. The clusters of globally
 ///    unseen lights (zero on every sampled row) are left whole unless the seen lights are all
 ///    alone: split by index at cost 0, they would otherwise take the seen lights' clusters.
-/// 4. Each local cluster draws one representative proportionally to its reduced norm over all
+/// 4. **Budget per slice**: every slice refines to `local_clusters` clusters, or, with
+///    [`LightSliceConfig::adaptive_percent`] `= q`, to `(1 − q/100) · local_clusters` plus its
+///    share of the other `q/100` of the representatives' elements (`local_clusters × rows`),
+///    in proportion to its pixels times its brightness `b_s` (the mean exact pixel value of the
+///    sampled rows of the slice and its neighbours): `q/100 · local_clusters · rows · b_s /
+///    Σ_t |t| b_t` more clusters. Slices whose share exceeds what they can use (every seen
+///    light alone with `Skip`, every light alone otherwise) hand the rest to the others; no
+///    slice gets fewer than `global_clusters`. The error of a slice falls about as `1/k` with
+///    its `k` clusters and scales with its brightness, so this moves columns to the bright
+///    slices that carry most of the error (an extension of the paper, off by default; the
+///    estimate stays unbiased: it changes the clusters, not the draws).
+/// 5. Each local cluster draws one representative proportionally to its reduced norm over all
 ///    sampled rows (uniformly in a cluster of zero columns, which [`UnseenLights::Skip`] skips
 ///    instead), as the authors' implementation does — the local rows decide the clusters, the
 ///    global norms are the robust importance — and the slice's pixels of its column, scaled by
@@ -180,7 +232,8 @@ const NORMAL_WEIGHT: f32 = 0.3;
 /// the same image on any number of threads.
 ///
 /// Errors: an empty matrix, zero or too many slices / clusters, `global_clusters` above
-/// `local_clusters` ([`ManyLightError::TooMany`]), zero neighbours, non-finite elements, oracle
+/// `local_clusters` or `adaptive_percent` above 100 ([`ManyLightError::TooMany`]), zero
+/// neighbours, non-finite elements, oracle
 /// failures, cancellation.
 pub fn light_slice(
     oracle: &dyn SliceOracle,
@@ -200,10 +253,17 @@ pub fn light_slice(
         ),
         ("neighbours", "neighbours", config.neighbours, usize::MAX),
     ])?;
+    if config.adaptive_percent > 100 {
+        return Err(ManyLightError::TooMany {
+            what: "adaptive percent",
+            requested: config.adaptive_percent as usize,
+            available: 100,
+        });
+    }
     config.unseen.check(config.local_clusters)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("lightslice: slices");
-    let (slices, centroids) = make_slices(oracle, config.slices);
+    let (slices, centroids) = make_slices(oracle, config.slices, config.split);
     let rows: Vec<usize> = slices
         .iter()
         .map(|s| s[rng.random_range(0..s.len())])
@@ -224,8 +284,35 @@ pub fn light_slice(
     let groups = config
         .unseen
         .groups(unseen, m - unseen, config.local_clusters);
-    let local_budget = config.local_clusters + 1 - groups;
     let window = config.neighbours.min(slices.len());
+    let neighbourhoods: Vec<Vec<usize>> = (0..slices.len())
+        .map(|s| nearest(&centroids, s, window))
+        .collect();
+    let budgets = if config.adaptive_percent == 0 {
+        vec![config.local_clusters; slices.len()]
+    } else {
+        // What a slice can use: every light alone, or with Skip every seen light alone plus
+        // the one (skipped) cluster of unseen lights.
+        let usable = if config.unseen == UnseenLights::Skip {
+            m - unseen + usize::from(unseen > 0)
+        } else {
+            m
+        };
+        let totals = row_totals(&reduced);
+        let brightness: Vec<f64> = neighbourhoods
+            .iter()
+            .map(|near| near.iter().map(|&t| totals[t]).sum::<f64>() / near.len() as f64)
+            .collect();
+        let sizes: Vec<usize> = slices.iter().map(Vec::len).collect();
+        allocate_clusters(
+            &sizes,
+            &brightness,
+            config.local_clusters,
+            config.adaptive_percent,
+            config.global_clusters.max(groups),
+            usable.max(config.global_clusters.max(groups)),
+        )
+    };
 
     progress.message("lightslice: slices");
     progress.set_len(slices.len() as u64);
@@ -237,7 +324,8 @@ pub fn light_slice(
             let mut rng = Pcg64Mcg::seed_from_u64(
                 slice_seed.wrapping_add((s as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
             );
-            let local = reduced.select_rows(&nearest(&centroids, s, window));
+            let local = reduced.select_rows(&neighbourhoods[s]);
+            let local_budget = budgets[s] + 1 - groups;
             // The local rows refine the seen lights' clusters first: the globally unseen lights
             // are zero on every sampled row, so splitting them (by index, at cost 0) would take
             // clusters from the seen lights. They are split only with what the seen lights
@@ -312,9 +400,97 @@ pub fn light_slice(
     })
 }
 
+/// The exact pixel value of every sampled row: the sum of its elements over all lights and
+/// channels (zero columns skipped), in the order of [`ReducedMatrix::rows`].
+fn row_totals(reduced: &ReducedMatrix) -> Vec<f64> {
+    let channels = reduced.channels();
+    let mut totals = vec![0.0f64; reduced.rows().len()];
+    for (j, &norm) in reduced.norms().iter().enumerate() {
+        if norm == 0.0 {
+            continue;
+        }
+        for (t, element) in totals
+            .iter_mut()
+            .zip(reduced.column(j).chunks_exact(channels))
+        {
+            *t += element.iter().map(|&v| v as f64).sum::<f64>();
+        }
+    }
+    totals
+}
+
+/// Clusters per slice (see [`light_slice`], step 4): `(100 − percent)%` of `clusters` each,
+/// plus `percent%` of the element budget `clusters × Σ sizes` in proportion to `size × brightness`,
+/// each slice between `floor` (taken out of the equal part first) and `cap` (the share above a
+/// cap goes to the other slices, by the same proportion). Equal shares when no slice is brighter than zero. Never more elements
+/// (`Σ size × clusters`) than the equal split, rounding down.
+fn allocate_clusters(
+    sizes: &[usize],
+    brightness: &[f64],
+    clusters: usize,
+    percent: u32,
+    floor: usize,
+    cap: usize,
+) -> Vec<usize> {
+    let base =
+        (clusters as f64 * (100 - percent.min(100)) as f64 / 100.0).max(floor.min(clusters) as f64);
+    let total: f64 = sizes.iter().map(|&s| s as f64).sum();
+    let weights: Vec<f64> = brightness
+        .iter()
+        .map(|&b| if b.is_finite() && b > 0.0 { b } else { 0.0 })
+        .collect();
+    let mut share: Vec<f64> = vec![base; sizes.len()];
+    let mut left = clusters as f64 * total - base * total;
+    let mut open: Vec<bool> = vec![true; sizes.len()];
+    // Water-filling: hand out what is left by weight among the slices under their cap, until
+    // nothing is left or no weighted slice is open (then the rest is spread equally, capped).
+    while left > 1e-9 * clusters as f64 * total {
+        let weight: f64 = (0..sizes.len())
+            .filter(|&s| open[s])
+            .map(|s| sizes[s] as f64 * weights[s])
+            .sum();
+        let equal: f64 = (0..sizes.len())
+            .filter(|&s| open[s])
+            .map(|s| sizes[s] as f64)
+            .sum();
+        if equal == 0.0 {
+            break;
+        }
+        let mut spilled = 0.0;
+        for s in 0..sizes.len() {
+            if !open[s] {
+                continue;
+            }
+            // Extra clusters for slice s: its part of the elements left, over its pixels.
+            let extra = if weight > 0.0 {
+                left * weights[s] / weight
+            } else {
+                left / equal
+            };
+            share[s] += extra;
+            if share[s] >= cap as f64 {
+                spilled += (share[s] - cap as f64) * sizes[s] as f64;
+                share[s] = cap as f64;
+                open[s] = false;
+            }
+        }
+        left = spilled;
+    }
+    share
+        .into_iter()
+        // The tolerance keeps a share that sums to a whole number of clusters from losing one
+        // to rounding (a slice capped by the water-filling gets exactly its cap).
+        .map(|k| ((k + 1e-6).floor() as usize).clamp(floor.min(cap), cap))
+        .collect()
+}
+
 /// Cuts the rows into `count` slices (fewer only if there are fewer rows) and returns them with
 /// their centroids in the 6-D slicing space. See [`light_slice`], step 1.
-fn make_slices(oracle: &dyn SliceOracle, count: usize) -> (Vec<Vec<usize>>, Vec<[f32; 6]>) {
+fn make_slices(
+    oracle: &dyn SliceOracle,
+    count: usize,
+    split: SliceSplit,
+) -> (Vec<Vec<usize>>, Vec<[f32; 6]>) {
     let n = oracle.rows();
     let geometry: Vec<Option<GatherGeometry>> = (0..n).map(|i| oracle.gather_point(i)).collect();
     let mut lo = [f32::INFINITY; 3];
@@ -364,12 +540,37 @@ fn make_slices(oracle: &dyn SliceOracle, count: usize) -> (Vec<Vec<usize>>, Vec<
     } else {
         vec![(0..n).collect()]
     };
-    // Largest slice first (then lowest index); the rows without geometry are never split.
+    // Largest (or most spread) slice first, then lowest index; the rows without geometry are
+    // never split.
     let splittable = |s: &Vec<usize>| !any_geometry || geometry[s[0]].is_some();
+    let priority = |rows: &[usize]| -> f64 {
+        match split {
+            SliceSplit::Largest => rows.len() as f64,
+            SliceSplit::Spread => {
+                let mut mean = [0.0f64; 6];
+                for &i in rows {
+                    for (m, &f) in mean.iter_mut().zip(&features[i]) {
+                        *m += f as f64;
+                    }
+                }
+                let mean = mean.map(|m| m / rows.len().max(1) as f64);
+                rows.iter()
+                    .map(|&i| {
+                        features[i]
+                            .iter()
+                            .zip(&mean)
+                            .map(|(&f, m)| (f as f64 - m).powi(2))
+                            .sum::<f64>()
+                    })
+                    .sum()
+            }
+        }
+    };
+    let mut priorities: Vec<f64> = slices.iter().map(|s| priority(s)).collect();
     while slices.len() < count {
         let Some(k) = (0..slices.len())
             .filter(|&k| slices[k].len() >= 2 && splittable(&slices[k]))
-            .max_by(|&a, &b| slices[a].len().cmp(&slices[b].len()).then(b.cmp(&a)))
+            .max_by(|&a, &b| priorities[a].total_cmp(&priorities[b]).then(b.cmp(&a)))
         else {
             break;
         };
@@ -393,6 +594,8 @@ fn make_slices(oracle: &dyn SliceOracle, count: usize) -> (Vec<Vec<usize>>, Vec<
                 .then(a.cmp(&b))
         });
         let right = rows.split_off(rows.len() / 2);
+        priorities[k] = priority(&rows);
+        priorities.push(priority(&right));
         slices[k] = rows;
         slices.push(right);
     }

@@ -3,8 +3,8 @@
 use ndarray::Array2;
 use prt_core::{DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
-    LightSliceConfig, ManyLightError, ReducedMatrix, SliceOracle, SyntheticVplOracle, UnseenLights,
-    brute_force, light_slice,
+    GatherGeometry, LightSliceConfig, ManyLightError, ReducedMatrix, SliceOracle, SliceSplit,
+    SyntheticVplOracle, UnseenLights, brute_force, light_slice,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -394,4 +394,136 @@ fn unseen_lights_leave_the_local_budget_to_the_seen_ones() {
             estimate.clusters_per_slice
         );
     }
+}
+
+/// `dense` with its first `bright` rows scaled by 20: slices over them are the bright ones.
+fn half_bright(rows: usize, cols: usize, bright: usize) -> DenseOracle {
+    let mut data = dense(rows, cols, 12).data().clone();
+    for i in 0..bright {
+        data.row_mut(i).mapv_inplace(|v| 20.0 * v);
+    }
+    DenseOracle::new(data, 3).unwrap()
+}
+
+#[test]
+fn adaptive_budget_moves_clusters_to_bright_slices_within_the_budget() {
+    let (rows, cols, slices, clusters) = (40, 60, 8, 12);
+    let oracle = half_bright(rows, cols, 20);
+    let equal = LightSliceConfig {
+        neighbours: 1,
+        global_clusters: 4,
+        ..LightSliceConfig::new(slices, clusters)
+    };
+    for seed in 0..3 {
+        let config = equal.with_adaptive_percent(75).with_seed(seed);
+        let estimate = light_slice(&oracle, &config, &NoProgress).unwrap();
+        // Contiguous slices of 5 rows: the first four are the bright ones.
+        let per_slice = &estimate.clusters_per_slice;
+        let (bright, dim) = per_slice.split_at(4);
+        assert!(
+            bright.iter().min() > dim.iter().max(),
+            "seed {seed}: {per_slice:?}"
+        );
+        // 25% of 12 each, and at least the 4 global clusters.
+        assert!(dim.iter().all(|&k| k >= 4), "{per_slice:?}");
+        // No more representative elements than the equal split (5 rows per slice).
+        let spent: usize = per_slice.iter().map(|&k| 5 * k).sum();
+        assert!(spent <= clusters * rows, "{spent}");
+        assert!(
+            spent + slices * 5 >= clusters * rows,
+            "{spent}: budget left unused"
+        );
+        assert_eq!(estimate.elements, (slices * cols + spent) as u64);
+        // The equal split gives every slice the same count.
+        let same = light_slice(&oracle, &equal.with_seed(seed), &NoProgress).unwrap();
+        assert!(same.clusters_per_slice.iter().all(|&k| k == clusters));
+    }
+    // Every slice capped at one light per cluster: the bright ones' surplus goes to the dim
+    // ones until all have every light alone, and the image is exact.
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let all = LightSliceConfig {
+        neighbours: 1,
+        global_clusters: 4,
+        ..LightSliceConfig::new(slices, cols)
+    }
+    .with_adaptive_percent(60);
+    let estimate = light_slice(&oracle, &all, &NoProgress).unwrap();
+    assert!(estimate.clusters_per_slice.iter().all(|&k| k == cols));
+    assert!(relative_error(&estimate.image, &exact) < 1e-6);
+    assert_eq!(
+        light_slice(&oracle, &equal.with_adaptive_percent(101), &NoProgress),
+        Err(ManyLightError::TooMany {
+            what: "adaptive percent",
+            requested: 101,
+            available: 100
+        })
+    );
+}
+
+#[test]
+fn adaptive_budget_stays_unbiased() {
+    let config = LightSliceConfig::new(6, 8).with_adaptive_percent(50);
+    check_unbiased(&half_bright(24, 50, 8), config, 400);
+    let local = LightSliceConfig {
+        neighbours: 2,
+        ..LightSliceConfig::new(4, 12).with_adaptive_percent(100)
+    };
+    check_unbiased(&spiky(24, 50, 6), local, 400);
+}
+
+/// A dense matrix whose first half of pixels sit on one spot (x ≈ 100) and whose second half spread
+/// along a line.
+struct TwoRegions(DenseOracle);
+
+impl MatrixOracle for TwoRegions {
+    fn rows(&self) -> usize {
+        self.0.rows()
+    }
+    fn cols(&self) -> usize {
+        self.0.cols()
+    }
+    fn channels(&self) -> usize {
+        self.0.channels()
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        self.0.eval_row(i, out)
+    }
+    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        self.0.eval_col(j, out)
+    }
+    fn elements_evaluated(&self) -> u64 {
+        self.0.elements_evaluated()
+    }
+}
+
+impl SliceOracle for TwoRegions {
+    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
+        let half = self.rows() / 2;
+        let x = if i < half {
+            100.0 + 1e-3 * i as f32
+        } else {
+            (i - half) as f32
+        };
+        Some(GatherGeometry {
+            position: [x, 0.0, 0.0],
+            normal: [0.0, 0.0, 1.0],
+        })
+    }
+}
+
+#[test]
+fn spread_slicing_cuts_varied_geometry_finer() {
+    let oracle = TwoRegions(dense(64, 10, 13));
+    let in_spread_half = |slices: &[Vec<usize>]| slices.iter().filter(|s| s[0] >= 32).count();
+    let largest = light_slice(&oracle, &LightSliceConfig::new(8, 5), &NoProgress).unwrap();
+    assert_eq!(in_spread_half(&largest.slices), 4);
+    let config = LightSliceConfig::new(8, 5).with_split(SliceSplit::Spread);
+    let spread = light_slice(&oracle, &config, &NoProgress).unwrap();
+    assert_eq!(in_spread_half(&spread.slices), 7, "{:?}", spread.slices);
+    let mut seen = vec![0; 64];
+    for (slice, &row) in spread.slices.iter().zip(&spread.rows) {
+        assert!(slice.contains(&row));
+        slice.iter().for_each(|&i| seen[i] += 1);
+    }
+    assert!(seen.iter().all(|&s| s == 1));
 }
