@@ -882,8 +882,9 @@ fn floor() {
     println!("load average after: {}\n", load_average());
 }
 
-/// Where is each method's error on a traced volume? Rank `MBD_L` (8), `MBD_B`³ (5³) nodes /
-/// blocks / clusters; every method's reconstruction is sampled at the voxel centres and its
+/// Where is each method's error on a traced volume? MBD (default solver, ≤ `MBD_ITERS` = 128
+/// iterations), BPCA, WBPCA and CPCA (`MBD_METHODS` selects) at rank `MBD_L` (8), `MBD_B`³ (5³)
+/// nodes / blocks / clusters, each fit's wall and CPU time on stderr; every method's reconstruction is sampled at the voxel centres and its
 /// squared error summed by the voxel's distance to the nearest invalid voxel (Chebyshev, in
 /// voxels: 0 = invalid, 1 = touching an invalid voxel, ..., capped at 4). The same bins and
 /// the same normalisation (the field's total energy) for every method; "valid only" is the
@@ -986,7 +987,8 @@ fn walls() {
                 ..MbdOptions::default()
             },
         };
-        let (model, report) = mbd.fit(f, &NoProgress).expect("mbd");
+        let ((model, report), cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        eprintln!("MBD {:.1} s (CPU {:.1} s)", cost.wall, cost.cpu);
         add(
             &format!(
                 "MBD ({} of ≤ {iterations} iterations)",
@@ -995,22 +997,29 @@ fn walls() {
             &model,
         );
     }
-    if enabled("BPCA") {
-        let m = BlockPca {
-            rank: l,
-            blocks: nodes,
-            window: 1.0,
+    let mut baseline = |name: &str, fit: &dyn Fn() -> ClusterModel| {
+        if enabled(name) {
+            let (m, cost) = Cost::measure(fit);
+            eprintln!("{name} {:.1} s (CPU {:.1} s)", cost.wall, cost.cpu);
+            add(name, &m);
         }
-        .compress(f, &NoProgress)
-        .expect("bpca");
-        add("BPCA", &m);
-    }
-    if enabled("CPCA") {
-        let m = ClusteredPca::new(l, nodes.iter().product())
+    };
+    for (name, window) in [("BPCA", 1.0), ("WBPCA", 2.0)] {
+        baseline(name, &|| {
+            BlockPca {
+                rank: l,
+                blocks: nodes,
+                window,
+            }
             .compress(f, &NoProgress)
-            .expect("cpca");
-        add("CPCA", &m);
+            .expect("block PCA")
+        });
     }
+    baseline("CPCA", &|| {
+        ClusteredPca::new(l, nodes.iter().product())
+            .compress(f, &NoProgress)
+            .expect("cpca")
+    });
     println!(
         "### Error by distance to the nearest invalid voxel ({}, L = {l}, {b}³ nodes), share of the field's energy at voxel centres\n\n{}",
         input.name,
