@@ -12,10 +12,10 @@
 //! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
 //! errors at the first budget, for the first seed.
 //! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
-//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-skip-spread` (the `-skip`
-//!   variants with `UnseenLights::Skip`, the `-groups` ones with `UnseenLights::Groups(columns /
-//!   GROUP_DIVISOR)`, `-local` with `LightSliceConfig::local_importance`, `-spread` with
-//!   `SliceSplit::Spread`), `vis`, `kmeans`
+//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-spread`, `slice-skip-spread`
+//!   (the `-skip` variants with `UnseenLights::Skip`, the `-groups` ones with
+//!   `UnseenLights::Groups(columns / GROUP_DIVISOR)`, `-local` with
+//!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`), `vis`, `kmeans`
 //!   (default `rowcol,slice,vis,kmeans`);
 //! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
 //!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
@@ -67,6 +67,7 @@ fn main() {
             ("slice", "LightSlice"),
             ("slice-skip", "LightSlice (skip unseen)"),
             ("slice-groups", "LightSlice (grouped unseen)"),
+            ("slice-spread", "LightSlice (spread slices)"),
             (
                 "slice-skip-spread",
                 "LightSlice (skip unseen, spread slices)",

@@ -3,21 +3,22 @@
 //! (estimate − exact sum of every light some sampled row sees, evaluated in full here) and the
 //! unseen lights' bias (their exact sum, what `Skip` leaves out), image-wide and per slice.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_slices -- SCENE WIDTH VPLS CLAMP ROWS/COLS [SEEDS] [FIRST_SEED] [GLOBAL_PERCENT] [TOP] [IMAGE] [ADAPTIVE_PERCENT]`
+//! `cargo run --release -p prt-benches --bin manylight_slices -- SCENE WIDTH VPLS CLAMP ROWS/COLS [SEEDS] [FIRST_SEED] [GLOBAL_PERCENT] [TOP] [IMAGE] [ADAPTIVE_PERCENT] [SPLIT]`
 //!
 //! Per seed: the realised error, its seen and unseen parts (in % of ‖reference‖), the share of
 //! the squared error in the worst 1%, 5% and 25% of the slices, and the `TOP` (default 8) worst
 //! slices with their pixels, share of the reference's energy, local relative error and seen /
 //! unseen parts. `IMAGE` (a PNG path) gets, for the first seed: reference | estimate | 10× the
 //! seen part's error | 10× the unseen lights' sum | the `TOP` worst slices (white, sampled rows
-//! black) over the reference (`-` for none). `ADAPTIVE_PERCENT`: as in `manylight_methods`.
+//! black) over the reference (`-` for none). `ADAPTIVE_PERCENT`: as in `manylight_methods`; `SPLIT`: `largest` (default) or `spread`
+//! (`SliceSplit`).
 //! Costs the seen lights' full columns (a few thousand) per seed.
 use std::path::Path;
 
 use prt_benches::manylight::{Reference, SceneOracle, SweepScene, write_strip};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
-use prt_manylight::{LightSliceConfig, ReducedMatrix, UnseenLights, light_slice};
+use prt_manylight::{LightSliceConfig, ReducedMatrix, SliceSplit, UnseenLights, light_slice};
 use prt_trace::VplOracle;
 use rayon::prelude::*;
 
@@ -41,6 +42,10 @@ fn main() {
         .filter(|a| *a != "-")
         .map(std::path::PathBuf::from);
     let adaptive: u32 = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(0);
+    let split = match args.get(11).map(String::as_str) {
+        Some("spread") => SliceSplit::Spread,
+        _ => SliceSplit::Largest,
+    };
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
         return;
@@ -63,7 +68,7 @@ fn main() {
     let reference_norm = norm2(&reference).sqrt();
     println!(
         "{scene_name} {width}², {m} sampled lights (+{exact} exact), clamp {clamp}, {rows}/{cols}, \
-         global {global_percent}%, adaptive {adaptive}%\n"
+         global {global_percent}%, adaptive {adaptive}%, {split:?} split\n"
     );
     for seed in first_seed..first_seed + seeds {
         let config = LightSliceConfig {
@@ -72,7 +77,8 @@ fn main() {
         }
         .with_seed(seed)
         .with_unseen(UnseenLights::Skip)
-        .with_adaptive_percent(adaptive.min(100));
+        .with_adaptive_percent(adaptive.min(100))
+        .with_split(split);
         let estimate = light_slice(&oracle, &config, &NoProgress).expect("valid");
         let mut image = estimate.image.clone();
         for (v, &s) in image.iter_mut().zip(&sun) {
