@@ -461,39 +461,68 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
                     })
                 })
                 .collect::<Result<_, _>>()?;
-            for out in outs {
+            for out in &outs {
                 eval.data_loss += out.loss;
-                if !want_gradient {
-                    continue;
-                }
-                for (j, &node) in out.basis_nodes.iter().enumerate() {
-                    let node = node as usize;
-                    for li in 0..l {
-                        let row = &out.grad_b[(j * l + li) * d..(j * l + li + 1) * d];
-                        let dst = &mut eval.grad_b[(node * l + li) * d..(node * l + li + 1) * d];
-                        for (g, &v) in dst.iter_mut().zip(row.iter()) {
-                            *g += v as f64;
-                        }
-                        for k in 0..w {
-                            eval.hess_b[(node * l + li) * w + k] +=
-                                out.hess_b[(j * l + li) * w + k];
-                        }
-                    }
-                }
-                for (j, &node) in out.coef_nodes.iter().enumerate() {
-                    let node = node as usize;
-                    for li in 0..l {
-                        eval.grad_c[node * l + li] += out.grad_c[j * l + li];
-                        for k in 0..w {
-                            eval.hess_c[(node * l + li) * w + k] +=
-                                out.hess_c[(j * l + li) * w + k];
-                        }
-                    }
-                }
+            }
+            if want_gradient {
+                accumulate(&mut eval, &outs, l, d, w);
             }
         }
         Ok(eval)
     }
+}
+
+/// Coefficient kernels per work unit of [`accumulate`].
+const ACCUMULATE_CHUNK: usize = 256;
+
+/// Adds the groups' gradients and curvatures into `eval`, in parallel over the output (basis
+/// nodes one by one, coefficient kernels in chunks), each entry summing the groups in their
+/// order, so the result does not depend on the thread count (nor differs from a serial loop).
+fn accumulate(eval: &mut Evaluation, outs: &[GroupOut], l: usize, d: usize, w: usize) {
+    eval.grad_b
+        .par_chunks_mut(l * d)
+        .zip(eval.hess_b.par_chunks_mut(l * w))
+        .enumerate()
+        .for_each(|(node, (grad, hess))| {
+            for out in outs {
+                let Ok(j) = out.basis_nodes.binary_search(&(node as u32)) else {
+                    continue;
+                };
+                for (g, &v) in grad.iter_mut().zip(&out.grad_b[j * l * d..(j + 1) * l * d]) {
+                    *g += v as f64;
+                }
+                for (h, &v) in hess.iter_mut().zip(&out.hess_b[j * l * w..(j + 1) * l * w]) {
+                    *h += v;
+                }
+            }
+        });
+    eval.grad_c
+        .par_chunks_mut(ACCUMULATE_CHUNK * l)
+        .zip(eval.hess_c.par_chunks_mut(ACCUMULATE_CHUNK * l * w))
+        .enumerate()
+        .for_each(|(chunk, (grad, hess))| {
+            let lo = (chunk * ACCUMULATE_CHUNK) as u32;
+            let hi = lo + (grad.len() / l) as u32;
+            for out in outs {
+                let a = out.coef_nodes.partition_point(|&n| n < lo);
+                let b = out.coef_nodes.partition_point(|&n| n < hi);
+                for j in a..b {
+                    let k = (out.coef_nodes[j] - lo) as usize;
+                    for (g, &v) in grad[k * l..(k + 1) * l]
+                        .iter_mut()
+                        .zip(&out.grad_c[j * l..(j + 1) * l])
+                    {
+                        *g += v;
+                    }
+                    for (h, &v) in hess[k * l * w..(k + 1) * l * w]
+                        .iter_mut()
+                        .zip(&out.hess_c[j * l * w..(j + 1) * l * w])
+                    {
+                        *h += v;
+                    }
+                }
+            }
+        });
 }
 
 thread_local! {
