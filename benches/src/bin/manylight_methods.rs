@@ -2,7 +2,7 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
@@ -30,7 +30,9 @@
 //! * `GLOBAL_PERCENT` (default 50, `LightSliceConfig::new`'s): LightSlice's global clusters in
 //!   percent of its local clusters;
 //! * `ADAPTIVE_PERCENT` (default 0, `LightSliceConfig::adaptive_percent`): the percent of
-//!   LightSlice's representatives spread over the slices by brightness.
+//!   LightSlice's representatives spread over the slices by brightness;
+//! * `DEFENSIVE_PERCENT` (default 0, `LightSliceConfig::defensive_percent`): the percent of
+//!   LightSlice's representative draws made uniformly within the cluster.
 //!
 //! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
@@ -98,7 +100,9 @@ fn main() {
     let neighbours: usize = args.get(11).and_then(|a| a.parse().ok()).unwrap_or(8);
     let global_percent: usize = args.get(12).and_then(|a| a.parse().ok()).unwrap_or(50);
     let adaptive_percent: u32 = args.get(13).and_then(|a| a.parse().ok()).unwrap_or(0);
+    let defensive_percent: u32 = args.get(14).and_then(|a| a.parse().ok()).unwrap_or(0);
     let run = Run {
+        defensive_percent: defensive_percent.min(99),
         adaptive_percent: adaptive_percent.min(100),
         global_percent: global_percent.clamp(1, 100),
         neighbours: neighbours.max(1),
@@ -182,6 +186,7 @@ struct Run<'a> {
     neighbours: usize,
     global_percent: usize,
     adaptive_percent: u32,
+    defensive_percent: u32,
     seeds: std::ops::Range<u64>,
     image_path: Option<&'a Path>,
     methods: &'a [&'static str],
@@ -249,6 +254,7 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         .with_unseen(unseen_for(method, columns))
                         .with_local_importance(method.contains("local"))
                         .with_adaptive_percent(run.adaptive_percent)
+                        .with_defensive_percent(run.defensive_percent)
                         .with_split(if method.contains("spread") {
                             SliceSplit::Spread
                         } else {

@@ -92,6 +92,10 @@ pub struct LightSliceConfig {
     pub adaptive_percent: u32,
     /// Which slice the median splits cut next ([`SliceSplit`]).
     pub split: SliceSplit,
+    /// Percent (0–99) of each representative draw made uniformly over the cluster's members
+    /// (a defensive mixture: no weight exceeds `100 / percent` times the cluster's size; still
+    /// unbiased). 0 (the default) draws by the norms alone, as the paper does.
+    pub defensive_percent: u32,
 }
 
 /// The order in which [`light_slice`] cuts the pixels into slices (step 1).
@@ -124,6 +128,16 @@ impl LightSliceConfig {
             local_importance: false,
             adaptive_percent: 0,
             split: SliceSplit::Largest,
+            defensive_percent: 0,
+        }
+    }
+
+    /// The same configuration with `percent` of the representative draws uniform
+    /// ([`LightSliceConfig::defensive_percent`]).
+    pub fn with_defensive_percent(self, percent: u32) -> Self {
+        Self {
+            defensive_percent: percent,
+            ..self
         }
     }
 
@@ -217,7 +231,9 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///    sampled rows (uniformly in a cluster of zero columns, which [`UnseenLights::Skip`] skips
 ///    instead), as the authors' implementation does — the local rows decide the clusters, the
 ///    global norms are the robust importance — and the slice's pixels of its column, scaled by
-///    the inverse probability, are added to the slice.
+///    the inverse probability, are added to the slice. With
+///    [`LightSliceConfig::defensive_percent`] that share of the probability is uniform over the
+///    cluster's members, which bounds the weights.
 ///
 /// With [`UnseenLights::Groups`], each slice cuts the globally unseen lights into that many
 /// groups of consecutive lights (out of its `local_clusters`), one uniform draw each.
@@ -232,7 +248,8 @@ const NORMAL_WEIGHT: f32 = 0.3;
 /// the same image on any number of threads.
 ///
 /// Errors: an empty matrix, zero or too many slices / clusters, `global_clusters` above
-/// `local_clusters` or `adaptive_percent` above 100 ([`ManyLightError::TooMany`]), zero
+/// `local_clusters`, `adaptive_percent` above 100 or `defensive_percent` above 99
+/// ([`ManyLightError::TooMany`]), zero
 /// neighbours, non-finite elements, oracle
 /// failures, cancellation.
 pub fn light_slice(
@@ -260,6 +277,14 @@ pub fn light_slice(
             available: 100,
         });
     }
+    if config.defensive_percent > 99 {
+        return Err(ManyLightError::TooMany {
+            what: "defensive percent",
+            requested: config.defensive_percent as usize,
+            available: 99,
+        });
+    }
+    let defensive = config.defensive_percent as f64 / 100.0;
     config.unseen.check(config.local_clusters)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("lightslice: slices");
@@ -360,7 +385,7 @@ pub fn light_slice(
             let mut rendered = 0;
             let local_norms = config.local_importance.then(|| local.norms());
             for members in &clusters {
-                let (j, weight) = pick(members, global_norms, local_norms, &mut rng);
+                let (j, weight) = pick(members, global_norms, local_norms, defensive, &mut rng);
                 if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
                     continue;
                 }
@@ -640,11 +665,18 @@ fn nearest(centroids: &[[f32; 6]], s: usize, window: usize) -> Vec<usize> {
 /// A representative of `members` drawn proportionally to its norm over all sampled rows
 /// (uniformly in a cluster of zero columns), or, with `local` norms whose sum over the cluster
 /// is positive, from the even mixture of that and the draw proportional to the local norms;
-/// returned with the inverse of its probability. Local clusters only split global ones, and
-/// the global clustering keeps zero columns apart, so a cluster is either all zero or all
-/// positive (globally; a local norm is zero only where the global one is or the local rows
+/// with probability `defensive` the draw is uniform over the members instead (a defensive
+/// mixture). Returned with the inverse of its probability. Local clusters only split global
+/// ones, and the global clustering keeps zero columns apart, so a cluster is either all zero or
+/// all positive (globally; a local norm is zero only where the global one is or the local rows
 /// miss the light).
-fn pick(members: &[u32], norms: &[f64], local: Option<&[f64]>, rng: &mut impl Rng) -> (usize, f64) {
+fn pick(
+    members: &[u32],
+    norms: &[f64],
+    local: Option<&[f64]>,
+    defensive: f64,
+    rng: &mut impl Rng,
+) -> (usize, f64) {
     let total: f64 = members.iter().map(|&j| norms[j as usize]).sum();
     if total <= 0.0 {
         let k = rng.random_range(0..members.len());
@@ -653,29 +685,40 @@ fn pick(members: &[u32], norms: &[f64], local: Option<&[f64]>, rng: &mut impl Rn
     let local = local
         .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
         .filter(|&(_, t)| t > 0.0);
-    // One uniform number picks the distribution (first half: global) and the light within it.
+    let size = members.len() as f64;
+    // One uniform number picks the uniform draw (below `defensive`), then the distribution
+    // (first half: global) and the light within it.
     let u = rng.random::<f64>();
-    let (weights, sum, u) = match local {
-        Some((l, t)) if u >= 0.5 => (l, t, 2.0 * u - 1.0),
-        Some(_) => (norms, total, 2.0 * u),
-        None => (norms, total, u),
-    };
-    let target = u * sum;
-    let mut running = 0.0;
-    let mut pick = members[0];
-    for &j in members {
-        let a = weights[j as usize];
-        if a > 0.0 {
-            pick = j;
-            running += a;
-            if target < running {
-                break;
+    let j = if u < defensive {
+        members[((u / defensive * size) as usize).min(members.len() - 1)] as usize
+    } else {
+        let u = (u - defensive) / (1.0 - defensive);
+        let (weights, sum, u) = match local {
+            Some((l, t)) if u >= 0.5 => (l, t, 2.0 * u - 1.0),
+            Some(_) => (norms, total, 2.0 * u),
+            None => (norms, total, u),
+        };
+        let target = u * sum;
+        let mut running = 0.0;
+        let mut pick = members[0];
+        for &j in members {
+            let a = weights[j as usize];
+            if a > 0.0 {
+                pick = j;
+                running += a;
+                if target < running {
+                    break;
+                }
             }
         }
-    }
-    let j = pick as usize;
-    match local {
-        Some((l, t)) => (j, 1.0 / (0.5 * norms[j] / total + 0.5 * l[j] / t)),
-        None => (j, total / norms[j]),
-    }
+        pick as usize
+    };
+    let weight = match local {
+        Some((l, t)) => {
+            1.0 / ((1.0 - defensive) * (0.5 * norms[j] / total + 0.5 * l[j] / t) + defensive / size)
+        }
+        None if defensive == 0.0 => total / norms[j],
+        None => 1.0 / ((1.0 - defensive) * norms[j] / total + defensive / size),
+    };
+    (j, weight)
 }

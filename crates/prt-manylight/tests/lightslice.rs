@@ -527,3 +527,32 @@ fn spread_slicing_cuts_varied_geometry_finer() {
     }
     assert!(seen.iter().all(|&s| s == 1));
 }
+
+#[test]
+fn defensive_draws_stay_unbiased_and_exact() {
+    let config = LightSliceConfig::new(6, 8).with_defensive_percent(30);
+    check_unbiased(&spiky(24, 50, 6), config, 400);
+    let mixed = LightSliceConfig {
+        neighbours: 2,
+        ..LightSliceConfig::new(4, 12)
+            .with_defensive_percent(50)
+            .with_local_importance(true)
+    };
+    check_unbiased(&dense(24, 50, 2), mixed, 400);
+    let oracle = dense(30, 20, 1);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let all = LightSliceConfig {
+        global_clusters: 5,
+        ..LightSliceConfig::new(6, 20).with_defensive_percent(99)
+    };
+    let estimate = light_slice(&oracle, &all, &NoProgress).unwrap();
+    assert!(relative_error(&estimate.image, &exact) < 1e-6);
+    assert_eq!(
+        light_slice(&oracle, &all.with_defensive_percent(100), &NoProgress),
+        Err(ManyLightError::TooMany {
+            what: "defensive percent",
+            requested: 100,
+            available: 99
+        })
+    );
+}
