@@ -504,6 +504,12 @@ fn accumulate(eval: &mut Evaluation, outs: &[GroupOut], l: usize, d: usize, w: u
             let lo = (chunk * ACCUMULATE_CHUNK) as u32;
             let hi = lo + (grad.len() / l) as u32;
             for out in outs {
+                // Most groups lie wholly outside a chunk (a large field has many more chunks
+                // than a batch has groups): skip them before searching.
+                match (out.coef_nodes.first(), out.coef_nodes.last()) {
+                    (Some(&first), Some(&last)) if first < hi && last >= lo => {}
+                    _ => continue,
+                }
                 let a = out.coef_nodes.partition_point(|&n| n < lo);
                 let b = out.coef_nodes.partition_point(|&n| n < hi);
                 for j in a..b {
