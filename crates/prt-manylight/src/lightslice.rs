@@ -249,9 +249,8 @@ const NORMAL_WEIGHT: f32 = 0.3;
 ///
 /// Errors: an empty matrix, zero or too many slices / clusters, `global_clusters` above
 /// `local_clusters`, `adaptive_percent` above 100 or `defensive_percent` above 99
-/// ([`ManyLightError::TooMany`]), zero
-/// neighbours, non-finite elements, oracle
-/// failures, cancellation.
+/// ([`ManyLightError::TooMany`]), zero neighbours, non-finite elements, oracle failures,
+/// cancellation.
 pub fn light_slice(
     oracle: &dyn SliceOracle,
     config: &LightSliceConfig,
@@ -447,8 +446,9 @@ fn row_totals(reduced: &ReducedMatrix) -> Vec<f64> {
 /// Clusters per slice (see [`light_slice`], step 4): `(100 − percent)%` of `clusters` each,
 /// plus `percent%` of the element budget `clusters × Σ sizes` in proportion to `size × brightness`,
 /// each slice between `floor` (taken out of the equal part first) and `cap` (the share above a
-/// cap goes to the other slices, by the same proportion). Equal shares when no slice is brighter than zero. Never more elements
-/// (`Σ size × clusters`) than the equal split, rounding down.
+/// cap goes to the other slices, by the same proportion). Equal shares when no slice is
+/// brighter than zero. Never more elements (`Σ size × clusters`) than the equal split, rounding
+/// down.
 fn allocate_clusters(
     sizes: &[usize],
     brightness: &[f64],
