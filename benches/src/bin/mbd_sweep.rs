@@ -2,7 +2,7 @@
 //! (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
 //! solvers' convergence (error vs iterations and time).
 //!
-//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|quality|ridge|all>`
+//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|quality|ridge|floor|walls|adaptive|all>`
 //!
 //! Environment knobs (so that each run stays a few minutes on a shared machine):
 //! * `MBD_FIELD=synthetic|cornell|sponza`: the synthetic manifold field (default), the built-in
@@ -882,27 +882,14 @@ fn floor() {
     println!("load average after: {}\n", load_average());
 }
 
-/// Where is each method's error on a traced volume? MBD (default solver, ≤ `MBD_ITERS` = 128
-/// iterations), BPCA, WBPCA and CPCA (`MBD_METHODS` selects) at rank `MBD_L` (8), `MBD_B`³ (5³)
-/// nodes / blocks / clusters, each fit's wall and CPU time on stderr; every method's reconstruction is sampled at the voxel centres and its
-/// squared error summed by the voxel's distance to the nearest invalid voxel (Chebyshev, in
-/// voxels: 0 = invalid, 1 = touching an invalid voxel, ..., capped at 4). The same bins and
-/// the same normalisation (the field's total energy) for every method; "valid only" is the
-/// relative MSE at valid voxel centres against the valid voxels' energy.
-fn walls() {
-    let input = sweep_field();
-    let f = &input.field;
-    let Some(valid) = input.valid.as_deref() else {
-        eprintln!("walls: needs a traced field (MBD_FIELD=cornell|sponza)");
-        return;
-    };
-    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
-    let iterations = env_usize("MBD_ITERS", 128);
+/// Cap of [`wall_distance`].
+const CAP: usize = 4;
+
+/// Chebyshev distance (in voxels) of every voxel to the nearest invalid voxel: 0 = invalid,
+/// 1 = touching an invalid voxel, ..., capped at [`CAP`].
+fn wall_distance(f: &GridField, valid: &[bool]) -> Vec<usize> {
     let dims = f.dims();
-    let nodes = basis_nodes(f, b);
-    const CAP: usize = 4;
-    // Chebyshev distance to the nearest invalid voxel, capped.
-    let distance: Vec<usize> = (0..f.num_voxels())
+    (0..f.num_voxels())
         .map(|v| {
             if !valid[v] {
                 return 0;
@@ -925,7 +912,249 @@ fn walls() {
                 })
                 .unwrap_or(CAP)
         })
-        .collect();
+        .collect()
+}
+
+/// Squared error of `model` at the voxel centres, summed per [`wall_distance`] bin.
+fn wall_bins(f: &GridField, model: &dyn FieldModel, distance: &[usize]) -> [f64; CAP + 1] {
+    let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
+    let mut bins = [0.0f64; CAP + 1];
+    for v in 0..f.num_voxels() {
+        let err: f64 = f
+            .voxel(v)
+            .iter()
+            .zip(recon.voxel(v))
+            .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+            .sum();
+        bins[distance[v]] += err;
+    }
+    bins
+}
+
+/// MBD with its basis kernels where the scene is (`scene_adapted_basis`: Shepard kernels at
+/// weighted k-means centres of the valid voxels, radius = distance to the `MBD_NEIGHBOURS`-th
+/// (8) nearest centre, enlarged to cover the box) against MBD on the regular `MBD_B`³ (5³) hat
+/// grid, BPCA and CPCA, all with `MBD_B`³ nodes / blocks / clusters at rank `MBD_L` (8), MBD
+/// with the default solver (≤ `MBD_ITERS` = 128 iterations). Methods (`MBD_METHODS`): MBD,
+/// SHEPARD-U (uniform placement), SHEPARD-E (energy), SHEPARD-V (local variation), BPCA, CPCA.
+/// Reports the jittered relative MSE and its ratio to CPCA's, the error at valid voxel centres,
+/// its share by distance to the nearest invalid voxel (as in `walls`), and the seam metric
+/// against the basis kernels' (largest-weight) labels.
+fn adaptive() {
+    let input = sweep_field();
+    let f = &input.field;
+    let Some(valid) = input.valid.as_deref() else {
+        eprintln!("adaptive: needs a traced field (MBD_FIELD=cornell|sponza)");
+        return;
+    };
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let iterations = env_usize("MBD_ITERS", 128);
+    let neighbours = env_usize("MBD_NEIGHBOURS", 8);
+    let nodes = basis_nodes(f, b);
+    let count = nodes.iter().product::<usize>();
+    let distance = wall_distance(f, valid);
+    let energy = |keep: &dyn Fn(usize) -> bool| -> f64 {
+        (0..f.num_voxels())
+            .filter(|&v| keep(v))
+            .map(|v| {
+                f.voxel(v)
+                    .iter()
+                    .map(|&x| f64::from(x).powi(2))
+                    .sum::<f64>()
+            })
+            .sum()
+    };
+    let total = energy(&|_| true);
+    let valid_energy = energy(&|v| valid[v]);
+    struct Result {
+        name: String,
+        iterations: String,
+        cost: Cost,
+        scores: Scores,
+        bins: [f64; CAP + 1],
+    }
+    let mut results: Vec<Result> = Vec::new();
+    let mut add = |name: String,
+                   iterations: String,
+                   cost: Cost,
+                   model: &dyn FieldModel,
+                   labels: &[u32]| {
+        let scores = score(model, &input, labels);
+        let bins = wall_bins(f, model, &distance);
+        eprintln!(
+            "{name}: {iterations} iterations, {:.1} s (CPU {:.1} s), relative MSE {:.3e}, seam ratio {:.2}",
+            cost.wall, cost.cpu, scores.relative_mse, scores.seam_ratio
+        );
+        results.push(Result {
+            name,
+            iterations,
+            cost,
+            scores,
+            bins,
+        });
+    };
+    let options = MbdOptions {
+        rank: l,
+        max_iterations: iterations,
+        ..MbdOptions::default()
+    };
+    let mbd = Mbd {
+        basis_nodes: nodes,
+        options: options.clone(),
+    };
+    if enabled("MBD") {
+        let ((model, report), cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+        add(
+            format!("MBD, {b}³ hat grid"),
+            report.history.len().to_string(),
+            cost,
+            &model,
+            &labels,
+        );
+    }
+    for (key, placement) in [
+        ("SHEPARD-U", Placement::Uniform),
+        ("SHEPARD-E", Placement::Energy),
+        ("SHEPARD-V", Placement::Variation),
+    ] {
+        if !enabled(key) {
+            continue;
+        }
+        let adapted = AdaptedBasisOptions {
+            placement,
+            neighbours,
+            ..AdaptedBasisOptions::default()
+        };
+        let ((model, report), cost) = Cost::measure(|| {
+            let basis = scene_adapted_basis(f, valid, count, &adapted).expect("adapted basis");
+            let (coefficients, _) = mbd.kernels(f).expect("kernels");
+            solve(f, coefficients, basis, &options, &NoProgress).expect("mbd")
+        });
+        let basis = model.basis_kernels();
+        let radii = basis.radii();
+        let mean_radius = radii.iter().map(|&r| f64::from(r)).sum::<f64>() / radii.len() as f64;
+        let labels = kernel_labels(basis, f).expect("labels");
+        // Kernels non-zero at each voxel centre: the work per sample of the basis terms.
+        let mut w = prt_core::KernelWeights::default();
+        let support: Vec<usize> = (0..f.num_voxels())
+            .map(|v| {
+                prt_core::SpatialKernels::eval(basis, f.centre_of(v), &mut w).expect("covered");
+                w.len()
+            })
+            .collect();
+        let mean_support = support.iter().sum::<usize>() as f64 / support.len() as f64;
+        add(
+            format!(
+                "MBD, {count} Shepard kernels, {placement:?} placement (k = {neighbours}; radius mean {:.2} voxels, max {:.2}; {mean_support:.1} kernels per voxel centre, at most {})",
+                mean_radius / f64::from(f.voxel_size().max_element()),
+                f64::from(
+                    radii.iter().copied().fold(0.0f32, f32::max) / f.voxel_size().max_element()
+                ),
+                support.iter().max().unwrap_or(&0)
+            ),
+            report.history.len().to_string(),
+            cost,
+            &model,
+            &labels,
+        );
+    }
+    for (key, window) in [("BPCA", 1.0), ("WBPCA", 2.0)] {
+        if enabled(key) {
+            let (m, cost) = Cost::measure(|| {
+                BlockPca {
+                    rank: l,
+                    blocks: nodes,
+                    window,
+                }
+                .compress(f, &NoProgress)
+                .expect("block PCA")
+            });
+            add(key.into(), "–".into(), cost, &m, m.labels());
+        }
+    }
+    if enabled("CPCA") {
+        let (m, cost) = Cost::measure(|| {
+            ClusteredPca::new(l, count)
+                .compress(f, &NoProgress)
+                .expect("cpca")
+        });
+        add("CPCA".into(), "–".into(), cost, &m, m.labels());
+    }
+    let cpca = results
+        .iter()
+        .find(|r| r.name == "CPCA")
+        .map(|r| r.scores.relative_mse);
+    let mut header = vec![
+        "method".to_string(),
+        "iterations".into(),
+        "time (CPU)".into(),
+        "relative MSE (jittered)".into(),
+        "/ CPCA".into(),
+        "valid only (centres)".into(),
+    ];
+    header.extend((1..=CAP).map(|d| {
+        let share = energy(&|v| distance[v] == d) / total;
+        let name = if d == CAP {
+            format!("≥ {CAP}")
+        } else {
+            d.to_string()
+        };
+        // + 0.0: an empty bin's sum is -0.0.
+        format!("distance {name} ({:.0} % of energy)", 100.0 * share + 0.0)
+    }));
+    header.extend([
+        "seam excess".into(),
+        "seam ratio".into(),
+        "seam excess (raw error)".into(),
+    ]);
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut table = Table::new(&header);
+    for r in &results {
+        let mut cells = vec![
+            r.name.clone(),
+            r.iterations.clone(),
+            format!("{:.1} s ({:.1} s)", r.cost.wall, r.cost.cpu),
+            format!("{:.3e}", r.scores.relative_mse),
+            cpca.map_or("–".into(), |c| {
+                format!("{:.2}", r.scores.relative_mse / c)
+            }),
+            format!("{:.3e}", r.bins[1..].iter().sum::<f64>() / valid_energy),
+        ];
+        cells.extend(r.bins[1..].iter().map(|&x| format!("{:.2e}", x / total)));
+        cells.extend([
+            format!("{:.2e}", r.scores.seam_excess),
+            format!("{:.2}", r.scores.seam_ratio),
+            format!("{:.2e}", r.scores.raw_seam_excess),
+        ]);
+        table.row(cells);
+    }
+    println!(
+        "### Basis kernels where the scene is ({}, L = {l}, {count} basis kernels)\n\n{}",
+        input.name,
+        table.markdown()
+    );
+    println!("load average after: {}\n", load_average());
+}
+
+/// Where is each method's error on a traced volume? MBD (default solver, ≤ `MBD_ITERS` = 128
+/// iterations), BPCA, WBPCA and CPCA (`MBD_METHODS` selects) at rank `MBD_L` (8), `MBD_B`³ (5³)
+/// nodes / blocks / clusters, each fit's wall and CPU time on stderr; every method's reconstruction is sampled at the voxel centres and its
+/// squared error summed by the voxel's distance to the nearest invalid voxel (Chebyshev, in
+/// voxels: 0 = invalid, 1 = touching an invalid voxel, ..., capped at 4). The same bins and
+/// the same normalisation (the field's total energy) for every method; "valid only" is the
+/// relative MSE at valid voxel centres against the valid voxels' energy.
+fn walls() {
+    let input = sweep_field();
+    let f = &input.field;
+    let Some(valid) = input.valid.as_deref() else {
+        eprintln!("walls: needs a traced field (MBD_FIELD=cornell|sponza)");
+        return;
+    };
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let iterations = env_usize("MBD_ITERS", 128);
+    let nodes = basis_nodes(f, b);
+    let distance = wall_distance(f, valid);
     let energy = |keep: &dyn Fn(usize) -> bool| -> f64 {
         (0..f.num_voxels())
             .filter(|&v| keep(v))
@@ -950,24 +1179,14 @@ fn walls() {
         };
         format!(
             "distance {name} ({count} voxels, {:.0} % of energy)",
-            100.0 * share
+            100.0 * share + 0.0
         )
     }));
     let header: Vec<&str> = header.iter().map(String::as_str).collect();
     let mut table = Table::new(&header);
     let mut add = |name: &str, model: &dyn FieldModel| {
         let e = evaluate(model, f, &EvalOptions::default()).expect("evaluate");
-        let recon = resample_to_grid(model, dims, f.bounds()).expect("resample");
-        let mut bins = [0.0f64; CAP + 1];
-        for v in 0..f.num_voxels() {
-            let err: f64 = f
-                .voxel(v)
-                .iter()
-                .zip(recon.voxel(v))
-                .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
-                .sum();
-            bins[distance[v]] += err;
-        }
+        let bins = wall_bins(f, model, &distance);
         let valid_only = bins[1..].iter().sum::<f64>() / energy(&|v| valid[v]);
         let mut cells = vec![
             name.to_string(),
@@ -1102,6 +1321,7 @@ fn main() {
         "ridge" => ridge(),
         "floor" => floor(),
         "walls" => walls(),
+        "adaptive" => adaptive(),
         _ => {
             basis_count();
             grid_resolution();

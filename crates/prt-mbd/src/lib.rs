@@ -39,6 +39,8 @@
 //!   [`seam_metric_with`] (the error's jump across cluster boundaries against the jumps inside
 //!   them, optionally against a denoised reference and over a validity mask; [`seam_metric`] is
 //!   the raw form).
+//! * [`scene_adapted_basis`] (beyond the paper): Shepard basis kernels at weighted k-means
+//!   centres of the valid voxels, for scenes where much of the box is inside geometry.
 //! * [`SyntheticField`]: smooth fields on curved manifolds in R^D, for tests and experiments.
 //!
 //! ## Extremes
@@ -90,3 +92,5 @@ pub use eval::{
 };
 mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};
+mod adapted;
+pub use adapted::{AdaptedBasisOptions, Placement, scene_adapted_basis};

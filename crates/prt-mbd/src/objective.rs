@@ -28,8 +28,13 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-/// Samples per group when the basis kernels have no cell structure.
+/// Samples per group when the basis kernels have no cell structure and the points are not
+/// one per voxel.
 const FALLBACK_GROUP: usize = 64;
+/// Voxels per axis of the groups of [`Samples::draw`] when the basis kernels have no cell
+/// structure (scattered kernels): bricks of 4³ samples, which touch fewer kernels than the
+/// same number of samples along a row of voxels (measured in `docs/results.md`, MBD session 5).
+const FALLBACK_BRICK: usize = 4;
 /// Groups evaluated in parallel before their results are reduced (fixed, so the reduction
 /// order does not depend on the thread count).
 const GROUP_BATCH: usize = 128;
@@ -155,10 +160,29 @@ impl Samples {
                 }
             })
             .collect();
+        if basis.num_support_cells() == 0 {
+            // Sample v lies in voxel v: group by bricks of voxels, so that a group's samples
+            // are close together and share most of their (scattered) basis kernels.
+            let dims = field.dims();
+            let bricks = dims.map(|d| d.div_ceil(FALLBACK_BRICK));
+            let keys = (0..points.len())
+                .map(|v| {
+                    let b = [
+                        v % dims[0],
+                        (v / dims[0]) % dims[1],
+                        v / (dims[0] * dims[1]),
+                    ]
+                    .map(|c| c / FALLBACK_BRICK);
+                    (b[0] + bricks[0] * (b[1] + bricks[1] * b[2])) as u32
+                })
+                .collect();
+            return Self::group_by(points, Some(keys), bricks.iter().product());
+        }
         Self::group(points, basis)
     }
 
-    /// Groups arbitrary points by basis cell.
+    /// Groups arbitrary points by basis cell (families without cells: runs of
+    /// `FALLBACK_GROUP` points in the given order).
     pub fn group<B: SpatialKernels>(points: Vec<Vec3>, basis: &B) -> Self {
         let cells = basis.num_support_cells();
         let keys: Option<Vec<u32>> = if cells > 0 {
@@ -174,6 +198,12 @@ impl Samples {
         } else {
             None
         };
+        Self::group_by(points, keys, cells)
+    }
+
+    /// Groups points by `keys` (each `< cells`), stably; without keys, runs of
+    /// `FALLBACK_GROUP` points.
+    fn group_by(points: Vec<Vec3>, keys: Option<Vec<u32>>, cells: usize) -> Self {
         let (order, groups) = match keys {
             Some(keys) => {
                 // Counting sort: stable, so samples stay in stratum order inside a cell.
@@ -1026,6 +1056,43 @@ mod tests {
         let size = field.voxel_size();
         for (v, p) in s.points.iter().enumerate() {
             assert!(((*p - field.centre_of(v)).abs() - 0.5 * size).max_element() <= 1e-6);
+        }
+    }
+
+    /// Scattered kernels (no cells): samples are grouped by 4³ bricks of voxels, each voxel's
+    /// sample once, in voxel order inside a brick, and the same points as with cells.
+    #[test]
+    fn samples_without_cells_are_grouped_by_voxel_bricks() {
+        let field = GridField::from_fn([9, 5, 6], Aabb::UNIT, 2, |x, out| out.fill(x.x)).unwrap();
+        let centres = (0..field.num_voxels())
+            .step_by(7)
+            .map(|v| field.centre_of(v))
+            .collect();
+        let shepard = prt_kernels::Shepard::with_radius(centres, 0.6).unwrap();
+        assert_eq!(shepard.num_support_cells(), 0);
+        let hat = HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap();
+        let s = Samples::draw(&field, &shepard, 7, 0, true);
+        assert_eq!(s.points, Samples::draw(&field, &hat, 7, 0, true).points);
+        let mut seen = s.order.clone();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..field.num_voxels() as u32).collect::<Vec<_>>());
+        let dims = field.dims();
+        let brick = |v: u32| {
+            let v = v as usize;
+            [
+                v % dims[0],
+                (v / dims[0]) % dims[1],
+                v / (dims[0] * dims[1]),
+            ]
+            .map(|c| c / 4)
+        };
+        // ceil(9/4) · ceil(5/4) · ceil(6/4) = 3 · 2 · 2 bricks, none empty.
+        assert_eq!(s.groups.len(), 12);
+        for &(a, b) in &s.groups {
+            let ids = &s.order[a..b];
+            assert!(ids.iter().all(|&i| brick(i) == brick(ids[0])));
+            assert!(ids.windows(2).all(|w| w[0] < w[1]));
+            assert!(ids.len() <= 64);
         }
     }
 }
