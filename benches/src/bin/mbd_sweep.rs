@@ -31,7 +31,9 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prt_benches::{Table, cpu_seconds, fmt_duration};
-use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, resample_to_grid};
+use prt_core::{
+    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
+};
 use prt_mbd::*;
 use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 
@@ -933,10 +935,13 @@ fn wall_bins(f: &GridField, model: &dyn FieldModel, distance: &[usize]) -> [f64;
 
 /// MBD with its basis kernels where the scene is (`scene_adapted_basis`: Shepard kernels at
 /// weighted k-means centres of the valid voxels, radius = distance to the `MBD_NEIGHBOURS`-th
-/// (8) nearest centre, enlarged to cover the box) against MBD on the regular `MBD_B`³ (5³) hat
+/// (default: `AdaptedBasisOptions`'s) nearest centre, enlarged to cover the box) against MBD on the regular `MBD_B`³ (5³) hat
 /// grid, BPCA and CPCA, all with `MBD_B`³ nodes / blocks / clusters at rank `MBD_L` (8), MBD
 /// with the default solver (≤ `MBD_ITERS` = 128 iterations). Methods (`MBD_METHODS`): MBD,
-/// SHEPARD-U (uniform placement), SHEPARD-E (energy), SHEPARD-V (local variation), BPCA, CPCA.
+/// SHEPARD-U (uniform placement), SHEPARD-E (energy), SHEPARD-V (local variation),
+/// SHEPARD-GRID (the same Shepard kernels at the hat grid's nodes, one radius: the distance to
+/// the `MBD_NEIGHBOURS`-th nearest node; separates the kernel shape from the placement), BPCA,
+/// WBPCA, CPCA.
 /// Reports the jittered relative MSE and its ratio to CPCA's, the error at valid voxel centres,
 /// its share by distance to the nearest invalid voxel (as in `walls`), and the seam metric
 /// against the basis kernels' (largest-weight) labels.
@@ -949,7 +954,7 @@ fn adaptive() {
     };
     let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
     let iterations = env_usize("MBD_ITERS", 128);
-    let neighbours = env_usize("MBD_NEIGHBOURS", 8);
+    let neighbours = env_usize("MBD_NEIGHBOURS", AdaptedBasisOptions::default().neighbours);
     let nodes = basis_nodes(f, b);
     let count = nodes.iter().product::<usize>();
     let distance = wall_distance(f, valid);
@@ -1002,9 +1007,11 @@ fn adaptive() {
         basis_nodes: nodes,
         options: options.clone(),
     };
+    let mut hat_model = None;
     if enabled("MBD") {
         let ((model, report), cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
         let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+        hat_model = Some(model.clone());
         add(
             format!("MBD, {b}³ hat grid"),
             report.history.len().to_string(),
@@ -1039,19 +1046,53 @@ fn adaptive() {
         let mut w = prt_core::KernelWeights::default();
         let support: Vec<usize> = (0..f.num_voxels())
             .map(|v| {
-                prt_core::SpatialKernels::eval(basis, f.centre_of(v), &mut w).expect("covered");
+                basis.eval(f.centre_of(v), &mut w).expect("covered");
                 w.len()
             })
             .collect();
         let mean_support = support.iter().sum::<usize>() as f64 / support.len() as f64;
+        // Control: the hat-grid model (continuous, labels unrelated to these kernels) scored
+        // on these kernels' labels shows what the seam metric reads from where the labels'
+        // boundaries lie rather than from steps of the model.
+        let control = hat_model.as_ref().map_or(String::new(), |hat| {
+            format!(
+                "; hat MBD on these labels: seam excess {:.2e}",
+                score(hat, &input, &labels).seam_excess
+            )
+        });
         add(
             format!(
-                "MBD, {count} Shepard kernels, {placement:?} placement (k = {neighbours}; radius mean {:.2} voxels, max {:.2}; {mean_support:.1} kernels per voxel centre, at most {})",
+                "MBD, {count} Shepard kernels, {placement:?} placement (k = {neighbours}; radius mean {:.2} voxels, max {:.2}; {mean_support:.1} kernels per voxel centre, at most {}{control})",
                 mean_radius / f64::from(f.voxel_size().max_element()),
                 f64::from(
                     radii.iter().copied().fold(0.0f32, f32::max) / f.voxel_size().max_element()
                 ),
                 support.iter().max().unwrap_or(&0)
+            ),
+            report.history.len().to_string(),
+            cost,
+            &model,
+            &labels,
+        );
+    }
+    if enabled("SHEPARD-GRID") {
+        let (_, hat) = mbd.kernels(f).expect("kernels");
+        let centres: Vec<Vec3> = (0..hat.len()).filter_map(|i| hat.centre(i)).collect();
+        let mut distances: Vec<f32> = centres.iter().map(|c| c.distance(centres[0])).collect();
+        distances.sort_unstable_by(f32::total_cmp);
+        // The corner node has the fewest near neighbours: every node has at least
+        // `neighbours` others within this radius.
+        let radius = distances[neighbours.min(distances.len() - 1)];
+        let ((model, report), cost) = Cost::measure(|| {
+            let basis = prt_kernels::Shepard::with_radius(centres, radius).expect("shepard");
+            let (coefficients, _) = mbd.kernels(f).expect("kernels");
+            solve(f, coefficients, basis, &options, &NoProgress).expect("mbd")
+        });
+        let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+        add(
+            format!(
+                "MBD, {count} Shepard kernels at the {b}³ grid nodes (radius {:.2} voxels)",
+                radius / f.voxel_size().max_element()
             ),
             report.history.len().to_string(),
             cost,
