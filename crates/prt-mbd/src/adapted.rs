@@ -77,10 +77,11 @@ const COVERAGE_MARGIN: f64 = 1e-3;
 ///
 /// Deterministic for a seed (the assignments are computed in parallel, the sums sequentially).
 ///
-/// Measured (`docs/results.md`, MBD session 5): with 125 kernels at L = 8, [`Placement::Energy`]
-/// takes traced Sponza from 1.96× to 1.70× CPCA's error (the regular hat grid's 1.96×), while
-/// [`Placement::Uniform`] is worse than the hat grid (2.20×); on traced Cornell energy placement
-/// is 2 % above the hat grid. A solve costs 2–3× the hat grid's CPU.
+/// Measured (`docs/results.md`, MBD session 5): with 125 kernels at L = 8,
+/// [`Placement::Energy`] takes traced Sponza 48 × 20 × 30 from the regular hat grid's 1.96× to
+/// 1.70× CPCA's error (no gain at 96 × 40 × 59), while [`Placement::Uniform`] is worse than the
+/// hat grid (2.20×); on traced Cornell energy placement is 2 % above the hat grid. A solve
+/// costs 2–3× the hat grid's CPU.
 ///
 /// # Errors
 /// [`MbdError::ShapeMismatch`] if `valid` does not have one entry per voxel,
