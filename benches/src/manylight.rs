@@ -82,6 +82,36 @@ pub const BUDGETS: [(usize, usize); 6] = [
     (900, 1800),
 ];
 
+/// A sweep's positional arguments (after the program name), each read with a default.
+pub struct Args(Vec<String>);
+
+impl Args {
+    /// The arguments this process was started with.
+    pub fn from_env() -> Self {
+        Self(std::env::args().skip(1).collect())
+    }
+
+    /// Argument `index` as given, if it was.
+    pub fn text(&self, index: usize) -> Option<&str> {
+        self.0.get(index).map(String::as_str)
+    }
+
+    /// Argument `index` parsed, or `default` when it is absent or does not parse.
+    pub fn parsed<T: std::str::FromStr>(&self, index: usize, default: T) -> T {
+        self.text(index)
+            .and_then(|a| a.parse().ok())
+            .unwrap_or(default)
+    }
+
+    /// Argument `index` as one `rows/columns` budget, or `default`.
+    pub fn budget(&self, index: usize, default: (usize, usize)) -> (usize, usize) {
+        self.text(index)
+            .and_then(|b| b.split_once('/'))
+            .and_then(|(r, c)| Some((r.parse().ok()?, c.parse().ok()?)))
+            .unwrap_or(default)
+    }
+}
+
 /// Parses a comma-separated `rows/columns` list (`300/900,432/864`; malformed entries are
 /// skipped); no list gives [`BUDGETS`].
 pub fn parse_budgets(list: Option<&str>) -> Vec<(usize, usize)> {

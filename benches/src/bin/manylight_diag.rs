@@ -9,7 +9,7 @@
 //! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS] [direct]`
 use std::path::Path;
 
-use prt_benches::manylight::SweepScene;
+use prt_benches::manylight::{Args, SweepScene};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{ReducedMatrix, RowColumnConfig, row_column_sampling, stratified_rows};
@@ -22,15 +22,15 @@ fn norm(v: &[f32]) -> f64 {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_name = args.first().map(String::as_str).unwrap_or("sponza");
-    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(256);
-    let target: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(100_000);
-    let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1.58);
-    let rows: usize = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(100);
-    let cols: usize = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(200);
-    let seeds: u64 = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(3);
-    let direct = args.get(7).map(String::as_str) == Some("direct");
+    let args = Args::from_env();
+    let scene_name = args.text(0).unwrap_or("sponza");
+    let width: usize = args.parsed(1, 256);
+    let target: usize = args.parsed(2, 100_000);
+    let clamp: f32 = args.parsed(3, 1.58);
+    let rows: usize = args.parsed(4, 100);
+    let cols: usize = args.parsed(5, 200);
+    let seeds: u64 = args.parsed(6, 3);
+    let direct = args.text(7) == Some("direct");
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
         return;

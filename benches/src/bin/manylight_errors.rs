@@ -16,7 +16,7 @@
 //! thousand) per seed on top of the run itself.
 use std::path::Path;
 
-use prt_benches::manylight::{Reference, SweepScene};
+use prt_benches::manylight::{Args, Reference, SweepScene};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
@@ -39,20 +39,16 @@ fn kind(j: usize, vpls: &[prt_trace::Vpl]) -> String {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_name = args.first().map(String::as_str).unwrap_or("sponza");
-    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(256);
-    let target: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(100_000);
-    let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1.58);
-    let (rows, cols) = args
-        .get(4)
-        .and_then(|b| b.split_once('/'))
-        .and_then(|(r, c)| Some((r.parse().ok()?, c.parse().ok()?)))
-        .unwrap_or((400, 1300));
-    let seeds: u64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(3);
-    let first_seed: u64 = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(7);
-    let probe: usize = args.get(7).and_then(|a| a.parse().ok()).unwrap_or(500);
-    let groups: usize = args.get(8).and_then(|a| a.parse().ok()).unwrap_or(1);
+    let args = Args::from_env();
+    let scene_name = args.text(0).unwrap_or("sponza");
+    let width: usize = args.parsed(1, 256);
+    let target: usize = args.parsed(2, 100_000);
+    let clamp: f32 = args.parsed(3, 1.58);
+    let (rows, cols) = args.budget(4, (400, 1300));
+    let seeds: u64 = args.parsed(5, 3);
+    let first_seed: u64 = args.parsed(6, 7);
+    let probe: usize = args.parsed(7, 500);
+    let groups: usize = args.parsed(8, 1);
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
         return;

@@ -38,7 +38,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{Reference, SceneOracle, SweepScene, parse_budgets, write_strip};
+use prt_benches::manylight::{
+    Args, Reference, SceneOracle, SweepScene, parse_budgets, write_strip,
+};
 use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::NoProgress;
 use prt_core::metrics::relative_frobenius_error;
@@ -50,18 +52,15 @@ use prt_manylight::{
 use prt_trace::VplOracle;
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_name = args.first().map(String::as_str).unwrap_or("cornell");
-    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(128);
-    let target_vpls: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(50_000);
-    let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(0.1);
-    let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
-    let image_path = args.get(5).filter(|a| *a != "-").map(PathBuf::from);
+    let args = Args::from_env();
+    let scene_name = args.text(0).unwrap_or("cornell");
+    let width: usize = args.parsed(1, 128);
+    let target_vpls: usize = args.parsed(2, 50_000);
+    let clamp: f32 = args.parsed(3, 0.1);
+    let seeds: u64 = args.parsed(4, 2);
+    let image_path = args.text(5).filter(|a| *a != "-").map(PathBuf::from);
     let selected: Vec<&'static str> = {
-        let wanted = args
-            .get(6)
-            .map(String::as_str)
-            .unwrap_or("rowcol,slice,vis,kmeans");
+        let wanted = args.text(6).unwrap_or("rowcol,slice,vis,kmeans");
         [
             ("rowcol", "row-column"),
             ("rowcol-skip", "row-column (skip unseen)"),
@@ -86,7 +85,7 @@ fn main() {
         .map(|(_, name)| name)
         .collect()
     };
-    let exact_sun = match args.get(7).map(String::as_str).unwrap_or("direct") {
+    let exact_sun = match args.text(7).unwrap_or("direct") {
         "direct" => false,
         "exact-sun" => true,
         other => {
@@ -94,13 +93,13 @@ fn main() {
             return;
         }
     };
-    let budgets = parse_budgets(args.get(8).map(String::as_str));
-    let first_seed: u64 = args.get(9).and_then(|a| a.parse().ok()).unwrap_or(7);
-    let group_divisor: usize = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(16);
-    let neighbours: usize = args.get(11).and_then(|a| a.parse().ok()).unwrap_or(8);
-    let global_percent: usize = args.get(12).and_then(|a| a.parse().ok()).unwrap_or(50);
-    let adaptive_percent: u32 = args.get(13).and_then(|a| a.parse().ok()).unwrap_or(0);
-    let defensive_percent: u32 = args.get(14).and_then(|a| a.parse().ok()).unwrap_or(0);
+    let budgets = parse_budgets(args.text(8));
+    let first_seed: u64 = args.parsed(9, 7);
+    let group_divisor: usize = args.parsed(10, 16);
+    let neighbours: usize = args.parsed(11, 8);
+    let global_percent: usize = args.parsed(12, 50);
+    let adaptive_percent: u32 = args.parsed(13, 0);
+    let defensive_percent: u32 = args.parsed(14, 0);
     let run = Run {
         defensive_percent: defensive_percent.min(99),
         adaptive_percent: adaptive_percent.min(100),

@@ -27,7 +27,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::manylight::{Reference, SweepScene, parse_budgets, write_strip};
+use prt_benches::manylight::{Args, Reference, SweepScene, parse_budgets, write_strip};
 use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
@@ -39,18 +39,18 @@ fn norm(v: &[f32]) -> f64 {
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_name = args.first().map(String::as_str).unwrap_or("cornell");
-    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(128);
-    let target_vpls: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(50_000);
+    let args = Args::from_env();
+    let scene_name = args.text(0).unwrap_or("cornell");
+    let width: usize = args.parsed(1, 128);
+    let target_vpls: usize = args.parsed(2, 50_000);
     let clamps: Vec<f32> = args
-        .get(3)
+        .text(3)
         .map(|a| a.split(',').filter_map(|c| c.parse().ok()).collect())
         .unwrap_or_else(|| vec![0.05]);
-    let seeds: u64 = args.get(4).and_then(|a| a.parse().ok()).unwrap_or(2);
-    let image_path = args.get(5).filter(|a| *a != "-").map(PathBuf::from);
+    let seeds: u64 = args.parsed(4, 2);
+    let image_path = args.text(5).filter(|a| *a != "-").map(PathBuf::from);
     let policies: Vec<(&str, UnseenLights)> = {
-        let wanted = args.get(6).map(String::as_str).unwrap_or("sample");
+        let wanted = args.text(6).unwrap_or("sample");
         [
             ("sample", UnseenLights::Sample),
             ("skip", UnseenLights::Skip),
@@ -59,9 +59,9 @@ fn main() {
         .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
         .collect()
     };
-    let light = args.get(7).map(String::as_str).unwrap_or("direct");
+    let light = args.text(7).unwrap_or("direct");
     let direct = light != "indirect";
-    let budgets = parse_budgets(args.get(8).map(String::as_str));
+    let budgets = parse_budgets(args.text(8));
 
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let Some(setup) = SweepScene::load(scene_name, manifest, width, target_vpls) else {

@@ -15,7 +15,7 @@
 //! Costs the seen lights' full columns (a few thousand) per seed.
 use std::path::Path;
 
-use prt_benches::manylight::{Reference, SceneOracle, SweepScene, write_strip};
+use prt_benches::manylight::{Args, Reference, SceneOracle, SweepScene, write_strip};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{LightSliceConfig, ReducedMatrix, SliceSplit, UnseenLights, light_slice};
@@ -23,26 +23,22 @@ use prt_trace::VplOracle;
 use rayon::prelude::*;
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let scene_name = args.first().map(String::as_str).unwrap_or("sponza");
-    let width: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(256);
-    let target: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(100_000);
-    let clamp: f32 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1.58);
-    let (rows, cols) = args
-        .get(4)
-        .and_then(|b| b.split_once('/'))
-        .and_then(|(r, c)| Some((r.parse().ok()?, c.parse().ok()?)))
-        .unwrap_or((400, 1300));
-    let seeds: u64 = args.get(5).and_then(|a| a.parse().ok()).unwrap_or(3);
-    let first_seed: u64 = args.get(6).and_then(|a| a.parse().ok()).unwrap_or(1);
-    let global_percent: usize = args.get(7).and_then(|a| a.parse().ok()).unwrap_or(50);
-    let top: usize = args.get(8).and_then(|a| a.parse().ok()).unwrap_or(8);
+    let args = Args::from_env();
+    let scene_name = args.text(0).unwrap_or("sponza");
+    let width: usize = args.parsed(1, 256);
+    let target: usize = args.parsed(2, 100_000);
+    let clamp: f32 = args.parsed(3, 1.58);
+    let (rows, cols) = args.budget(4, (400, 1300));
+    let seeds: u64 = args.parsed(5, 3);
+    let first_seed: u64 = args.parsed(6, 1);
+    let global_percent: usize = args.parsed(7, 50);
+    let top: usize = args.parsed(8, 8);
     let image_path = args
-        .get(9)
+        .text(9)
         .filter(|a| *a != "-")
         .map(std::path::PathBuf::from);
-    let adaptive: u32 = args.get(10).and_then(|a| a.parse().ok()).unwrap_or(0);
-    let split = match args.get(11).map(String::as_str) {
+    let adaptive: u32 = args.parsed(10, 0);
+    let split = match args.text(11) {
         Some("spread") => SliceSplit::Spread,
         _ => SliceSplit::Largest,
     };
