@@ -1180,9 +1180,10 @@ fn adaptive() {
 
 /// Where is each method's error on a traced volume? MBD (default solver, ≤ `MBD_ITERS` = 128
 /// iterations), BPCA, WBPCA and CPCA (`MBD_METHODS` selects) at rank `MBD_L` (8), `MBD_B`³ (5³)
-/// nodes / blocks / clusters, each fit's wall and CPU time on stderr; every method's reconstruction is sampled at the voxel centres and its
-/// squared error summed by the voxel's distance to the nearest invalid voxel (Chebyshev, in
-/// voxels: 0 = invalid, 1 = touching an invalid voxel, ..., capped at 4). The same bins and
+/// nodes / blocks / clusters, each fit's wall and CPU time on stderr; every method's
+/// reconstruction is sampled at the voxel centres and its squared error summed by the voxel's
+/// distance to the nearest invalid voxel (Chebyshev, in voxels: 0 = invalid, 1 = touching an
+/// invalid voxel, ..., capped at 4). The same bins and
 /// the same normalisation (the field's total energy) for every method; "valid only" is the
 /// relative MSE at valid voxel centres against the valid voxels' energy.
 fn walls() {
