@@ -1,10 +1,14 @@
 //! Basis kernels placed where the scene is: scattered Shepard kernels at k-means centres of the
 //! valid voxels (beyond the paper, which uses a regular hat grid).
 //!
-//! On traced scenes most of the box can be inside geometry (61 % of Sponza's voxels at 48 × 20
-//! × 30), where the transfer is zero and a regular basis grid spends nodes on nothing. Here the
-//! same number of basis kernels goes where the data is, as CPCA's clusters do, while the basis
-//! stays a smooth partition of unity (Wendland C2 Shepard kernels), so the model stays seamless.
+//! The same number of basis kernels as a regular grid goes where the data is, as CPCA's
+//! clusters do, while the basis stays a smooth partition of unity (Wendland C2 Shepard
+//! kernels), so the model stays seamless. Measured (`docs/results.md`, MBD session 5): spreading
+//! the kernels evenly over the valid voxels does *not* help (a hat node inside geometry still
+//! serves the valid voxels in its support); weighting the placement by the field's energy does,
+//! on coarse volumes with most of their energy next to walls (traced Sponza 48 × 20 × 30: MBD
+//! 1.96× → 1.70× CPCA's error), and not on finer or smooth ones (Sponza at 96 voxels, Cornell),
+//! so the regular hat grid stays the solver's default.
 
 use glam::Vec3;
 use prt_core::GridField;
@@ -21,9 +25,9 @@ use crate::MbdError;
 #[non_exhaustive]
 pub enum Placement {
     /// Every valid voxel counts the same: centres spread evenly over the valid space.
-    #[default]
     Uniform,
-    /// Weight `‖f(v)‖`: more centres where the field is large.
+    /// Weight `‖f(v)‖`: more centres where the field is large (the best measured placement).
+    #[default]
     Energy,
     /// Weight `sqrt(mean ‖f(v) − f(u)‖²)` over the valid face neighbours `u` of `v`: more
     /// centres where the field changes from voxel to voxel.
@@ -33,7 +37,7 @@ pub enum Placement {
 /// Options of [`scene_adapted_basis`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct AdaptedBasisOptions {
-    /// Weighting of the k-means placement (default [`Placement::Uniform`]).
+    /// Weighting of the k-means placement (default [`Placement::Energy`]).
     pub placement: Placement,
     /// Each kernel's support radius starts at the distance to its `neighbours`-th nearest
     /// other centre (default 12), so a point is covered by about this many kernels. Smaller is
@@ -50,7 +54,7 @@ pub struct AdaptedBasisOptions {
 impl Default for AdaptedBasisOptions {
     fn default() -> Self {
         Self {
-            placement: Placement::Uniform,
+            placement: Placement::Energy,
             neighbours: 12,
             seed: 0,
             max_iterations: 50,
