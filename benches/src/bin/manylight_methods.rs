@@ -12,7 +12,8 @@
 //! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
 //! errors at the first budget, for the first seed.
 //! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
-//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-spread`, `slice-skip-spread`
+//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-spread`, `slice-skip-spread`,
+//!   `slice-skip-spread-local`
 //!   (the `-skip` variants with `UnseenLights::Skip`, the `-groups` ones with
 //!   `UnseenLights::Groups(columns / GROUP_DIVISOR)`, `-local` with
 //!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`), `vis`, `kmeans`
@@ -76,6 +77,10 @@ fn main() {
             (
                 "slice-skip-local",
                 "LightSlice (skip unseen, local importance)",
+            ),
+            (
+                "slice-skip-spread-local",
+                "LightSlice (skip unseen, spread slices, local importance)",
             ),
             ("vis", "visibility (split)"),
             ("kmeans", "visibility (k-means)"),
