@@ -140,11 +140,11 @@ pub struct Reference {
 /// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
 /// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is
 /// unknown or cannot be loaded.
-fn load_scene(name: &str, manifest: &Path) -> Option<Scene> {
+fn load_scene(name: &str) -> Option<Scene> {
     match name {
         "cornell" => Some(Scene::cornell_box()),
         "sponza" => {
-            let path = manifest.join("../../shared/scenes/sponza/Sponza.gltf");
+            let path = benches_dir().join("../../shared/scenes/sponza/Sponza.gltf");
             Scene::load_gltf(&path, &LoadOptions::default())
                 .map_err(|e| eprintln!("skipping Sponza: {e}"))
                 .ok()
@@ -175,13 +175,13 @@ impl SweepScene {
     /// The scene `name` (`cornell`, or `sponza` from ../shared; `None`, with the reason on
     /// stderr, when it cannot be used) with its tracer, VPLs and G-buffer. Panics on a setup
     /// error, as a sweep does.
-    pub fn load(name: &str, manifest: &Path, width: usize, target: usize) -> Option<Self> {
-        let scene = load_scene(name, manifest)?;
+    pub fn load(name: &str, width: usize, target: usize) -> Option<Self> {
+        let scene = load_scene(name)?;
         let tracer = RayTracer::new(scene.triangles());
         let vpls = trace_about(&scene, &tracer, target);
         let view = PinholeView::for_scene(&scene).expect("non-empty scene");
         let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-        let cache_stem = manifest.join(format!(
+        let cache_stem = benches_dir().join(format!(
             "../target/manylight_cache/{name}_{width}_{}",
             vpls.len()
         ));
@@ -203,14 +203,12 @@ impl SweepScene {
         if let Some(folder) = file.parent() {
             std::fs::create_dir_all(folder).expect("cache folder");
         }
-        let (tracer, gbuffer, vpls) = (&self.tracer, &self.gbuffer, &self.vpls);
-        let vpl_image = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-            .expect("finite input")
+        let vpls = &self.vpls;
+        let vpl_image = self
+            .oracle(clamp, &[])
             .reference_image_cached(&file, &NoProgress)
             .expect("reference image");
-        let full = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-            .and_then(|o| o.with_directional(directional))
-            .expect("finite input");
+        let full = self.oracle(clamp, directional);
         let mut image = vpl_image.clone();
         let mut sun = vec![0.0f32; image.len()];
         let mut column = vec![0.0f32; image.len()];
@@ -228,6 +226,14 @@ impl SweepScene {
             vpl_image,
             sun,
         }
+    }
+
+    /// The VPL oracle of this scene at `clamp` (shadow rays offset by 1e-4, as in every sweep)
+    /// with the `directional` columns after the VPL ones. Panics on non-finite input.
+    pub fn oracle<'a>(&'a self, clamp: f32, directional: &'a [DirectionalLight]) -> VplOracle<'a> {
+        VplOracle::new(&self.tracer, &self.gbuffer, &self.vpls, clamp, 1e-4)
+            .and_then(|o| o.with_directional(directional))
+            .expect("finite input")
     }
 
     /// The default sun and 1024 sky directions as directional lights, the sun first.
@@ -249,6 +255,11 @@ fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<Vpl> {
     let per_particle = (pilot.len() as f64 / 2000.0).max(0.1);
     let particles = (target as f64 / per_particle).round().max(1.0) as usize;
     trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
+}
+
+/// The benches package's folder (the scenes and the cache are found relative to it).
+fn benches_dir() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
 /// Writes `reference | panels…` side by side (square RGB images of `width`), tone-mapped with

@@ -7,13 +7,11 @@
 //! and the worst clusters' exact error is measured by evaluating all their members.
 //!
 //! `cargo run --release -p prt-benches --bin manylight_diag -- SCENE WIDTH VPLS CLAMP ROWS COLS [SEEDS] [direct]`
-use std::path::Path;
 
 use prt_benches::manylight::{Args, SweepScene};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{ReducedMatrix, RowColumnConfig, row_column_sampling, stratified_rows};
-use prt_trace::VplOracle;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 
@@ -31,20 +29,12 @@ fn main() {
     let cols: usize = args.parsed(5, 200);
     let seeds: u64 = args.parsed(6, 3);
     let direct = args.text(7) == Some("direct");
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
+    let Some(setup) = SweepScene::load(scene_name, width, target) else {
         return;
     };
     let directional = if direct { setup.sun_sky() } else { Vec::new() };
-    let SweepScene {
-        tracer,
-        vpls,
-        gbuffer,
-        ..
-    } = &setup;
-    let oracle = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-        .and_then(|o| o.with_directional(&directional))
-        .expect("finite input");
+    let vpls = &setup.vpls;
+    let oracle = setup.oracle(clamp, &directional);
     let (n, m) = (oracle.rows(), oracle.cols());
     let reference = setup.reference(&directional, clamp).image;
     let mut col = vec![0.0f32; 3 * n];

@@ -14,13 +14,11 @@
 //!
 //! All norms are printed relative to `‖reference‖`. Costs about the seen lights' columns (a few
 //! thousand) per seed on top of the run itself.
-use std::path::Path;
 
 use prt_benches::manylight::{Args, Reference, SweepScene};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
-use prt_trace::VplOracle;
 
 /// Mixture weights λ of the uniform draw in the representatives' probability whose expected
 /// error is reported (0: the paper's `p ∝ ‖ρ_j‖`; 1: uniform).
@@ -49,17 +47,11 @@ fn main() {
     let first_seed: u64 = args.parsed(6, 7);
     let probe: usize = args.parsed(7, 500);
     let groups: usize = args.parsed(8, 1);
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
+    let Some(setup) = SweepScene::load(scene_name, width, target) else {
         return;
     };
     let directional = setup.sun_sky();
-    let SweepScene {
-        tracer,
-        vpls,
-        gbuffer,
-        ..
-    } = &setup;
+    let vpls = &setup.vpls;
     let Reference {
         image: reference,
         sun,
@@ -72,9 +64,7 @@ fn main() {
         .map(|&v| v as f64 * v as f64)
         .sum::<f64>()
         .sqrt();
-    let sampled = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-        .and_then(|o| o.with_directional(&directional[1..]))
-        .expect("finite input");
+    let sampled = setup.oracle(clamp, &directional[1..]);
     let m = sampled.cols();
     // The sampled lights' exact image: reference minus the sun.
     let rest: Vec<f64> = reference

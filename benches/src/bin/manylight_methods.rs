@@ -50,7 +50,6 @@ use prt_manylight::{
     VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
     row_column_sampling, visibility_clustering,
 };
-use prt_trace::VplOracle;
 
 fn main() {
     let args = Args::from_env();
@@ -117,19 +116,13 @@ fn main() {
         methods: &selected,
         budgets: &budgets,
     };
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     match scene_name {
         "cornell" | "sponza" => {
-            let Some(setup) = SweepScene::load(scene_name, manifest, width, target_vpls) else {
+            let Some(setup) = SweepScene::load(scene_name, width, target_vpls) else {
                 return;
             };
             let directional = setup.sun_sky();
-            let SweepScene {
-                tracer,
-                vpls,
-                gbuffer,
-                ..
-            } = &setup;
+            let SweepScene { vpls, gbuffer, .. } = &setup;
             let start = Instant::now();
             let Reference {
                 image: reference,
@@ -151,9 +144,7 @@ fn main() {
                 fmt_duration(start.elapsed()),
                 (n * m) as f64
             );
-            let inner = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-                .and_then(|o| o.with_directional(&directional[exact..]))
-                .expect("finite");
+            let inner = setup.oracle(clamp, &directional[exact..]);
             let oracle = SceneOracle { inner, gbuffer };
             let exact = Exact {
                 image: exact_image,

@@ -24,7 +24,7 @@
 //! Brute-force images of the VPL columns are cached in `target/manylight_cache/` (keyed by shape
 //! and fingerprint), so that only the first run of a (scene, size, VPLs, clamp) pays for them;
 //! the directional columns' share of the reference is evaluated column by column on every run.
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 use prt_benches::manylight::{Args, Reference, SweepScene, parse_budgets, write_strip};
@@ -32,7 +32,6 @@ use prt_benches::{Table, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, UnseenLights, row_column_sampling};
-use prt_trace::VplOracle;
 
 fn norm(v: &[f32]) -> f64 {
     v.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt()
@@ -63,17 +62,11 @@ fn main() {
     let direct = light != "indirect";
     let budgets = parse_budgets(args.text(8));
 
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(setup) = SweepScene::load(scene_name, manifest, width, target_vpls) else {
+    let Some(setup) = SweepScene::load(scene_name, width, target_vpls) else {
         return;
     };
     let directional = if direct { setup.sun_sky() } else { Vec::new() };
-    let SweepScene {
-        tracer,
-        vpls,
-        gbuffer,
-        ..
-    } = &setup;
+    let vpls = &setup.vpls;
     println!(
         "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights, {} threads",
         vpls.len(),
@@ -100,9 +93,7 @@ fn main() {
             vpl_image,
             ..
         } = setup.reference(&directional, clamp);
-        let oracle = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-            .and_then(|o| o.with_directional(&directional))
-            .expect("finite input");
+        let oracle = setup.oracle(clamp, &directional);
         let (n, m) = (oracle.rows(), oracle.cols());
         let mut column = vec![0.0f32; 3 * n];
         println!(
@@ -112,9 +103,7 @@ fn main() {
         // `exact-sun`: the first directional light (the sun) as an exact column, the rest
         // sampled.
         let exact = usize::from(light == "exact-sun" && !directional.is_empty());
-        let sampled = VplOracle::new(tracer, gbuffer, vpls, clamp, 1e-4)
-            .and_then(|o| o.with_directional(&directional[exact..]))
-            .expect("finite input");
+        let sampled = setup.oracle(clamp, &directional[exact..]);
         let mut exact_image = vec![0.0f32; 3 * n];
         // ‖reference‖ / ‖reference − exact columns‖: the error relative to the sampled part.
         let sampled_scale = |exact_image: &[f32]| {

@@ -13,13 +13,11 @@
 //! black) over the reference (`-` for none). `ADAPTIVE_PERCENT`: as in `manylight_methods`; `SPLIT`: `largest` (default) or `spread`
 //! (`SliceSplit`).
 //! Costs the seen lights' full columns (a few thousand) per seed.
-use std::path::Path;
 
 use prt_benches::manylight::{Args, Reference, SceneOracle, SweepScene, write_strip};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{LightSliceConfig, ReducedMatrix, SliceSplit, UnseenLights, light_slice};
-use prt_trace::VplOracle;
 use rayon::prelude::*;
 
 fn main() {
@@ -42,8 +40,7 @@ fn main() {
         Some("spread") => SliceSplit::Spread,
         _ => SliceSplit::Largest,
     };
-    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let Some(setup) = SweepScene::load(scene_name, manifest, width, target) else {
+    let Some(setup) = SweepScene::load(scene_name, width, target) else {
         return;
     };
     let directional = setup.sun_sky();
@@ -53,9 +50,7 @@ fn main() {
         ..
     } = setup.reference(&directional, clamp);
     let exact = usize::from(!directional.is_empty());
-    let inner = VplOracle::new(&setup.tracer, &setup.gbuffer, &setup.vpls, clamp, 1e-4)
-        .and_then(|o| o.with_directional(&directional[exact..]))
-        .expect("finite");
+    let inner = setup.oracle(clamp, &directional[exact..]);
     let oracle = SceneOracle {
         inner,
         gbuffer: &setup.gbuffer,
