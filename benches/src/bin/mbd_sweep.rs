@@ -933,6 +933,60 @@ fn wall_bins(f: &GridField, model: &dyn FieldModel, distance: &[usize]) -> [f64;
     bins
 }
 
+/// `Σ ‖f(v)‖²` over the voxels `keep` accepts.
+fn voxel_energy(f: &GridField, keep: &dyn Fn(usize) -> bool) -> f64 {
+    (0..f.num_voxels())
+        .filter(|&v| keep(v))
+        .map(|v| {
+            f.voxel(v)
+                .iter()
+                .map(|&x| f64::from(x).powi(2))
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+/// A [`wall_distance`] bin's name in table headers: `3`, or `≥ 4` for the last.
+fn distance_name(d: usize) -> String {
+    if d == CAP {
+        format!("≥ {CAP}")
+    } else {
+        d.to_string()
+    }
+}
+
+/// Fits BPCA, WBPCA and CPCA (those `MBD_METHODS` enables) at rank `l` on `nodes` blocks /
+/// `nodes` clusters and hands each model to `each` with its name and cost.
+fn block_and_clustered_pca(
+    f: &GridField,
+    l: usize,
+    nodes: [usize; 3],
+    each: &mut dyn FnMut(&str, Cost, &ClusterModel),
+) {
+    for (name, window) in [("BPCA", 1.0), ("WBPCA", 2.0)] {
+        if enabled(name) {
+            let (m, cost) = Cost::measure(|| {
+                BlockPca {
+                    rank: l,
+                    blocks: nodes,
+                    window,
+                }
+                .compress(f, &NoProgress)
+                .expect("block PCA")
+            });
+            each(name, cost, &m);
+        }
+    }
+    if enabled("CPCA") {
+        let (m, cost) = Cost::measure(|| {
+            ClusteredPca::new(l, nodes.iter().product())
+                .compress(f, &NoProgress)
+                .expect("cpca")
+        });
+        each("CPCA", cost, &m);
+    }
+}
+
 /// MBD with its basis kernels where the scene is (`scene_adapted_basis`: Shepard kernels at
 /// weighted k-means centres of the valid voxels, radius = distance to the `MBD_NEIGHBOURS`-th
 /// (default: `AdaptedBasisOptions`'s) nearest centre, enlarged to cover the box) against MBD on the regular `MBD_B`³ (5³) hat
@@ -958,17 +1012,7 @@ fn adaptive() {
     let nodes = basis_nodes(f, b);
     let count = nodes.iter().product::<usize>();
     let distance = wall_distance(f, valid);
-    let energy = |keep: &dyn Fn(usize) -> bool| -> f64 {
-        (0..f.num_voxels())
-            .filter(|&v| keep(v))
-            .map(|v| {
-                f.voxel(v)
-                    .iter()
-                    .map(|&x| f64::from(x).powi(2))
-                    .sum::<f64>()
-            })
-            .sum()
-    };
+    let energy = |keep: &dyn Fn(usize) -> bool| voxel_energy(f, keep);
     let total = energy(&|_| true);
     let valid_energy = energy(&|v| valid[v]);
     struct Result {
@@ -1100,28 +1144,9 @@ fn adaptive() {
             &labels,
         );
     }
-    for (key, window) in [("BPCA", 1.0), ("WBPCA", 2.0)] {
-        if enabled(key) {
-            let (m, cost) = Cost::measure(|| {
-                BlockPca {
-                    rank: l,
-                    blocks: nodes,
-                    window,
-                }
-                .compress(f, &NoProgress)
-                .expect("block PCA")
-            });
-            add(key.into(), "–".into(), cost, &m, m.labels());
-        }
-    }
-    if enabled("CPCA") {
-        let (m, cost) = Cost::measure(|| {
-            ClusteredPca::new(l, count)
-                .compress(f, &NoProgress)
-                .expect("cpca")
-        });
-        add("CPCA".into(), "–".into(), cost, &m, m.labels());
-    }
+    block_and_clustered_pca(f, l, nodes, &mut |name, cost, m| {
+        add(name.into(), "–".into(), cost, m, m.labels())
+    });
     let cpca = results
         .iter()
         .find(|r| r.name == "CPCA")
@@ -1136,13 +1161,12 @@ fn adaptive() {
     ];
     header.extend((1..=CAP).map(|d| {
         let share = energy(&|v| distance[v] == d) / total;
-        let name = if d == CAP {
-            format!("≥ {CAP}")
-        } else {
-            d.to_string()
-        };
         // + 0.0: an empty bin's sum is -0.0.
-        format!("distance {name} ({:.0} % of energy)", 100.0 * share + 0.0)
+        format!(
+            "distance {} ({:.0} % of energy)",
+            distance_name(d),
+            100.0 * share + 0.0
+        )
     }));
     header.extend([
         "seam excess".into(),
@@ -1197,30 +1221,16 @@ fn walls() {
     let iterations = env_usize("MBD_ITERS", 128);
     let nodes = basis_nodes(f, b);
     let distance = wall_distance(f, valid);
-    let energy = |keep: &dyn Fn(usize) -> bool| -> f64 {
-        (0..f.num_voxels())
-            .filter(|&v| keep(v))
-            .map(|v| {
-                f.voxel(v)
-                    .iter()
-                    .map(|&x| f64::from(x).powi(2))
-                    .sum::<f64>()
-            })
-            .sum()
-    };
+    let energy = |keep: &dyn Fn(usize) -> bool| voxel_energy(f, keep);
     let total = energy(&|_| true);
     let mut header = vec!["method".to_string(), "relative MSE (jittered)".into()];
     header.push("valid only (centres)".into());
     header.extend((0..=CAP).map(|d| {
         let count = distance.iter().filter(|&&x| x == d).count();
         let share = energy(&|v| distance[v] == d) / total;
-        let name = if d == CAP {
-            format!("≥ {CAP}")
-        } else {
-            d.to_string()
-        };
         format!(
-            "distance {name} ({count} voxels, {:.0} % of energy)",
+            "distance {} ({count} voxels, {:.0} % of energy)",
+            distance_name(d),
             100.0 * share + 0.0
         )
     }));
@@ -1258,28 +1268,9 @@ fn walls() {
             &model,
         );
     }
-    let mut baseline = |name: &str, fit: &dyn Fn() -> ClusterModel| {
-        if enabled(name) {
-            let (m, cost) = Cost::measure(fit);
-            eprintln!("{name} {:.1} s (CPU {:.1} s)", cost.wall, cost.cpu);
-            add(name, &m);
-        }
-    };
-    for (name, window) in [("BPCA", 1.0), ("WBPCA", 2.0)] {
-        baseline(name, &|| {
-            BlockPca {
-                rank: l,
-                blocks: nodes,
-                window,
-            }
-            .compress(f, &NoProgress)
-            .expect("block PCA")
-        });
-    }
-    baseline("CPCA", &|| {
-        ClusteredPca::new(l, nodes.iter().product())
-            .compress(f, &NoProgress)
-            .expect("cpca")
+    block_and_clustered_pca(f, l, nodes, &mut |name, cost, m| {
+        eprintln!("{name} {:.1} s (CPU {:.1} s)", cost.wall, cost.cpu);
+        add(name, m);
     });
     println!(
         "### Error by distance to the nearest invalid voxel ({}, L = {l}, {b}³ nodes), share of the field's energy at voxel centres\n\n{}",
