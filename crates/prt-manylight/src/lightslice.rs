@@ -338,6 +338,14 @@ pub fn light_slice(
         )
     };
 
+    // The global clusters with a seen light, and those of unseen lights only: every slice
+    // starts from copies of both.
+    let (seen_global, unseen_global): (Vec<Vec<u32>>, Vec<Vec<u32>>) = global
+        .clusters()
+        .iter()
+        .cloned()
+        .partition(|c| c.iter().any(|&j| global_norms[j as usize] > 0.0));
+
     progress.message("lightslice: slices");
     progress.set_len(slices.len() as u64);
     let rendered: Vec<(Vec<f32>, usize)> = slices
@@ -354,11 +362,7 @@ pub fn light_slice(
             // are zero on every sampled row, so splitting them (by index, at cost 0) would take
             // clusters from the seen lights. They are split only with what the seen lights
             // cannot use (all alone), and follow the seen clusters.
-            let (mut clusters, mut unseen_clusters): (Vec<Vec<u32>>, Vec<Vec<u32>>) = global
-                .clusters()
-                .iter()
-                .cloned()
-                .partition(|c| c.iter().any(|&j| global_norms[j as usize] > 0.0));
+            let (mut clusters, mut unseen_clusters) = (seen_global.clone(), unseen_global.clone());
             split_until(
                 &local,
                 &mut clusters,
