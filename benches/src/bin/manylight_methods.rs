@@ -2,7 +2,7 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT] [GUIDE_PERCENT] [PROBES]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
@@ -13,10 +13,11 @@
 //! errors at the first budget, for the first seed.
 //! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
 //!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-spread`, `slice-skip-spread`,
-//!   `slice-skip-spread-local`
+//!   `slice-skip-spread-local`, `slice-skip-spread-guided`
 //!   (the `-skip` variants with `UnseenLights::Skip`, the `-groups` ones with
 //!   `UnseenLights::Groups(columns / GROUP_DIVISOR)`, `-local` with
-//!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`), `vis`, `kmeans`
+//!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`, `-guided` with
+//!   `light_slice_guided` and `ShadingGuide::new(GUIDE_PERCENT, PROBES)`), `vis`, `kmeans`
 //!   (default `rowcol,slice,vis,kmeans`);
 //! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
 //!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
@@ -33,7 +34,10 @@
 //! * `ADAPTIVE_PERCENT` (default 0, `LightSliceConfig::adaptive_percent`): the percent of
 //!   LightSlice's representatives spread over the slices by brightness;
 //! * `DEFENSIVE_PERCENT` (default 0, `LightSliceConfig::defensive_percent`): the percent of
-//!   LightSlice's representative draws made uniformly within the cluster.
+//!   LightSlice's representative draws made uniformly within the cluster;
+//! * `GUIDE_PERCENT` (default 50) and `PROBES` (default 8; `all` for every pixel of a slice):
+//!   the `-guided` methods' shading guide. Its shading evaluations (no shadow rays) are
+//!   reported beside the elements.
 //!
 //! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
@@ -48,7 +52,7 @@ use prt_core::metrics::relative_frobenius_error;
 use prt_manylight::{
     LightSliceConfig, RowColumnConfig, SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights,
     VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
-    row_column_sampling, visibility_clustering,
+    light_slice_guided, row_column_sampling, visibility_clustering,
 };
 
 fn main() {
@@ -81,6 +85,10 @@ fn main() {
                 "slice-skip-spread-local",
                 "LightSlice (skip unseen, spread slices, local importance)",
             ),
+            (
+                "slice-skip-spread-guided",
+                "LightSlice (skip unseen, spread slices, shading guide)",
+            ),
             ("vis", "visibility (split)"),
             ("kmeans", "visibility (k-means)"),
         ]
@@ -104,7 +112,14 @@ fn main() {
     let global_percent: usize = args.parsed(12, 50);
     let adaptive_percent: u32 = args.parsed(13, 0);
     let defensive_percent: u32 = args.parsed(14, 0);
+    let guide_percent: u32 = args.parsed(15, 50);
+    let probes = match args.text(16) {
+        Some("all") => usize::MAX,
+        _ => args.parsed(16, 8),
+    };
     let run = Run {
+        guide_percent: guide_percent.min(99),
+        probes: probes.max(1),
         defensive_percent: defensive_percent.min(99),
         adaptive_percent: adaptive_percent.min(100),
         global_percent: global_percent.clamp(1, 100),
@@ -182,6 +197,8 @@ struct Run<'a> {
     global_percent: usize,
     adaptive_percent: u32,
     defensive_percent: u32,
+    guide_percent: u32,
+    probes: usize,
     seeds: std::ops::Range<u64>,
     image_path: Option<&'a Path>,
     methods: &'a [&'static str],
@@ -255,7 +272,13 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         } else {
                             SliceSplit::Largest
                         });
-                        let r = light_slice(oracle, &c, &NoProgress).expect("valid");
+                        let r = if method.contains("shading guide") {
+                            let c = c.with_shading_guide(run.guide_percent, run.probes);
+                            light_slice_guided(oracle, &c, &NoProgress).expect("valid")
+                        } else {
+                            light_slice(oracle, &c, &NoProgress).expect("valid")
+                        };
+                        extra = r.shading_evaluations;
                         (r.image, r.elements)
                     }
                     _ => {

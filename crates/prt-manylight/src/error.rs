@@ -64,6 +64,13 @@ pub enum ManyLightError {
         /// Channels of the first frame.
         expected_channels: usize,
     },
+    /// An option needs more of the oracle than the entry point called offers (LightSlice's
+    /// shading guide needs the unshadowed shading of `light_slice_guided`).
+    #[error("{what} needs an oracle with unshadowed shading (light_slice_guided)")]
+    NeedsShading {
+        /// The option.
+        what: &'static str,
+    },
     /// The oracle failed.
     #[error("matrix oracle: {0}")]
     Oracle(CoreError),

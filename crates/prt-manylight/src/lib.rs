@@ -61,7 +61,8 @@ mod visibility;
 pub use cluster::{Clustering, cluster_columns, cluster_cost, split_cluster};
 pub use error::ManyLightError;
 pub use lightslice::{
-    GatherGeometry, LightSliceConfig, LightSliceEstimate, SliceOracle, SliceSplit, light_slice,
+    GatherGeometry, LightSliceConfig, LightSliceEstimate, ShadingGuide, SliceOracle, SliceSplit,
+    light_slice, light_slice_guided,
 };
 pub use reduced::{ReducedMatrix, stratified_rows};
 pub use rowcol::{

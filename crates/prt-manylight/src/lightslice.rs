@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::cluster::{regroup_unseen, split_until};
 use crate::reduced::{check_requests, check_shape};
-use crate::{ManyLightError, ReducedMatrix, UnseenLights, cluster_columns};
+use crate::{ManyLightError, ReducedMatrix, UnseenLights, VisibilityOracle, cluster_columns};
 
 /// A [`MatrixOracle`] that LightSlice can slice: it evaluates a column on a subset of rows
 /// only, and may tell where each row's gather point is so that slices group pixels of similar
@@ -96,6 +96,41 @@ pub struct LightSliceConfig {
     /// (a defensive mixture: no weight exceeds `100 / percent` times the cluster's size; still
     /// unbiased). 0 (the default) draws by the norms alone, as the paper does.
     pub defensive_percent: u32,
+    /// Part of each seen cluster's draw made by the lights' unshadowed shading on probe pixels
+    /// of the slice ([`ShadingGuide`]; only with [`light_slice_guided`]). `None` (the default)
+    /// draws by the sampled rows alone, as the paper does.
+    pub shading_guide: Option<ShadingGuide>,
+}
+
+/// Unshadowed shading as a guide for LightSlice's representative draws (an extension of the
+/// paper; see [`light_slice_guided`]).
+///
+/// Every element is bounded by its unshadowed shading, `0 ≤ M(i, j) ≤ S(i, j)` per channel
+/// (visibility is in `[0, 1]`), and the shading costs no shadow ray. A light whose reduced
+/// column is tiny (the sampled rows barely see it) but which lights the slice's other pixels
+/// strongly gets a tiny probability from the rows and a huge weight; its shading on those
+/// pixels gives it a probability in proportion to what it can contribute there.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ShadingGuide {
+    /// Percent (0–99) of each seen cluster's draw proportional to the members' shading norm on
+    /// the slice's probe pixels, `u_j = (Σ_{i∈probes} Σ_c S(i, j, c)²)^½`; the rest is the
+    /// row-based draw, which keeps every seen light's probability positive (so the estimate
+    /// stays unbiased). 0 gives the unguided estimator, bit for bit.
+    pub percent: u32,
+    /// Probe pixels per slice (at least 1): the slice's sampled row, then repeatedly the pixel
+    /// farthest (in the 6-D slicing space) from those already chosen. A slice of at most this
+    /// many pixels probes all of them; the weighted column of a representative is then bounded
+    /// by `100 / percent` times its cluster's shading norm over the slice.
+    pub probes: usize,
+}
+
+impl ShadingGuide {
+    /// `percent` of each seen cluster's draw by the shading on `probes` pixels per slice
+    /// (`usize::MAX`: every pixel).
+    pub fn new(percent: u32, probes: usize) -> Self {
+        Self { percent, probes }
+    }
 }
 
 /// The order in which [`light_slice`] cuts the pixels into slices (step 1).
@@ -129,6 +164,17 @@ impl LightSliceConfig {
             adaptive_percent: 0,
             split: SliceSplit::Largest,
             defensive_percent: 0,
+            shading_guide: None,
+        }
+    }
+
+    /// The same configuration with `percent` of each seen cluster's draw guided by the
+    /// unshadowed shading on `probes` pixels per slice ([`ShadingGuide`];
+    /// [`light_slice_guided`] only).
+    pub fn with_shading_guide(self, percent: u32, probes: usize) -> Self {
+        Self {
+            shading_guide: Some(ShadingGuide::new(percent, probes)),
+            ..self
         }
     }
 
@@ -189,8 +235,12 @@ pub struct LightSliceEstimate {
     /// [`LightSliceConfig::adaptive_percent`] is positive.
     pub clusters_per_slice: Vec<usize>,
     /// Matrix elements evaluated: `slices × cols` for the reduced matrix plus, per slice, its
-    /// rows times its representatives (at most `local_clusters × rows` in all).
+    /// rows times its representatives (at most `local_clusters × rows` in all). The shading
+    /// guide's evaluations are not elements (no shadow ray) and are not counted here.
     pub elements: u64,
+    /// Unshadowed shading evaluations of the [`ShadingGuide`] (no shadow rays): per slice, its
+    /// probe pixels times the seen lights. 0 without a guide (or at 0%).
+    pub shading_evaluations: u64,
 }
 
 /// Weight of the unit normal against the position (scaled to a unit bounding-box diagonal)
@@ -250,9 +300,60 @@ const NORMAL_WEIGHT: f32 = 0.3;
 /// Errors: an empty matrix, zero or too many slices / clusters, `global_clusters` above
 /// `local_clusters`, `adaptive_percent` above 100 or `defensive_percent` above 99
 /// ([`ManyLightError::TooMany`]), zero neighbours, non-finite elements, oracle failures,
-/// cancellation.
+/// cancellation; a [`LightSliceConfig::shading_guide`], which needs the unshadowed shading of
+/// [`light_slice_guided`] ([`ManyLightError::NeedsShading`]).
 pub fn light_slice(
     oracle: &dyn SliceOracle,
+    config: &LightSliceConfig,
+    progress: &dyn Progress,
+) -> Result<LightSliceEstimate, ManyLightError> {
+    if config.shading_guide.is_some() {
+        return Err(ManyLightError::NeedsShading {
+            what: "LightSlice's shading guide",
+        });
+    }
+    slice_sample(oracle, None, config, progress)
+}
+
+/// [`light_slice`] on an oracle that also gives the unshadowed shading `S(i, j)` of every
+/// element ([`VisibilityOracle::shading`], no shadow ray), for the [`ShadingGuide`] of
+/// [`LightSliceConfig::shading_guide`] (an extension of the paper; without a guide the result
+/// is [`light_slice`]'s).
+///
+/// With a guide of `percent` `= 100 α` and `probes` `= P`, each slice evaluates the shading of
+/// every seen light (non-zero reduced column) on `P` probe pixels of the slice — its sampled row
+/// and then, repeatedly, the pixel farthest in the slicing space from those chosen, or every
+/// pixel of a slice of at most `P` — giving `u_j = (Σ_{i∈probes} Σ_c S(i, j, c)²)^½`. A seen
+/// cluster `C` then draws its representative with probability
+/// `p_j = (1 − α) q_j + α u_j / Σ_C u` (before the defensive share), where `q_j` is the
+/// row-based probability of step 5 (the global norms, or their mixture with the local ones);
+/// a cluster whose members all have `u = 0` draws by `q` alone. Every seen light keeps
+/// `p_j ≥ (1 − α) q_j > 0`, so the estimate is unbiased exactly as without the guide; what
+/// changes is the tail: a light that the sampled rows barely see (tiny `q_j`) but that
+/// lights other pixels of the slice gets probability from its shading there, and since
+/// `M ≤ S` element-wise its weighted column on the probes is at most `Σ_C u / α`. Unseen
+/// lights are treated as [`LightSliceConfig::unseen`] says.
+///
+/// The element count ([`LightSliceEstimate::elements`]) is identical to [`light_slice`]'s;
+/// the shading evaluations (`P` or the slice's pixels, times the seen lights, per slice) are
+/// counted apart in [`LightSliceEstimate::shading_evaluations`].
+///
+/// Errors: those of [`light_slice`] (but not [`ManyLightError::NeedsShading`]), a guide
+/// percent above 99 ([`ManyLightError::TooMany`]), zero probes
+/// ([`ManyLightError::ZeroSamples`]), a non-finite shading value
+/// ([`ManyLightError::NonFinite`]).
+pub fn light_slice_guided<O: SliceOracle + VisibilityOracle>(
+    oracle: &O,
+    config: &LightSliceConfig,
+    progress: &dyn Progress,
+) -> Result<LightSliceEstimate, ManyLightError> {
+    slice_sample(oracle, Some(oracle), config, progress)
+}
+
+/// [`light_slice`], with the shading of `shading` (the same matrix) for the guide.
+fn slice_sample(
+    oracle: &dyn SliceOracle,
+    shading: Option<&dyn VisibilityOracle>,
     config: &LightSliceConfig,
     progress: &dyn Progress,
 ) -> Result<LightSliceEstimate, ManyLightError> {
@@ -284,10 +385,31 @@ pub fn light_slice(
         });
     }
     let defensive = config.defensive_percent as f64 / 100.0;
+    // The guide at 0% is no guide: nothing evaluated, the unguided draws bit for bit.
+    let guide = match (config.shading_guide, shading) {
+        (Some(g), _) if g.percent > 99 => {
+            return Err(ManyLightError::TooMany {
+                what: "shading guide percent",
+                requested: g.percent as usize,
+                available: 99,
+            });
+        }
+        (Some(g), _) if g.probes == 0 => {
+            return Err(ManyLightError::ZeroSamples {
+                what: "shading probe",
+            });
+        }
+        (Some(g), Some(shading)) if g.percent > 0 => Some((g, shading)),
+        _ => None,
+    };
     config.unseen.check(config.local_clusters)?;
     let mut rng = Pcg64Mcg::seed_from_u64(config.seed);
     progress.message("lightslice: slices");
-    let (slices, centroids) = make_slices(oracle, config.slices, config.split);
+    let Slicing {
+        slices,
+        centroids,
+        features,
+    } = make_slices(oracle, config.slices, config.split);
     let rows: Vec<usize> = slices
         .iter()
         .map(|s| s[rng.random_range(0..s.len())])
@@ -345,10 +467,11 @@ pub fn light_slice(
         .iter()
         .cloned()
         .partition(|c| c.iter().any(|&j| global_norms[j as usize] > 0.0));
+    let seen_lights: Vec<u32> = seen_global.iter().flatten().copied().collect();
 
     progress.message("lightslice: slices");
     progress.set_len(slices.len() as u64);
-    let rendered: Vec<(Vec<f32>, usize)> = slices
+    let rendered: Vec<(Vec<f32>, usize, u64)> = slices
         .par_iter()
         .enumerate()
         .map(|(s, pixels)| {
@@ -387,8 +510,24 @@ pub fn light_slice(
             let mut column = vec![0.0f32; pixels.len() * channels];
             let mut rendered = 0;
             let local_norms = config.local_importance.then(|| local.norms());
+            let guided = match guide {
+                Some((g, shading)) => {
+                    let probes = probe_pixels(pixels, reduced.rows()[s], &features, g.probes);
+                    let norms = shading_norms(shading, &probes, &seen_lights, m, channels)?;
+                    Some((norms, g.percent as f64 / 100.0, probes.len()))
+                }
+                None => None,
+            };
             for members in &clusters {
-                let (j, weight) = pick(members, global_norms, local_norms, defensive, &mut rng);
+                let guide_norms = guided.as_ref().map(|(u, alpha, _)| (u.as_slice(), *alpha));
+                let (j, weight) = pick(
+                    members,
+                    global_norms,
+                    local_norms,
+                    guide_norms,
+                    defensive,
+                    &mut rng,
+                );
                 if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
                     continue;
                 }
@@ -406,13 +545,20 @@ pub fn light_slice(
                 }
             }
             progress.inc(1);
-            Ok((acc.into_iter().map(|a| a as f32).collect(), rendered))
+            let probed = guided.map_or(0, |(_, _, probes)| probes);
+            Ok((
+                acc.into_iter().map(|a| a as f32).collect(),
+                rendered,
+                (probed * seen_lights.len()) as u64,
+            ))
         })
         .collect::<Result<_, ManyLightError>>()?;
     let mut image = vec![0.0f32; n * channels];
     let mut elements = (slices.len() * m) as u64;
+    let mut shading_evaluations = 0;
     let mut clusters_per_slice = Vec::with_capacity(slices.len());
-    for (pixels, (values, clusters)) in slices.iter().zip(rendered) {
+    for (pixels, (values, clusters, shaded)) in slices.iter().zip(rendered) {
+        shading_evaluations += shaded;
         for (&i, v) in pixels.iter().zip(values.chunks_exact(channels)) {
             image[i * channels..(i + 1) * channels].copy_from_slice(v);
         }
@@ -425,7 +571,77 @@ pub fn light_slice(
         slices,
         clusters_per_slice,
         elements,
+        shading_evaluations,
     })
+}
+
+/// Up to `count` probe pixels of a slice: its sampled row, then repeatedly the pixel farthest
+/// from those chosen in the slicing space `features` (ties to the lowest row); every pixel when
+/// the slice has at most `count`.
+fn probe_pixels(
+    pixels: &[usize],
+    sampled: usize,
+    features: &[[f32; 6]],
+    count: usize,
+) -> Vec<usize> {
+    if pixels.len() <= count {
+        return pixels.to_vec();
+    }
+    let distance = |a: usize, b: usize| -> f32 {
+        features[a]
+            .iter()
+            .zip(&features[b])
+            .map(|(x, y)| (x - y) * (x - y))
+            .sum()
+    };
+    let mut probes = vec![sampled];
+    let mut nearest: Vec<f32> = pixels.iter().map(|&i| distance(i, sampled)).collect();
+    while probes.len() < count {
+        let Some(k) = (0..pixels.len())
+            .filter(|&k| nearest[k] > 0.0)
+            .max_by(|&a, &b| nearest[a].total_cmp(&nearest[b]).then(b.cmp(&a)))
+        else {
+            break;
+        };
+        let chosen = pixels[k];
+        probes.push(chosen);
+        for (d, &i) in nearest.iter_mut().zip(pixels) {
+            *d = d.min(distance(i, chosen));
+        }
+    }
+    probes
+}
+
+/// The shading norm of each of `lights` over the `probes`, `(Σ_i Σ_c S(i, j, c)²)^½`, in a
+/// vector indexed by light (`cols` long; zero for the other lights).
+fn shading_norms(
+    shading: &dyn VisibilityOracle,
+    probes: &[usize],
+    lights: &[u32],
+    cols: usize,
+    channels: usize,
+) -> Result<Vec<f64>, ManyLightError> {
+    let mut norms = vec![0.0f64; cols];
+    let mut value = vec![0.0f32; channels];
+    for &j in lights {
+        let j = j as usize;
+        let mut sum = 0.0f64;
+        for &i in probes {
+            shading.shading(i, j, &mut value)?;
+            for (channel, &v) in value.iter().enumerate() {
+                if !v.is_finite() {
+                    return Err(ManyLightError::NonFinite {
+                        row: i,
+                        col: j,
+                        channel,
+                    });
+                }
+                sum += v as f64 * v as f64;
+            }
+        }
+        norms[j] = sum.sqrt();
+    }
+    Ok(norms)
 }
 
 /// The exact pixel value of every sampled row: the sum of its elements over all lights and
@@ -513,13 +729,9 @@ fn allocate_clusters(
         .collect()
 }
 
-/// Cuts the rows into `count` slices (fewer only if there are fewer rows) and returns them with
-/// their centroids in the 6-D slicing space. See [`light_slice`], step 1.
-fn make_slices(
-    oracle: &dyn SliceOracle,
-    count: usize,
-    split: SliceSplit,
-) -> (Vec<Vec<usize>>, Vec<[f32; 6]>) {
+/// Cuts the rows into `count` slices (fewer only if there are fewer rows). See [`light_slice`],
+/// step 1.
+fn make_slices(oracle: &dyn SliceOracle, count: usize, split: SliceSplit) -> Slicing {
     let n = oracle.rows();
     let geometry: Vec<Option<GatherGeometry>> = (0..n).map(|i| oracle.gather_point(i)).collect();
     let mut lo = [f32::INFINITY; 3];
@@ -644,7 +856,19 @@ fn make_slices(
             c.map(|a| (a / s.len() as f64) as f32)
         })
         .collect();
-    (slices, centroids)
+    Slicing {
+        slices,
+        centroids,
+        features,
+    }
+}
+
+/// What [`make_slices`] returns: the slices (rows in increasing order), their centroids and
+/// every row's features in the 6-D slicing space.
+struct Slicing {
+    slices: Vec<Vec<usize>>,
+    centroids: Vec<[f32; 6]>,
+    features: Vec<[f32; 6]>,
 }
 
 /// The `window` slices whose centroids are nearest to slice `s`'s (itself first; ties to the
@@ -670,14 +894,17 @@ fn nearest(centroids: &[[f32; 6]], s: usize, window: usize) -> Vec<usize> {
 /// (uniformly in a cluster of zero columns), or, with `local` norms whose sum over the cluster
 /// is positive, from the even mixture of that and the draw proportional to the local norms;
 /// with probability `defensive` the draw is uniform over the members instead (a defensive
-/// mixture). Returned with the inverse of its probability. Local clusters only split global
-/// ones, and the global clustering keeps zero columns apart, so a cluster is either all zero or
-/// all positive (globally; a local norm is zero only where the global one is or the local rows
-/// miss the light).
+/// mixture). With `guide` norms `u` whose sum over the cluster is positive and its share `α`,
+/// the non-defensive draw is by `u` with probability `α` and as above otherwise. Returned with
+/// the inverse of its probability. Local clusters only split global ones, and the global
+/// clustering keeps zero columns apart, so a cluster is either all zero or all positive
+/// (globally; a local norm is zero only where the global one is or the local rows miss the
+/// light).
 fn pick(
     members: &[u32],
     norms: &[f64],
     local: Option<&[f64]>,
+    guide: Option<(&[f64], f64)>,
     defensive: f64,
     rng: &mut impl Rng,
 ) -> (usize, f64) {
@@ -685,6 +912,26 @@ fn pick(
     if total <= 0.0 {
         let k = rng.random_range(0..members.len());
         return (members[k] as usize, members.len() as f64);
+    }
+    let guide = guide
+        .map(|(u, alpha)| {
+            (
+                u,
+                members.iter().map(|&j| u[j as usize]).sum::<f64>(),
+                alpha,
+            )
+        })
+        .filter(|&(_, sum, alpha)| sum > 0.0 && alpha > 0.0);
+    if let Some((u, sum, alpha)) = guide {
+        return pick_guided(
+            members,
+            norms,
+            total,
+            local,
+            (u, sum, alpha),
+            defensive,
+            rng,
+        );
     }
     let local = local
         .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
@@ -697,25 +944,11 @@ fn pick(
         members[((u / defensive * size) as usize).min(members.len() - 1)] as usize
     } else {
         let u = (u - defensive) / (1.0 - defensive);
-        let (weights, sum, u) = match local {
-            Some((l, t)) if u >= 0.5 => (l, t, 2.0 * u - 1.0),
-            Some(_) => (norms, total, 2.0 * u),
-            None => (norms, total, u),
-        };
-        let target = u * sum;
-        let mut running = 0.0;
-        let mut pick = members[0];
-        for &j in members {
-            let a = weights[j as usize];
-            if a > 0.0 {
-                pick = j;
-                running += a;
-                if target < running {
-                    break;
-                }
-            }
+        match local {
+            Some((l, t)) if u >= 0.5 => draw(members, l, t, 2.0 * u - 1.0),
+            Some(_) => draw(members, norms, total, 2.0 * u),
+            None => draw(members, norms, total, u),
         }
-        pick as usize
     };
     let weight = match local {
         Some((l, t)) => {
@@ -725,4 +958,66 @@ fn pick(
         None => 1.0 / ((1.0 - defensive) * norms[j] / total + defensive / size),
     };
     (j, weight)
+}
+
+/// The member drawn proportionally to `weights` (whose sum over `members` is `sum > 0`) by the
+/// uniform number `u` in `[0, 1)`: the first member whose running sum exceeds `u · sum`
+/// (members of zero weight are never drawn).
+fn draw(members: &[u32], weights: &[f64], sum: f64, u: f64) -> usize {
+    let target = u * sum;
+    let mut running = 0.0;
+    let mut pick = members[0];
+    for &j in members {
+        let a = weights[j as usize];
+        if a > 0.0 {
+            pick = j;
+            running += a;
+            if target < running {
+                break;
+            }
+        }
+    }
+    pick as usize
+}
+
+/// [`pick`] with a shading guide `(u, Σ_C u > 0, α > 0)`: one uniform number chooses the
+/// defensive draw (below `defensive`), then the guide (the next `α` of the rest) or the
+/// row-based draw (global norms of sum `total`, or their even mixture with the `local` ones),
+/// then the member. The weight is the inverse of the mixture's total probability.
+fn pick_guided(
+    members: &[u32],
+    norms: &[f64],
+    total: f64,
+    local: Option<&[f64]>,
+    (u_norms, u_sum, alpha): (&[f64], f64, f64),
+    defensive: f64,
+    rng: &mut impl Rng,
+) -> (usize, f64) {
+    let local = local
+        .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
+        .filter(|&(_, t)| t > 0.0);
+    let size = members.len() as f64;
+    let u = rng.random::<f64>();
+    let j = if u < defensive {
+        members[((u / defensive * size) as usize).min(members.len() - 1)] as usize
+    } else {
+        let u = (u - defensive) / (1.0 - defensive);
+        if u < alpha {
+            draw(members, u_norms, u_sum, u / alpha)
+        } else {
+            let u = (u - alpha) / (1.0 - alpha);
+            match local {
+                Some((l, t)) if u >= 0.5 => draw(members, l, t, 2.0 * u - 1.0),
+                Some(_) => draw(members, norms, total, 2.0 * u),
+                None => draw(members, norms, total, u),
+            }
+        }
+    };
+    let rows = match local {
+        Some((l, t)) => 0.5 * norms[j] / total + 0.5 * l[j] / t,
+        None => norms[j] / total,
+    };
+    let p =
+        (1.0 - defensive) * ((1.0 - alpha) * rows + alpha * u_norms[j] / u_sum) + defensive / size;
+    (j, 1.0 / p)
 }

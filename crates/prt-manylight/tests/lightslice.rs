@@ -3,8 +3,9 @@
 use ndarray::Array2;
 use prt_core::{DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
-    GatherGeometry, LightSliceConfig, ManyLightError, ReducedMatrix, SliceOracle, SliceSplit,
-    SyntheticVplOracle, UnseenLights, brute_force, light_slice,
+    GatherGeometry, LightSliceConfig, LightSliceEstimate, ManyLightError, ReducedMatrix,
+    SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights, brute_force, light_slice,
+    light_slice_guided,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -45,12 +46,23 @@ fn exact_when_every_slice_keeps_every_light_alone() {
 
 /// Mean over seeds within 5 standard errors of the exact total, and per pixel.
 fn check_unbiased(oracle: &dyn SliceOracle, config: LightSliceConfig, runs: u64) {
+    check_unbiased_with(oracle, runs, |seed| {
+        light_slice(oracle, &config.with_seed(seed), &NoProgress).unwrap()
+    });
+}
+
+/// [`check_unbiased`] for the estimates `run(seed)` of `oracle`'s column sum.
+fn check_unbiased_with(
+    oracle: &dyn SliceOracle,
+    runs: u64,
+    run: impl Fn(u64) -> LightSliceEstimate,
+) {
     let exact = brute_force(oracle, &NoProgress).unwrap();
     let len = exact.len();
     let (mut sum, mut sum_sq) = (vec![0.0f64; len], vec![0.0f64; len]);
     let mut totals = Vec::new();
     for seed in 0..runs {
-        let estimate = light_slice(oracle, &config.with_seed(seed), &NoProgress).unwrap();
+        let estimate = run(seed);
         for (k, &v) in estimate.image.iter().enumerate() {
             sum[k] += v as f64;
             sum_sq[k] += (v as f64).powi(2);
@@ -553,6 +565,113 @@ fn defensive_draws_stay_unbiased_and_exact() {
             what: "defensive percent",
             requested: 100,
             available: 99
+        })
+    );
+}
+
+/// A synthetic VPL matrix (its sphere's shadow makes shading and elements differ).
+fn shaded_vpls(width: usize, lights: usize, seed: u64) -> SyntheticVplOracle {
+    SyntheticVplOracle::new(width, width, lights, seed)
+}
+
+#[test]
+fn shading_guide_stays_unbiased() {
+    let oracle = shaded_vpls(8, 400, 3);
+    // Few probes (the pdf misses pixels), and every pixel probed (8 slices of 8 pixels).
+    for (percent, probes) in [(50, 3), (90, usize::MAX)] {
+        let config = LightSliceConfig::new(8, 24).with_shading_guide(percent, probes);
+        check_unbiased_with(&oracle, 2000, |seed| {
+            light_slice_guided(&oracle, &config.with_seed(seed), &NoProgress).unwrap()
+        });
+    }
+}
+
+#[test]
+fn shading_guide_at_zero_percent_is_the_unguided_estimator() {
+    let oracle = shaded_vpls(12, 600, 4);
+    for split in [SliceSplit::Largest, SliceSplit::Spread] {
+        let config = LightSliceConfig::new(9, 40)
+            .with_split(split)
+            .with_unseen(UnseenLights::Skip)
+            .with_defensive_percent(10)
+            .with_seed(5);
+        let plain = light_slice(&oracle, &config, &NoProgress).unwrap();
+        let unguided = light_slice_guided(&oracle, &config, &NoProgress).unwrap();
+        let zero =
+            light_slice_guided(&oracle, &config.with_shading_guide(0, 8), &NoProgress).unwrap();
+        assert_eq!(plain, unguided);
+        assert_eq!(plain, zero);
+        assert_eq!(zero.shading_evaluations, 0);
+        let guided =
+            light_slice_guided(&oracle, &config.with_shading_guide(50, 8), &NoProgress).unwrap();
+        assert_ne!(guided.image, plain.image, "the guide changes the draws");
+    }
+}
+
+#[test]
+fn shading_guide_keeps_the_element_budget_and_counts_its_shading() {
+    let oracle = shaded_vpls(16, 800, 6);
+    for (unseen, probes) in [(UnseenLights::Skip, 5), (UnseenLights::Sample, usize::MAX)] {
+        let config = LightSliceConfig::new(10, 50)
+            .with_split(SliceSplit::Spread)
+            .with_unseen(unseen)
+            .with_seed(2);
+        let plain = light_slice(&oracle, &config, &NoProgress).unwrap();
+        oracle.reset_count();
+        let guided =
+            light_slice_guided(&oracle, &config.with_shading_guide(60, probes), &NoProgress)
+                .unwrap();
+        assert_eq!(guided.elements, plain.elements);
+        assert_eq!(guided.clusters_per_slice, plain.clusters_per_slice);
+        assert_eq!(
+            oracle.elements_evaluated(),
+            guided.elements,
+            "shading is not counted"
+        );
+        let reduced = ReducedMatrix::sample(&oracle, guided.rows.clone(), &NoProgress).unwrap();
+        let seen = reduced.norms().iter().filter(|&&a| a > 0.0).count();
+        assert!(seen > 0 && seen < 800);
+        let probed: usize = guided.slices.iter().map(|s| s.len().min(probes)).sum();
+        assert_eq!(guided.shading_evaluations, (probed * seen) as u64);
+    }
+}
+
+#[test]
+fn shading_guide_is_exact_when_every_light_is_alone() {
+    let oracle = shaded_vpls(6, 20, 7);
+    let exact = brute_force(&oracle, &NoProgress).unwrap();
+    let config = LightSliceConfig {
+        global_clusters: 5,
+        ..LightSliceConfig::new(4, 20).with_shading_guide(99, 2)
+    };
+    let estimate = light_slice_guided(&oracle, &config, &NoProgress).unwrap();
+    assert!(estimate.clusters_per_slice.iter().all(|&c| c == 20));
+    assert!(estimate.shading_evaluations > 0);
+    assert!(relative_error(&estimate.image, &exact) < 1e-6);
+}
+
+#[test]
+fn shading_guide_bad_input_is_a_typed_error() {
+    let oracle = shaded_vpls(6, 20, 7);
+    let config = LightSliceConfig::new(4, 10);
+    assert_eq!(
+        light_slice_guided(&oracle, &config.with_shading_guide(100, 4), &NoProgress),
+        Err(ManyLightError::TooMany {
+            what: "shading guide percent",
+            requested: 100,
+            available: 99
+        })
+    );
+    assert_eq!(
+        light_slice_guided(&oracle, &config.with_shading_guide(50, 0), &NoProgress),
+        Err(ManyLightError::ZeroSamples {
+            what: "shading probe"
+        })
+    );
+    assert_eq!(
+        light_slice(&oracle, &config.with_shading_guide(50, 4), &NoProgress),
+        Err(ManyLightError::NeedsShading {
+            what: "LightSlice's shading guide"
         })
     );
 }
