@@ -2,7 +2,7 @@
 //! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
 //! relative RMS error vs elements and vs time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT] [GUIDE_PERCENT] [PROBES]`
+//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT] [GUIDE_PERCENT] [PROBES] [UNSEEN_DRAWS]`
 //!
 //! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
 //! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
@@ -17,7 +17,8 @@
 //!   (the `-skip` variants with `UnseenLights::Skip`, the `-groups` ones with
 //!   `UnseenLights::Groups(columns / GROUP_DIVISOR)`, `-local` with
 //!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`, `-guided` with
-//!   `light_slice_guided` and `ShadingGuide::new(GUIDE_PERCENT, PROBES)`), `vis`, `kmeans`
+//!   `light_slice_guided` and `ShadingGuide::new(GUIDE_PERCENT, PROBES)`
+//!   `.with_unseen_draws(UNSEEN_DRAWS)`), `vis`, `kmeans`
 //!   (default `rowcol,slice,vis,kmeans`);
 //! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
 //!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
@@ -35,9 +36,9 @@
 //!   LightSlice's representatives spread over the slices by brightness;
 //! * `DEFENSIVE_PERCENT` (default 0, `LightSliceConfig::defensive_percent`): the percent of
 //!   LightSlice's representative draws made uniformly within the cluster;
-//! * `GUIDE_PERCENT` (default 50) and `PROBES` (default 8; `all` for every pixel of a slice):
-//!   the `-guided` methods' shading guide. Its shading evaluations (no shadow rays) are
-//!   reported beside the elements.
+//! * `GUIDE_PERCENT` (default 50), `PROBES` (default 8; `all` for every pixel of a slice) and
+//!   `UNSEEN_DRAWS` (default 0): the `-guided` methods' shading guide. Its shading evaluations
+//!   (no shadow rays) are reported beside the elements.
 //!
 //! Time is wall time per run, and process CPU time per run (all threads) in brackets.
 use std::path::{Path, PathBuf};
@@ -50,9 +51,9 @@ use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::NoProgress;
 use prt_core::metrics::relative_frobenius_error;
 use prt_manylight::{
-    LightSliceConfig, RowColumnConfig, SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights,
-    VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force, light_slice,
-    light_slice_guided, row_column_sampling, visibility_clustering,
+    LightSliceConfig, RowColumnConfig, ShadingGuide, SliceOracle, SliceSplit, SyntheticVplOracle,
+    UnseenLights, VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, brute_force,
+    light_slice, light_slice_guided, row_column_sampling, visibility_clustering,
 };
 
 fn main() {
@@ -117,7 +118,9 @@ fn main() {
         Some("all") => usize::MAX,
         _ => args.parsed(16, 8),
     };
+    let unseen_draws: usize = args.parsed(17, 0);
     let run = Run {
+        unseen_draws,
         guide_percent: guide_percent.min(99),
         probes: probes.max(1),
         defensive_percent: defensive_percent.min(99),
@@ -199,6 +202,7 @@ struct Run<'a> {
     defensive_percent: u32,
     guide_percent: u32,
     probes: usize,
+    unseen_draws: usize,
     seeds: std::ops::Range<u64>,
     image_path: Option<&'a Path>,
     methods: &'a [&'static str],
@@ -273,7 +277,9 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                             SliceSplit::Largest
                         });
                         let r = if method.contains("shading guide") {
-                            let c = c.with_shading_guide(run.guide_percent, run.probes);
+                            let guide = ShadingGuide::new(run.guide_percent, run.probes)
+                                .with_unseen_draws(run.unseen_draws);
+                            let c = c.with_guide(guide);
                             light_slice_guided(oracle, &c, &NoProgress).expect("valid")
                         } else {
                             light_slice(oracle, &c, &NoProgress).expect("valid")

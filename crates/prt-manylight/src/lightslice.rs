@@ -123,13 +123,34 @@ pub struct ShadingGuide {
     /// many pixels probes all of them; the weighted column of a representative is then bounded
     /// by `100 / percent` times its cluster's shading norm over the slice.
     pub probes: usize,
+    /// Draws per slice among the globally unseen lights (zero on every sampled row), with
+    /// [`UnseenLights::Skip`] only: proportional to their shading norms on the probes, each
+    /// weighted by `1 / (draws · p_j)`, out of the slice's cluster budget (the seen lights get
+    /// that many clusters fewer; none are taken from a slice whose probes no unseen light
+    /// reaches). Unbiased for the unseen lights that some probe of the slice sees (all those
+    /// that light the slice when every pixel is probed); the others are skipped, as `Skip`
+    /// skips every unseen light. 0 (the default): `Skip` as it is.
+    pub unseen_draws: usize,
 }
 
 impl ShadingGuide {
     /// `percent` of each seen cluster's draw by the shading on `probes` pixels per slice
-    /// (`usize::MAX`: every pixel).
+    /// (`usize::MAX`: every pixel), no unseen draws.
     pub fn new(percent: u32, probes: usize) -> Self {
-        Self { percent, probes }
+        Self {
+            percent,
+            probes,
+            unseen_draws: 0,
+        }
+    }
+
+    /// The same guide with `draws` draws per slice among the unseen lights
+    /// ([`ShadingGuide::unseen_draws`]).
+    pub fn with_unseen_draws(self, draws: usize) -> Self {
+        Self {
+            unseen_draws: draws,
+            ..self
+        }
     }
 }
 
@@ -172,8 +193,13 @@ impl LightSliceConfig {
     /// unshadowed shading on `probes` pixels per slice ([`ShadingGuide`];
     /// [`light_slice_guided`] only).
     pub fn with_shading_guide(self, percent: u32, probes: usize) -> Self {
+        self.with_guide(ShadingGuide::new(percent, probes))
+    }
+
+    /// The same configuration with the shading guide `guide`.
+    pub fn with_guide(self, guide: ShadingGuide) -> Self {
         Self {
-            shading_guide: Some(ShadingGuide::new(percent, probes)),
+            shading_guide: Some(guide),
             ..self
         }
     }
@@ -332,14 +358,18 @@ pub fn light_slice(
 /// changes is the tail: a light that the sampled rows barely see (tiny `q_j`) but that
 /// lights other pixels of the slice gets probability from its shading there, and since
 /// `M ≤ S` element-wise its weighted column on the probes is at most `Σ_C u / α`. Unseen
-/// lights are treated as [`LightSliceConfig::unseen`] says.
+/// lights are treated as [`LightSliceConfig::unseen`] says, or, with
+/// [`ShadingGuide::unseen_draws`] `= k` and [`UnseenLights::Skip`], by `k` draws per slice
+/// among them proportional to their shading norms on the same probes, out of the slice's
+/// cluster budget (unbiased for the unseen lights that a probe sees).
 ///
 /// The element count ([`LightSliceEstimate::elements`]) is identical to [`light_slice`]'s;
 /// the shading evaluations (`P` or the slice's pixels, times the seen lights, per slice) are
 /// counted apart in [`LightSliceEstimate::shading_evaluations`].
 ///
 /// Errors: those of [`light_slice`] (but not [`ManyLightError::NeedsShading`]), a guide
-/// percent above 99 ([`ManyLightError::TooMany`]), zero probes
+/// percent above 99, unseen draws without [`UnseenLights::Skip`] or not below
+/// `local_clusters` ([`ManyLightError::TooMany`]), zero probes
 /// ([`ManyLightError::ZeroSamples`]), a non-finite shading value
 /// ([`ManyLightError::NonFinite`]).
 pub fn light_slice_guided<O: SliceOracle + VisibilityOracle>(
@@ -399,7 +429,21 @@ fn slice_sample(
                 what: "shading probe",
             });
         }
-        (Some(g), Some(shading)) if g.percent > 0 => Some((g, shading)),
+        (Some(g), _) if g.unseen_draws > 0 && config.unseen != UnseenLights::Skip => {
+            return Err(ManyLightError::TooMany {
+                what: "unseen draws (only with UnseenLights::Skip)",
+                requested: g.unseen_draws,
+                available: 0,
+            });
+        }
+        (Some(g), _) if g.unseen_draws >= config.local_clusters => {
+            return Err(ManyLightError::TooMany {
+                what: "unseen draws",
+                requested: g.unseen_draws,
+                available: config.local_clusters - 1,
+            });
+        }
+        (Some(g), Some(shading)) if g.percent > 0 || g.unseen_draws > 0 => Some((g, shading)),
         _ => None,
     };
     config.unseen.check(config.local_clusters)?;
@@ -468,6 +512,7 @@ fn slice_sample(
         .cloned()
         .partition(|c| c.iter().any(|&j| global_norms[j as usize] > 0.0));
     let seen_lights: Vec<u32> = seen_global.iter().flatten().copied().collect();
+    let unseen_lights: Vec<u32> = unseen_global.iter().flatten().copied().collect();
 
     progress.message("lightslice: slices");
     progress.set_len(slices.len() as u64);
@@ -480,7 +525,36 @@ fn slice_sample(
                 slice_seed.wrapping_add((s as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
             );
             let local = reduced.select_rows(&neighbourhoods[s]);
-            let local_budget = budgets[s] + 1 - groups;
+            // The guide's shading norms on the probes: of the seen lights for their draws, of
+            // the unseen ones for the unseen draws (which only happen if one of them is lit).
+            let shaded = match guide {
+                Some((g, shading)) => {
+                    let probes = probe_pixels(pixels, reduced.rows()[s], &features, g.probes);
+                    let lights: Vec<u32> = [
+                        (g.percent > 0, &seen_lights),
+                        (g.unseen_draws > 0, &unseen_lights),
+                    ]
+                    .into_iter()
+                    .filter(|(wanted, _)| *wanted)
+                    .flat_map(|(_, lights)| lights.iter().copied())
+                    .collect();
+                    let norms = shading_norms(shading, &probes, &lights, m, channels)?;
+                    Some((g, norms, (probes.len() * lights.len()) as u64))
+                }
+                None => None,
+            };
+            let unseen_total: f64 = shaded.as_ref().map_or(0.0, |(g, u, _)| {
+                if g.unseen_draws > 0 {
+                    unseen_lights.iter().map(|&j| u[j as usize]).sum()
+                } else {
+                    0.0
+                }
+            });
+            let unseen_draws = match &shaded {
+                Some((g, _, _)) if unseen_total > 0.0 => g.unseen_draws,
+                _ => 0,
+            };
+            let local_budget = (budgets[s] + 1 - groups).saturating_sub(unseen_draws);
             // The local rows refine the seen lights' clusters first: the globally unseen lights
             // are zero on every sampled row, so splitting them (by index, at cost 0) would take
             // clusters from the seen lights. They are split only with what the seen lights
@@ -510,16 +584,11 @@ fn slice_sample(
             let mut column = vec![0.0f32; pixels.len() * channels];
             let mut rendered = 0;
             let local_norms = config.local_importance.then(|| local.norms());
-            let guided = match guide {
-                Some((g, shading)) => {
-                    let probes = probe_pixels(pixels, reduced.rows()[s], &features, g.probes);
-                    let norms = shading_norms(shading, &probes, &seen_lights, m, channels)?;
-                    Some((norms, g.percent as f64 / 100.0, probes.len()))
-                }
-                None => None,
-            };
+            let guide_norms = shaded
+                .as_ref()
+                .map(|(g, u, _)| (u.as_slice(), g.percent as f64 / 100.0));
+            let mut draws: Vec<(usize, f64)> = Vec::with_capacity(clusters.len() + unseen_draws);
             for members in &clusters {
-                let guide_norms = guided.as_ref().map(|(u, alpha, _)| (u.as_slice(), *alpha));
                 let (j, weight) = pick(
                     members,
                     global_norms,
@@ -531,6 +600,15 @@ fn slice_sample(
                 if config.unseen == UnseenLights::Skip && global_norms[j] == 0.0 {
                     continue;
                 }
+                draws.push((j, weight));
+            }
+            if let Some((_, u, _)) = &shaded {
+                for _ in 0..unseen_draws {
+                    let j = draw(&unseen_lights, u, unseen_total, rng.random::<f64>());
+                    draws.push((j, unseen_total / (unseen_draws as f64 * u[j])));
+                }
+            }
+            for (j, weight) in draws {
                 rendered += 1;
                 oracle.eval_col_rows(j, pixels, &mut column)?;
                 if let Some(k) = column.iter().position(|v| !v.is_finite()) {
@@ -545,11 +623,10 @@ fn slice_sample(
                 }
             }
             progress.inc(1);
-            let probed = guided.map_or(0, |(_, _, probes)| probes);
             Ok((
                 acc.into_iter().map(|a| a as f32).collect(),
                 rendered,
-                (probed * seen_lights.len()) as u64,
+                shaded.map_or(0, |(_, _, evaluations)| evaluations),
             ))
         })
         .collect::<Result<_, ManyLightError>>()?;

@@ -4,8 +4,8 @@ use ndarray::Array2;
 use prt_core::{DenseOracle, MatrixOracle, NoProgress};
 use prt_manylight::{
     GatherGeometry, LightSliceConfig, LightSliceEstimate, ManyLightError, ReducedMatrix,
-    SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights, brute_force, light_slice,
-    light_slice_guided,
+    ShadingGuide, SliceOracle, SliceSplit, SyntheticVplOracle, UnseenLights, VisibilityOracle,
+    brute_force, light_slice, light_slice_guided,
 };
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -580,7 +580,7 @@ fn shading_guide_stays_unbiased() {
     // Few probes (the pdf misses pixels), and every pixel probed (8 slices of 8 pixels).
     for (percent, probes) in [(50, 3), (90, usize::MAX)] {
         let config = LightSliceConfig::new(8, 24).with_shading_guide(percent, probes);
-        check_unbiased_with(&oracle, 2000, |seed| {
+        check_unbiased_with(&oracle, 1200, |seed| {
             light_slice_guided(&oracle, &config.with_seed(seed), &NoProgress).unwrap()
         });
     }
@@ -673,5 +673,136 @@ fn shading_guide_bad_input_is_a_typed_error() {
         Err(ManyLightError::NeedsShading {
             what: "LightSlice's shading guide"
         })
+    );
+    let draws = config.with_guide(ShadingGuide::new(50, 4).with_unseen_draws(2));
+    assert_eq!(
+        light_slice_guided(&oracle, &draws, &NoProgress),
+        Err(ManyLightError::TooMany {
+            what: "unseen draws (only with UnseenLights::Skip)",
+            requested: 2,
+            available: 0
+        })
+    );
+    let skip = config.with_unseen(UnseenLights::Skip);
+    assert_eq!(
+        light_slice_guided(
+            &oracle,
+            &skip.with_guide(ShadingGuide::new(50, 4).with_unseen_draws(10)),
+            &NoProgress
+        ),
+        Err(ManyLightError::TooMany {
+            what: "unseen draws",
+            requested: 10,
+            available: 9
+        })
+    );
+}
+
+/// A matrix with its unshadowed shading: `M = S · V`, `S` dense and positive, `V` one for the
+/// even lights and, for the odd ones, on a single random row (a light that reaches one pixel,
+/// which the sampled rows mostly miss).
+struct Spikes {
+    shading: Array2<f32>,
+    visible: Array2<f32>,
+}
+
+impl Spikes {
+    fn new(rows: usize, cols: usize, seed: u64) -> Self {
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let shading = Array2::from_shape_fn((rows, cols * 3), |_| rng.random::<f32>() + 0.1);
+        let mut visible = Array2::from_elem((rows, cols), 1.0f32);
+        for j in (1..cols).step_by(2) {
+            let hit = rng.random_range(0..rows);
+            for i in 0..rows {
+                visible[[i, j]] = if i == hit { 1.0 } else { 0.0 };
+            }
+        }
+        Self { shading, visible }
+    }
+}
+
+impl MatrixOracle for Spikes {
+    fn rows(&self) -> usize {
+        self.visible.nrows()
+    }
+    fn cols(&self) -> usize {
+        self.visible.ncols()
+    }
+    fn channels(&self) -> usize {
+        3
+    }
+    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        for (j, o) in out.chunks_exact_mut(3).enumerate() {
+            self.shading(i, j, o)?;
+            o.iter_mut().for_each(|v| *v *= self.visible[[i, j]]);
+        }
+        Ok(())
+    }
+    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        for (i, o) in out.chunks_exact_mut(3).enumerate() {
+            self.shading(i, j, o)?;
+            o.iter_mut().for_each(|v| *v *= self.visible[[i, j]]);
+        }
+        Ok(())
+    }
+    fn elements_evaluated(&self) -> u64 {
+        0
+    }
+}
+
+impl SliceOracle for Spikes {}
+
+impl VisibilityOracle for Spikes {
+    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = self.shading[[i, j * 3 + c]];
+        }
+        Ok(())
+    }
+    fn visibility(&self, i: usize, j: usize) -> Result<f32, prt_core::CoreError> {
+        Ok(self.visible[[i, j]])
+    }
+}
+
+#[test]
+fn unseen_draws_with_every_pixel_probed_are_unbiased_within_the_budget() {
+    let oracle = Spikes::new(40, 30, 8);
+    let skip = LightSliceConfig::new(5, 12).with_unseen(UnseenLights::Skip);
+    // The guide for the unseen lights alone (0% for the seen ones), every pixel probed: a light
+    // that no probe sees lights no pixel of the slice, so nothing is skipped.
+    let config = skip.with_guide(ShadingGuide::new(0, usize::MAX).with_unseen_draws(3));
+    check_unbiased_with(&oracle, 1000, |seed| {
+        light_slice_guided(&oracle, &config.with_seed(seed), &NoProgress).unwrap()
+    });
+    let plain = light_slice(&oracle, &skip.with_seed(1), &NoProgress).unwrap();
+    let drawn = light_slice_guided(&oracle, &config.with_seed(1), &NoProgress).unwrap();
+    assert_eq!(drawn.elements, plain.elements);
+    let reduced = ReducedMatrix::sample(&oracle, drawn.rows.clone(), &NoProgress).unwrap();
+    let unseen = reduced.norms().iter().filter(|&&a| a == 0.0).count();
+    assert!(unseen > 5, "most spikes fall between the 5 sampled rows");
+    assert_eq!(drawn.shading_evaluations, (40 * unseen) as u64);
+    // Skip alone misses the unseen spikes: its mean is far off, the draws' is not.
+    let exact: f64 = brute_force(&oracle, &NoProgress)
+        .unwrap()
+        .iter()
+        .map(|&v| v as f64)
+        .sum();
+    let mean = |guided: bool| {
+        (0..200u64)
+            .map(|seed| {
+                let e = if guided {
+                    light_slice_guided(&oracle, &config.with_seed(seed), &NoProgress)
+                } else {
+                    light_slice(&oracle, &skip.with_seed(seed), &NoProgress)
+                };
+                e.unwrap().image.iter().map(|&v| v as f64).sum::<f64>()
+            })
+            .sum::<f64>()
+            / 200.0
+    };
+    let (skipped, drawn) = (mean(false), mean(true));
+    assert!(
+        (drawn - exact).abs() < 0.25 * (skipped - exact).abs(),
+        "exact {exact}, Skip {skipped}, unseen draws {drawn}"
     );
 }
