@@ -367,6 +367,21 @@ pub fn light_slice(
 /// the shading evaluations (`P` or the slice's pixels, times the seen lights, per slice) are
 /// counted apart in [`LightSliceEstimate::shading_evaluations`].
 ///
+/// ```
+/// use prt_core::NoProgress;
+/// use prt_manylight::{LightSliceConfig, SliceSplit, SyntheticVplOracle, UnseenLights};
+/// use prt_manylight::{light_slice, light_slice_guided};
+///
+/// let oracle = SyntheticVplOracle::new(32, 32, 2000, 1);
+/// let config = LightSliceConfig::new(16, 100)
+///     .with_split(SliceSplit::Spread)
+///     .with_unseen(UnseenLights::Skip);
+/// let plain = light_slice(&oracle, &config, &NoProgress).unwrap();
+/// let guided = light_slice_guided(&oracle, &config.with_shading_guide(30, 8), &NoProgress).unwrap();
+/// assert_eq!(guided.elements, plain.elements); // the same shadow rays
+/// assert!(guided.shading_evaluations > 0 && plain.shading_evaluations == 0);
+/// ```
+///
 /// Errors: those of [`light_slice`] (but not [`ManyLightError::NeedsShading`]), a guide
 /// percent above 99, unseen draws without [`UnseenLights::Skip`] or not below
 /// `local_clusters` ([`ManyLightError::TooMany`]), zero probes
