@@ -2,7 +2,7 @@
 //! (paper Figure 5), vs basis-grid resolution (Figure 7), solve times (Figure 8), and the
 //! solvers' convergence (error vs iterations and time).
 //!
-//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|quality|ridge|floor|walls|adaptive|all>`
+//! `cargo run --release -p prt-benches --bin mbd_sweep -- <basis|grid|timing|convergence|quality|ridge|floor|walls|adaptive|polish|all>`
 //!
 //! Environment knobs (so that each run stays a few minutes on a shared machine):
 //! * `MBD_FIELD=synthetic|cornell|sponza`: the synthetic manifold field (default), the built-in
@@ -1333,6 +1333,107 @@ fn ridge() {
     println!("load average after: {}\n", load_average());
 }
 
+/// Optimisation or representation? MBD with the default solver (≤ `MBD_ITERS` = 128
+/// iterations) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes, then `polish` (exact alternating
+/// solves of the continuous loss) for `MBD_SWEEPS` (16) sweeps, with its tolerance `MBD_PTOL`
+/// (default 0: all sweeps) and ridge `MBD_PLAMBDA` (default the solver's λ = 1e-4; with a
+/// smaller one the polish finds the floor of the data term faster, since the ridge is what
+/// dominates the loss there) and extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every half-step with the CPU
+/// time, `evaluate`'s estimate before and after, and BPCA / CPCA as `MBD_METHODS` enables.
+fn polish_sweep() {
+    let input = sweep_field();
+    let f = &input.field;
+    let (l, b) = (env_usize("MBD_L", 8), env_usize("MBD_B", 5));
+    let iterations = env_usize("MBD_ITERS", 128);
+    let nodes = basis_nodes(f, b);
+    let options = MbdOptions {
+        rank: l,
+        max_iterations: iterations,
+        ..MbdOptions::default()
+    };
+    let lambda = options.lambda;
+    let mbd = Mbd {
+        basis_nodes: nodes,
+        options,
+    };
+    let ((model, report), solve_cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+    let eval = |m: &dyn FieldModel| {
+        evaluate(m, f, &EvalOptions::default())
+            .expect("evaluate")
+            .relative_mse
+    };
+    let solved = eval(&model);
+    let polish_options = PolishOptions {
+        sweeps: env_usize("MBD_SWEEPS", 16),
+        lambda: std::env::var("MBD_PLAMBDA")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(lambda),
+        tolerance: std::env::var("MBD_PTOL")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0.0),
+        extrapolation: env_usize("MBD_EXTRAP", 1) != 0,
+        ..PolishOptions::default()
+    };
+    let ((polished, polish_report), polish_cost) =
+        Cost::measure(|| polish(f, model, &polish_options, &NoProgress).expect("polish"));
+    let mut table = Table::new(&[
+        "step",
+        "exact relative MSE",
+        "exact loss (data + ridge)",
+        "CG iterations",
+        "seconds since the polish started (wall)",
+    ]);
+    let initial = polish_report.initial;
+    table.row(vec![
+        format!("stochastic solver, {} iterations", report.history.len()),
+        format!("{:.4e}", initial.relative_mse()),
+        format!("{:.6e}", initial.loss()),
+        "–".into(),
+        "0".into(),
+    ]);
+    let mut sweep = 0;
+    for r in &polish_report.history {
+        sweep += usize::from(r.step == PolishStep::Basis);
+        table.row(vec![
+            format!(
+                "sweep {sweep} {:?}{}",
+                r.step,
+                if r.accepted { "" } else { " (rejected)" }
+            ),
+            format!("{:.4e}", r.loss.relative_mse()),
+            format!("{:.6e}", r.loss.loss()),
+            r.cg_iterations.to_string(),
+            format!("{:.1}", r.elapsed),
+        ]);
+    }
+    let polished_eval = eval(&polished);
+    println!(
+        "### Exact polish ({}, L = {l}, {b}³ basis nodes)\n\n{}",
+        input.name,
+        table.markdown()
+    );
+    println!(
+        "stochastic solve: {} iterations, {:.1} s CPU ({:.1} s wall), evaluate {solved:.4e}, exact {:.4e}",
+        report.history.len(),
+        solve_cost.cpu,
+        solve_cost.wall,
+        initial.relative_mse()
+    );
+    println!(
+        "polish: {} half-steps, {:.1} s CPU ({:.1} s wall), evaluate {polished_eval:.4e}, exact {:.4e}",
+        polish_report.history.len(),
+        polish_cost.cpu,
+        polish_cost.wall,
+        polish_report.last().relative_mse()
+    );
+    block_and_clustered_pca(f, l, nodes, &mut |name, cost, m| {
+        println!("{name}: {:.1} s CPU, evaluate {:.4e}", cost.cpu, eval(m));
+    });
+    println!("load average after: {}\n", load_average());
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mode = args.first().cloned().unwrap_or_else(|| "all".into());
@@ -1355,6 +1456,7 @@ fn main() {
         "floor" => floor(),
         "walls" => walls(),
         "adaptive" => adaptive(),
+        "polish" => polish_sweep(),
         _ => {
             basis_count();
             grid_resolution();

@@ -94,3 +94,8 @@ mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};
 mod adapted;
 pub use adapted::{AdaptedBasisOptions, Placement, scene_adapted_basis};
+mod polish;
+pub use polish::{
+    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, PolishOptions, PolishRecord, PolishReport, PolishStep,
+    exact_loss, polish,
+};
