@@ -1336,9 +1336,9 @@ fn ridge() {
 /// Optimisation or representation? MBD with the default solver (≤ `MBD_ITERS` = 128
 /// iterations) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes, then `polish` (exact alternating
 /// solves of the continuous loss) for `MBD_SWEEPS` (16) sweeps, with its tolerance `MBD_PTOL`
-/// (default 0: all sweeps) and ridge `MBD_PLAMBDA` (default the solver's λ = 1e-4; with a
-/// smaller one the polish finds the floor of the data term faster, since the ridge is what
-/// dominates the loss there) and extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every half-step with the CPU
+/// (default 0: all sweeps) and ridge `MBD_PLAMBDA` (default `PolishOptions`' 1e-8; the
+/// solver's 1e-4 dominates the loss near the optimum, so the polish then trades coefficient
+/// scale for basis scale instead of lowering the error) and extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every half-step with the CPU
 /// time, `evaluate`'s estimate before and after, and BPCA / CPCA as `MBD_METHODS` enables.
 fn polish_sweep() {
     let input = sweep_field();
@@ -1351,7 +1351,6 @@ fn polish_sweep() {
         max_iterations: iterations,
         ..MbdOptions::default()
     };
-    let lambda = options.lambda;
     let mbd = Mbd {
         basis_nodes: nodes,
         options,
@@ -1368,7 +1367,7 @@ fn polish_sweep() {
         lambda: std::env::var("MBD_PLAMBDA")
             .ok()
             .and_then(|v| v.parse().ok())
-            .unwrap_or(lambda),
+            .unwrap_or(PolishOptions::default().lambda),
         tolerance: std::env::var("MBD_PTOL")
             .ok()
             .and_then(|v| v.parse().ok())
@@ -1428,8 +1427,18 @@ fn polish_sweep() {
         polish_cost.wall,
         polish_report.last().relative_mse()
     );
+    let energy = trilinear_energy(f);
     block_and_clustered_pca(f, l, nodes, &mut |name, cost, m| {
-        println!("{name}: {:.1} s CPU, evaluate {:.4e}", cost.cpu, eval(m));
+        // The baselines are trilinear interpolations of their voxel reconstructions, so the
+        // trilinear energy of the difference is their exact error.
+        let diff = GridField::from_data(f.dims(), f.bounds(), m.reconstruction().data() - f.data())
+            .expect("difference grid");
+        println!(
+            "{name}: {:.1} s CPU, evaluate {:.4e}, exact {:.4e}",
+            cost.cpu,
+            eval(m),
+            trilinear_energy(&diff) / energy
+        );
     });
     println!("load average after: {}\n", load_average());
 }

@@ -103,6 +103,35 @@ fn exact_loss_is_the_continuous_integral() {
     assert!(close(exact.ridge, 0.5e-4 * c2, 1e-6));
 }
 
+/// The trilinear energy is the polish's `∫‖f‖²`, and a constant field's is its volume in voxels
+/// times `|f|²` (also with a single voxel along an axis, where the field is constant along it).
+#[test]
+fn trilinear_energy_is_exact() {
+    let field = SyntheticField {
+        dims: [6, 5, 7],
+        dim: 5,
+        harmonics: 3,
+        seed: 4,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let model = random_model(&field, [3, 4, 3], 2, 7);
+    let from_polish = exact_loss(&field, &model, 1e-4).unwrap().energy;
+    assert!((trilinear_energy(&field) - from_polish).abs() <= 1e-12 * from_polish);
+    for dims in [[4, 3, 5], [4, 1, 5], [1, 1, 1]] {
+        let constant = GridField::from_fn(dims, Aabb::UNIT, 3, |_, out| {
+            out.copy_from_slice(&[1.0, -2.0, 0.5])
+        })
+        .unwrap();
+        let expected = constant.num_voxels() as f64 * 5.25;
+        let got = trilinear_energy(&constant);
+        assert!(
+            (got - expected).abs() <= 1e-12 * expected,
+            "{dims:?}: {got} vs {expected}"
+        );
+    }
+}
+
 /// A field that is exactly a rank-`rank` MBD with one global basis: random voxel coefficients
 /// times fixed random vectors; its trilinear interpolation is representable exactly.
 fn global_rank_field(dims: [usize; 3], dim: usize, rank: usize, seed: u64) -> GridField {
