@@ -3,7 +3,7 @@
 //! (estimate − exact sum of every light some sampled row sees, evaluated in full here) and the
 //! unseen lights' bias (their exact sum, what `Skip` leaves out), image-wide and per slice.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_slices -- SCENE WIDTH VPLS CLAMP ROWS/COLS [SEEDS] [FIRST_SEED] [GLOBAL_PERCENT] [TOP] [IMAGE] [ADAPTIVE_PERCENT] [SPLIT]`
+//! `cargo run --release -p prt-benches --bin manylight_slices -- SCENE WIDTH VPLS CLAMP ROWS/COLS [SEEDS] [FIRST_SEED] [GLOBAL_PERCENT] [TOP] [IMAGE] [ADAPTIVE_PERCENT] [SPLIT] [GUIDE_PERCENT] [PROBES]`
 //!
 //! Per seed: the realised error, its seen and unseen parts (in % of ‖reference‖), the share of
 //! the squared error in the worst 1%, 5% and 25% of the slices, and the `TOP` (default 8) worst
@@ -11,13 +11,16 @@
 //! unseen parts. `IMAGE` (a PNG path) gets, for the first seed: reference | estimate | 10× the
 //! seen part's error | 10× the unseen lights' sum | the `TOP` worst slices (white, sampled rows
 //! black) over the reference (`-` for none). `ADAPTIVE_PERCENT`: as in `manylight_methods`; `SPLIT`: `largest` (default) or `spread`
-//! (`SliceSplit`).
+//! (`SliceSplit`); `GUIDE_PERCENT` (default 0: none) and `PROBES` (default 8, `all`): LightSlice
+//! with the shading guide (`light_slice_guided`, `ShadingGuide`).
 //! Costs the seen lights' full columns (a few thousand) per seed.
 
 use prt_benches::manylight::{Args, Reference, SceneOracle, SweepScene, write_strip};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
-use prt_manylight::{LightSliceConfig, ReducedMatrix, SliceSplit, UnseenLights, light_slice};
+use prt_manylight::{
+    LightSliceConfig, ReducedMatrix, SliceSplit, UnseenLights, light_slice, light_slice_guided,
+};
 use rayon::prelude::*;
 
 fn main() {
@@ -40,6 +43,11 @@ fn main() {
         Some("spread") => SliceSplit::Spread,
         _ => SliceSplit::Largest,
     };
+    let guide_percent: u32 = args.parsed(12, 0);
+    let probes = match args.text(13) {
+        Some("all") => usize::MAX,
+        _ => args.parsed(13, 8usize).max(1),
+    };
     let Some(setup) = SweepScene::load(scene_name, width, target) else {
         return;
     };
@@ -59,7 +67,8 @@ fn main() {
     let reference_norm = norm2(&reference).sqrt();
     println!(
         "{scene_name} {width}², {m} sampled lights (+{exact} exact), clamp {clamp}, {rows}/{cols}, \
-         global {global_percent}%, adaptive {adaptive}%, {split:?} split\n"
+         global {global_percent}%, adaptive {adaptive}%, {split:?} split, shading guide \
+         {guide_percent}% on {probes} probes\n"
     );
     for seed in first_seed..first_seed + seeds {
         let config = LightSliceConfig {
@@ -70,7 +79,12 @@ fn main() {
         .with_unseen(UnseenLights::Skip)
         .with_adaptive_percent(adaptive.min(100))
         .with_split(split);
-        let estimate = light_slice(&oracle, &config, &NoProgress).expect("valid");
+        let estimate = if guide_percent > 0 {
+            let guided = config.with_shading_guide(guide_percent.min(99), probes);
+            light_slice_guided(&oracle, &guided, &NoProgress).expect("valid")
+        } else {
+            light_slice(&oracle, &config, &NoProgress).expect("valid")
+        };
         let mut image = estimate.image.clone();
         for (v, &s) in image.iter_mut().zip(&sun) {
             *v += s;
