@@ -69,7 +69,7 @@ pub struct PolishOptions {
     /// the exact solves do not, and near the optimum the solver's ridge dominates the loss
     /// (synthetic 32³ × 324, L = 8: ridge 6.77 against a data term of 8e-3), so with λ = 1e-4
     /// the polish spends its steps trading coefficient scale against the basis and the relative
-    /// MSE wanders (3.7–5.0e-8 over 16 sweeps) instead of falling (3.5e-8 with 1e-8;
+    /// MSE wanders (3.7–8.7e-8 over sweeps 4–16) instead of falling (3.5e-8 with 1e-8;
     /// `docs/results.md`, MBD session 6).
     pub lambda: f32,
     /// Stop when a sweep lowers the exact loss by less than this relative to the data term
