@@ -31,7 +31,7 @@
 use std::ops::Range;
 use std::time::Instant;
 
-use ndarray::{Array2, Array3, linalg::general_mat_mul};
+use ndarray::{Array2, Array3, ArrayView2, linalg::general_mat_mul};
 use prt_core::{GridField, Progress, SpatialKernels};
 use prt_kernels::HatGrid;
 use rayon::prelude::*;
@@ -56,6 +56,8 @@ const NODE_CHUNK: usize = 256;
 /// Growth of the extrapolation factor after a successful extrapolation, and its cap.
 const EXTRAPOLATION_GROWTH: f64 = 1.5;
 const MAX_EXTRAPOLATION: f64 = 16.0;
+/// Points per GEMM of the basis step's Gram.
+const GRAM_BATCH: usize = 2048;
 /// Index of the centre block among a voxel's 27 neighbour blocks.
 const SELF_BLOCK: usize = 13;
 
@@ -76,7 +78,8 @@ pub struct PolishOptions {
     /// (default 1e-3; 0 runs all `sweeps`).
     pub tolerance: f64,
     /// Relative residual at which the coefficient step's conjugate gradients stop (default
-    /// 1e-10).
+    /// 1e-8: on the synthetic 32³ field, 1e-7 … 1e-10 end at the same error to 5 digits after
+    /// 4 sweeps, 1e-5 0.13 % higher; 1e-10 costs 14 % more than 1e-8).
     pub cg_tolerance: f64,
     /// Iteration cap of the conjugate gradients (default 400).
     pub max_cg_iterations: usize,
@@ -94,7 +97,7 @@ impl Default for PolishOptions {
             sweeps: 16,
             lambda: 1e-8,
             tolerance: 1e-3,
-            cg_tolerance: 1e-10,
+            cg_tolerance: 1e-8,
             max_cg_iterations: 400,
             extrapolation: true,
         }
@@ -728,8 +731,17 @@ impl Quadrature {
                         c[g * l..(g + 1) * l].iter().copied()
                     })
                     .collect();
-                let gram_flat = gram.as_slice_mut().unwrap_or(&mut []);
                 let weights_flat = weights.as_slice_mut().unwrap_or(&mut []);
+                // Rows √w z of a batch of points: the Gram is their product, in one GEMM per
+                // batch (fixed batches, so the sums do not depend on the thread count).
+                let mut rows = Vec::with_capacity(GRAM_BATCH * width);
+                let flush = |rows: &mut Vec<f64>, gram: &mut Array2<f64>| {
+                    let count = rows.len() / width;
+                    if let Ok(z) = ArrayView2::from_shape((count, width), rows.as_slice()) {
+                        general_mat_mul(1.0, &z.t(), &z, 1.0, gram);
+                    }
+                    rows.clear();
+                };
                 self.for_points(&ranges, &span, |p| {
                     cx.fill(0.0);
                     for k in 0..8 {
@@ -743,14 +755,10 @@ impl Quadrature {
                             *o = p.psi[n] * x;
                         }
                     }
-                    for i in 0..width {
-                        let wz = p.w * z[i];
-                        if wz == 0.0 {
-                            continue;
-                        }
-                        for (g, &zj) in gram_flat[i * width..i * width + i + 1].iter_mut().zip(&z) {
-                            *g += wz * zj;
-                        }
+                    let root = p.w.sqrt();
+                    rows.extend(z.iter().map(|&x| root * x));
+                    if rows.len() == GRAM_BATCH * width {
+                        flush(&mut rows, &mut gram);
                     }
                     for k in 0..8 {
                         let wk = p.w * p.phi[k];
@@ -763,11 +771,7 @@ impl Quadrature {
                         }
                     }
                 });
-                for i in 0..width {
-                    for j in 0..i {
-                        gram[[j, i]] = gram[[i, j]];
-                    }
-                }
+                flush(&mut rows, &mut gram);
                 let f = span.gather(field, self.voxels);
                 let mut rhs = Array2::<f64>::zeros((width, d));
                 general_mat_mul(1.0, &weights.t(), &f, 0.0, &mut rhs);
@@ -1095,8 +1099,12 @@ impl CoefficientSystem {
                         let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
                         let block = &self.blocks[(v * 27 + nbr) * ll..(v * 27 + nbr + 1) * ll];
                         let xu = &x[u * l..(u + 1) * l];
-                        for (o, row) in yv.iter_mut().zip(block.chunks(l)) {
-                            *o += row.iter().zip(xu).map(|(&a, &b)| a * b).sum::<f64>();
+                        // Every block is symmetric (a weighted sum of b(x) b(x)ᵀ, plus the
+                        // ridge), so y += A x runs along rows: L axpys that vectorise.
+                        for (row, &xj) in block.chunks(l).zip(xu) {
+                            for (o, &a) in yv.iter_mut().zip(row) {
+                                *o += a * xj;
+                            }
                         }
                     }
                 }

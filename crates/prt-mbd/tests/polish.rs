@@ -177,10 +177,10 @@ proptest! {
     /// No half-step raises the exact loss, the report's last loss is the returned model's, and
     /// the polish lowers the loss of a short stochastic solve.
     #[test]
-    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY) {
+    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY, extrapolation in proptest::bool::ANY) {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
         let model = if random { random_model(&field, [3, 2, 2], rank, seed) } else { quick_fit(&field, [3, 2, 2], rank, 8, seed) };
-        let options = PolishOptions { sweeps: 4, tolerance: 0.0, ..PolishOptions::default() };
+        let options = PolishOptions { sweeps: 4, tolerance: 0.0, extrapolation, ..PolishOptions::default() };
         let start = exact_loss(&field, &model, options.lambda).unwrap();
         let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
         prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
@@ -416,4 +416,44 @@ fn polish_refuses_what_it_cannot_do() {
     progress.cancel();
     let cancelled = polish(&field, model, &PolishOptions::default(), &progress).unwrap_err();
     assert!(cancelled.is_cancelled(), "{cancelled:?}");
+}
+
+/// The tolerance stops the polish once a sweep gains less than that fraction of the data term;
+/// tolerance 0 runs every sweep.
+#[test]
+fn polish_stops_on_its_tolerance() {
+    let field = SyntheticField {
+        dims: [6, 5, 4],
+        dim: 7,
+        harmonics: 3,
+        seed: 2,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let model = quick_fit(&field, [3, 2, 2], 2, 8, 2);
+    let run = |tolerance: f64| {
+        let options = PolishOptions {
+            sweeps: 3,
+            tolerance,
+            ..PolishOptions::default()
+        };
+        polish(&field, model.clone(), &options, &NoProgress)
+            .unwrap()
+            .1
+    };
+    let stopped = run(10.0);
+    assert!(stopped.converged);
+    assert_eq!(
+        stopped.history.iter().map(|r| r.step).collect::<Vec<_>>(),
+        [PolishStep::Basis, PolishStep::Coefficients]
+    );
+    let full = run(0.0);
+    assert!(!full.converged);
+    assert_eq!(
+        full.history
+            .iter()
+            .filter(|r| r.step == PolishStep::Coefficients)
+            .count(),
+        3
+    );
 }
