@@ -107,7 +107,8 @@ impl Default for PolishOptions {
 /// The exact continuous loss of a model (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ExactLoss {
-    /// `∫ ‖f − f̂‖² dx` in units of one voxel's volume.
+    /// `∫ ‖f − f̂‖² dx` in units of one voxel's volume. It is computed as `∫‖f̂‖² − 2∫f̂·f +
+    /// ∫‖f‖²` in f64, so it is exact up to rounding of order 1e-13 of `energy` (clamped at 0).
     pub data: f64,
     /// `λ/2 ‖c‖²`.
     pub ridge: f64,
@@ -197,7 +198,7 @@ pub fn exact_loss(
     let energy = quadrature.energy(field);
     let system = quadrature.basis_system(field, &c, l, &prt_core::NoProgress)?;
     Ok(ExactLoss {
-        data: system.quadratic(&b) + energy,
+        data: (system.quadratic(&b) + energy).max(0.0),
         ridge: ridge(&c, lambda),
         energy,
     })
@@ -233,7 +234,7 @@ pub fn polish(
     let exact = |quadratic: f64, c: &[f64]| {
         let ridge = ridge(c, lambda);
         ExactLoss {
-            data: quadratic + energy - ridge,
+            data: (quadratic + energy - ridge).max(0.0),
             ridge,
             energy,
         }
@@ -241,7 +242,7 @@ pub fn polish(
     progress.set_len(options.sweeps as u64);
     let mut basis_system = quadrature.basis_system(field, &c, l, progress)?;
     let initial = ExactLoss {
-        data: basis_system.quadratic(&b) + energy,
+        data: (basis_system.quadratic(&b) + energy).max(0.0),
         ridge: ridge(&c, lambda),
         energy,
     };
