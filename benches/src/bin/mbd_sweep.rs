@@ -1334,12 +1334,14 @@ fn ridge() {
 }
 
 /// Optimisation or representation? MBD with the default solver (≤ `MBD_ITERS` = 128
-/// iterations) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes, then `polish` (exact alternating
-/// solves of the continuous loss) for `MBD_SWEEPS` (16) sweeps, with its tolerance `MBD_PTOL`
-/// (default 0: all sweeps) and ridge `MBD_PLAMBDA` (default `PolishOptions`' 1e-8; the
-/// solver's 1e-4 dominates the loss near the optimum, so the polish then trades coefficient
-/// scale for basis scale instead of lowering the error) and extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every half-step with the CPU
-/// time, `evaluate`'s estimate before and after, and BPCA / CPCA as `MBD_METHODS` enables.
+/// iterations, ridge `MBD_LAMBDA`, default 1e-4) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes,
+/// then `polish` (exact alternating solves of the continuous loss) for `MBD_SWEEPS` (16)
+/// sweeps, with its tolerance `MBD_PTOL` (default 0: all sweeps), ridge `MBD_PLAMBDA` (default
+/// `PolishOptions`' 1e-8; the solver's 1e-4 dominates the loss near the optimum, so the polish
+/// then trades coefficient scale for basis scale instead of lowering the error) and
+/// extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every
+/// half-step with the wall time, `evaluate`'s estimate and the seam metric before and after,
+/// and BPCA / WBPCA / CPCA as `MBD_METHODS` enables (exact errors through `trilinear_energy`).
 fn polish_sweep() {
     let input = sweep_field();
     let f = &input.field;
@@ -1349,6 +1351,10 @@ fn polish_sweep() {
     let options = MbdOptions {
         rank: l,
         max_iterations: iterations,
+        lambda: std::env::var("MBD_LAMBDA")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(MbdOptions::default().lambda),
         ..MbdOptions::default()
     };
     let mbd = Mbd {
@@ -1356,12 +1362,15 @@ fn polish_sweep() {
         options,
     };
     let ((model, report), solve_cost) = Cost::measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
-    let eval = |m: &dyn FieldModel| {
-        evaluate(m, f, &EvalOptions::default())
-            .expect("evaluate")
-            .relative_mse
+    let labels = kernel_labels(model.basis_kernels(), f).expect("labels");
+    let solved = score(&model, &input, &labels);
+    // `evaluate`'s estimate and the seam metric (on the denoised reference for traced fields).
+    let scores = |s: &Scores| {
+        format!(
+            "evaluate {:.4e}, seam excess {:.2e} (ratio {:.2})",
+            s.relative_mse, s.seam_excess, s.seam_ratio
+        )
     };
-    let solved = eval(&model);
     let polish_options = PolishOptions {
         sweeps: env_usize("MBD_SWEEPS", 16),
         lambda: std::env::var("MBD_PLAMBDA")
@@ -1407,24 +1416,26 @@ fn polish_sweep() {
             format!("{:.1}", r.elapsed),
         ]);
     }
-    let polished_eval = eval(&polished);
+    let polished_scores = score(&polished, &input, &labels);
     println!(
         "### Exact polish ({}, L = {l}, {b}³ basis nodes)\n\n{}",
         input.name,
         table.markdown()
     );
     println!(
-        "stochastic solve: {} iterations, {:.1} s CPU ({:.1} s wall), evaluate {solved:.4e}, exact {:.4e}",
+        "stochastic solve: {} iterations, {:.1} s CPU ({:.1} s wall), {}, exact {:.4e}",
         report.history.len(),
         solve_cost.cpu,
         solve_cost.wall,
+        scores(&solved),
         initial.relative_mse()
     );
     println!(
-        "polish: {} half-steps, {:.1} s CPU ({:.1} s wall), evaluate {polished_eval:.4e}, exact {:.4e}",
+        "polish: {} half-steps, {:.1} s CPU ({:.1} s wall), {}, exact {:.4e}",
         polish_report.history.len(),
         polish_cost.cpu,
         polish_cost.wall,
+        scores(&polished_scores),
         polish_report.last().relative_mse()
     );
     let energy = trilinear_energy(f);
@@ -1434,9 +1445,9 @@ fn polish_sweep() {
         let diff = GridField::from_data(f.dims(), f.bounds(), m.reconstruction().data() - f.data())
             .expect("difference grid");
         println!(
-            "{name}: {:.1} s CPU, evaluate {:.4e}, exact {:.4e}",
+            "{name}: {:.1} s CPU, {}, exact {:.4e}",
             cost.cpu,
-            eval(m),
+            scores(&score(m, &input, m.labels())),
             trilinear_energy(&diff) / energy
         );
     });
