@@ -457,3 +457,30 @@ fn polish_stops_on_its_tolerance() {
         3
     );
 }
+
+/// Extremes: a zero field stays exactly zero (no error, zero energy), a constant field is
+/// fitted to rounding at rank 1.
+#[test]
+fn polish_handles_zero_and_constant_fields() {
+    let zero = GridField::new([4, 3, 5], Aabb::UNIT, 4).unwrap();
+    let model = quick_fit(&zero, [2, 2, 3], 2, 4, 0);
+    let (polished, report) = polish(&zero, model, &PolishOptions::default(), &NoProgress).unwrap();
+    assert_eq!(report.last().energy, 0.0);
+    assert_eq!(report.last().data, 0.0);
+    assert!(polished.coefficients().iter().all(|&c| c == 0.0));
+    let constant = GridField::from_fn([4, 3, 5], Aabb::UNIT, 4, |_, out| {
+        out.copy_from_slice(&[0.5, -1.0, 2.0, 0.25])
+    })
+    .unwrap();
+    let model = quick_fit(&constant, [2, 2, 3], 1, 4, 0);
+    let options = PolishOptions {
+        sweeps: 4,
+        ..PolishOptions::default()
+    };
+    let (_, report) = polish(&constant, model, &options, &NoProgress).unwrap();
+    assert!(
+        report.last().relative_mse() < 1e-12,
+        "{:e}",
+        report.last().relative_mse()
+    );
+}
