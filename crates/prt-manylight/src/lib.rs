@@ -22,7 +22,10 @@
 //!   Many-Lights Problem" (SIGGRAPH Asia 2011): slices of pixels with similar gather-point
 //!   position and normal, one sampled row per slice, a global clustering refined per slice on
 //!   the rows of the nearest slices, and per-slice representatives evaluated on the slice's
-//!   pixels only (through [`SliceOracle`]).
+//!   pixels only (through [`SliceOracle`]). [`light_slice_guided`] (beyond the paper) also
+//!   draws part of each representative by the lights' unshadowed shading on probe pixels of the
+//!   slice ([`ShadingGuide`]; the shading bounds every element and costs no shadow ray), which
+//!   bounds the weights of lights the sampled rows barely see.
 //! * [`visibility_clustering`] — shading from every light, visibility from one representative
 //!   per cluster of lights, clusters minimising the L2 error of that visibility approximation
 //!   (divisive or k-means; through [`VisibilityOracle`]).
