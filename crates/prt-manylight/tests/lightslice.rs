@@ -806,3 +806,41 @@ fn unseen_draws_with_every_pixel_probed_are_unbiased_within_the_budget() {
         "exact {exact}, Skip {skipped}, unseen draws {drawn}"
     );
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+
+    /// The guide never costs elements: exactly `light_slice`'s without unseen draws, at most
+    /// theirs with them (a slice whose probes no unseen light reaches makes none); at 0% and no
+    /// unseen draws it is `light_slice` itself; the shading count is probes × lights shaded.
+    #[test]
+    fn shading_guide_keeps_the_budget(
+        slices in 1usize..12,
+        clusters in 4usize..40,
+        percent in 0u32..100,
+        probes in 1usize..20,
+        draws in 0usize..4,
+        seed in 0u64..1000,
+    ) {
+        let oracle = shaded_vpls(8, 200, 11);
+        let config = LightSliceConfig::new(slices, clusters)
+            .with_unseen(UnseenLights::Skip)
+            .with_split(SliceSplit::Spread)
+            .with_seed(seed);
+        let plain = light_slice(&oracle, &config, &NoProgress).unwrap();
+        let guide = ShadingGuide::new(percent, probes).with_unseen_draws(draws);
+        let guided = light_slice_guided(&oracle, &config.with_guide(guide), &NoProgress).unwrap();
+        proptest::prop_assert!(guided.elements <= plain.elements);
+        if draws == 0 {
+            proptest::prop_assert_eq!(guided.elements, plain.elements);
+        }
+        if percent == 0 && draws == 0 {
+            proptest::prop_assert_eq!(&guided, &plain);
+        }
+        let reduced = ReducedMatrix::sample(&oracle, guided.rows.clone(), &NoProgress).unwrap();
+        let seen = reduced.norms().iter().filter(|&&a| a > 0.0).count();
+        let shaded = usize::from(percent > 0) * seen + usize::from(draws > 0) * (200 - seen);
+        let probed: usize = guided.slices.iter().map(|s| s.len().min(probes)).sum();
+        proptest::prop_assert_eq!(guided.shading_evaluations, (probed * shaded) as u64);
+    }
+}
