@@ -1005,49 +1005,46 @@ fn pick(
         let k = rng.random_range(0..members.len());
         return (members[k] as usize, members.len() as f64);
     }
+    let sum_over = |v: &[f64]| members.iter().map(|&j| v[j as usize]).sum::<f64>();
     let guide = guide
-        .map(|(u, alpha)| {
-            (
-                u,
-                members.iter().map(|&j| u[j as usize]).sum::<f64>(),
-                alpha,
-            )
-        })
+        .map(|(u, alpha)| (u, sum_over(u), alpha))
         .filter(|&(_, sum, alpha)| sum > 0.0 && alpha > 0.0);
-    if let Some((u, sum, alpha)) = guide {
-        return pick_guided(
-            members,
-            norms,
-            total,
-            local,
-            (u, sum, alpha),
-            defensive,
-            rng,
-        );
-    }
-    let local = local
-        .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
-        .filter(|&(_, t)| t > 0.0);
+    let local = local.map(|l| (l, sum_over(l))).filter(|&(_, t)| t > 0.0);
     let size = members.len() as f64;
-    // One uniform number picks the uniform draw (below `defensive`), then the distribution
-    // (first half: global) and the light within it.
+    // One uniform number picks the uniform draw (below `defensive`), then the guide (the next
+    // `α` of the rest), then the row-based distribution (first half: global) and the light
+    // within it.
     let u = rng.random::<f64>();
     let j = if u < defensive {
         members[((u / defensive * size) as usize).min(members.len() - 1)] as usize
     } else {
         let u = (u - defensive) / (1.0 - defensive);
-        match local {
-            Some((l, t)) if u >= 0.5 => draw(members, l, t, 2.0 * u - 1.0),
-            Some(_) => draw(members, norms, total, 2.0 * u),
-            None => draw(members, norms, total, u),
+        match guide {
+            Some((g, sum, alpha)) if u < alpha => draw(members, g, sum, u / alpha),
+            _ => {
+                let u = match guide {
+                    Some((_, _, alpha)) => (u - alpha) / (1.0 - alpha),
+                    None => u,
+                };
+                match local {
+                    Some((l, t)) if u >= 0.5 => draw(members, l, t, 2.0 * u - 1.0),
+                    Some(_) => draw(members, norms, total, 2.0 * u),
+                    None => draw(members, norms, total, u),
+                }
+            }
         }
     };
-    let weight = match local {
-        Some((l, t)) => {
-            1.0 / ((1.0 - defensive) * (0.5 * norms[j] / total + 0.5 * l[j] / t) + defensive / size)
+    let rows = match local {
+        Some((l, t)) => 0.5 * norms[j] / total + 0.5 * l[j] / t,
+        None => norms[j] / total,
+    };
+    let weight = match guide {
+        Some((g, sum, alpha)) => {
+            1.0 / ((1.0 - defensive) * ((1.0 - alpha) * rows + alpha * g[j] / sum)
+                + defensive / size)
         }
-        None if defensive == 0.0 => total / norms[j],
-        None => 1.0 / ((1.0 - defensive) * norms[j] / total + defensive / size),
+        None if local.is_none() && defensive == 0.0 => total / norms[j],
+        None => 1.0 / ((1.0 - defensive) * rows + defensive / size),
     };
     (j, weight)
 }
@@ -1070,46 +1067,4 @@ fn draw(members: &[u32], weights: &[f64], sum: f64, u: f64) -> usize {
         }
     }
     pick as usize
-}
-
-/// [`pick`] with a shading guide `(u, Σ_C u > 0, α > 0)`: one uniform number chooses the
-/// defensive draw (below `defensive`), then the guide (the next `α` of the rest) or the
-/// row-based draw (global norms of sum `total`, or their even mixture with the `local` ones),
-/// then the member. The weight is the inverse of the mixture's total probability.
-fn pick_guided(
-    members: &[u32],
-    norms: &[f64],
-    total: f64,
-    local: Option<&[f64]>,
-    (u_norms, u_sum, alpha): (&[f64], f64, f64),
-    defensive: f64,
-    rng: &mut impl Rng,
-) -> (usize, f64) {
-    let local = local
-        .map(|l| (l, members.iter().map(|&j| l[j as usize]).sum::<f64>()))
-        .filter(|&(_, t)| t > 0.0);
-    let size = members.len() as f64;
-    let u = rng.random::<f64>();
-    let j = if u < defensive {
-        members[((u / defensive * size) as usize).min(members.len() - 1)] as usize
-    } else {
-        let u = (u - defensive) / (1.0 - defensive);
-        if u < alpha {
-            draw(members, u_norms, u_sum, u / alpha)
-        } else {
-            let u = (u - alpha) / (1.0 - alpha);
-            match local {
-                Some((l, t)) if u >= 0.5 => draw(members, l, t, 2.0 * u - 1.0),
-                Some(_) => draw(members, norms, total, 2.0 * u),
-                None => draw(members, norms, total, u),
-            }
-        }
-    };
-    let rows = match local {
-        Some((l, t)) => 0.5 * norms[j] / total + 0.5 * l[j] / t,
-        None => norms[j] / total,
-    };
-    let p =
-        (1.0 - defensive) * ((1.0 - alpha) * rows + alpha * u_norms[j] / u_sum) + defensive / size;
-    (j, 1.0 / p)
 }
