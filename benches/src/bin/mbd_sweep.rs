@@ -283,10 +283,7 @@ const HEADER: [&str; 10] = [
 
 /// Field resolution of the basis-count and grid sweeps (`MBD_N`, default 32).
 fn sweep_n() -> usize {
-    std::env::var("MBD_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(32)
+    env_or("MBD_N", 32)
 }
 
 /// The field of the basis, grid, convergence and quality sweeps (`MBD_FIELD`).
@@ -538,10 +535,7 @@ fn grid_resolution() {
 
 fn timing() {
     let mut sweep = Sweep::new();
-    let max = std::env::var("MBD_MAX_N")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok())
-        .unwrap_or(64);
+    let max = env_or("MBD_MAX_N", 64);
     for (n, b) in [(16, 3), (32, 5), (64, 9)] {
         if n <= max {
             let input = Input {
@@ -626,12 +620,17 @@ fn convergence() {
     table.write_csv_if_requested("mbd_convergence").ok();
 }
 
-/// `MBD_L` (default 8) or `default`.
-fn env_usize(name: &str, default: usize) -> usize {
+/// The environment variable `name` parsed, or `default` when it is unset or does not parse.
+fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
     std::env::var(name)
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
+}
+
+/// [`env_or`] for counts and switches.
+fn env_usize(name: &str, default: usize) -> usize {
+    env_or(name, default)
 }
 
 /// Is MBD short of the baselines because it is not converged, badly started or over-regularised?
@@ -828,10 +827,7 @@ fn floor() {
             options: MbdOptions {
                 rank: l,
                 max_iterations: iterations,
-                tolerance: std::env::var("MBD_TOL")
-                    .ok()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(0.0),
+                tolerance: env_or("MBD_TOL", 0.0),
                 average_window,
                 jitter: env_usize("MBD_JITTER", 1) != 0,
                 momentum_basis: env_usize("MBD_MB", 90) as f32 / 100.0,
@@ -1351,10 +1347,7 @@ fn polish_sweep() {
     let options = MbdOptions {
         rank: l,
         max_iterations: iterations,
-        lambda: std::env::var("MBD_LAMBDA")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(MbdOptions::default().lambda),
+        lambda: env_or("MBD_LAMBDA", MbdOptions::default().lambda),
         ..MbdOptions::default()
     };
     let mbd = Mbd {
@@ -1373,14 +1366,8 @@ fn polish_sweep() {
     };
     let polish_options = PolishOptions {
         sweeps: env_usize("MBD_SWEEPS", 16),
-        lambda: std::env::var("MBD_PLAMBDA")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(PolishOptions::default().lambda),
-        tolerance: std::env::var("MBD_PTOL")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0.0),
+        lambda: env_or("MBD_PLAMBDA", PolishOptions::default().lambda),
+        tolerance: env_or("MBD_PTOL", 0.0),
         extrapolation: env_usize("MBD_EXTRAP", 1) != 0,
         ..PolishOptions::default()
     };
