@@ -105,3 +105,5 @@ pub use polish::{
     ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, PolishOptions, PolishRecord, PolishReport, PolishStep,
     exact_loss, polish, trilinear_energy,
 };
+pub mod walls;
+pub use walls::{WallAware, WallOptions, wall_aware_basis};

@@ -1,0 +1,436 @@
+//! MBD with basis kernels that do not cross walls (`prt_mbd::wall_aware_basis`) against MBD on
+//! the plain hat grid, BPCA and CPCA on a traced volume, at rank `MBD_L` (8) with `MBD_B`³ (5³)
+//! basis nodes / blocks / clusters, MBD with the default solver (≤ `MBD_ITERS` = 128
+//! iterations).
+//!
+//! `MBD_FIELD=sponza|cornell MBD_N=48 nice -n 10 cargo run --release -p prt-benches --bin mbd_walls`
+//!
+//! The volumes are read from `target/mbd_cache/{scene}_{n}_r256_c64_s0.f32`, which
+//! `mbd_sweep` writes when it traces them (`MBD_FIELD=sponza MBD_N=48 mbd_sweep walls`); the
+//! validity mask is the baker's (invalid voxels hold exactly zero transfer).
+//!
+//! Methods (`MBD_METHODS`, comma-separated, default `HAT,WALL,BPCA,CPCA`): `HAT` (MBD, hat
+//! basis), `WALL` (MBD, wall-aware hat basis), `WALL-D` (wall-aware with `max_detour` =
+//! `MBD_DETOUR`, default 1.5), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
+//! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`.
+//!
+//! Reported per method: iterations, wall and process CPU time (kernel construction included),
+//! relative MSE on jittered samples and its ratio to CPCA's, the relative error at valid voxel
+//! centres, the error by Chebyshev distance to the nearest invalid voxel (share of the field's
+//! energy) and its ratio to CPCA's per bin, the seam metric against the hat grid's basis cells
+//! (the same labels for every MBD variant), and for the wall-aware kernels the number of valid
+//! voxels that fell back to the base weights and the mean / largest kernel count.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use glam::Vec3;
+use prt_benches::{Table, cpu_seconds};
+use prt_core::{
+    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
+};
+use prt_mbd::*;
+
+/// Cap of [`wall_distance`].
+const CAP: usize = 4;
+
+fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn enabled(method: &str) -> bool {
+    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,WALL,BPCA,CPCA".into());
+    list.split(',')
+        .any(|m| m.trim().eq_ignore_ascii_case(method))
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+fn cache_path(scene: &str, n: usize) -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../target")))
+        .join("mbd_cache")
+        .join(format!("{scene}_{n}_r256_c64_s0.f32"))
+}
+
+/// The cached field (layout of `mbd_sweep`: dims 3 × u64, bounds 6 × f32, dim u64, data f32,
+/// little endian), or `None` when the file is missing or malformed.
+fn read_cached(path: &std::path::Path) -> Option<GridField> {
+    let bytes = std::fs::read(path).ok()?;
+    let u64_at = |i: usize| -> Option<usize> {
+        Some(u64::from_le_bytes(bytes.get(i..i + 8)?.try_into().ok()?) as usize)
+    };
+    let f32_at = |i: usize| -> Option<f32> {
+        Some(f32::from_le_bytes(bytes.get(i..i + 4)?.try_into().ok()?))
+    };
+    let dims = [u64_at(0)?, u64_at(8)?, u64_at(16)?];
+    let corner = |i: usize| Some(Vec3::new(f32_at(i)?, f32_at(i + 4)?, f32_at(i + 8)?));
+    let bounds = Aabb::new(corner(24)?, corner(36)?);
+    let dim = u64_at(48)?;
+    let count = dims.iter().product::<usize>().checked_mul(dim)?;
+    let payload = bytes.get(56..)?;
+    if payload.len() != 4 * count {
+        return None;
+    }
+    let data: Vec<f32> = payload
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let data = ndarray::Array2::from_shape_vec((count / dim.max(1), dim), data).ok()?;
+    GridField::from_data(dims, bounds, data).ok()
+}
+
+/// Chebyshev distance (in voxels) of every voxel to the nearest invalid voxel: 0 = invalid,
+/// 1 = touching an invalid voxel, ..., capped at [`CAP`] (as `mbd_sweep walls`).
+fn wall_distance(f: &GridField, valid: &[bool]) -> Vec<usize> {
+    let dims = f.dims();
+    (0..f.num_voxels())
+        .map(|v| {
+            if !valid[v] {
+                return 0;
+            }
+            let [x, y, z] = f.coords(v);
+            (1..CAP)
+                .find(|&r| {
+                    let lo = |c: usize| c.saturating_sub(r);
+                    let hi = |c: usize, n: usize| (c + r).min(n - 1);
+                    (lo(z)..=hi(z, dims[2])).any(|k| {
+                        (lo(y)..=hi(y, dims[1])).any(|j| {
+                            (lo(x)..=hi(x, dims[0]))
+                                .any(|i| !valid[i + dims[0] * (j + dims[1] * k)])
+                        })
+                    })
+                })
+                .unwrap_or(CAP)
+        })
+        .collect()
+}
+
+/// `Σ ‖f(v)‖²` over the voxels `keep` accepts.
+fn voxel_energy(f: &GridField, keep: &dyn Fn(usize) -> bool) -> f64 {
+    (0..f.num_voxels())
+        .filter(|&v| keep(v))
+        .map(|v| {
+            f.voxel(v)
+                .iter()
+                .map(|&x| f64::from(x).powi(2))
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+/// The share of the base kernels' weight at valid voxel centres that the wall-aware family
+/// drops (nodes that do not reach the voxel), plain and weighted by the voxel's energy.
+fn cut_share<K: SpatialKernels>(basis: &WallAware<K>, f: &GridField, valid: &[bool]) -> (f64, f64) {
+    let mut w = prt_core::KernelWeights::default();
+    let (mut plain, mut weighted, mut count, mut energy) = (0.0, 0.0, 0.0, 0.0);
+    for v in (0..f.num_voxels()).filter(|&v| valid[v]) {
+        basis
+            .base()
+            .eval(f.centre_of(v), &mut w)
+            .expect("base covers the voxel centres");
+        let kept: Vec<u32> = basis.voxel_weights(v).map(|(i, _)| i).collect();
+        let dropped: f64 = w
+            .iter()
+            .filter(|(i, _)| !kept.contains(i))
+            .map(|(_, x)| f64::from(x))
+            .sum::<f64>()
+            / w.sum();
+        let e: f64 = f.voxel(v).iter().map(|&x| f64::from(x).powi(2)).sum();
+        plain += dropped;
+        weighted += e * dropped;
+        count += 1.0;
+        energy += e;
+    }
+    (plain / count, weighted / energy)
+}
+
+struct Row {
+    name: String,
+    iterations: String,
+    wall: f64,
+    cpu: f64,
+    relative_mse: f64,
+    /// Squared error at voxel centres per wall-distance bin.
+    bins: [f64; CAP + 1],
+    seam_excess: f64,
+    seam_ratio: f64,
+}
+
+fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
+    let (t, cpu) = (Instant::now(), cpu_seconds());
+    let value = fit();
+    (value, t.elapsed().as_secs_f64(), cpu_seconds() - cpu)
+}
+
+fn main() {
+    let scene = std::env::var("MBD_FIELD").unwrap_or_else(|_| "sponza".into());
+    let n: usize = env_or("MBD_N", 48);
+    let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
+    let iterations: usize = env_or("MBD_ITERS", 128);
+    let detour: f32 = env_or("MBD_DETOUR", 1.5);
+    let path = cache_path(&scene, n);
+    let Some(field) = read_cached(&path) else {
+        eprintln!(
+            "mbd_walls: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
+            path.display()
+        );
+        std::process::exit(1);
+    };
+    let f = &field;
+    let valid: Vec<bool> = (0..f.num_voxels())
+        .map(|v| f.voxel(v).iter().any(|&t| t != 0.0))
+        .collect();
+    let invalid = valid.iter().filter(|v| !**v).count();
+    let dims = f.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let count: usize = nodes.iter().product();
+    println!(
+        "traced {scene} {}×{}×{} × {}, {invalid} invalid voxels; L = {l}, {count} basis nodes; load average before: {}",
+        dims[0],
+        dims[1],
+        dims[2],
+        f.dim(),
+        load_average()
+    );
+    let distance = wall_distance(f, &valid);
+    let total = voxel_energy(f, &|_| true);
+    let valid_energy = voxel_energy(f, &|v| valid[v]);
+    let options = MbdOptions {
+        rank: l,
+        max_iterations: iterations,
+        seed: env_or("MBD_SEED", MbdOptions::default().seed),
+        ..MbdOptions::default()
+    };
+    let mbd = Mbd {
+        basis_nodes: nodes,
+        options: options.clone(),
+    };
+    let (coefficient_kernels, hat) = mbd.kernels(f).expect("kernels");
+    let hat_labels = kernel_labels(&hat, f).expect("labels");
+    let mut rows: Vec<Row> = Vec::new();
+    let mut add = |name: String,
+                   iterations: String,
+                   wall: f64,
+                   cpu: f64,
+                   model: &dyn FieldModel| {
+        let eval = EvalOptions::default();
+        let e = evaluate(model, f, &eval).expect("evaluate");
+        let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
+        let mut bins = [0.0f64; CAP + 1];
+        for v in 0..f.num_voxels() {
+            let err: f64 = f
+                .voxel(v)
+                .iter()
+                .zip(recon.voxel(v))
+                .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+                .sum();
+            bins[distance[v]] += err;
+        }
+        let seam = seam_metric_with(
+            f,
+            &recon,
+            &hat_labels,
+            &SeamOptions {
+                denoise_sigma: 1.0,
+                valid: Some(&valid),
+            },
+        )
+        .expect("seam");
+        eprintln!(
+            "{name}: {iterations} iterations, {wall:.1} s (CPU {cpu:.1} s), relative MSE {:.3e}",
+            e.relative_mse
+        );
+        rows.push(Row {
+            name,
+            iterations,
+            wall,
+            cpu,
+            relative_mse: e.relative_mse,
+            bins,
+            seam_excess: seam.excess(),
+            seam_ratio: seam.ratio(),
+        });
+    };
+    let describe = |k: &dyn Fn() -> (usize, f64, usize, f64, (f64, f64))| {
+        let (fallbacks, mean, max, build, (plain, weighted)) = k();
+        format!(
+            "cuts {:.0} % of the base weight at valid voxel centres ({:.0} % energy-weighted); {fallbacks} fallback voxels, {mean:.2} kernels per voxel centre, ≤ {max} at a point, built in {build:.2} s",
+            100.0 * plain,
+            100.0 * weighted
+        )
+    };
+    if enabled("HAT") {
+        let ((model, report), wall, cpu) = measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        add(
+            format!("MBD, {count} hat kernels"),
+            report.history.len().to_string(),
+            wall,
+            cpu,
+            &model,
+        );
+    }
+    let wall_variants = [("WALL", f32::INFINITY), ("WALL-D", detour)];
+    for (key, max_detour) in wall_variants {
+        if !enabled(key) {
+            continue;
+        }
+        let wall_options = WallOptions { max_detour };
+        let ((basis, build), ..) = measure(|| {
+            let t = Instant::now();
+            let basis = wall_aware_basis(f, &valid, nodes, &wall_options).expect("wall basis");
+            (basis, t.elapsed().as_secs_f64())
+        });
+        let text = describe(&|| {
+            (
+                basis.fallbacks(),
+                basis.mean_voxel_support(),
+                basis.max_support(),
+                build,
+                cut_share(&basis, f, &valid),
+            )
+        });
+        let ((model, report), wall, cpu) = measure(|| {
+            solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress).expect("mbd")
+        });
+        let detour_text = if max_detour.is_finite() {
+            format!(", detour ≤ {max_detour}")
+        } else {
+            String::new()
+        };
+        add(
+            format!("MBD, {count} wall-aware hat kernels{detour_text} ({text})"),
+            report.history.len().to_string(),
+            wall + build,
+            cpu + build,
+            &model,
+        );
+    }
+    for (key, cut) in [("SHEPARD-E", false), ("SHEPARD-E-WALL", true)] {
+        if !enabled(key) {
+            continue;
+        }
+        let ((model_report, text), wall, cpu) = measure(|| {
+            let shepard = scene_adapted_basis(f, &valid, count, &AdaptedBasisOptions::default())
+                .expect("adapted basis");
+            if cut {
+                let t = Instant::now();
+                let basis =
+                    WallAware::new(shepard, dims, f.bounds(), &valid, &WallOptions::default())
+                        .expect("wall basis");
+                let build = t.elapsed().as_secs_f64();
+                let text = describe(&|| {
+                    (
+                        basis.fallbacks(),
+                        basis.mean_voxel_support(),
+                        basis.max_support(),
+                        build,
+                        cut_share(&basis, f, &valid),
+                    )
+                });
+                let (model, report) =
+                    solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress)
+                        .expect("mbd");
+                (
+                    (Box::new(model) as Box<dyn FieldModel>, report),
+                    format!(" cut at walls ({text})"),
+                )
+            } else {
+                let (model, report) = solve(
+                    f,
+                    coefficient_kernels.clone(),
+                    shepard,
+                    &options,
+                    &NoProgress,
+                )
+                .expect("mbd");
+                (
+                    (Box::new(model) as Box<dyn FieldModel>, report),
+                    String::new(),
+                )
+            }
+        });
+        let (model, report) = model_report;
+        add(
+            format!("MBD, {count} energy-placed Shepard kernels{text}"),
+            report.history.len().to_string(),
+            wall,
+            cpu,
+            model.as_ref(),
+        );
+    }
+    if enabled("BPCA") {
+        let (m, wall, cpu) = measure(|| {
+            BlockPca {
+                rank: l,
+                blocks: nodes,
+                window: 1.0,
+            }
+            .compress(f, &NoProgress)
+            .expect("bpca")
+        });
+        add("BPCA".into(), "–".into(), wall, cpu, &m);
+    }
+    if enabled("CPCA") {
+        let (m, wall, cpu) = measure(|| {
+            ClusteredPca::new(l, count)
+                .compress(f, &NoProgress)
+                .expect("cpca")
+        });
+        add("CPCA".into(), "–".into(), wall, cpu, &m);
+    }
+    let cpca = rows.iter().find(|r| r.name == "CPCA");
+    let mut header = vec![
+        "method".to_string(),
+        "iterations".into(),
+        "time (CPU)".into(),
+        "relative MSE (jittered)".into(),
+        "/ CPCA".into(),
+        "valid only (centres)".into(),
+    ];
+    header.extend((1..=CAP).map(|d| {
+        let share = voxel_energy(f, &|v| distance[v] == d) / total;
+        let name = if d == CAP {
+            format!("≥ {CAP}")
+        } else {
+            d.to_string()
+        };
+        format!("distance {name} ({:.0} %): / CPCA", 100.0 * share + 0.0)
+    }));
+    header.extend(["seam excess".into(), "seam ratio".into()]);
+    let header: Vec<&str> = header.iter().map(String::as_str).collect();
+    let mut table = Table::new(&header);
+    for r in &rows {
+        let mut cells = vec![
+            r.name.clone(),
+            r.iterations.clone(),
+            format!("{:.1} s ({:.1} s)", r.wall, r.cpu),
+            format!("{:.3e}", r.relative_mse),
+            cpca.map_or("–".into(), |c| {
+                format!("{:.2}", r.relative_mse / c.relative_mse)
+            }),
+            format!("{:.3e}", r.bins[1..].iter().sum::<f64>() / valid_energy),
+        ];
+        cells.extend((1..=CAP).map(|d| match cpca {
+            Some(c) if c.bins[d] > 0.0 => {
+                format!("{:.2e} ({:.2})", r.bins[d] / total, r.bins[d] / c.bins[d])
+            }
+            _ => format!("{:.2e}", r.bins[d] / total),
+        }));
+        cells.extend([
+            format!("{:.2e}", r.seam_excess),
+            format!("{:.2}", r.seam_ratio),
+        ]);
+        table.row(cells);
+    }
+    println!("{}", table.markdown());
+    println!("load average after: {}", load_average());
+}

@@ -1,0 +1,609 @@
+//! Basis kernels that do not reach across walls (beyond the paper, opt-in).
+//!
+//! On a scene like Sponza most of the volume is inside walls and columns (the baker's invalid,
+//! zero voxels) and the valid voxels sit in thin slabs between them. A hat basis node then
+//! serves every voxel of its 2 × 2 × 2-cell support, on both sides of a wall, although the
+//! transfer on the two sides has nothing in common; clustered PCA groups voxels by value and so
+//! follows the geometry. [`WallAware`] keeps the number of basis nodes and cuts each node's
+//! kernel back to the voxels it can reach without crossing geometry:
+//!
+//! 1. **Reach.** For every node `n`, its *region* is the set of voxels whose centre its base
+//!    kernel covers (weight > 0). The node's *seeds* are the valid voxels of the region where
+//!    its base weight is largest (for a hat: the valid voxels nearest the node, which finds the
+//!    right side of a wall when the node itself lies inside geometry). A flood fill through
+//!    face-adjacent valid voxels of the region (6-connected, so a wall one voxel thick stops it,
+//!    even a diagonal one) marks the voxels `n` reaches. [`WallOptions::max_detour`] can also
+//!    cut voxels reached only by a long way round (geodesic steps over the L1 distance).
+//! 2. **Weights at voxel centres.** A valid voxel `v` keeps the base weights of the nodes that
+//!    reach it, renormalised to sum to one; if none of its nodes reaches it (a pocket no seed
+//!    flood gets to) it keeps the base weights unchanged (counted by [`WallAware::fallbacks`]).
+//!    An invalid voxel keeps the base weights of its nodes that reach one of its valid face
+//!    neighbours (renormalised; else all of them): the half-voxel between a valid voxel and the
+//!    wall, where the data still interpolates the valid voxel, is served by that side's nodes.
+//! 3. **Anywhere.** The weights at `x` are the trilinear interpolation of the eight surrounding
+//!    voxel centres' weights (clamped to the box like the field's own sampling). A convex
+//!    combination of partitions of unity is one, so the family is a non-negative, continuous
+//!    partition of unity: MBD stays seamless. With every voxel valid, every node reaches its
+//!    whole region and the family is the base sampled at the voxel centres and interpolated
+//!    trilinearly (identical to a hat grid wherever no node plane crosses a voxel-centre cell).
+//!
+//! The weights are per voxel rather than per basis cell, because walls are: that is the cost.
+//! An engine stores, beside the `L` coefficients of each voxel, the voxel's masked weights
+//! over its (at most 8, for a hat) nodes, or 8 bits of mask and recomputes the weights from
+//! the hat; at runtime it blends eight voxels' weight lists instead of evaluating one hat
+//! (up to 27 basis nodes instead of 8 at a point near a node plane). The solver batches per
+//! [`SpatialKernels::support_cell`]: for a hat base, the voxel-centre cells between the same
+//! node planes (the cells inside a basis cell share its 8 nodes; a slab of cells straddling a
+//! node plane uses 12, an edge 18, a corner 27), so a solve costs about what the hat grid's
+//! does (measured in `docs/results.md`, MBD session 7).
+
+use glam::Vec3;
+use prt_core::{Aabb, CoreError, KernelWeights, SpatialKernels};
+use prt_kernels::HatGrid;
+use rayon::prelude::*;
+
+use crate::MbdError;
+
+/// Options of [`WallAware`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct WallOptions {
+    /// A voxel counts as reached by a node only if its geodesic distance from the node's seeds
+    /// (flood-fill steps through valid voxels) is at most `max_detour` times its L1 distance in
+    /// voxels from the nearest seed, plus one step. Infinite (the default): every voxel the
+    /// flood fill reaches inside the node's region.
+    pub max_detour: f32,
+}
+
+impl Default for WallOptions {
+    fn default() -> Self {
+        Self {
+            max_detour: f32::INFINITY,
+        }
+    }
+}
+
+/// Relative tolerance within which base weights count as the node's largest (seed ties).
+const SEED_TIE: f32 = 1e-5;
+
+/// A basis kernel family whose kernels stop at walls: a base family (a hat grid, or any
+/// [`SpatialKernels`]) masked per voxel by flood-fill reachability through valid voxels and
+/// interpolated trilinearly between voxel centres (module docs: [`crate::walls`]).
+#[derive(Debug, Clone)]
+pub struct WallAware<K> {
+    base: K,
+    dims: [usize; 3],
+    bounds: Aabb,
+    origin: [f64; 3],
+    /// Voxels per unit length, per axis.
+    scale: [f64; 3],
+    /// Per voxel, its weights (CSR: `offsets[v]..offsets[v + 1]` into `indices` / `weights`).
+    offsets: Vec<u32>,
+    indices: Vec<u32>,
+    weights: Vec<f32>,
+    max_support: usize,
+    /// Per axis, the support-cell group of every voxel-centre cell (hat bases only).
+    groups: Option<AxisGroups>,
+    fallbacks: usize,
+}
+
+/// Per axis, a group id for each voxel-centre cell, and the number of groups.
+#[derive(Debug, Clone)]
+struct AxisGroups {
+    ids: [Vec<u32>; 3],
+    counts: [usize; 3],
+}
+
+/// The MBD basis of [`crate::Mbd`] with `nodes` basis nodes per axis over `field`'s box (a
+/// [`HatGrid`]), cut back at walls by the validity mask `valid` (one entry per voxel, `true`
+/// where the field holds data).
+///
+/// Use it with the per-voxel hat coefficient kernels:
+/// ```
+/// # use prt_core::{Aabb, GridField, NoProgress};
+/// # use prt_mbd::*;
+/// # let field = SyntheticField::new([8, 6, 6], 6).build(Aabb::UNIT).unwrap();
+/// # let valid: Vec<bool> = (0..field.num_voxels()).map(|v| v % 8 != 3).collect();
+/// let mbd = Mbd { basis_nodes: [3, 3, 3], options: MbdOptions { rank: 2, max_iterations: 8, ..Default::default() } };
+/// let basis = wall_aware_basis(&field, &valid, mbd.basis_nodes, &WallOptions::default()).unwrap();
+/// let (coefficients, _) = mbd.kernels(&field).unwrap();
+/// let (model, _) = solve(&field, coefficients, basis, &mbd.options, &NoProgress).unwrap();
+/// # assert_eq!(model.basis().dim(), (27, 2, 6));
+/// ```
+///
+/// # Errors
+/// [`MbdError::InvalidKernels`] for an axis with fewer than 2 nodes, and the errors of
+/// [`WallAware::new`].
+pub fn wall_aware_basis(
+    field: &prt_core::GridField,
+    valid: &[bool],
+    nodes: [usize; 3],
+    options: &WallOptions,
+) -> Result<WallAware<HatGrid>, MbdError> {
+    if let Some(axis) = (0..3).find(|&k| nodes[k] < 2) {
+        return Err(MbdError::InvalidKernels {
+            which: "basis",
+            why: format!("axis {axis} has {} nodes, need at least 2", nodes[axis]),
+        });
+    }
+    let hat = HatGrid::new(nodes, field.bounds()).map_err(|e| MbdError::InvalidKernels {
+        which: "basis",
+        why: e.to_string(),
+    })?;
+    let mut kernels = WallAware::new(hat, field.dims(), field.bounds(), valid, options)?;
+    kernels.groups = Some(hat_groups(field.dims(), nodes));
+    Ok(kernels)
+}
+
+impl<K: SpatialKernels> WallAware<K> {
+    /// `base` cut back at walls on a `dims` voxel grid over `bounds` with validity mask `valid`
+    /// (one entry per voxel, x fastest). Construction is a flood fill per node over its region
+    /// (`O(Σ_n |region_n|)`) and a pass over the voxels.
+    ///
+    /// # Errors
+    /// [`MbdError::ShapeMismatch`] if `valid` does not have one entry per voxel,
+    /// [`MbdError::InvalidOption`] for an empty grid, a mask without valid voxels or a NaN or
+    /// non-positive `max_detour`, [`MbdError::InvalidKernels`] for an empty base family or an
+    /// invalid box, [`MbdError::KernelsDoNotCover`] if the base has no weight at some voxel
+    /// centre.
+    pub fn new(
+        base: K,
+        dims: [usize; 3],
+        bounds: Aabb,
+        valid: &[bool],
+        options: &WallOptions,
+    ) -> Result<Self, MbdError> {
+        let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+        let n = match n {
+            Some(n) if n > 0 && n < u32::MAX as usize => n,
+            _ => {
+                return Err(MbdError::InvalidOption {
+                    what: "dims",
+                    why: format!("{dims:?} is not a non-empty grid of fewer than 2^32 voxels"),
+                });
+            }
+        };
+        if valid.len() != n {
+            return Err(MbdError::ShapeMismatch {
+                what: "validity mask",
+                expected: vec![n],
+                got: vec![valid.len()],
+            });
+        }
+        if !valid.iter().any(|&v| v) {
+            return Err(MbdError::InvalidOption {
+                what: "validity mask",
+                why: "no voxel is valid".into(),
+            });
+        }
+        if options.max_detour.is_nan() || options.max_detour <= 0.0 {
+            return Err(MbdError::InvalidOption {
+                what: "max_detour",
+                why: format!("{} is not a positive number", options.max_detour),
+            });
+        }
+        if base.is_empty() {
+            return Err(MbdError::InvalidKernels {
+                which: "basis",
+                why: "the base family has no kernels".into(),
+            });
+        }
+        if !bounds.is_valid() || (0..3).any(|k| bounds.max[k] <= bounds.min[k]) {
+            return Err(MbdError::InvalidKernels {
+                which: "basis",
+                why: format!("{bounds:?} is not a box of positive extent"),
+            });
+        }
+        let grid = Grid { dims, bounds };
+        let rows = base_rows(&base, &grid, n)?;
+        let reach = reach_masks(&rows, &grid, valid, base.len(), options.max_detour);
+        let (final_rows, fallbacks) = masked_rows(&rows, &reach, &grid, valid);
+        let mut offsets = Vec::with_capacity(n + 1);
+        let (mut indices, mut weights) = (Vec::new(), Vec::new());
+        offsets.push(0u32);
+        for row in &final_rows {
+            for &(i, w) in row {
+                indices.push(i);
+                weights.push(w);
+            }
+            offsets.push(indices.len() as u32);
+        }
+        let origin = [0, 1, 2].map(|k| f64::from(bounds.min[k]));
+        let scale = [0, 1, 2].map(|k| dims[k] as f64 / (f64::from(bounds.max[k]) - origin[k]));
+        let mut kernels = WallAware {
+            base,
+            dims,
+            bounds,
+            origin,
+            scale,
+            offsets,
+            indices,
+            weights,
+            max_support: 0,
+            groups: None,
+            fallbacks,
+        };
+        kernels.max_support = kernels.largest_union();
+        Ok(kernels)
+    }
+
+    /// The base family.
+    pub fn base(&self) -> &K {
+        &self.base
+    }
+
+    /// Valid voxels none of whose nodes reaches them, which keep the base weights.
+    pub fn fallbacks(&self) -> usize {
+        self.fallbacks
+    }
+
+    /// The kernels non-zero at the centre of voxel `v` (renormalised masked base weights), as
+    /// `(kernel, weight)` pairs; empty for `v` out of range.
+    pub fn voxel_weights(&self, v: usize) -> impl Iterator<Item = (u32, f32)> + '_ {
+        let (a, b) = self.row_range(v);
+        self.indices[a..b]
+            .iter()
+            .copied()
+            .zip(self.weights[a..b].iter().copied())
+    }
+
+    /// Mean number of kernels non-zero at a voxel centre (the base's is 8 for a hat grid at
+    /// generic positions).
+    pub fn mean_voxel_support(&self) -> f64 {
+        self.indices.len() as f64 / (self.offsets.len() - 1) as f64
+    }
+
+    fn row_range(&self, v: usize) -> (usize, usize) {
+        match (self.offsets.get(v), self.offsets.get(v + 1)) {
+            (Some(&a), Some(&b)) => (a as usize, b as usize),
+            _ => (0, 0),
+        }
+    }
+
+    /// The voxel-centre cell of `x` (clamped): per axis the lower voxel and the fraction.
+    fn locate(&self, x: Vec3) -> Result<([usize; 3], [f32; 3]), CoreError> {
+        if let Some(index) = (0..3).find(|&k| !x[k].is_finite()) {
+            return Err(CoreError::NonFinite {
+                what: "query point",
+                index,
+            });
+        }
+        let mut cell = [0usize; 3];
+        let mut t = [0.0f32; 3];
+        for k in 0..3 {
+            let last = (self.dims[k] - 1) as f64;
+            let u = ((f64::from(x[k]) - self.origin[k]) * self.scale[k] - 0.5).clamp(0.0, last);
+            let c = (u as usize).min(self.dims[k].saturating_sub(2));
+            cell[k] = c;
+            t[k] = (u - c as f64) as f32;
+        }
+        Ok((cell, t))
+    }
+
+    /// The largest number of distinct kernels among the eight voxels of any voxel-centre cell.
+    fn largest_union(&self) -> usize {
+        let cells = self.dims.map(|d| d.saturating_sub(1).max(1));
+        let count: usize = cells.iter().product();
+        (0..count)
+            .into_par_iter()
+            .map_init(Vec::new, |seen: &mut Vec<u32>, c| {
+                seen.clear();
+                let cell = [
+                    c % cells[0],
+                    (c / cells[0]) % cells[1],
+                    c / (cells[0] * cells[1]),
+                ];
+                for corner in 0..8 {
+                    let v = self.corner_voxel(cell, corner);
+                    let (a, b) = self.row_range(v);
+                    for &i in &self.indices[a..b] {
+                        if !seen.contains(&i) {
+                            seen.push(i);
+                        }
+                    }
+                }
+                seen.len()
+            })
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Voxel at corner `corner` (bit k: one step up along axis k, clamped) of the voxel-centre
+    /// cell whose lowest voxel is `cell`.
+    #[inline]
+    fn corner_voxel(&self, cell: [usize; 3], corner: usize) -> usize {
+        let c = [0, 1, 2].map(|k| (cell[k] + (corner >> k & 1)).min(self.dims[k] - 1));
+        c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
+    }
+}
+
+impl<K: SpatialKernels> SpatialKernels for WallAware<K> {
+    fn len(&self) -> usize {
+        self.base.len()
+    }
+
+    fn max_support(&self) -> usize {
+        self.max_support
+    }
+
+    fn domain(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// The trilinear blend of the eight surrounding voxel centres' weights; points outside the
+    /// box are clamped to it.
+    fn eval(&self, x: Vec3, out: &mut KernelWeights) -> Result<(), CoreError> {
+        out.clear();
+        let (cell, t) = self.locate(x)?;
+        for corner in 0..8 {
+            let tw = [0, 1, 2]
+                .map(|k| {
+                    if corner >> k & 1 == 1 {
+                        t[k]
+                    } else {
+                        1.0 - t[k]
+                    }
+                })
+                .iter()
+                .product::<f32>();
+            if tw <= 0.0 {
+                continue;
+            }
+            let (a, b) = self.row_range(self.corner_voxel(cell, corner));
+            for (&i, &w) in self.indices[a..b].iter().zip(&self.weights[a..b]) {
+                match out.indices.iter().position(|&j| j == i) {
+                    Some(p) => out.weights[p] += tw * w,
+                    None => out.push(i, tw * w),
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// For a hat base: the voxel-centre cells between the same basis-node planes form one
+    /// group (they share the same few nodes); other bases have no cells.
+    fn support_cell(&self, x: Vec3) -> Option<usize> {
+        let groups = self.groups.as_ref()?;
+        let (cell, _) = self.locate(x).ok()?;
+        let g = [0, 1, 2].map(|k| groups.ids[k][cell[k]] as usize);
+        Some(g[0] + groups.counts[0] * (g[1] + groups.counts[1] * g[2]))
+    }
+
+    fn num_support_cells(&self) -> usize {
+        self.groups
+            .as_ref()
+            .map_or(0, |g| g.counts.iter().product())
+    }
+
+    fn centre(&self, i: usize) -> Option<Vec3> {
+        self.base.centre(i)
+    }
+}
+
+/// The voxel grid.
+struct Grid {
+    dims: [usize; 3],
+    bounds: Aabb,
+}
+
+impl Grid {
+    fn centre(&self, v: usize) -> Vec3 {
+        let d = self.dims;
+        let c = [v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])];
+        let size = self.bounds.size();
+        Vec3::from_array(
+            [0, 1, 2].map(|k| self.bounds.min[k] + (c[k] as f32 + 0.5) * size[k] / d[k] as f32),
+        )
+    }
+
+    fn coords(&self, v: usize) -> [usize; 3] {
+        let d = self.dims;
+        [v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])]
+    }
+
+    /// Face neighbours of `v`.
+    fn neighbours(&self, v: usize) -> impl Iterator<Item = usize> {
+        let c = self.coords(v);
+        let d = self.dims;
+        let stride = [1, d[0], d[0] * d[1]];
+        (0..6).filter_map(move |i| {
+            let (k, up) = (i / 2, i % 2 == 1);
+            if up {
+                (c[k] + 1 < d[k]).then(|| v + stride[k])
+            } else {
+                (c[k] > 0).then(|| v - stride[k])
+            }
+        })
+    }
+}
+
+/// The base family's non-zero weights at every voxel centre.
+fn base_rows<K: SpatialKernels>(
+    base: &K,
+    grid: &Grid,
+    n: usize,
+) -> Result<Vec<Vec<(u32, f32)>>, MbdError> {
+    (0..n)
+        .into_par_iter()
+        .map_init(KernelWeights::default, |w, v| {
+            let x = grid.centre(v);
+            let uncovered = MbdError::KernelsDoNotCover {
+                which: "basis",
+                point: x.to_array(),
+            };
+            match base.eval(x, w) {
+                Ok(()) => {}
+                Err(CoreError::Uncovered { .. }) => return Err(uncovered),
+                Err(e) => return Err(e.into()),
+            }
+            let row: Vec<(u32, f32)> = w.iter().filter(|&(_, wi)| wi > 0.0).collect();
+            if row.is_empty() {
+                return Err(uncovered);
+            }
+            Ok(row)
+        })
+        .collect()
+}
+
+/// Per voxel, parallel to its base row: whether that row's node reaches the voxel.
+fn reach_masks(
+    rows: &[Vec<(u32, f32)>],
+    grid: &Grid,
+    valid: &[bool],
+    nodes: usize,
+    max_detour: f32,
+) -> Vec<Vec<bool>> {
+    // Each node's region: the voxels its base kernel covers, with the weight there.
+    let mut regions: Vec<Vec<(u32, f32)>> = vec![Vec::new(); nodes];
+    for (v, row) in rows.iter().enumerate() {
+        for &(i, w) in row {
+            regions[i as usize].push((v as u32, w));
+        }
+    }
+    let reached: Vec<Vec<u32>> = regions
+        .par_iter()
+        .enumerate()
+        .map(|(node, region)| flood(node as u32, region, rows, grid, valid, max_detour))
+        .collect();
+    let mut masks: Vec<Vec<bool>> = rows.iter().map(|r| vec![false; r.len()]).collect();
+    for (node, voxels) in reached.iter().enumerate() {
+        for &v in voxels {
+            let v = v as usize;
+            if let Some(p) = rows[v].iter().position(|&(i, _)| i as usize == node) {
+                masks[v][p] = true;
+            }
+        }
+    }
+    masks
+}
+
+/// The valid voxels of `region` that `node` reaches: a breadth-first flood fill through face
+/// neighbours that are valid and inside the region, from the valid voxels of largest weight.
+fn flood(
+    node: u32,
+    region: &[(u32, f32)],
+    rows: &[Vec<(u32, f32)>],
+    grid: &Grid,
+    valid: &[bool],
+    max_detour: f32,
+) -> Vec<u32> {
+    let in_region = |v: usize| rows[v].iter().any(|&(i, _)| i == node);
+    let best = region
+        .iter()
+        .filter(|&&(v, _)| valid[v as usize])
+        .map(|&(_, w)| w)
+        .fold(0.0f32, f32::max);
+    if best <= 0.0 {
+        return Vec::new();
+    }
+    let seeds: Vec<u32> = region
+        .iter()
+        .filter(|&&(v, w)| valid[v as usize] && w >= best * (1.0 - SEED_TIE))
+        .map(|&(v, _)| v)
+        .collect();
+    let seed_coords: Vec<[usize; 3]> = seeds.iter().map(|&s| grid.coords(s as usize)).collect();
+    // Steps from the seeds, keyed by voxel (regions are small boxes: a sorted map is enough).
+    let mut steps: std::collections::HashMap<u32, u32> = seeds.iter().map(|&s| (s, 0)).collect();
+    let mut queue: std::collections::VecDeque<u32> = seeds.iter().copied().collect();
+    let mut reached = Vec::new();
+    while let Some(v) = queue.pop_front() {
+        let s = steps[&v];
+        let within = max_detour.is_infinite() || {
+            let c = grid.coords(v as usize);
+            let straight = seed_coords
+                .iter()
+                .map(|sc| (0..3).map(|k| sc[k].abs_diff(c[k])).sum::<usize>())
+                .min()
+                .unwrap_or(0);
+            s as f32 <= max_detour * straight as f32 + 1.0
+        };
+        if within {
+            reached.push(v);
+        }
+        for u in grid.neighbours(v as usize) {
+            if valid[u] && !steps.contains_key(&(u as u32)) && in_region(u) {
+                steps.insert(u as u32, s + 1);
+                queue.push_back(u as u32);
+            }
+        }
+    }
+    reached
+}
+
+/// Per voxel, the renormalised weights of the nodes that reach it (valid voxels) or reach a
+/// valid face neighbour (invalid voxels), the base weights where no node qualifies; and the
+/// number of valid voxels that fell back.
+fn masked_rows(
+    rows: &[Vec<(u32, f32)>],
+    reach: &[Vec<bool>],
+    grid: &Grid,
+    valid: &[bool],
+) -> (Vec<Vec<(u32, f32)>>, usize) {
+    let out: Vec<(Vec<(u32, f32)>, bool)> = (0..rows.len())
+        .into_par_iter()
+        .map(|v| {
+            let row = &rows[v];
+            let keep: Vec<bool> = if valid[v] {
+                reach[v].clone()
+            } else {
+                row.iter()
+                    .map(|&(i, _)| {
+                        grid.neighbours(v).any(|u| {
+                            valid[u]
+                                && rows[u]
+                                    .iter()
+                                    .zip(&reach[u])
+                                    .any(|(&(j, _), &r)| r && j == i)
+                        })
+                    })
+                    .collect()
+            };
+            let total: f64 = row
+                .iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(&(_, w), _)| f64::from(w))
+                .sum();
+            if total <= 0.0 {
+                let sum: f64 = row.iter().map(|&(_, w)| f64::from(w)).sum();
+                let base = row.iter().map(|&(i, w)| (i, (f64::from(w) / sum) as f32));
+                return (base.collect(), valid[v]);
+            }
+            let masked = row
+                .iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(&(i, w), _)| (i, (f64::from(w) / total) as f32));
+            (masked.collect(), false)
+        })
+        .collect();
+    let fallbacks = out.iter().filter(|(_, f)| *f).count();
+    (out.into_iter().map(|(r, _)| r).collect(), fallbacks)
+}
+
+/// For a hat grid with `nodes` nodes per axis over the voxel grid's box: per axis, voxel-centre
+/// cell `j` (between centres `j` and `j + 1`) touches the nodes from `floor(u_j)` to
+/// `ceil(u_{j+1})`, `u` the centre's coordinate in node spacings; cells with the same range
+/// form one group.
+fn hat_groups(dims: [usize; 3], nodes: [usize; 3]) -> AxisGroups {
+    let mut ids: [Vec<u32>; 3] = Default::default();
+    let mut counts = [0usize; 3];
+    for k in 0..3 {
+        let (d, last) = (dims[k], nodes[k] - 1);
+        // u_i = (2i + 1)(n − 1) / (2d), exactly in integers.
+        let floor = |i: usize| ((2 * i + 1) * last / (2 * d)).min(last);
+        let ceil = |i: usize| ((2 * i + 1) * last).div_ceil(2 * d).min(last);
+        let cells = d.saturating_sub(1).max(1);
+        let mut previous = None;
+        let mut id = 0u32;
+        for j in 0..cells {
+            let range = (floor(j), ceil((j + 1).min(d - 1)));
+            if previous.is_some_and(|p| p != range) {
+                id += 1;
+            }
+            previous = Some(range);
+            ids[k].push(id);
+        }
+        counts[k] = id as usize + 1;
+    }
+    AxisGroups { ids, counts }
+}
