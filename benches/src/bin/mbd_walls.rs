@@ -11,7 +11,7 @@
 //!
 //! Methods (`MBD_METHODS`, comma-separated, default `HAT,WALL,BPCA,CPCA`): `HAT` (MBD, hat
 //! basis), `WALL` (MBD, wall-aware hat basis), `WALL-D` (wall-aware with `max_detour` =
-//! `MBD_DETOUR`, default 1.5), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
+//! `MBD_DETOUR`, default 1.5), `WALL-LOS` (wall-aware, line of sight from the node's seeds), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
 //! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`.
 //!
 //! Reported per method: iterations, wall and process CPU time (kernel construction included),
@@ -278,12 +278,19 @@ fn main() {
             &model,
         );
     }
-    let wall_variants = [("WALL", f32::INFINITY), ("WALL-D", detour)];
-    for (key, max_detour) in wall_variants {
+    let wall_variants = [
+        ("WALL", f32::INFINITY, false),
+        ("WALL-D", detour, false),
+        ("WALL-LOS", f32::INFINITY, true),
+    ];
+    for (key, max_detour, line_of_sight) in wall_variants {
         if !enabled(key) {
             continue;
         }
-        let wall_options = WallOptions { max_detour };
+        let wall_options = WallOptions {
+            max_detour,
+            line_of_sight,
+        };
         let ((basis, build), ..) = measure(|| {
             let t = Instant::now();
             let basis = wall_aware_basis(f, &valid, nodes, &wall_options).expect("wall basis");
@@ -301,10 +308,10 @@ fn main() {
         let ((model, report), wall, cpu) = measure(|| {
             solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress).expect("mbd")
         });
-        let detour_text = if max_detour.is_finite() {
-            format!(", detour ≤ {max_detour}")
-        } else {
-            String::new()
+        let detour_text = match (max_detour.is_finite(), line_of_sight) {
+            (true, _) => format!(", detour ≤ {max_detour}"),
+            (false, true) => ", line of sight".into(),
+            (false, false) => String::new(),
         };
         add(
             format!("MBD, {count} wall-aware hat kernels{detour_text} ({text})"),

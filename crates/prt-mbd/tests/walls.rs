@@ -201,7 +201,10 @@ fn detour_limit_cuts_what_is_only_reached_around_a_wall() {
     let valid: Vec<bool> = (0..field.num_voxels())
         .map(|v| !(v % 10 == 6 && (v / 10) % 6 < 5))
         .collect();
-    let options = |max_detour| WallOptions { max_detour };
+    let options = |max_detour| WallOptions {
+        max_detour,
+        ..WallOptions::default()
+    };
     let open = wall_aware_basis(&field, &valid, [3, 2, 2], &options(f32::INFINITY)).unwrap();
     let strict = wall_aware_basis(&field, &valid, [3, 2, 2], &options(1.0)).unwrap();
     let support = |k: &WallAware<HatGrid>| -> usize {
@@ -220,6 +223,46 @@ fn detour_limit_cuts_what_is_only_reached_around_a_wall() {
     };
     assert_eq!(low_middle(&open), 2);
     assert_eq!(low_middle(&strict), 0);
+}
+
+/// Line of sight: around the same wall, a voxel the flood fill reaches through the opening
+/// but cannot see in a straight line from the node's seeds is cut; with every voxel valid
+/// nothing is.
+#[test]
+fn line_of_sight_cuts_what_a_node_cannot_see() {
+    let dims = [10, 6, 1];
+    let field = zero_field(dims);
+    let valid: Vec<bool> = (0..field.num_voxels())
+        .map(|v| !(v % 10 == 6 && (v / 10) % 6 < 5))
+        .collect();
+    let sight = WallOptions {
+        line_of_sight: true,
+        ..WallOptions::default()
+    };
+    let seen = wall_aware_basis(&field, &valid, [3, 2, 2], &sight).unwrap();
+    // Voxel (8, 0): the middle nodes at y = 0 (indices 1, 7) see it only through the wall.
+    assert_eq!(
+        seen.voxel_weights(8)
+            .filter(|(i, _)| *i == 1 || *i == 7)
+            .count(),
+        0
+    );
+    // Their own side stays: voxel (2, 0).
+    assert_eq!(
+        seen.voxel_weights(2)
+            .filter(|(i, _)| *i == 1 || *i == 7)
+            .count(),
+        2
+    );
+    let all = vec![true; field.num_voxels()];
+    let open = wall_aware_basis(&field, &all, [3, 2, 2], &sight).unwrap();
+    let hat = HatGrid::new([3, 2, 2], field.bounds()).unwrap();
+    for v in 0..field.num_voxels() {
+        let x = field.centre_of(v);
+        for (a, b) in dense(&open, x).iter().zip(dense(&hat, x)) {
+            assert!((a - b).abs() < 1e-6);
+        }
+    }
 }
 
 #[test]
@@ -248,7 +291,10 @@ fn typed_errors() {
                 &field,
                 &vec![true; n],
                 [2, 2, 2],
-                &WallOptions { max_detour }
+                &WallOptions {
+                    max_detour,
+                    ..WallOptions::default()
+                }
             ),
             Err(MbdError::InvalidOption {
                 what: "max_detour",
