@@ -10,9 +10,14 @@
 //! validity mask is the baker's (invalid voxels hold exactly zero transfer).
 //!
 //! Methods (`MBD_METHODS`, comma-separated, default `HAT,WALL,BPCA,CPCA`): `HAT` (MBD, hat
-//! basis), `WALL` (MBD, wall-aware hat basis), `WALL-D` (wall-aware with `max_detour` =
+//! basis), `HAT-INTERP` (the wall-aware family with every voxel valid: the hat sampled at the
+//! voxel centres and interpolated, the control for what the cuts themselves do), `WALL` (MBD,
+//! wall-aware hat basis), `WALL-D` (wall-aware with `max_detour` =
 //! `MBD_DETOUR`, default 1.5), `WALL-LOS` (wall-aware, line of sight from the node's seeds), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
-//! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`.
+//! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`, and as controls
+//! (with `CPCA`) `CLUSTER` / `CLUSTER-SMOOTH`: MBD whose basis kernels are CPCA's cluster
+//! indicators, sharp or smoothed over the 3³ neighbours, interpolated between voxel centres
+//! (global- and local-PCA starts; the time excludes CPCA's).
 //!
 //! Reported per method: iterations, wall and process CPU time (kernel construction included),
 //! relative MSE on jittered samples and its ratio to CPCA's, the relative error at valid voxel
@@ -153,6 +158,132 @@ fn cut_share<K: SpatialKernels>(basis: &WallAware<K>, f: &GridField, valid: &[bo
     (plain / count, weighted / energy)
 }
 
+/// Basis kernels from CPCA's clusters (a control, not a method: it needs CPCA first): kernel
+/// `k` at voxel `v` is the share of cluster `k` among `v`'s valid 3³ neighbours (weight
+/// `2^-|u - v|₁`, only `v` itself when `smooth` is off), interpolated trilinearly between voxel
+/// centres: a partition of unity that follows the field's values rather than space, with as
+/// many kernels as clusters.
+struct ClusterKernels {
+    dims: [usize; 3],
+    bounds: Aabb,
+    len: usize,
+    rows: Vec<Vec<(u32, f32)>>,
+    max_support: usize,
+}
+
+impl ClusterKernels {
+    fn new(f: &GridField, valid: &[bool], labels: &[u32], smooth: bool) -> Self {
+        let dims = f.dims();
+        let len = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
+        let rows: Vec<Vec<(u32, f32)>> = (0..f.num_voxels())
+            .map(|v| {
+                let c = f.coords(v);
+                let mut row: Vec<(u32, f32)> = Vec::new();
+                let radius: i32 = if smooth { 1 } else { 0 };
+                for dz in -radius..=radius {
+                    for dy in -radius..=radius {
+                        for dx in -radius..=radius {
+                            let u = [dx, dy, dz];
+                            let q: Vec<i64> = (0..3).map(|k| c[k] as i64 + u[k] as i64).collect();
+                            if (0..3).any(|k| q[k] < 0 || q[k] >= dims[k] as i64) {
+                                continue;
+                            }
+                            let w =
+                                q[0] as usize + dims[0] * (q[1] as usize + dims[1] * q[2] as usize);
+                            if w != v && !valid[w] {
+                                continue;
+                            }
+                            let weight = 0.5f32.powi(dx.abs() + dy.abs() + dz.abs());
+                            match row.iter_mut().find(|(k, _)| *k == labels[w]) {
+                                Some(e) => e.1 += weight,
+                                None => row.push((labels[w], weight)),
+                            }
+                        }
+                    }
+                }
+                let total: f32 = row.iter().map(|e| e.1).sum();
+                row.iter_mut().for_each(|e| e.1 /= total);
+                row
+            })
+            .collect();
+        let mut kernels = Self {
+            dims,
+            bounds: f.bounds(),
+            len,
+            rows,
+            max_support: 0,
+        };
+        let mut w = prt_core::KernelWeights::default();
+        kernels.max_support = (0..f.num_voxels())
+            .map(|v| {
+                // The cell above each voxel centre: all eight corners' kernels.
+                let x = f.centre_of(v) + 0.5 * f.voxel_size();
+                kernels.eval(x, &mut w).expect("finite");
+                w.len()
+            })
+            .max()
+            .unwrap_or(1);
+        kernels
+    }
+}
+
+impl SpatialKernels for ClusterKernels {
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    fn max_support(&self) -> usize {
+        self.max_support
+    }
+
+    fn domain(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn eval(&self, x: Vec3, out: &mut prt_core::KernelWeights) -> Result<(), prt_core::CoreError> {
+        out.clear();
+        if !x.is_finite() {
+            return Err(prt_core::CoreError::NonFinite {
+                what: "query point",
+                index: 0,
+            });
+        }
+        let size = self.bounds.size();
+        let mut cell = [0usize; 3];
+        let mut t = [0.0f32; 3];
+        for k in 0..3 {
+            let last = (self.dims[k] - 1) as f32;
+            let u = ((x[k] - self.bounds.min[k]) / size[k] * self.dims[k] as f32 - 0.5)
+                .clamp(0.0, last);
+            cell[k] = (u as usize).min(self.dims[k].saturating_sub(2));
+            t[k] = u - cell[k] as f32;
+        }
+        for corner in 0..8 {
+            let tw: f32 = (0..3)
+                .map(|k| {
+                    if corner >> k & 1 == 1 {
+                        t[k]
+                    } else {
+                        1.0 - t[k]
+                    }
+                })
+                .product();
+            if tw <= 0.0 {
+                continue;
+            }
+            let c = [0, 1, 2].map(|k| (cell[k] + (corner >> k & 1)).min(self.dims[k] - 1));
+            let v = c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2]);
+            for &(i, w) in &self.rows[v] {
+                match out.indices.iter().position(|&j| j == i) {
+                    Some(p) => out.weights[p] += tw * w,
+                    None => out.push(i, tw * w),
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 struct Row {
     name: String,
     iterations: String,
@@ -278,7 +409,9 @@ fn main() {
             &model,
         );
     }
+    let all_valid = vec![true; f.num_voxels()];
     let wall_variants = [
+        ("HAT-INTERP", f32::INFINITY, false),
         ("WALL", f32::INFINITY, false),
         ("WALL-D", detour, false),
         ("WALL-LOS", f32::INFINITY, true),
@@ -293,7 +426,13 @@ fn main() {
         };
         let ((basis, build), ..) = measure(|| {
             let t = Instant::now();
-            let basis = wall_aware_basis(f, &valid, nodes, &wall_options).expect("wall basis");
+            // The control: the same family with every voxel valid (nothing cut).
+            let mask = if key == "HAT-INTERP" {
+                &all_valid
+            } else {
+                &valid
+            };
+            let basis = wall_aware_basis(f, mask, nodes, &wall_options).expect("wall basis");
             (basis, t.elapsed().as_secs_f64())
         });
         let text = describe(&|| {
@@ -313,8 +452,13 @@ fn main() {
             (false, true) => ", line of sight".into(),
             (false, false) => String::new(),
         };
+        let family = if key == "HAT-INTERP" {
+            "hat kernels sampled at voxel centres and interpolated (wall-aware with every voxel valid: the control)"
+        } else {
+            "wall-aware hat kernels"
+        };
         add(
-            format!("MBD, {count} wall-aware hat kernels{detour_text} ({text})"),
+            format!("MBD, {count} {family}{detour_text} ({text})"),
             report.history.len().to_string(),
             wall + build,
             cpu + build,
@@ -393,6 +537,38 @@ fn main() {
                 .expect("cpca")
         });
         add("CPCA".into(), "–".into(), wall, cpu, &m);
+        for (key, smooth) in [("CLUSTER", false), ("CLUSTER-SMOOTH", true)] {
+            if !enabled(key) {
+                continue;
+            }
+            for init in [Init::GlobalPca, Init::LocalPca] {
+                let ((model, report), wall, cpu) = measure(|| {
+                    let basis = ClusterKernels::new(f, &valid, m.labels(), smooth);
+                    let options = MbdOptions {
+                        init,
+                        ..options.clone()
+                    };
+                    solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress)
+                        .expect("mbd")
+                });
+                let shape = if smooth {
+                    "smoothed over 3³ valid neighbours"
+                } else {
+                    "indicators"
+                };
+                add(
+                    format!(
+                        "MBD, {} kernels from CPCA's clusters ({shape}, ≤ {} at a point), {init:?} start (control)",
+                        model.basis_kernels().len(),
+                        model.basis_kernels().max_support()
+                    ),
+                    report.history.len().to_string(),
+                    wall,
+                    cpu,
+                    &model,
+                );
+            }
+        }
     }
     let cpca = rows.iter().find(|r| r.name == "CPCA");
     let mut header = vec![
