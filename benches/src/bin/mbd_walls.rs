@@ -12,7 +12,8 @@
 //! Methods (`MBD_METHODS`, comma-separated, default `HAT,WALL,BPCA,CPCA`): `HAT` (MBD, hat
 //! basis), `HAT-INTERP` (the wall-aware family with every voxel valid: the hat sampled at the
 //! voxel centres and interpolated, the control for what the cuts themselves do), `WALL` (MBD,
-//! wall-aware hat basis), `WALL-D` (wall-aware with `max_detour` =
+//! wall-aware hat basis), `HAT-CENTRES` / `WALL-CENTRES` (the hat grid spanning the box of
+//! the voxel centres instead of the field's box, plain / cut at walls), `WALL-D` (wall-aware with `max_detour` =
 //! `MBD_DETOUR`, default 1.5), `WALL-LOS` (wall-aware, line of sight from the node's seeds), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
 //! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`, and as controls
 //! (with `CPCA`) `CLUSTER` / `CLUSTER-SMOOTH`: MBD whose basis kernels are CPCA's cluster
@@ -414,12 +415,35 @@ fn main() {
             &model,
         );
     }
+    // The hat grid over the box of the voxel centres (constant in the outer half voxel, like
+    // the field's own trilinear sampling and the coefficient kernels).
+    let centre_hat = prt_kernels::HatGrid::new(nodes, voxel_centre_box(f)).expect("hat");
+    if enabled("HAT-CENTRES") {
+        let ((model, report), wall, cpu) = measure(|| {
+            solve(
+                f,
+                coefficient_kernels.clone(),
+                centre_hat.clone(),
+                &options,
+                &NoProgress,
+            )
+            .expect("mbd")
+        });
+        add(
+            format!("MBD, {count} hat kernels over the voxel centres' box"),
+            report.history.len().to_string(),
+            wall,
+            cpu,
+            &model,
+        );
+    }
     let all_valid = vec![true; f.num_voxels()];
     let wall_variants = [
         ("HAT-INTERP", f32::INFINITY, false),
         ("WALL", f32::INFINITY, false),
         ("WALL-D", detour, false),
         ("WALL-LOS", f32::INFINITY, true),
+        ("WALL-CENTRES", f32::INFINITY, false),
     ];
     for (key, max_detour, line_of_sight) in wall_variants {
         if !enabled(key) {
@@ -437,7 +461,12 @@ fn main() {
             } else {
                 &valid
             };
-            let basis = wall_aware_basis(f, mask, nodes, &wall_options).expect("wall basis");
+            let basis = if key == "WALL-CENTRES" {
+                WallAware::from_hat(centre_hat.clone(), dims, f.bounds(), mask, &wall_options)
+            } else {
+                wall_aware_basis(f, mask, nodes, &wall_options)
+            }
+            .expect("wall basis");
             (basis, t.elapsed().as_secs_f64())
         });
         let text = describe(&|| {
@@ -457,10 +486,12 @@ fn main() {
             (false, true) => ", line of sight".into(),
             (false, false) => String::new(),
         };
-        let family = if key == "HAT-INTERP" {
-            "hat kernels sampled at voxel centres and interpolated (wall-aware with every voxel valid: the control)"
-        } else {
-            "wall-aware hat kernels"
+        let family = match key {
+            "HAT-INTERP" => {
+                "hat kernels sampled at voxel centres and interpolated (wall-aware with every voxel valid: the control)"
+            }
+            "WALL-CENTRES" => "wall-aware hat kernels over the voxel centres' box",
+            _ => "wall-aware hat kernels",
         };
         add(
             format!("MBD, {count} {family}{detour_text} ({text})"),

@@ -34,7 +34,7 @@
 //! (up to 27 basis nodes instead of 8 at a point near a node plane). The solver batches per
 //! [`SpatialKernels::support_cell`]: for a hat base, the voxel-centre cells between the same
 //! node planes (the cells inside a basis cell share its 8 nodes; a slab of cells straddling a
-//! node plane uses 12, an edge 18, a corner 27), so a solve costs about what the hat grid's
+//! node plane uses 12, an edge 18, a corner 27, when the nodes are at least a voxel apart), so a solve costs about what the hat grid's
 //! does (measured in `docs/results.md`, MBD session 7).
 
 use glam::Vec3;
@@ -134,9 +134,28 @@ pub fn wall_aware_basis(
         which: "basis",
         why: e.to_string(),
     })?;
-    let mut kernels = WallAware::new(hat, field.dims(), field.bounds(), valid, options)?;
-    kernels.groups = Some(hat_groups(field.dims(), nodes));
-    Ok(kernels)
+    WallAware::from_hat(hat, field.dims(), field.bounds(), valid, options)
+}
+
+impl WallAware<HatGrid> {
+    /// [`WallAware::new`] for a hat grid over any box (e.g. the box of the voxel centres), with
+    /// the hat's support cells: the solver then batches the voxel-centre cells between the same
+    /// node planes, as it does for the hat grid's own cells.
+    ///
+    /// # Errors
+    /// Those of [`WallAware::new`].
+    pub fn from_hat(
+        hat: HatGrid,
+        dims: [usize; 3],
+        bounds: Aabb,
+        valid: &[bool],
+        options: &WallOptions,
+    ) -> Result<Self, MbdError> {
+        let (nodes, domain) = (hat.nodes(), hat.domain());
+        let mut kernels = WallAware::new(hat, dims, bounds, valid, options)?;
+        kernels.groups = Some(hat_groups(dims, bounds, nodes, domain));
+        Ok(kernels)
+    }
 }
 
 impl<K: SpatialKernels> WallAware<K> {
@@ -603,23 +622,31 @@ fn masked_rows(
     (out.into_iter().map(|(r, _)| r).collect(), fallbacks)
 }
 
-/// For a hat grid with `nodes` nodes per axis over the voxel grid's box: per axis, voxel-centre
-/// cell `j` (between centres `j` and `j + 1`) touches the nodes from `floor(u_j)` to
-/// `ceil(u_{j+1})`, `u` the centre's coordinate in node spacings; cells with the same range
-/// form one group.
-fn hat_groups(dims: [usize; 3], nodes: [usize; 3]) -> AxisGroups {
+/// For a hat grid with `nodes` nodes per axis over `domain`, on a voxel grid over `bounds`: per
+/// axis, voxel-centre cell `j` (between centres `j` and `j + 1`) touches the nodes from
+/// `floor(u_j)` to `ceil(u_{j+1})`, `u` the centre's coordinate in node spacings (clamped to
+/// the grid); cells with the same range form one group. Rounding can only widen a range, which
+/// costs a little batching and nothing else.
+fn hat_groups(dims: [usize; 3], bounds: Aabb, nodes: [usize; 3], domain: Aabb) -> AxisGroups {
     let mut ids: [Vec<u32>; 3] = Default::default();
     let mut counts = [0usize; 3];
     for k in 0..3 {
-        let (d, last) = (dims[k], nodes[k] - 1);
-        // u_i = (2i + 1)(n − 1) / (2d), exactly in integers.
-        let floor = |i: usize| ((2 * i + 1) * last / (2 * d)).min(last);
-        let ceil = |i: usize| ((2 * i + 1) * last).div_ceil(2 * d).min(last);
+        let d = dims[k];
+        let last = nodes[k].saturating_sub(1);
+        let voxel = (f64::from(bounds.max[k]) - f64::from(bounds.min[k])) / d as f64;
+        let span = f64::from(domain.max[k]) - f64::from(domain.min[k]);
+        let u = |i: usize| {
+            if last == 0 || span <= 0.0 {
+                return 0.0;
+            }
+            let x = f64::from(bounds.min[k]) + (i as f64 + 0.5) * voxel;
+            ((x - f64::from(domain.min[k])) / span * last as f64).clamp(0.0, last as f64)
+        };
         let cells = d.saturating_sub(1).max(1);
         let mut previous = None;
         let mut id = 0u32;
         for j in 0..cells {
-            let range = (floor(j), ceil((j + 1).min(d - 1)));
+            let range = (u(j).floor() as usize, u((j + 1).min(d - 1)).ceil() as usize);
             if previous.is_some_and(|p| p != range) {
                 id += 1;
             }

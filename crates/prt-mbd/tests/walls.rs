@@ -128,6 +128,53 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(16))]
+
+    /// The support cells batch well: with basis nodes at least one voxel apart, the kernels
+    /// non-zero anywhere in one cell are at most 27 (3 node planes per axis), for a hat over
+    /// the field's box and over the box of the voxel centres (`from_hat`), and the latter is a
+    /// partition of unity too.
+    #[test]
+    fn support_cells_share_few_kernels(
+        dims in [2usize..9, 2usize..9, 2usize..9],
+        nodes in [2usize..5, 2usize..5, 2usize..5],
+        invalid in 0.0f64..0.6,
+        seed in 0u64..1000,
+    ) {
+        let nodes = [0, 1, 2].map(|k| nodes[k].min(dims[k]));
+        let field = zero_field(dims);
+        let valid = random_mask(field.num_voxels(), invalid, seed);
+        let options = WallOptions::default();
+        let centres = HatGrid::new(nodes, voxel_centre_box(&field)).unwrap();
+        let families = [
+            wall_aware_basis(&field, &valid, nodes, &options).unwrap(),
+            WallAware::from_hat(centres, dims, field.bounds(), &valid, &options).unwrap(),
+        ];
+        let b = bounds();
+        let mut rng = Pcg64Mcg::seed_from_u64(seed);
+        let mut w = KernelWeights::default();
+        for basis in &families {
+            let cells = basis.num_support_cells();
+            prop_assert!(cells > 0);
+            let mut union: Vec<Vec<u32>> = vec![Vec::new(); cells];
+            for _ in 0..400 {
+                let x = b.min + Vec3::new(rng.random(), rng.random(), rng.random()) * b.size();
+                let cell = basis.support_cell(x).unwrap();
+                prop_assert!(cell < cells);
+                basis.eval(x, &mut w).unwrap();
+                prop_assert!((w.sum() - 1.0).abs() < 1e-5);
+                for &i in &w.indices {
+                    if !union[cell].contains(&i) {
+                        union[cell].push(i);
+                    }
+                }
+            }
+            prop_assert!(union.iter().all(|u| u.len() <= 27));
+        }
+    }
+}
+
 /// Where the hat grid's node planes pass through voxel centres (5 and 9 voxels, 3 nodes), the
 /// hat is trilinear inside every voxel-centre cell, so with every voxel valid the family equals
 /// it everywhere inside the box of voxel centres.
