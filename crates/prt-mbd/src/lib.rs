@@ -41,6 +41,9 @@
 //!   the raw form).
 //! * [`scene_adapted_basis`] (beyond the paper): Shepard basis kernels at weighted k-means
 //!   centres of the valid voxels, for scenes where much of the box is inside geometry.
+//! * [`wall_aware_basis`] / [`WallAware`] (beyond the paper, opt-in): the hat basis cut back
+//!   at walls, each node serving only the voxels it reaches through valid voxels, blended
+//!   between voxel centres (still a continuous partition of unity); module [`walls`].
 //! * [`polish`] and [`exact_loss`] (beyond the paper, opt-in): on the hat grids of [`Mbd`] the
 //!   continuous loss is a piecewise polynomial, integrated exactly by a tensor Gauss–Legendre
 //!   rule; `polish` lowers it further by alternating exact solves (basis: dense normal
