@@ -793,7 +793,8 @@ fn quality() {
 /// `MBD_B`³ (5³) nodes, `MBD_ITERS` (512) iterations (stopping rule off unless `MBD_TOL` is
 /// set), for each averaging
 /// window in `MBD_WINDOWS` (default `0,16`; 0 = the last iterate) and momentum `MBD_MB`,
-/// `MBD_MC` (percent; default the solver's). The error at the checkpoints is the solver's
+/// `MBD_MC` (percent; default the solver's), samples per voxel `MBD_SPV` (default 1) and ridge
+/// `MBD_LAMBDA` (default the solver's). The error at the checkpoints is the solver's
 /// held-out relative error of the averaged iterates, so one run gives the whole curve; the
 /// last column is `evaluate`'s relative MSE of the returned model. With `MBD_HISTORY_DIR` the
 /// per-iteration history is written as CSV.
@@ -832,6 +833,8 @@ fn floor() {
                 jitter: env_usize("MBD_JITTER", 1) != 0,
                 momentum_basis: env_usize("MBD_MB", 90) as f32 / 100.0,
                 momentum_coefficients: env_usize("MBD_MC", 60) as f32 / 100.0,
+                samples_per_voxel: env_usize("MBD_SPV", 1),
+                lambda: env_or("MBD_LAMBDA", MbdOptions::default().lambda),
                 ..MbdOptions::default()
             },
         };
@@ -1330,7 +1333,8 @@ fn ridge() {
 }
 
 /// Optimisation or representation? MBD with the default solver (≤ `MBD_ITERS` = 128
-/// iterations, ridge `MBD_LAMBDA`, default 1e-4) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes,
+/// iterations, ridge `MBD_LAMBDA`, default 1e-4, stopping tolerance `MBD_TOL`, default the
+/// solver's; 1e-2 is the early hand-off of `PolishedMbd`) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes,
 /// then `polish` (exact alternating solves of the continuous loss) for `MBD_SWEEPS` (16)
 /// sweeps, with its tolerance `MBD_PTOL` (default 0: all sweeps), ridge `MBD_PLAMBDA` (default
 /// `PolishOptions`' 1e-8; the solver's 1e-4 dominates the loss near the optimum, so the polish
@@ -1338,6 +1342,8 @@ fn ridge() {
 /// extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every
 /// half-step with the wall time, `evaluate`'s estimate and the seam metric before and after,
 /// and BPCA / WBPCA / CPCA as `MBD_METHODS` enables (exact errors through `trilinear_energy`).
+/// With `MBD_HISTORY_DIR` the error curve of both phases is written to
+/// `<MBD_HISTORY_NAME, default polish>.csv` there.
 fn polish_sweep() {
     let input = sweep_field();
     let f = &input.field;
@@ -1348,6 +1354,7 @@ fn polish_sweep() {
         rank: l,
         max_iterations: iterations,
         lambda: env_or("MBD_LAMBDA", MbdOptions::default().lambda),
+        tolerance: env_or("MBD_TOL", MbdOptions::default().tolerance),
         ..MbdOptions::default()
     };
     let mbd = Mbd {
@@ -1403,6 +1410,18 @@ fn polish_sweep() {
             format!("{:.1}", r.elapsed),
         ]);
     }
+    if let Ok(dir) = std::env::var("MBD_HISTORY_DIR") {
+        write_two_phase_history(
+            &PathBuf::from(dir).join(format!(
+                "{}.csv",
+                std::env::var("MBD_HISTORY_NAME").unwrap_or_else(|_| "polish".into())
+            )),
+            &report,
+            &solve_cost,
+            &polish_report,
+            &polish_cost,
+        );
+    }
     let polished_scores = score(&polished, &input, &labels);
     println!(
         "### Exact polish ({}, L = {l}, {b}³ basis nodes)\n\n{}",
@@ -1439,6 +1458,49 @@ fn polish_sweep() {
         );
     });
     println!("load average after: {}\n", load_average());
+}
+
+/// The error curve of a two-phase fit as CSV (`phase,step,cpu,wall,relative_mse`): the
+/// solver's held-out error at every measurement, then the exact error after every polish
+/// sweep. The records carry wall time only, so `cpu` scales it by each phase's CPU / wall.
+fn write_two_phase_history(
+    path: &std::path::Path,
+    solve: &SolveReport,
+    solve_cost: &Cost,
+    polish: &PolishReport,
+    polish_cost: &Cost,
+) {
+    let scale = |c: &Cost| if c.wall > 0.0 { c.cpu / c.wall } else { 1.0 };
+    let (solve_scale, polish_scale) = (scale(solve_cost), scale(polish_cost));
+    let mut csv = String::from("phase,step,cpu,wall,relative_mse\n");
+    for (i, r) in solve.history.iter().enumerate() {
+        if let Some(h) = r.held_out {
+            csv += &format!(
+                "solver,{},{},{},{h}\n",
+                i + 1,
+                r.elapsed * solve_scale,
+                r.elapsed
+            );
+        }
+    }
+    let mut sweep = 0;
+    for (k, r) in polish.history.iter().enumerate() {
+        let next_is_basis = polish
+            .history
+            .get(k + 1)
+            .is_none_or(|n| n.step == PolishStep::Basis);
+        sweep += usize::from(r.step == PolishStep::Basis);
+        if next_is_basis {
+            csv += &format!(
+                "polish,{sweep},{},{},{}\n",
+                solve_cost.cpu + r.elapsed * polish_scale,
+                solve_cost.wall + r.elapsed,
+                r.loss.relative_mse()
+            );
+        }
+    }
+    std::fs::create_dir_all(path.parent().unwrap_or(std::path::Path::new("."))).ok();
+    std::fs::write(path, csv).ok();
 }
 
 fn main() {

@@ -73,7 +73,7 @@ pub fn solve_als<C: SpatialKernels, B: SpatialKernels>(
         preconditioner: Preconditioner::Diagonal,
     };
     let (mut coefficients, mut basis) = initialise(&problem, options)?;
-    let mut centres = Samples::draw(field, &basis_kernels, 0, 0, false);
+    let mut centres = Samples::draw(field, &basis_kernels, 0, 0, false, 1);
     problem.prepare(&mut centres)?;
     let energy = problem.target_energy(&centres, progress)?;
     let mut report = SolveReport {

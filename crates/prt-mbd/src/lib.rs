@@ -105,8 +105,8 @@ mod adapted;
 pub use adapted::{AdaptedBasisOptions, Placement, scene_adapted_basis};
 mod polish;
 pub use polish::{
-    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, PolishOptions, PolishRecord, PolishReport, PolishStep,
-    exact_loss, polish, trilinear_energy,
+    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishOptions, PolishRecord,
+    PolishReport, PolishStep, PolishedMbd, exact_loss, polish, trilinear_energy,
 };
 pub mod walls;
 pub use walls::{WallAware, WallOptions, wall_aware_basis};

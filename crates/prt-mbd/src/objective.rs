@@ -97,6 +97,9 @@ pub(crate) struct Samples {
     /// sample sets evaluated more than once; the first `prepared` entries are valid).
     geometry: Vec<Geometry>,
     prepared: usize,
+    /// Volume of one sample in voxels (1 / samples per voxel): the weight of its squared error,
+    /// so that the data term estimates the same integral for any number of samples.
+    volume: f32,
 }
 
 /// What one group's evaluation needs that depends on its samples only: the coefficient kernel
@@ -134,30 +137,40 @@ struct KernelScratch {
 }
 
 impl Samples {
-    /// Stratified jittered samples for `iteration`, reproducible from `seed`. With
-    /// `jitter = false` the samples sit at the voxel centres.
+    /// Stratified jittered samples for `iteration`, reproducible from `seed`: `strata` samples
+    /// per voxel (1, 2, 4 or 8), each jittered inside its own part of the voxel (halves along x,
+    /// then y, then z). With `jitter = false` the samples sit at the voxel centres (one each).
     pub fn draw<B: SpatialKernels>(
         field: &GridField,
         basis: &B,
         seed: u64,
         iteration: u64,
         jitter: bool,
+        strata: usize,
     ) -> Self {
         let size = field.voxel_size();
+        let strata = if jitter { strata.max(1) } else { 1 };
         let mut rng = Pcg64Mcg::seed_from_u64(mix(seed, iteration));
-        let points: Vec<Vec3> = (0..field.num_voxels())
-            .map(|v| {
-                let centre = field.centre_of(v);
-                if jitter {
-                    let u = Vec3::new(
-                        rng.random::<f32>(),
-                        rng.random::<f32>(),
-                        rng.random::<f32>(),
-                    );
-                    centre + (u - 0.5) * size
-                } else {
-                    centre
+        // Parts per axis: x is halved first, then y, then z.
+        let parts = [2, 4, 8].map(|k| if strata >= k { 2.0f32 } else { 1.0 });
+        let points: Vec<Vec3> = (0..field.num_voxels() * strata)
+            .map(|s| {
+                let centre = field.centre_of(s / strata);
+                if !jitter {
+                    return centre;
                 }
+                let u = Vec3::new(
+                    rng.random::<f32>(),
+                    rng.random::<f32>(),
+                    rng.random::<f32>(),
+                );
+                if strata == 1 {
+                    return centre + (u - 0.5) * size;
+                }
+                let k = s % strata;
+                let part = Vec3::new((k & 1) as f32, ((k >> 1) & 1) as f32, (k >> 2) as f32);
+                let parts = Vec3::from_array(parts);
+                centre + ((part + u) / parts - 0.5) * size
             })
             .collect();
         if basis.num_support_cells() == 0 {
@@ -166,7 +179,8 @@ impl Samples {
             let dims = field.dims();
             let bricks = dims.map(|d| d.div_ceil(FALLBACK_BRICK));
             let keys = (0..points.len())
-                .map(|v| {
+                .map(|s| {
+                    let v = s / strata;
                     let b = [
                         v % dims[0],
                         (v / dims[0]) % dims[1],
@@ -176,9 +190,13 @@ impl Samples {
                     (b[0] + bricks[0] * (b[1] + bricks[1] * b[2])) as u32
                 })
                 .collect();
-            return Self::group_by(points, Some(keys), bricks.iter().product());
+            let mut samples = Self::group_by(points, Some(keys), bricks.iter().product());
+            samples.volume = 1.0 / strata as f32;
+            return samples;
         }
-        Self::group(points, basis)
+        let mut samples = Self::group(points, basis);
+        samples.volume = 1.0 / strata as f32;
+        samples
     }
 
     /// Groups arbitrary points by basis cell (families without cells: runs of
@@ -242,6 +260,7 @@ impl Samples {
             groups,
             geometry: Vec::new(),
             prepared: 0,
+            volume: 1.0,
         }
     }
 
@@ -332,9 +351,10 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         progress: &dyn Progress,
     ) -> Result<f64, CoreError> {
         if samples.prepared == samples.groups.len() {
+            let volume = samples.volume as f64;
             return Ok(samples.geometry[..samples.prepared]
                 .iter()
-                .fold(0.0, |total, g| total + sum_of_squares(&g.target)));
+                .fold(0.0, |total, g| total + sum_of_squares(&g.target) * volume));
         }
         let (l, d) = (self.rank, self.dim());
         let coefficients = vec![0.0; self.coefficient_kernels.len() * l];
@@ -483,6 +503,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
                             &samples.points,
                             ids,
                             geometry,
+                            samples.volume,
                             coefficients,
                             basis,
                             want_gradient,
@@ -654,11 +675,14 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         points: &[Vec3],
         ids: &[u32],
         geometry: &Geometry,
+        volume: f32,
         coefficients: &[f32],
         basis: &[f32],
         want_gradient: bool,
         buffers: &mut Buffers,
     ) -> Result<GroupOut, CoreError> {
+        // Every squared error, gradient and curvature term is weighted by the sample's volume
+        // (1 for one sample per voxel: multiplying by it changes no bit).
         let (l, d) = (self.rank, self.dim());
         let s_len = ids.len();
         let (g, sc) = (geometry, buffers);
@@ -717,7 +741,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             let mut r = matrix(&mut sc.r, s_len, d);
             general_mat_mul(-1.0, &p, &bg, 1.0, &mut r);
         }
-        let loss = sum_of_squares(&sc.r[..s_len * d]);
+        let loss = sum_of_squares(&sc.r[..s_len * d]) * volume as f64;
         if !want_gradient {
             return Ok(GroupOut {
                 loss,
@@ -732,7 +756,13 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         let r = view(&sc.r, s_len, d);
         // ∇_B = −2 Pᵀ R.
         let mut grad_b = Vec::new();
-        general_mat_mul(-2.0, &p.t(), &r, 0.0, &mut matrix(&mut grad_b, nbl, d));
+        general_mat_mul(
+            -2.0 * volume,
+            &p.t(),
+            &r,
+            0.0,
+            &mut matrix(&mut grad_b, nbl, d),
+        );
         let lumped = self.preconditioner != Preconditioner::Diagonal;
         let w = self.preconditioner.width(l);
         // Curvature of the basis: Σ_s ψ_j(x_s) κ_s c(x_s) c(x_s)ᵀ with κ_s = Σψ (lumped) or
@@ -742,7 +772,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             let mut pw = matrix(&mut sc.pw, s_len, nbl);
             for (s, (mut row, prow)) in pw.rows_mut().into_iter().zip(p.rows()).enumerate() {
                 let overlap: f32 = g.psi_dense[s * nb..(s + 1) * nb].iter().sum();
-                row.zip_mut_with(&prow, |o, &v| *o = 2.0 * v * overlap);
+                row.zip_mut_with(&prow, |o, &v| *o = 2.0 * v * overlap * volume);
             }
             let c_at = view(&sc.c_at, s_len, l);
             let mut hb = matrix(&mut sc.hb, nbl, l);
@@ -759,7 +789,7 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         } else {
             for row in p.rows() {
                 for (h, &v) in hess_b.iter_mut().zip(row.iter()) {
-                    *h += 2.0 * (v as f64) * (v as f64);
+                    *h += 2.0 * (v as f64) * (v as f64) * volume as f64;
                 }
             }
         }
@@ -835,13 +865,14 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             {
                 let local = local as usize;
                 let weight = weight as f64;
+                let volume = volume as f64;
                 let scale = if lumped {
                     2.0 * weight * overlap
                 } else {
                     2.0 * weight * weight
-                };
+                } * volume;
                 for li in 0..l {
-                    grad_c[local * l + li] -= 2.0 * weight * br[li];
+                    grad_c[local * l + li] -= 2.0 * weight * volume * br[li];
                 }
                 for (h, &v) in hess_c[local * l * w..(local + 1) * l * w]
                     .iter_mut()
@@ -941,10 +972,10 @@ mod tests {
         /// The loss is quadratic in every single parameter, so central differences are exact up
         /// to rounding: `(E(θ+h) − E(θ−h)) / 2h = g` and `E(θ+h) + E(θ−h) − 2E(θ) = h² H`.
         #[test]
-        fn gradient_and_diagonal_hessian_match_finite_differences(seed in 0u64..1000, pick in 0usize..1000) {
+        fn gradient_and_diagonal_hessian_match_finite_differences(seed in 0u64..1000, pick in 0usize..1000, strata in prop::sample::select(vec![1usize, 2, 4, 8])) {
             let (field, coef, basis, c, b) = setup(seed);
             let p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.3, preconditioner: Preconditioner::Diagonal };
-            let samples = Samples::draw(&field, &basis, seed, 3, true);
+            let samples = Samples::draw(&field, &basis, seed, 3, true, strata);
             let e = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
             let e0 = e.loss();
             let h = 0.125f32;
@@ -971,7 +1002,7 @@ mod tests {
         fn lumped_diagonal_dominates_the_hessian_diagonal(seed in 0u64..1000) {
             let (field, coef, basis, c, b) = setup(seed);
             let mut p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.0, preconditioner: Preconditioner::Diagonal };
-            let samples = Samples::draw(&field, &basis, seed, 0, true);
+            let samples = Samples::draw(&field, &basis, seed, 0, true, 1);
             let exact = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
             p.preconditioner = Preconditioner::Lumped;
             let lumped = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
@@ -1007,10 +1038,10 @@ mod tests {
             lambda: 0.3,
             preconditioner: Preconditioner::Block,
         };
-        let mut other = Samples::draw(&field, &basis, 9, 1, true);
+        let mut other = Samples::draw(&field, &basis, 9, 1, true, 1);
         p.prepare(&mut other).unwrap();
-        let plain = Samples::draw(&field, &basis, 9, 0, true);
-        let mut prepared = Samples::draw(&field, &basis, 9, 0, true);
+        let plain = Samples::draw(&field, &basis, 9, 0, true, 1);
+        let mut prepared = Samples::draw(&field, &basis, 9, 0, true, 1);
         prepared.recycle(other);
         p.prepare(&mut prepared).unwrap();
         assert_eq!(prepared.prepared, prepared.groups.len());
@@ -1040,7 +1071,7 @@ mod tests {
     #[test]
     fn samples_are_grouped_by_basis_cell_and_cover_every_voxel_once() {
         let (field, _, basis, _, _) = setup(1);
-        let s = Samples::draw(&field, &basis, 7, 0, true);
+        let s = Samples::draw(&field, &basis, 7, 0, true, 1);
         let mut seen = s.order.clone();
         seen.sort_unstable();
         assert_eq!(seen, (0..field.num_voxels() as u32).collect::<Vec<_>>());
@@ -1059,6 +1090,65 @@ mod tests {
         }
     }
 
+    /// With several samples per voxel, sample `v·K + k` lies in part `k` of voxel `v` (halves
+    /// along x, then y, then z), every sample is grouped once, and each weighs `1/K` voxels:
+    /// on a constant field the zero model's data term is the same integral for every `K`.
+    #[test]
+    fn stratified_samples_fill_their_parts_and_weigh_their_volume() {
+        let field = GridField::from_fn([5, 4, 3], Aabb::UNIT, 3, |_, out| {
+            out.copy_from_slice(&[1.0, -2.0, 0.5])
+        })
+        .unwrap();
+        let coef = HatGrid::new([5, 4, 3], crate::voxel_centre_box(&field)).unwrap();
+        let basis = HatGrid::new([3, 2, 2], Aabb::UNIT).unwrap();
+        let p = Problem {
+            field: &field,
+            coefficient_kernels: &coef,
+            basis_kernels: &basis,
+            rank: 1,
+            lambda: 0.0,
+            preconditioner: Preconditioner::Block,
+        };
+        let voxels = field.num_voxels();
+        let expected = voxels as f64 * 5.25;
+        let size = field.voxel_size();
+        for strata in [1usize, 2, 4, 8] {
+            let mut s = Samples::draw(&field, &basis, 3, 0, true, strata);
+            assert_eq!(s.points.len(), voxels * strata);
+            let mut seen = s.order.clone();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..(voxels * strata) as u32).collect::<Vec<_>>());
+            let parts = [2, 4, 8].map(|k| if strata >= k { 2.0f32 } else { 1.0 });
+            for (i, x) in s.points.iter().enumerate() {
+                let (v, k) = (i / strata, i % strata);
+                let t = (*x - field.centre_of(v)) / size + 0.5;
+                let part = [k & 1, (k >> 1) & 1, k >> 2];
+                for axis in 0..3 {
+                    let lo = part[axis] as f32 / parts[axis];
+                    let hi = (part[axis] + 1) as f32 / parts[axis];
+                    assert!(
+                        t[axis] >= lo - 1e-5 && t[axis] <= hi + 1e-5,
+                        "strata {strata}, sample {i}, axis {axis}: {} not in [{lo}, {hi}]",
+                        t[axis]
+                    );
+                }
+            }
+            let zero = vec![0.0; coef.len()];
+            let b = vec![0.0; basis.len() * 3];
+            let unprepared = p.evaluate(&s, &zero, &b, true, &NoProgress).unwrap();
+            // The targets are f32 blends of the constant (weights summing to 1 ± 2⁻²³ or so).
+            let close = |v: f64| (v - expected).abs() <= 1e-5 * expected;
+            assert!(
+                close(unprepared.data_loss),
+                "{strata}: {}",
+                unprepared.data_loss
+            );
+            p.prepare(&mut s).unwrap();
+            let prepared = p.target_energy(&s, &NoProgress).unwrap();
+            assert!(close(prepared), "{strata}: {prepared} vs {expected}");
+        }
+    }
+
     /// Scattered kernels (no cells): samples are grouped by 4³ bricks of voxels, each voxel's
     /// sample once, in voxel order inside a brick, and the same points as with cells.
     #[test]
@@ -1071,8 +1161,8 @@ mod tests {
         let shepard = prt_kernels::Shepard::with_radius(centres, 0.6).unwrap();
         assert_eq!(shepard.num_support_cells(), 0);
         let hat = HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap();
-        let s = Samples::draw(&field, &shepard, 7, 0, true);
-        assert_eq!(s.points, Samples::draw(&field, &hat, 7, 0, true).points);
+        let s = Samples::draw(&field, &shepard, 7, 0, true, 1);
+        assert_eq!(s.points, Samples::draw(&field, &hat, 7, 0, true, 1).points);
         let mut seen = s.order.clone();
         seen.sort_unstable();
         assert_eq!(seen, (0..field.num_voxels() as u32).collect::<Vec<_>>());

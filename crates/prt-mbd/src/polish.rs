@@ -32,13 +32,13 @@ use std::ops::Range;
 use std::time::Instant;
 
 use ndarray::{Array2, Array3, ArrayView2, linalg::general_mat_mul};
-use prt_core::{GridField, Progress, SpatialKernels};
+use prt_core::{Compressor, GridField, Progress, SpatialKernels};
 use prt_kernels::HatGrid;
 use rayon::prelude::*;
 
 use crate::baselines::voxel_centre_box;
 use crate::subspace::{cholesky_in_place, cholesky_solve_in_place, linalg_error};
-use crate::{MbdError, MbdModel};
+use crate::{Mbd, MbdError, MbdModel, MbdOptions, SolveReport};
 
 /// Largest `N·L` (basis nodes × rank) for which [`polish`] assembles and factors the dense
 /// normal equations of the basis step (an 8192² f64 matrix is 512 MiB).
@@ -350,6 +350,91 @@ pub fn polish(
     Ok((model, report))
 }
 
+/// [`PolishedMbd`]'s default stopping rule for the polish phase: a sweep that lowers the exact
+/// loss by less than 3 % of the data term ends it. A sweep costs about 30 solver iterations
+/// (32³ × 324, L = 8), so this is the solver's 1e-3 per iteration at equal CPU.
+pub const POLISH_STALL_TOLERANCE: f64 = 3e-2;
+
+/// MBD on hat grids fitted in two phases (beyond the paper, opt-in): the stochastic solver
+/// ([`crate::solve`]) until its stopping rule fires (or its iteration cap), then exact
+/// [`polish`] sweeps until a sweep gains less than `polish.tolerance`.
+///
+/// On smooth, noise-free fields the stochastic solver creeps long before it reaches its floor
+/// (synthetic 32³ × 324, L = 8: still −0.3 % per iteration at its cap of 128, 5.68e-8), while
+/// the exact sweeps, which carry no sampling noise, keep descending: [`PolishedMbd::new`] ends
+/// there after 128 iterations and 3 sweeps at 4.54e-8, below a 512-iteration solve (4.93e-8),
+/// for 1.8× the CPU of the 128 iterations. With the hand-off at `mbd.options.tolerance = 1e-2`
+/// the solver's rule fires at 64 iterations and 4 sweeps end at 4.75e-8 (1.5× the CPU). On
+/// traced volumes, where the solver's own rule fires near its floor, one sweep follows and
+/// gains 0.7–1.5 % for +40 % CPU (about what running the solver as long gains), and an early
+/// hand-off is worse than [`crate::Mbd`] (Cornell 1.01e-3 against 9.58e-4). Figures in
+/// `docs/results.md`, MBD session 7.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolishedMbd {
+    /// The stochastic phase: basis nodes and solver options; `options.tolerance` is the
+    /// hand-off point (1e-2 hands off earlier on smooth fields, see above).
+    pub mbd: Mbd,
+    /// The polish phase; `tolerance` is its stopping rule and `sweeps` its cap.
+    pub polish: PolishOptions,
+}
+
+impl PolishedMbd {
+    /// `basis_nodes` per axis and the solver `options` (the hand-off where the solver would
+    /// stop), then up to 16 sweeps stopped by [`POLISH_STALL_TOLERANCE`].
+    pub fn new(basis_nodes: [usize; 3], options: MbdOptions) -> Self {
+        Self {
+            mbd: Mbd {
+                basis_nodes,
+                options,
+            },
+            polish: PolishOptions {
+                tolerance: POLISH_STALL_TOLERANCE,
+                ..PolishOptions::default()
+            },
+        }
+    }
+
+    /// Runs both phases and returns the model with both reports. Deterministic for a seed on
+    /// any thread count; the progress sees the solver's iterations, then the sweeps.
+    ///
+    /// # Errors
+    /// Those of [`crate::solve`] and [`polish`].
+    pub fn fit(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<(MbdModel<HatGrid, HatGrid>, SolveReport, PolishReport), MbdError> {
+        // Bad polish options fail before the stochastic phase, not after it.
+        validate_options(&self.polish)?;
+        let nodes: usize = self.mbd.basis_nodes.iter().product();
+        if nodes.saturating_mul(self.mbd.options.rank) > POLISH_MAX_BASIS_UNKNOWNS {
+            return Err(MbdError::InvalidOption {
+                what: "polish basis size",
+                why: format!(
+                    "{nodes} nodes x rank {} exceeds {POLISH_MAX_BASIS_UNKNOWNS} dense unknowns",
+                    self.mbd.options.rank
+                ),
+            });
+        }
+        let (model, solved) = self.mbd.fit(field, progress)?;
+        let (model, polished) = polish(field, model, &self.polish, progress)?;
+        Ok((model, solved, polished))
+    }
+}
+
+impl Compressor for PolishedMbd {
+    type Model = MbdModel<HatGrid, HatGrid>;
+    type Error = MbdError;
+
+    fn compress(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<Self::Model, MbdError> {
+        Ok(self.fit(field, progress)?.0)
+    }
+}
+
 /// `∫ ‖f(x)‖² dx` of the trilinear interpolation of `field` over its box (clamped in the outer
 /// half voxels, as [`GridField::sample`]), in units of one voxel's volume, computed exactly.
 /// Applied to the difference between a grid reconstruction (e.g. a [`crate::ClusterModel`]'s,
@@ -557,6 +642,34 @@ impl Span {
     }
 }
 
+/// Checks the options that do not depend on the model.
+fn validate_options(options: &PolishOptions) -> Result<(), MbdError> {
+    for (what, value) in [
+        ("lambda", options.lambda as f64),
+        ("tolerance", options.tolerance),
+    ] {
+        if !(value >= 0.0 && value.is_finite()) {
+            return Err(MbdError::InvalidOption {
+                what,
+                why: format!("{value} is not a finite non-negative number"),
+            });
+        }
+    }
+    if !(options.cg_tolerance > 0.0 && options.cg_tolerance.is_finite()) {
+        return Err(MbdError::InvalidOption {
+            what: "cg_tolerance",
+            why: format!("{} is not a finite positive number", options.cg_tolerance),
+        });
+    }
+    if options.max_cg_iterations == 0 {
+        return Err(MbdError::InvalidOption {
+            what: "max_cg_iterations",
+            why: "must be at least 1".into(),
+        });
+    }
+    Ok(())
+}
+
 impl Quadrature {
     fn new(
         field: &GridField,
@@ -600,29 +713,7 @@ impl Quadrature {
                 got: model.basis().shape().to_vec(),
             });
         }
-        for (what, value) in [
-            ("lambda", options.lambda as f64),
-            ("tolerance", options.tolerance),
-        ] {
-            if !(value >= 0.0 && value.is_finite()) {
-                return Err(MbdError::InvalidOption {
-                    what,
-                    why: format!("{value} is not a finite non-negative number"),
-                });
-            }
-        }
-        if !(options.cg_tolerance > 0.0 && options.cg_tolerance.is_finite()) {
-            return Err(MbdError::InvalidOption {
-                what: "cg_tolerance",
-                why: format!("{} is not a finite positive number", options.cg_tolerance),
-            });
-        }
-        if options.max_cg_iterations == 0 {
-            return Err(MbdError::InvalidOption {
-                what: "max_cg_iterations",
-                why: "must be at least 1".into(),
-            });
-        }
+        validate_options(options)?;
         if basis.len() * l > POLISH_MAX_BASIS_UNKNOWNS {
             return Err(MbdError::InvalidOption {
                 what: "polish basis size",
