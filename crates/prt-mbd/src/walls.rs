@@ -80,6 +80,13 @@ const SEED_TIE: f32 = 1e-5;
 /// A basis kernel family whose kernels stop at walls: a base family (a hat grid, or any
 /// [`SpatialKernels`]) masked per voxel by flood-fill reachability through valid voxels and
 /// interpolated trilinearly between voxel centres (module docs: [`crate::walls`]).
+///
+/// Extremes (tested): with every voxel valid it is the base at every voxel centre; a node
+/// whose region holds no valid voxel gets zero weight except at voxels that fall back to the
+/// base weights; a
+/// single valid voxel, axes of one voxel, and more nodes than voxels are handled (weights stay
+/// a non-negative partition of unity); points outside the box are clamped to it; a non-finite
+/// point is [`CoreError::NonFinite`].
 #[derive(Debug, Clone)]
 pub struct WallAware<K> {
     base: K,

@@ -312,6 +312,34 @@ fn line_of_sight_cuts_what_a_node_cannot_see() {
     }
 }
 
+/// One valid voxel in a 5 × 4 × 3 grid, with more basis nodes than voxels on two axes: the
+/// nodes whose support holds it serve it (and the invalid voxels next to it), the weights stay
+/// a partition of unity everywhere, and no valid voxel falls back.
+#[test]
+fn a_single_valid_voxel() {
+    let field = zero_field([5, 4, 3]);
+    let mut valid = vec![false; field.num_voxels()];
+    let only = field.index(2, 1, 1);
+    valid[only] = true;
+    let nodes = [3, 6, 5];
+    let basis = wall_aware_basis(&field, &valid, nodes, &WallOptions::default()).unwrap();
+    assert_eq!(basis.fallbacks(), 0);
+    let hat = HatGrid::new(nodes, field.bounds()).unwrap();
+    let x = field.centre_of(only);
+    for (a, b) in dense(&basis, x).iter().zip(dense(&hat, x)) {
+        assert!((a - b).abs() < 1e-6);
+    }
+    let b = bounds();
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let mut w = KernelWeights::default();
+    for _ in 0..200 {
+        let p = b.min + Vec3::new(rng.random(), rng.random(), rng.random()) * b.size();
+        basis.eval(p, &mut w).unwrap();
+        assert!((w.sum() - 1.0).abs() < 1e-5);
+        assert!(w.weights.iter().all(|&x| x >= 0.0));
+    }
+}
+
 #[test]
 fn typed_errors() {
     let field = zero_field([4, 3, 2]);
