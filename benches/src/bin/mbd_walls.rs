@@ -13,7 +13,9 @@
 //! basis), `HAT-INTERP` (the wall-aware family with every voxel valid: the hat sampled at the
 //! voxel centres and interpolated, the control for what the cuts themselves do), `WALL` (MBD,
 //! wall-aware hat basis), `HAT-CENTRES` / `WALL-CENTRES` (the hat grid spanning the box of
-//! the voxel centres instead of the field's box, plain / cut at walls), `WALL-D` (wall-aware with `max_detour` =
+//! the voxel centres instead of the field's box, plain / cut at walls), `WALL-TRANSFER` (that
+//! cut also at the `MBD_BARRIER_SHARE` (0.2) of valid voxels whose transfer jumps most to a
+//! neighbour: flood fills stop at shadow boundaries too), `WALL-D` (wall-aware with `max_detour` =
 //! `MBD_DETOUR`, default 1.5), `WALL-LOS` (wall-aware, line of sight from the node's seeds), `SHEPARD-E` (MBD, energy-placed Shepard kernels of
 //! `scene_adapted_basis`), `SHEPARD-E-WALL` (those kernels cut back at walls), `BPCA`, `CPCA`, and as controls
 //! (with `CPCA`) `CLUSTER` / `CLUSTER-SMOOTH`: MBD whose basis kernels are CPCA's cluster
@@ -288,6 +290,55 @@ impl SpatialKernels for ClusterKernels {
     }
 }
 
+/// The validity mask with the `share` of valid voxels where the field changes most from voxel
+/// to voxel also marked as barriers: largest relative jump `‖f(v) − f(u)‖ / (‖f(v)‖ + ‖f(u)‖)`
+/// to a valid face neighbour `u`. Flood fills then stop at shadow and occlusion boundaries as
+/// well as at geometry.
+fn with_transfer_barriers(f: &GridField, valid: &[bool], share: f64) -> Vec<bool> {
+    let dims = f.dims();
+    let norm = |v: usize| {
+        f.voxel(v)
+            .iter()
+            .map(|&x| f64::from(x).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let jump = |v: usize| -> f64 {
+        let c = f.coords(v);
+        let stride = [1, dims[0], dims[0] * dims[1]];
+        let mut largest = 0.0f64;
+        for k in 0..3 {
+            let neighbours = [
+                (c[k] > 0).then(|| v - stride[k]),
+                (c[k] + 1 < dims[k]).then(|| v + stride[k]),
+            ];
+            for u in neighbours.into_iter().flatten().filter(|&u| valid[u]) {
+                let d: f64 = f
+                    .voxel(v)
+                    .iter()
+                    .zip(f.voxel(u))
+                    .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                largest = largest.max(d / (norm(v) + norm(u)).max(f64::MIN_POSITIVE));
+            }
+        }
+        largest
+    };
+    let mut jumps: Vec<(f64, usize)> = (0..f.num_voxels())
+        .filter(|&v| valid[v])
+        .map(|v| (jump(v), v))
+        .collect();
+    jumps.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut mask = valid.to_vec();
+    // Keep at least one valid voxel.
+    let barriers = ((share * jumps.len() as f64) as usize).min(jumps.len().saturating_sub(1));
+    for &(_, v) in &jumps[..barriers] {
+        mask[v] = false;
+    }
+    mask
+}
+
 struct Row {
     name: String,
     iterations: String,
@@ -444,7 +495,14 @@ fn main() {
         ("WALL-D", detour, false),
         ("WALL-LOS", f32::INFINITY, true),
         ("WALL-CENTRES", f32::INFINITY, false),
+        ("WALL-TRANSFER", f32::INFINITY, false),
     ];
+    let barrier_share: f64 = env_or("MBD_BARRIER_SHARE", 0.2);
+    let transfer_mask = if enabled("WALL-TRANSFER") {
+        with_transfer_barriers(f, &valid, barrier_share)
+    } else {
+        Vec::new()
+    };
     for (key, max_detour, line_of_sight) in wall_variants {
         if !enabled(key) {
             continue;
@@ -456,12 +514,12 @@ fn main() {
         let ((basis, build), ..) = measure(|| {
             let t = Instant::now();
             // The control: the same family with every voxel valid (nothing cut).
-            let mask = if key == "HAT-INTERP" {
-                &all_valid
-            } else {
-                &valid
+            let mask = match key {
+                "HAT-INTERP" => &all_valid,
+                "WALL-TRANSFER" => &transfer_mask,
+                _ => &valid,
             };
-            let basis = if key == "WALL-CENTRES" {
+            let basis = if key == "WALL-CENTRES" || key == "WALL-TRANSFER" {
                 WallAware::from_hat(centre_hat.clone(), dims, f.bounds(), mask, &wall_options)
             } else {
                 wall_aware_basis(f, mask, nodes, &wall_options)
@@ -488,10 +546,14 @@ fn main() {
         };
         let family = match key {
             "HAT-INTERP" => {
-                "hat kernels sampled at voxel centres and interpolated (wall-aware with every voxel valid: the control)"
+                "hat kernels sampled at voxel centres and interpolated (wall-aware with every voxel valid: the control)".to_string()
             }
-            "WALL-CENTRES" => "wall-aware hat kernels over the voxel centres' box",
-            _ => "wall-aware hat kernels",
+            "WALL-CENTRES" => "wall-aware hat kernels over the voxel centres' box".into(),
+            "WALL-TRANSFER" => format!(
+                "hat kernels over the voxel centres' box cut at walls and at the {:.0} % of valid voxels with the largest transfer jumps",
+                100.0 * barrier_share
+            ),
+            _ => "wall-aware hat kernels".into(),
         };
         add(
             format!("MBD, {count} {family}{detour_text} ({text})"),
