@@ -1334,7 +1334,7 @@ fn ridge() {
 
 /// Optimisation or representation? MBD with the default solver (≤ `MBD_ITERS` = 128
 /// iterations, ridge `MBD_LAMBDA`, default 1e-4, stopping tolerance `MBD_TOL`, default the
-/// solver's; 1e-2 is the early hand-off of `PolishedMbd`) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes,
+/// solver's; 1e-2 is the early hand-off of `PolishedMbd`; sample seed `MBD_SEED`) at rank `MBD_L` (8) on `MBD_B`³ (5³) nodes,
 /// then `polish` (exact alternating solves of the continuous loss) for `MBD_SWEEPS` (16)
 /// sweeps, with its tolerance `MBD_PTOL` (default 0: all sweeps), ridge `MBD_PLAMBDA` (default
 /// `PolishOptions`' 1e-8; the solver's 1e-4 dominates the loss near the optimum, so the polish
@@ -1355,6 +1355,7 @@ fn polish_sweep() {
         max_iterations: iterations,
         lambda: env_or("MBD_LAMBDA", MbdOptions::default().lambda),
         tolerance: env_or("MBD_TOL", MbdOptions::default().tolerance),
+        seed: env_or("MBD_SEED", MbdOptions::default().seed),
         ..MbdOptions::default()
     };
     let mbd = Mbd {
