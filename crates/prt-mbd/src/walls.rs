@@ -96,7 +96,7 @@ pub struct WallAware<K> {
     /// Voxels per unit length, per axis.
     scale: [f64; 3],
     /// Per voxel, its weights (CSR: `offsets[v]..offsets[v + 1]` into `indices` / `weights`).
-    offsets: Vec<u32>,
+    offsets: Vec<usize>,
     indices: Vec<u32>,
     weights: Vec<f32>,
     max_support: usize,
@@ -237,13 +237,13 @@ impl<K: SpatialKernels> WallAware<K> {
         let (final_rows, fallbacks) = masked_rows(&rows, &reach, &grid, valid);
         let mut offsets = Vec::with_capacity(n + 1);
         let (mut indices, mut weights) = (Vec::new(), Vec::new());
-        offsets.push(0u32);
+        offsets.push(0);
         for row in &final_rows {
             for &(i, w) in row {
                 indices.push(i);
                 weights.push(w);
             }
-            offsets.push(indices.len() as u32);
+            offsets.push(indices.len());
         }
         let origin = [0, 1, 2].map(|k| f64::from(bounds.min[k]));
         let scale = [0, 1, 2].map(|k| dims[k] as f64 / (f64::from(bounds.max[k]) - origin[k]));
@@ -292,7 +292,7 @@ impl<K: SpatialKernels> WallAware<K> {
 
     fn row_range(&self, v: usize) -> (usize, usize) {
         match (self.offsets.get(v), self.offsets.get(v + 1)) {
-            (Some(&a), Some(&b)) => (a as usize, b as usize),
+            (Some(&a), Some(&b)) => (a, b),
             _ => (0, 0),
         }
     }
