@@ -49,7 +49,10 @@
 //!   rule; `polish` lowers it further by alternating exact solves (basis: dense normal
 //!   equations; coefficients: block-sparse conjugate gradients) with extrapolation, and
 //!   `exact_loss` / [`trilinear_energy`] give the exact value of [`evaluate`]'s relative MSE
-//!   for MBD and for the grid-resampled baselines.
+//!   for MBD and for the grid-resampled baselines. [`PolishedMbd`] chains the two: the
+//!   stochastic solver until its rule fires, then polish sweeps until one gains less than 3 %
+//!   (for smooth fields, where the solver's last stretch creeps; MBD session 7 in
+//!   `docs/results.md`).
 //! * [`SyntheticField`]: smooth fields on curved manifolds in R^D, for tests and experiments.
 //!
 //! ## Extremes
