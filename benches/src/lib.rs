@@ -8,6 +8,7 @@
 use std::time::{Duration, Instant};
 
 pub mod manylight;
+pub mod mbd;
 
 /// User + system CPU seconds of this whole process so far, all threads (Linux `/proc/self/stat`,
 /// 100 ticks per second); NaN where `/proc` is unavailable. On a shared machine the CPU time of

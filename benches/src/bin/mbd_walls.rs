@@ -32,110 +32,22 @@
 //! (the same labels for every MBD variant), and for the wall-aware kernels the number of valid
 //! voxels that fell back to the base weights and the mean / largest kernel count.
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use glam::Vec3;
+use prt_benches::mbd::{
+    CAP, cached_volume_path, env_or, load_average, read_cached, voxel_energy, wall_distance,
+};
 use prt_benches::{Table, cpu_seconds};
 use prt_core::{
     Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
 };
 use prt_mbd::*;
 
-/// Cap of [`wall_distance`].
-const CAP: usize = 4;
-
-fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
 fn enabled(method: &str) -> bool {
     let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,WALL,BPCA,CPCA".into());
     list.split(',')
         .any(|m| m.trim().eq_ignore_ascii_case(method))
-}
-
-fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
-
-fn cache_path(scene: &str, n: usize) -> PathBuf {
-    std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../target")))
-        .join("mbd_cache")
-        .join(format!("{scene}_{n}_r256_c64_s0.f32"))
-}
-
-/// The cached field (layout of `mbd_sweep`: dims 3 × u64, bounds 6 × f32, dim u64, data f32,
-/// little endian), or `None` when the file is missing or malformed.
-fn read_cached(path: &std::path::Path) -> Option<GridField> {
-    let bytes = std::fs::read(path).ok()?;
-    let u64_at = |i: usize| -> Option<usize> {
-        Some(u64::from_le_bytes(bytes.get(i..i + 8)?.try_into().ok()?) as usize)
-    };
-    let f32_at = |i: usize| -> Option<f32> {
-        Some(f32::from_le_bytes(bytes.get(i..i + 4)?.try_into().ok()?))
-    };
-    let dims = [u64_at(0)?, u64_at(8)?, u64_at(16)?];
-    let corner = |i: usize| Some(Vec3::new(f32_at(i)?, f32_at(i + 4)?, f32_at(i + 8)?));
-    let bounds = Aabb::new(corner(24)?, corner(36)?);
-    let dim = u64_at(48)?;
-    let count = dims.iter().product::<usize>().checked_mul(dim)?;
-    let payload = bytes.get(56..)?;
-    if payload.len() != 4 * count {
-        return None;
-    }
-    let data: Vec<f32> = payload
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    let data = ndarray::Array2::from_shape_vec((count / dim.max(1), dim), data).ok()?;
-    GridField::from_data(dims, bounds, data).ok()
-}
-
-/// Chebyshev distance (in voxels) of every voxel to the nearest invalid voxel: 0 = invalid,
-/// 1 = touching an invalid voxel, ..., capped at [`CAP`] (as `mbd_sweep walls`).
-fn wall_distance(f: &GridField, valid: &[bool]) -> Vec<usize> {
-    let dims = f.dims();
-    (0..f.num_voxels())
-        .map(|v| {
-            if !valid[v] {
-                return 0;
-            }
-            let [x, y, z] = f.coords(v);
-            (1..CAP)
-                .find(|&r| {
-                    let lo = |c: usize| c.saturating_sub(r);
-                    let hi = |c: usize, n: usize| (c + r).min(n - 1);
-                    (lo(z)..=hi(z, dims[2])).any(|k| {
-                        (lo(y)..=hi(y, dims[1])).any(|j| {
-                            (lo(x)..=hi(x, dims[0]))
-                                .any(|i| !valid[i + dims[0] * (j + dims[1] * k)])
-                        })
-                    })
-                })
-                .unwrap_or(CAP)
-        })
-        .collect()
-}
-
-/// `Σ ‖f(v)‖²` over the voxels `keep` accepts.
-fn voxel_energy(f: &GridField, keep: &dyn Fn(usize) -> bool) -> f64 {
-    (0..f.num_voxels())
-        .filter(|&v| keep(v))
-        .map(|v| {
-            f.voxel(v)
-                .iter()
-                .map(|&x| f64::from(x).powi(2))
-                .sum::<f64>()
-        })
-        .sum()
 }
 
 /// The share of the base kernels' weight at valid voxel centres that the wall-aware family
@@ -363,7 +275,7 @@ fn main() {
     let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
     let iterations: usize = env_or("MBD_ITERS", 128);
     let detour: f32 = env_or("MBD_DETOUR", 1.5);
-    let path = cache_path(&scene, n);
+    let path = cached_volume_path(&scene, n);
     let Some(field) = read_cached(&path) else {
         eprintln!(
             "mbd_walls: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
