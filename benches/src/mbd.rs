@@ -120,6 +120,11 @@ pub fn wall_distance(f: &GridField, valid: &[bool]) -> Vec<usize> {
 /// Squared error of `model` at the voxel centres, summed per [`wall_distance`] bin.
 pub fn wall_bins(f: &GridField, model: &dyn FieldModel, distance: &[usize]) -> [f64; CAP + 1] {
     let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
+    wall_bins_of_grid(f, &recon, distance)
+}
+
+/// [`wall_bins`] of a reconstruction already resampled to `f`'s voxel centres.
+pub fn wall_bins_of_grid(f: &GridField, recon: &GridField, distance: &[usize]) -> [f64; CAP + 1] {
     let mut bins = [0.0f64; CAP + 1];
     for v in 0..f.num_voxels() {
         let err: f64 = f

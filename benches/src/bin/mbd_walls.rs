@@ -36,7 +36,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prt_benches::mbd::{
-    CAP, cached_volume_path, env_or, load_average, read_cached, voxel_energy, wall_distance,
+    CAP, cached_volume_path, env_or, load_average, read_cached, voxel_energy, wall_bins_of_grid,
+    wall_distance,
 };
 use prt_benches::{Table, cpu_seconds};
 use prt_core::{
@@ -325,16 +326,7 @@ fn main() {
         let eval = EvalOptions::default();
         let e = evaluate(model, f, &eval).expect("evaluate");
         let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
-        let mut bins = [0.0f64; CAP + 1];
-        for v in 0..f.num_voxels() {
-            let err: f64 = f
-                .voxel(v)
-                .iter()
-                .zip(recon.voxel(v))
-                .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
-                .sum();
-            bins[distance[v]] += err;
-        }
+        let bins = wall_bins_of_grid(f, &recon, &distance);
         let seam = seam_metric_with(
             f,
             &recon,
