@@ -96,7 +96,7 @@ pub use solver::{
 mod baselines;
 pub use baselines::{BlockPca, ClusterModel, ClusteredPca, GlobalPca, KMeansVq, voxel_centre_box};
 mod hat;
-pub use hat::Mbd;
+pub use hat::{Mbd, basis_box};
 pub mod eval;
 pub use eval::{
     EvalOptions, Evaluation, SeamMetric, SeamOptions, blur_valid, evaluate, kernel_labels,

@@ -2,10 +2,10 @@
 //! the *continuous* loss, which the stochastic solver only estimates.
 //!
 //! With the hat grids of [`crate::Mbd`] (coefficient nodes at the voxel centres, clamped outside
-//! them; basis nodes spanning the field's box) and the trilinear target of the field, every
-//! factor is piecewise linear along each axis: the coefficients `c(x)` and the target `f(x)`
-//! between voxel centres (constant in the outer half voxels), the basis `b(x)` between basis
-//! nodes. Splitting each axis at all those breakpoints leaves intervals on which the residual
+//! them; basis nodes spanning the voxel centres' box, or any box inside the field's, clamped
+//! outside it) and the trilinear target of the field, every factor is piecewise linear along
+//! each axis: the coefficients `c(x)` and the target `f(x)` between voxel centres (constant in
+//! the outer half voxels), the basis `b(x)` between basis nodes. Splitting each axis at all those breakpoints leaves intervals on which the residual
 //! `f̂ − f = c·b − f` is a polynomial of degree ≤ 2 per axis, so its square has degree ≤ 4: a
 //! tensor 3-point Gauss–Legendre rule on every interval box integrates the loss
 //!
@@ -212,7 +212,7 @@ pub fn exact_loss(
 ///
 /// # Errors
 /// [`MbdError::InvalidKernels`] unless the kernels are those of [`crate::Mbd`] for `field`
-/// (coefficient hats at the voxel centres, a basis hat grid over the field's box) and the field
+/// (coefficient hats at the voxel centres, a basis hat grid over a box inside the field's) and the field
 /// has at least 2 voxels per axis; [`MbdError::ShapeMismatch`] if the model's dimension differs
 /// from the field's; [`MbdError::InvalidOption`] for a negative or non-finite λ or tolerance, a
 /// non-positive `cg_tolerance`, `max_cg_iterations == 0`, or `N·L` above
@@ -444,7 +444,7 @@ pub fn trilinear_energy(field: &GridField) -> f64 {
     let voxels = field.dims();
     let mass = [0, 1, 2].map(|k| match voxels[k] {
         1 => vec![[0.0, 1.0, 0.0]],
-        n => mass_matrix(&Axis::new(n, 2), n),
+        n => mass_matrix(&Axis::new(n, 2, (0.0, n as f64)), n),
     });
     trilinear_energy_with(field, mass)
 }
@@ -524,6 +524,28 @@ fn round_f32(v: f64) -> f64 {
     v as f32 as f64
 }
 
+/// The basis domain per axis in voxels from the field's lower face, or `None` unless it lies
+/// inside the field's box with a positive extent. Ends within 1e-5 voxels of a half voxel are
+/// snapped to it (the voxel-centre box of [`crate::basis_box`] is computed in f32), so that
+/// they coincide with the voxel-centre breakpoints.
+fn basis_spans(field: &GridField, domain: prt_core::Aabb) -> Option<[(f64, f64); 3]> {
+    let (bounds, size, dims) = (field.bounds(), field.voxel_size(), field.dims());
+    let mut spans = [(0.0, 0.0); 3];
+    for k in 0..3 {
+        let to_voxels = |x: f32| {
+            let u = (f64::from(x) - f64::from(bounds.min[k])) / f64::from(size[k]);
+            let half = (2.0 * u).round() / 2.0;
+            if (u - half).abs() < 1e-5 { half } else { u }
+        };
+        let (lo, hi) = (to_voxels(domain.min[k]), to_voxels(domain.max[k]));
+        if !(lo >= 0.0 && hi <= dims[k] as f64 && hi > lo) {
+            return None;
+        }
+        spans[k] = (lo, hi);
+    }
+    Some(spans)
+}
+
 /// One quadrature point along an axis, with the 1D kernel data there.
 #[derive(Debug, Clone, Copy)]
 struct AxisPoint {
@@ -546,13 +568,16 @@ struct Axis {
 }
 
 impl Axis {
-    /// `voxels ≥ 2` voxels, `nodes ≥ 2` basis nodes spanning them.
-    fn new(voxels: usize, nodes: usize) -> Axis {
+    /// `voxels ≥ 2` voxels, `nodes ≥ 2` basis nodes spanning `[lo, hi]` (in voxels from the
+    /// field's lower face, `0 ≤ lo < hi ≤ voxels`; the basis is constant outside it, as a hat
+    /// grid is clamped).
+    fn new(voxels: usize, nodes: usize, (lo, hi): (f64, f64)) -> Axis {
         let n = voxels as f64;
         let cells = nodes - 1;
         let mut breaks: Vec<f64> = (0..voxels)
             .map(|i| i as f64 + 0.5)
-            .chain((0..nodes).map(|k| n * k as f64 / cells as f64))
+            .chain((0..nodes).map(|k| lo + (hi - lo) * k as f64 / cells as f64))
+            .chain([0.0, n])
             .collect();
         breaks.sort_by(f64::total_cmp);
         breaks.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
@@ -563,7 +588,7 @@ impl Axis {
                 let u = mid + half * xi;
                 let uc = (u - 0.5).clamp(0.0, n - 1.0);
                 let ci = (uc.floor() as usize).min(voxels - 2);
-                let ub = u * cells as f64 / n;
+                let ub = ((u - lo) * cells as f64 / (hi - lo)).clamp(0.0, cells as f64);
                 let bi = (ub.floor() as usize).min(cells - 1);
                 points.push(AxisPoint {
                     w: half * wi,
@@ -698,13 +723,15 @@ impl Quadrature {
         }
         let basis = model.basis_kernels();
         let nodes = basis.nodes();
-        if basis.domain() != field.bounds() || nodes.iter().any(|&n| n < 2) {
+        let spans = basis_spans(field, basis.domain()).filter(|_| nodes.iter().all(|&n| n >= 2));
+        let Some(spans) = spans else {
             return Err(invalid(
                 "basis",
-                "the polish needs a hat grid of at least 2 nodes per axis over the field's box"
+                "the polish needs a hat grid of at least 2 nodes per axis over a box inside the \
+                 field's"
                     .into(),
             ));
-        }
+        };
         let (l, d) = (model.rank(), field.dim());
         if model.basis().dim().2 != d {
             return Err(MbdError::ShapeMismatch {
@@ -724,7 +751,7 @@ impl Quadrature {
             });
         }
         Ok(Quadrature {
-            axes: [0, 1, 2].map(|k| Axis::new(voxels[k], nodes[k])),
+            axes: [0, 1, 2].map(|k| Axis::new(voxels[k], nodes[k], spans[k])),
             voxels,
             nodes,
         })

@@ -63,7 +63,7 @@ fn midpoint(field: &GridField, model: &dyn FieldModel, s: usize) -> (f64, f64) {
 /// Richardson extrapolation from 8³ and 16³ points per voxel agrees with the exact value to
 /// ~1e-6 (measured 1e-7), while either midpoint estimate alone is off by 1e-4 .. 3e-4 — on a
 /// grid whose basis nodes fall between voxel centres (5 voxels / 3 cells), on a voxel centre
-/// (7 voxels / 2 cells: 3.5) and on a voxel boundary (6 / 2).
+/// (7 voxels / 2 cells) and on a voxel boundary (6 / 2).
 #[test]
 fn exact_loss_is_the_continuous_integral() {
     let bounds = Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(2.0, 1.5, 5.0));
@@ -75,10 +75,25 @@ fn exact_loss_is_the_continuous_integral() {
     }
     .build(bounds)
     .unwrap();
-    let model = random_model(&field, [3, 4, 3], 2, 7);
-    let exact = exact_loss(&field, &model, 1e-4).unwrap();
-    let (err8, energy8) = midpoint(&field, &model, 8);
-    let (err16, energy16) = midpoint(&field, &model, 16);
+    // `Mbd`'s basis spans the voxel centres' box; a basis over the field's whole box (the
+    // layout before session 7) is integrated exactly too.
+    let centred = random_model(&field, [3, 4, 3], 2, 7);
+    let whole_box = MbdModel::new(
+        centred.coefficient_kernels().clone(),
+        HatGrid::new([3, 4, 3], bounds).unwrap(),
+        centred.coefficients().clone(),
+        centred.basis().clone(),
+    )
+    .unwrap();
+    for model in [centred, whole_box] {
+        check_exact_loss(&field, &model);
+    }
+}
+
+fn check_exact_loss(field: &GridField, model: &MbdModel<HatGrid, HatGrid>) {
+    let exact = exact_loss(field, model, 1e-4).unwrap();
+    let (err8, energy8) = midpoint(field, model, 8);
+    let (err16, energy16) = midpoint(field, model, 16);
     let richardson = |coarse: f64, fine: f64| (4.0 * fine - coarse) / 3.0;
     let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs();
     assert!(
