@@ -2,42 +2,22 @@
 
 use glam::Vec3;
 use proptest::prelude::*;
-use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, NoProgress, SpatialKernels};
+use prt_core::{Compressor, CoreError, GridField, KernelWeights, NoProgress, SpatialKernels};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// A 12 × 8 × 6 field over a non-cubic box, invalid (zero) below a floor slab, in a "column"
-/// and at a few random voxels; valid voxels hold smooth 5-vectors, 30× stronger for x > 0.
+mod common;
+
+/// The floor-and-column scene over a non-cubic box, 5-vectors, 30× stronger for x ≥ 6.
 fn scene(seed: u64) -> (GridField, Vec<bool>) {
-    let dims = [12, 8, 6];
-    let bounds = Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(2.0, 1.5, 3.0));
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let valid: Vec<bool> = (0..dims.iter().product::<usize>())
-        .map(|v| {
-            let (x, y, z) = (v % 12, (v / 12) % 8, v / 96);
-            let floor = y < 2;
-            let column = (4..6).contains(&x) && (2..4).contains(&z);
-            !(floor || column || rng.random::<f32>() < 0.1)
-        })
-        .collect();
-    // `from_fn` visits the voxels in index order.
-    let mut next = 0usize;
-    let field = GridField::from_fn(dims, bounds, 5, |_, out| {
-        let v = next;
-        next += 1;
-        if !valid[v] {
-            out.fill(0.0);
-            return;
-        }
-        let (x, y, z) = ((v % 12) as f32, ((v / 12) % 8) as f32, (v / 96) as f32);
-        let scale = if x >= 6.0 { 30.0 } else { 1.0 };
-        for (d, o) in out.iter_mut().enumerate() {
-            *o = scale * (1.0 + (0.3 * x + 0.2 * d as f32 * y - 0.1 * z).sin());
-        }
-    })
-    .unwrap();
-    (field, valid)
+    common::floor_and_column_scene(
+        Vec3::new(-1.0, 0.0, 2.0),
+        Vec3::new(2.0, 1.5, 3.0),
+        5,
+        30.0,
+        seed,
+    )
 }
 
 fn options(placement: Placement, seed: u64) -> AdaptedBasisOptions {

@@ -11,6 +11,8 @@ use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+mod common;
+
 fn bounds() -> Aabb {
     Aabb::new(Vec3::new(-1.0, 0.5, 2.0), Vec3::new(2.0, 1.5, 2.8))
 }
@@ -458,30 +460,8 @@ fn different_content_on_either_side_of_a_wall_is_fitted_far_better() {
 /// content everywhere: the wall-aware basis is at least as good as the hat grid.
 #[test]
 fn mbd_with_a_wall_is_at_least_as_good_as_the_hat_grid() {
-    let dims = [12, 8, 6];
-    let mut rng = Pcg64Mcg::seed_from_u64(5);
-    let valid: Vec<bool> = (0..dims.iter().product::<usize>())
-        .map(|v| {
-            let (x, y, z) = (v % 12, (v / 12) % 8, v / 96);
-            let floor = y < 2;
-            let column = (4..6).contains(&x) && (2..4).contains(&z);
-            !(floor || column || rng.random::<f32>() < 0.1)
-        })
-        .collect();
-    let mut next = 0usize;
-    let field = GridField::from_fn(dims, bounds(), 6, |_, out| {
-        let v = next;
-        next += 1;
-        if !valid[v] {
-            out.fill(0.0);
-            return;
-        }
-        let (x, y, z) = ((v % 12) as f32, ((v / 12) % 8) as f32, (v / 96) as f32);
-        for (d, o) in out.iter_mut().enumerate() {
-            *o = 1.0 + (0.3 * x + 0.2 * d as f32 * y - 0.1 * z).sin();
-        }
-    })
-    .unwrap();
+    let b = bounds();
+    let (field, valid) = common::floor_and_column_scene(b.min, b.max, 6, 1.0, 5);
     let mbd = Mbd {
         basis_nodes: [3, 3, 3],
         options: MbdOptions {

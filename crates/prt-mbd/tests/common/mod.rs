@@ -1,11 +1,13 @@
 //! Fields shared by the integration tests.
 
+use glam::Vec3;
 use prt_core::{Aabb, GridField};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 /// A field that is exactly a rank-`rank` MBD with one global basis: random voxel coefficients
 /// times fixed random vectors; its trilinear interpolation is representable exactly.
+#[allow(dead_code)] // not every test file uses every field
 pub fn global_rank_field(dims: [usize; 3], dim: usize, rank: usize, seed: u64) -> GridField {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let basis: Vec<f32> = (0..rank * dim).map(|_| rng.random::<f32>() - 0.5).collect();
@@ -19,4 +21,44 @@ pub fn global_rank_field(dims: [usize; 3], dim: usize, rank: usize, seed: u64) -
         }
     })
     .unwrap()
+}
+
+/// A 12 × 8 × 6 scene over `[lo, hi]`: invalid (zero) below a floor slab, in a "column" and at
+/// about 10 % random voxels; valid voxels hold smooth `dim`-vectors, `bright` times stronger
+/// for x ≥ 6. Returns the field and its validity mask.
+#[allow(dead_code)] // not every test file uses every field
+pub fn floor_and_column_scene(
+    lo: Vec3,
+    hi: Vec3,
+    dim: usize,
+    bright: f32,
+    seed: u64,
+) -> (GridField, Vec<bool>) {
+    let dims = [12, 8, 6];
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let valid: Vec<bool> = (0..dims.iter().product::<usize>())
+        .map(|v| {
+            let (x, y, z) = (v % 12, (v / 12) % 8, v / 96);
+            let floor = y < 2;
+            let column = (4..6).contains(&x) && (2..4).contains(&z);
+            !(floor || column || rng.random::<f32>() < 0.1)
+        })
+        .collect();
+    // `from_fn` visits the voxels in index order.
+    let mut next = 0usize;
+    let field = GridField::from_fn(dims, Aabb::new(lo, hi), dim, |_, out| {
+        let v = next;
+        next += 1;
+        if !valid[v] {
+            out.fill(0.0);
+            return;
+        }
+        let (x, y, z) = ((v % 12) as f32, ((v / 12) % 8) as f32, (v / 96) as f32);
+        let scale = if x >= 6.0 { bright } else { 1.0 };
+        for (d, o) in out.iter_mut().enumerate() {
+            *o = scale * (1.0 + (0.3 * x + 0.2 * d as f32 * y - 0.1 * z).sin());
+        }
+    })
+    .unwrap();
+    (field, valid)
 }
