@@ -77,6 +77,25 @@ fn cut_share<K: SpatialKernels>(basis: &WallAware<K>, f: &GridField, valid: &[bo
     (plain / count, weighted / energy)
 }
 
+/// What a wall-aware family cut and costs, for the table: the share of the base weight it cut
+/// ([`cut_share`]), its fallback voxels, kernels per voxel centre and at a point, build time.
+fn describe<K: SpatialKernels>(
+    basis: &WallAware<K>,
+    build: f64,
+    f: &GridField,
+    valid: &[bool],
+) -> String {
+    let (plain, weighted) = cut_share(basis, f, valid);
+    format!(
+        "cuts {:.0} % of the base weight at valid voxel centres ({:.0} % energy-weighted); {} fallback voxels, {:.2} kernels per voxel centre, ≤ {} at a point, built in {build:.2} s",
+        100.0 * plain,
+        100.0 * weighted,
+        basis.fallbacks(),
+        basis.mean_voxel_support(),
+        basis.max_support(),
+    )
+}
+
 /// Basis kernels from CPCA's clusters (a control, not a method: it needs CPCA first): kernel
 /// `k` at voxel `v` is the share of cluster `k` among `v`'s valid 3³ neighbours (weight
 /// `2^-|u - v|₁`, only `v` itself when `smooth` is off), interpolated trilinearly between voxel
@@ -352,14 +371,6 @@ fn main() {
             seam_ratio: seam.ratio(),
         });
     };
-    let describe = |k: &dyn Fn() -> (usize, f64, usize, f64, (f64, f64))| {
-        let (fallbacks, mean, max, build, (plain, weighted)) = k();
-        format!(
-            "cuts {:.0} % of the base weight at valid voxel centres ({:.0} % energy-weighted); {fallbacks} fallback voxels, {mean:.2} kernels per voxel centre, ≤ {max} at a point, built in {build:.2} s",
-            100.0 * plain,
-            100.0 * weighted
-        )
-    };
     if enabled("HAT") {
         let ((model, report), wall, cpu) = measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
         add(
@@ -431,15 +442,7 @@ fn main() {
             .expect("wall basis");
             (basis, t.elapsed().as_secs_f64())
         });
-        let text = describe(&|| {
-            (
-                basis.fallbacks(),
-                basis.mean_voxel_support(),
-                basis.max_support(),
-                build,
-                cut_share(&basis, f, &valid),
-            )
-        });
+        let text = describe(&basis, build, f, &valid);
         let ((model, report), wall, cpu) = measure(|| {
             solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress).expect("mbd")
         });
@@ -480,15 +483,7 @@ fn main() {
                     WallAware::new(shepard, dims, f.bounds(), &valid, &WallOptions::default())
                         .expect("wall basis");
                 let build = t.elapsed().as_secs_f64();
-                let text = describe(&|| {
-                    (
-                        basis.fallbacks(),
-                        basis.mean_voxel_support(),
-                        basis.max_support(),
-                        build,
-                        cut_share(&basis, f, &valid),
-                    )
-                });
+                let text = describe(&basis, build, f, &valid);
                 let (model, report) =
                     solve(f, coefficient_kernels.clone(), basis, &options, &NoProgress)
                         .expect("mbd");
