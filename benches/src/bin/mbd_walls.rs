@@ -36,8 +36,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prt_benches::mbd::{
-    CAP, cached_volume_path, env_or, load_average, read_cached, voxel_energy, wall_bins_of_grid,
-    wall_distance,
+    CAP, cached_volume_path, distance_name, env_or, load_average, read_cached, voxel_energy,
+    wall_bins_of_grid, wall_distance,
 };
 use prt_benches::{Table, cpu_seconds};
 use prt_core::{
@@ -578,12 +578,11 @@ fn main() {
     ];
     header.extend((1..=CAP).map(|d| {
         let share = voxel_energy(f, &|v| distance[v] == d) / total;
-        let name = if d == CAP {
-            format!("≥ {CAP}")
-        } else {
-            d.to_string()
-        };
-        format!("distance {name} ({:.0} %): / CPCA", 100.0 * share + 0.0)
+        format!(
+            "distance {} ({:.0} %): / CPCA",
+            distance_name(d),
+            100.0 * share + 0.0
+        )
     }));
     header.extend(["seam excess".into(), "seam ratio".into()]);
     let header: Vec<&str> = header.iter().map(String::as_str).collect();
