@@ -13,7 +13,9 @@
 //! basis), `HAT-INTERP` (the wall-aware family with every voxel valid: the hat sampled at the
 //! voxel centres and interpolated, the control for what the cuts themselves do), `WALL` (MBD,
 //! wall-aware hat basis), `HAT-CENTRES` / `WALL-CENTRES` (the hat grid spanning the box of
-//! the voxel centres instead of the field's box, plain / cut at walls), `WALL-TRANSFER` (that
+//! the voxel centres instead of the field's box, plain / cut at walls; since `Mbd` and
+//! `wall_aware_basis` span that box themselves (commit 9b8a77b and after), `HAT` and `WALL`
+//! give the same models: docs/results.md's field-box rows were measured before), `WALL-TRANSFER` (that
 //! cut also at the `MBD_BARRIER_SHARE` (0.2) of valid voxels whose transfer jumps most to a
 //! neighbour: flood fills stop at shadow boundaries too), `WALL-D` (wall-aware with `max_detour` =
 //! `MBD_DETOUR`, default 1.5), `WALL-LOS` (wall-aware, line of sight from the node's seeds), `SHEPARD-E` (MBD, energy-placed Shepard kernels of

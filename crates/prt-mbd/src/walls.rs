@@ -39,8 +39,9 @@
 //! Measured (`docs/results.md`, MBD session 7; traced Sponza, L = 8, 125 nodes): the cut
 //! removes only 6–7 % of the hat's weight at valid voxel centres (Sponza's open space is
 //! connected inside most supports) and takes MBD from 1.96× to 1.70× CPCA's error at
-//! 48 × 20 × 30 and from 1.83× to 1.68× at 72 × 30 × 44 (1.66× / 1.62× with the hat over the
-//! voxel centres' box, [`WallAware::from_hat`]); a detour limit or line of sight cuts more and
+//! 48 × 20 × 30 and from 1.83× to 1.68× at 72 × 30 × 44 with the hat over the field's box, and
+//! to 1.66× / 1.62× with the hat over the voxel centres' box ([`crate::basis_box`], `Mbd`'s
+//! layout since that session and what [`wall_aware_basis`] cuts); a detour limit or line of sight cuts more and
 //! does worse; Cornell 0.81× → 0.79×. A solve costs 1.4–1.7× the hat grid's CPU (the cells
 //! straddling node planes), so the plain hat grid stays the default.
 
@@ -112,8 +113,8 @@ struct AxisGroups {
     counts: [usize; 3],
 }
 
-/// The MBD basis of [`crate::Mbd`] with `nodes` basis nodes per axis over `field`'s box (a
-/// [`HatGrid`]), cut back at walls by the validity mask `valid` (one entry per voxel, `true`
+/// The MBD basis of [`crate::Mbd`] with `nodes` basis nodes per axis (a [`HatGrid`] over
+/// [`crate::basis_box`]), cut back at walls by the validity mask `valid` (one entry per voxel, `true`
 /// where the field holds data).
 ///
 /// Use it with the per-voxel hat coefficient kernels:
@@ -144,10 +145,11 @@ pub fn wall_aware_basis(
             why: format!("axis {axis} has {} nodes, need at least 2", nodes[axis]),
         });
     }
-    let hat = HatGrid::new(nodes, field.bounds()).map_err(|e| MbdError::InvalidKernels {
-        which: "basis",
-        why: e.to_string(),
-    })?;
+    let hat =
+        HatGrid::new(nodes, crate::basis_box(field)).map_err(|e| MbdError::InvalidKernels {
+            which: "basis",
+            why: e.to_string(),
+        })?;
     WallAware::from_hat(hat, field.dims(), field.bounds(), valid, options)
 }
 

@@ -25,6 +25,18 @@ fn random_mask(n: usize, invalid: f64, seed: u64) -> Vec<bool> {
     valid
 }
 
+/// The family over a hat grid spanning the field's whole box (nodes on its faces), whose node
+/// positions the wall tests below are laid out around.
+fn whole_box_family(
+    field: &GridField,
+    valid: &[bool],
+    nodes: [usize; 3],
+    options: &WallOptions,
+) -> WallAware<HatGrid> {
+    let hat = HatGrid::new(nodes, field.bounds()).unwrap();
+    WallAware::from_hat(hat, field.dims(), field.bounds(), valid, options).unwrap()
+}
+
 fn zero_field(dims: [usize; 3]) -> GridField {
     GridField::new(dims, bounds(), 1).unwrap()
 }
@@ -118,7 +130,7 @@ proptest! {
     ) {
         let field = zero_field(dims);
         let valid = vec![true; field.num_voxels()];
-        let basis = wall_aware_basis(&field, &valid, nodes, &WallOptions::default()).unwrap();
+        let basis = whole_box_family(&field, &valid, nodes, &WallOptions::default());
         prop_assert_eq!(basis.fallbacks(), 0);
         let hat = HatGrid::new(nodes, field.bounds()).unwrap();
         for v in 0..field.num_voxels() {
@@ -134,9 +146,9 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(16))]
 
     /// The support cells batch well: with basis nodes at least one voxel apart, the kernels
-    /// non-zero anywhere in one cell are at most 27 (3 node planes per axis), for a hat over
-    /// the field's box and over the box of the voxel centres (`from_hat`), and the latter is a
-    /// partition of unity too.
+    /// non-zero anywhere in one cell are at most 27 (3 node planes per axis), for `Mbd`'s hat
+    /// (over the box of the voxel centres) and a hat over the field's box (`from_hat`), and the
+    /// latter is a partition of unity too.
     #[test]
     fn support_cells_share_few_kernels(
         dims in [2usize..9, 2usize..9, 2usize..9],
@@ -148,10 +160,10 @@ proptest! {
         let field = zero_field(dims);
         let valid = random_mask(field.num_voxels(), invalid, seed);
         let options = WallOptions::default();
-        let centres = HatGrid::new(nodes, voxel_centre_box(&field)).unwrap();
+        let whole_box = HatGrid::new(nodes, field.bounds()).unwrap();
         let families = [
             wall_aware_basis(&field, &valid, nodes, &options).unwrap(),
-            WallAware::from_hat(centres, dims, field.bounds(), &valid, &options).unwrap(),
+            WallAware::from_hat(whole_box, dims, field.bounds(), &valid, &options).unwrap(),
         ];
         let b = bounds();
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
@@ -185,7 +197,7 @@ fn all_valid_equals_the_hat_grid_between_voxel_centres_too() {
     let field = zero_field([5, 9, 5]);
     let valid = vec![true; field.num_voxels()];
     let basis = wall_aware_basis(&field, &valid, [3, 3, 3], &WallOptions::default()).unwrap();
-    let hat = HatGrid::new([3, 3, 3], field.bounds()).unwrap();
+    let hat = HatGrid::new([3, 3, 3], basis_box(&field)).unwrap();
     let inner = voxel_centre_box(&field);
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     for _ in 0..500 {
@@ -205,7 +217,7 @@ fn a_node_does_not_reach_across_a_wall() {
     let dims = [10, 2, 2];
     let field = zero_field(dims);
     let valid: Vec<bool> = (0..field.num_voxels()).map(|v| v % 10 != 5).collect();
-    let basis = wall_aware_basis(&field, &valid, [3, 2, 2], &WallOptions::default()).unwrap();
+    let basis = whole_box_family(&field, &valid, [3, 2, 2], &WallOptions::default());
     assert_eq!(basis.fallbacks(), 0);
     let hat = HatGrid::new([3, 2, 2], field.bounds()).unwrap();
     let middle: Vec<usize> = (0..12).filter(|i| i % 3 == 1).collect();
@@ -254,8 +266,8 @@ fn detour_limit_cuts_what_is_only_reached_around_a_wall() {
         max_detour,
         ..WallOptions::default()
     };
-    let open = wall_aware_basis(&field, &valid, [3, 2, 2], &options(f32::INFINITY)).unwrap();
-    let strict = wall_aware_basis(&field, &valid, [3, 2, 2], &options(1.0)).unwrap();
+    let open = whole_box_family(&field, &valid, [3, 2, 2], &options(f32::INFINITY));
+    let strict = whole_box_family(&field, &valid, [3, 2, 2], &options(1.0));
     let support = |k: &WallAware<HatGrid>| -> usize {
         (0..field.num_voxels())
             .map(|v| k.voxel_weights(v).count())
@@ -288,7 +300,7 @@ fn line_of_sight_cuts_what_a_node_cannot_see() {
         line_of_sight: true,
         ..WallOptions::default()
     };
-    let seen = wall_aware_basis(&field, &valid, [3, 2, 2], &sight).unwrap();
+    let seen = whole_box_family(&field, &valid, [3, 2, 2], &sight);
     // Voxel (8, 0): the middle nodes at y = 0 (indices 1, 7) see it only through the wall.
     assert_eq!(
         seen.voxel_weights(8)
@@ -304,7 +316,7 @@ fn line_of_sight_cuts_what_a_node_cannot_see() {
         2
     );
     let all = vec![true; field.num_voxels()];
-    let open = wall_aware_basis(&field, &all, [3, 2, 2], &sight).unwrap();
+    let open = whole_box_family(&field, &all, [3, 2, 2], &sight);
     let hat = HatGrid::new([3, 2, 2], field.bounds()).unwrap();
     for v in 0..field.num_voxels() {
         let x = field.centre_of(v);
@@ -326,7 +338,7 @@ fn a_single_valid_voxel() {
     let nodes = [3, 6, 5];
     let basis = wall_aware_basis(&field, &valid, nodes, &WallOptions::default()).unwrap();
     assert_eq!(basis.fallbacks(), 0);
-    let hat = HatGrid::new(nodes, field.bounds()).unwrap();
+    let hat = HatGrid::new(nodes, basis_box(&field)).unwrap();
     let x = field.centre_of(only);
     for (a, b) in dense(&basis, x).iter().zip(dense(&hat, x)) {
         assert!((a - b).abs() < 1e-6);
