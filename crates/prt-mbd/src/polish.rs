@@ -350,6 +350,20 @@ pub fn polish(
     Ok((model, report))
 }
 
+/// The basis step's dense system has `nodes · rank` unknowns: at most
+/// [`POLISH_MAX_BASIS_UNKNOWNS`].
+fn check_basis_size(nodes: usize, rank: usize) -> Result<(), MbdError> {
+    if nodes.saturating_mul(rank) > POLISH_MAX_BASIS_UNKNOWNS {
+        return Err(MbdError::InvalidOption {
+            what: "polish basis size",
+            why: format!(
+                "{nodes} nodes x rank {rank} exceeds {POLISH_MAX_BASIS_UNKNOWNS} dense unknowns"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// [`PolishedMbd`]'s default stopping rule for the polish phase: a sweep that lowers the exact
 /// loss by less than 3 % of the data term ends it. A sweep costs about 30 solver iterations
 /// (32³ × 324, L = 8), so this is the solver's 1e-3 per iteration at equal CPU.
@@ -360,15 +374,15 @@ pub const POLISH_STALL_TOLERANCE: f64 = 3e-2;
 /// [`polish`] sweeps until a sweep gains less than `polish.tolerance`.
 ///
 /// On smooth, noise-free fields the stochastic solver creeps long before it reaches its floor
-/// (synthetic 32³ × 324, L = 8: still −0.3 % per iteration at its cap of 128, 5.68e-8), while
-/// the exact sweeps, which carry no sampling noise, keep descending: [`PolishedMbd::new`] ends
-/// there after 128 iterations and 3 sweeps at 4.54e-8, below a 512-iteration solve (4.93e-8),
-/// for 1.8× the CPU of the 128 iterations. With the hand-off at `mbd.options.tolerance = 1e-2`
-/// the solver's rule fires at 64 iterations and 4 sweeps end at 4.75e-8 (1.5× the CPU). On
-/// traced volumes, where the solver's own rule fires near its floor, one sweep follows and
-/// gains 0.7–1.5 % for +40 % CPU (about what running the solver as long gains), and an early
-/// hand-off is worse than [`crate::Mbd`] (Cornell 1.01e-3 against 9.58e-4). Figures in
-/// `docs/results.md`, MBD session 7.
+/// (synthetic 32³ × 324, L = 8: still falling ~0.3 % per iteration at its cap of 128, 2.98e-8),
+/// while the exact sweeps, which carry no sampling noise, keep descending: [`PolishedMbd::new`]
+/// ends there after 128 iterations and 3 sweeps at 2.30e-8, for 1.8× the CPU of the 128
+/// iterations; with the hand-off at `mbd.options.tolerance = 1e-2` the solver's rule fires at
+/// 76 iterations and 4 sweeps end at 2.29e-8 (1.7× the CPU). On traced volumes, where the
+/// solver's own rule fires near its floor, one sweep follows and gains 0.7–1.5 % for +40 % CPU
+/// (about what running the solver as long gains), and an early hand-off is worse than
+/// [`crate::Mbd`] (Cornell 1.01e-3 against 9.58e-4; measured with the basis over the field's
+/// box). Figures in `docs/results.md`, MBD session 7.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PolishedMbd {
     /// The stochastic phase: basis nodes and solver options; `options.tolerance` is the
@@ -406,16 +420,7 @@ impl PolishedMbd {
     ) -> Result<(MbdModel<HatGrid, HatGrid>, SolveReport, PolishReport), MbdError> {
         // Bad polish options fail before the stochastic phase, not after it.
         validate_options(&self.polish)?;
-        let nodes: usize = self.mbd.basis_nodes.iter().product();
-        if nodes.saturating_mul(self.mbd.options.rank) > POLISH_MAX_BASIS_UNKNOWNS {
-            return Err(MbdError::InvalidOption {
-                what: "polish basis size",
-                why: format!(
-                    "{nodes} nodes x rank {} exceeds {POLISH_MAX_BASIS_UNKNOWNS} dense unknowns",
-                    self.mbd.options.rank
-                ),
-            });
-        }
+        check_basis_size(self.mbd.basis_nodes.iter().product(), self.mbd.options.rank)?;
         let (model, solved) = self.mbd.fit(field, progress)?;
         let (model, polished) = polish(field, model, &self.polish, progress)?;
         Ok((model, solved, polished))
@@ -741,15 +746,7 @@ impl Quadrature {
             });
         }
         validate_options(options)?;
-        if basis.len() * l > POLISH_MAX_BASIS_UNKNOWNS {
-            return Err(MbdError::InvalidOption {
-                what: "polish basis size",
-                why: format!(
-                    "{} nodes x rank {l} exceeds {POLISH_MAX_BASIS_UNKNOWNS} dense unknowns",
-                    basis.len()
-                ),
-            });
-        }
+        check_basis_size(basis.len(), l)?;
         Ok(Quadrature {
             axes: [0, 1, 2].map(|k| Axis::new(voxels[k], nodes[k], spans[k])),
             voxels,
