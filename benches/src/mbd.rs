@@ -1,7 +1,10 @@
-//! Helpers shared by the MBD sweeps (`mbd_sweep`, `mbd_walls`): the traced-volume cache,
-//! environment knobs, the load average and the error by distance to the nearest wall.
+//! Helpers shared by the MBD sweeps (`mbd_sweep`, `mbd_walls`, `mbd_clustered`): the
+//! traced-volume cache, environment knobs, the load average, the error by distance to the
+//! nearest wall, and ([`clusters`]) basis kernels from clustered PCA's clusters.
 
 use std::path::PathBuf;
+
+pub mod clusters;
 
 use glam::Vec3;
 use prt_core::{Aabb, FieldModel, GridField, resample_to_grid};

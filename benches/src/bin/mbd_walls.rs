@@ -36,15 +36,13 @@
 
 use std::time::Instant;
 
-use glam::Vec3;
+use prt_benches::mbd::clusters::{LabelKernels, LabelSmoothing};
 use prt_benches::mbd::{
     CAP, cached_volume_path, distance_name, env_or, load_average, read_cached, voxel_energy,
     wall_bins_of_grid, wall_distance,
 };
 use prt_benches::{Table, cpu_seconds};
-use prt_core::{
-    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
-};
+use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_mbd::*;
 
 fn enabled(method: &str) -> bool {
@@ -96,132 +94,6 @@ fn describe<K: SpatialKernels>(
         basis.mean_voxel_support(),
         basis.max_support(),
     )
-}
-
-/// Basis kernels from CPCA's clusters (a control, not a method: it needs CPCA first): kernel
-/// `k` at voxel `v` is the share of cluster `k` among `v`'s valid 3³ neighbours (weight
-/// `2^-|u - v|₁`, only `v` itself when `smooth` is off), interpolated trilinearly between voxel
-/// centres: a partition of unity that follows the field's values rather than space, with as
-/// many kernels as clusters.
-struct ClusterKernels {
-    dims: [usize; 3],
-    bounds: Aabb,
-    len: usize,
-    rows: Vec<Vec<(u32, f32)>>,
-    max_support: usize,
-}
-
-impl ClusterKernels {
-    fn new(f: &GridField, valid: &[bool], labels: &[u32], smooth: bool) -> Self {
-        let dims = f.dims();
-        let len = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
-        let rows: Vec<Vec<(u32, f32)>> = (0..f.num_voxels())
-            .map(|v| {
-                let c = f.coords(v);
-                let mut row: Vec<(u32, f32)> = Vec::new();
-                let radius: i32 = if smooth { 1 } else { 0 };
-                for dz in -radius..=radius {
-                    for dy in -radius..=radius {
-                        for dx in -radius..=radius {
-                            let u = [dx, dy, dz];
-                            let q: Vec<i64> = (0..3).map(|k| c[k] as i64 + u[k] as i64).collect();
-                            if (0..3).any(|k| q[k] < 0 || q[k] >= dims[k] as i64) {
-                                continue;
-                            }
-                            let w =
-                                q[0] as usize + dims[0] * (q[1] as usize + dims[1] * q[2] as usize);
-                            if w != v && !valid[w] {
-                                continue;
-                            }
-                            let weight = 0.5f32.powi(dx.abs() + dy.abs() + dz.abs());
-                            match row.iter_mut().find(|(k, _)| *k == labels[w]) {
-                                Some(e) => e.1 += weight,
-                                None => row.push((labels[w], weight)),
-                            }
-                        }
-                    }
-                }
-                let total: f32 = row.iter().map(|e| e.1).sum();
-                row.iter_mut().for_each(|e| e.1 /= total);
-                row
-            })
-            .collect();
-        let mut kernels = Self {
-            dims,
-            bounds: f.bounds(),
-            len,
-            rows,
-            max_support: 0,
-        };
-        let mut w = prt_core::KernelWeights::default();
-        kernels.max_support = (0..f.num_voxels())
-            .map(|v| {
-                // The cell above each voxel centre: all eight corners' kernels.
-                let x = f.centre_of(v) + 0.5 * f.voxel_size();
-                kernels.eval(x, &mut w).expect("finite");
-                w.len()
-            })
-            .max()
-            .unwrap_or(1);
-        kernels
-    }
-}
-
-impl SpatialKernels for ClusterKernels {
-    fn len(&self) -> usize {
-        self.len
-    }
-
-    fn max_support(&self) -> usize {
-        self.max_support
-    }
-
-    fn domain(&self) -> Aabb {
-        self.bounds
-    }
-
-    fn eval(&self, x: Vec3, out: &mut prt_core::KernelWeights) -> Result<(), prt_core::CoreError> {
-        out.clear();
-        if !x.is_finite() {
-            return Err(prt_core::CoreError::NonFinite {
-                what: "query point",
-                index: 0,
-            });
-        }
-        let size = self.bounds.size();
-        let mut cell = [0usize; 3];
-        let mut t = [0.0f32; 3];
-        for k in 0..3 {
-            let last = (self.dims[k] - 1) as f32;
-            let u = ((x[k] - self.bounds.min[k]) / size[k] * self.dims[k] as f32 - 0.5)
-                .clamp(0.0, last);
-            cell[k] = (u as usize).min(self.dims[k].saturating_sub(2));
-            t[k] = u - cell[k] as f32;
-        }
-        for corner in 0..8 {
-            let tw: f32 = (0..3)
-                .map(|k| {
-                    if corner >> k & 1 == 1 {
-                        t[k]
-                    } else {
-                        1.0 - t[k]
-                    }
-                })
-                .product();
-            if tw <= 0.0 {
-                continue;
-            }
-            let c = [0, 1, 2].map(|k| (cell[k] + (corner >> k & 1)).min(self.dims[k] - 1));
-            let v = c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2]);
-            for &(i, w) in &self.rows[v] {
-                match out.indices.iter().position(|&j| j == i) {
-                    Some(p) => out.weights[p] += tw * w,
-                    None => out.push(i, tw * w),
-                }
-            }
-        }
-        Ok(())
-    }
 }
 
 /// The validity mask with the `share` of valid voxels where the field changes most from voxel
@@ -542,7 +414,25 @@ fn main() {
             }
             for init in [Init::GlobalPca, Init::LocalPca] {
                 let ((model, report), wall, cpu) = measure(|| {
-                    let basis = ClusterKernels::new(f, &valid, m.labels(), smooth);
+                    let len = m
+                        .labels()
+                        .iter()
+                        .map(|&k| k as usize + 1)
+                        .max()
+                        .unwrap_or(1);
+                    let smoothing = LabelSmoothing {
+                        radius: usize::from(smooth),
+                        falloff: 0.5,
+                    };
+                    let basis = LabelKernels::new(
+                        f.dims(),
+                        f.bounds(),
+                        m.labels(),
+                        len,
+                        Some(&valid),
+                        &smoothing,
+                    )
+                    .expect("cluster kernels");
                     let options = MbdOptions {
                         init,
                         ..options.clone()

@@ -32,6 +32,8 @@
 //!   Also beyond the paper: heavy-ball momentum on the step, the returned model averaged over
 //!   the last iterates (each iteration refits its own samples, so single iterates scatter), and
 //!   a stopping rule on the averaged model's error on a fixed held-out sample set.
+//!   [`solve_from_basis`] starts from a given basis instead (a previous fit's, or one built
+//!   from a clustering) and runs the same iterations.
 //! * Baselines, each a [`prt_core::Compressor`] with the same storage budget: [`GlobalPca`],
 //!   [`BlockPca`] (BPCA, and WBPCA with `window = 2`), [`ClusteredPca`] (Sloan et al. 2003),
 //!   [`KMeansVq`].
@@ -92,6 +94,7 @@ mod subspace;
 
 pub use solver::{
     HELD_OUT_INTERVAL, Init, IterationRecord, MbdOptions, Preconditioner, SolveReport, solve,
+    solve_from_basis,
 };
 mod baselines;
 pub use baselines::{BlockPca, ClusterModel, ClusteredPca, GlobalPca, KMeansVq, voxel_centre_box};

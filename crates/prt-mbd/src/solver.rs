@@ -208,6 +208,64 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
     options: &MbdOptions,
     progress: &dyn Progress,
 ) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
+    solve_with(
+        field,
+        coefficient_kernels,
+        basis_kernels,
+        None,
+        options,
+        progress,
+    )
+}
+
+/// [`solve`] from a given basis (`N × L × D`, e.g. a previous fit's or a clustering's) instead
+/// of `options.init`; the coefficients start from the same ridge least-squares fit.
+///
+/// # Errors
+/// As [`solve`], and [`MbdError::InvalidOption`] when `initial_basis` is not `N × L × D` or
+/// holds a non-finite value.
+pub fn solve_from_basis<C: SpatialKernels, B: SpatialKernels>(
+    field: &GridField,
+    coefficient_kernels: C,
+    basis_kernels: B,
+    initial_basis: &Array3<f32>,
+    options: &MbdOptions,
+    progress: &dyn Progress,
+) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
+    let expected = (basis_kernels.len(), options.rank, field.dim());
+    if initial_basis.dim() != expected {
+        return Err(MbdError::InvalidOption {
+            what: "initial_basis",
+            why: format!(
+                "shape {:?}, the kernels and rank need {expected:?}",
+                initial_basis.dim()
+            ),
+        });
+    }
+    if let Some(index) = initial_basis.iter().position(|x| !x.is_finite()) {
+        return Err(MbdError::InvalidOption {
+            what: "initial_basis",
+            why: format!("non-finite value at flat index {index}"),
+        });
+    }
+    solve_with(
+        field,
+        coefficient_kernels,
+        basis_kernels,
+        Some(initial_basis),
+        options,
+        progress,
+    )
+}
+
+fn solve_with<C: SpatialKernels, B: SpatialKernels>(
+    field: &GridField,
+    coefficient_kernels: C,
+    basis_kernels: B,
+    initial_basis: Option<&Array3<f32>>,
+    options: &MbdOptions,
+    progress: &dyn Progress,
+) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
     let start = Instant::now();
     validate(field, &coefficient_kernels, &basis_kernels, options)?;
     let problem = Problem {
@@ -218,7 +276,13 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
         lambda: options.lambda,
         preconditioner: options.preconditioner,
     };
-    let (mut coefficients, mut basis) = initialise(&problem, options)?;
+    let (mut coefficients, mut basis) = match initial_basis {
+        Some(given) => {
+            let basis: Vec<f32> = given.iter().copied().collect();
+            (fit_coefficients(&problem, &basis)?, basis)
+        }
+        None => initialise(&problem, options)?,
+    };
     let mut report = SolveReport {
         init_seconds: start.elapsed().as_secs_f64(),
         ..SolveReport::default()

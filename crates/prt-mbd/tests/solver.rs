@@ -4,11 +4,13 @@
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
 use prt_core::{
-    Aabb, AtomicProgress, CoreError, FieldModel, GridField, KernelWeights, NoProgress,
+    Aabb, AtomicProgress, Compressor, CoreError, FieldModel, GridField, KernelWeights, NoProgress,
     SpatialKernels,
 };
 use prt_kernels::HatGrid;
 use prt_mbd::*;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
 
 mod common;
 use common::global_rank_field;
@@ -625,4 +627,64 @@ fn als_stays_bounded_where_most_voxels_are_zero() {
     };
     let (before, after) = (error(&start), error(&model));
     assert!(after < before, "ALS {after:.3e} vs its start {before:.3e}");
+}
+
+/// The solve starts from the given basis, not from `options.init`: from the field's exact
+/// subspace at every node one iteration ends at rounding error, from a random basis far from it;
+/// a basis of the wrong shape or with a NaN is a typed error.
+#[test]
+fn solve_from_basis_checks_and_uses_the_given_basis() {
+    let field = global_rank_field([6, 5, 4], 10, 3, 5);
+    let mbd = Mbd {
+        basis_nodes: [2, 2, 2],
+        options: MbdOptions {
+            rank: 3,
+            max_iterations: 1,
+            ..MbdOptions::default()
+        },
+    };
+    let (c, b) = mbd.kernels(&field).unwrap();
+    let global = GlobalPca { rank: 3 }.compress(&field, &NoProgress).unwrap();
+    let exact = global.bases().broadcast((8, 3, 10)).unwrap().to_owned();
+    let eval = EvalOptions::default();
+    let error_from = |basis: &Array3<f32>| {
+        let (model, _) = solve_from_basis(
+            &field,
+            c.clone(),
+            b.clone(),
+            basis,
+            &mbd.options,
+            &NoProgress,
+        )
+        .unwrap();
+        evaluate(&model, &field, &eval).unwrap().relative_mse
+    };
+    assert!(error_from(&exact) < 1e-8, "{:.3e}", error_from(&exact));
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let random = Array3::from_shape_fn((8, 3, 10), |_| rng.random::<f32>() - 0.5);
+    assert!(error_from(&random) > 1e-3, "{:.3e}", error_from(&random));
+    let wrong = Array3::<f32>::zeros((8, 2, 10));
+    assert!(matches!(
+        solve_from_basis(
+            &field,
+            c.clone(),
+            b.clone(),
+            &wrong,
+            &mbd.options,
+            &NoProgress
+        ),
+        Err(MbdError::InvalidOption {
+            what: "initial_basis",
+            ..
+        })
+    ));
+    let mut nan = exact;
+    nan[[3, 1, 4]] = f32::NAN;
+    assert!(matches!(
+        solve_from_basis(&field, c, b, &nan, &mbd.options, &NoProgress),
+        Err(MbdError::InvalidOption {
+            what: "initial_basis",
+            ..
+        })
+    ));
 }

@@ -1,0 +1,244 @@
+//! MBD whose basis kernels are clustered PCA's clusters, smoothed
+//! (`prt_benches::mbd::clusters`), against MBD on the hat grid, BPCA and CPCA, at rank `MBD_L` (8) with `MBD_B`³ (5³)
+//! basis nodes / blocks / clusters; every MBD with the default solver (≤ `MBD_ITERS` = 128
+//! iterations, `MBD_TOL` its stopping tolerance).
+//!
+//! `MBD_FIELD=synthetic|cornell|sponza MBD_N=48 nice -n 10 cargo run --release -p prt-benches --bin mbd_clustered`
+//!
+//! The synthetic field is `mbd_sweep`'s (`MBD_N`³ × 324, seed 1); the traced volumes are read
+//! from `target/mbd_cache/{scene}_{n}_r256_c64_s0.f32`, which `mbd_sweep` writes when it traces
+//! them (`MBD_FIELD=sponza MBD_N=48 mbd_sweep walls`).
+//!
+//! Methods (`MBD_METHODS`, comma-separated, default `HAT,BPCA,CPCA,CMBD`); `CMBD` runs once per
+//! smoothing radius in `MBD_RADII` (default `0,1,2`) with falloff `MBD_FALLOFF` (0.5), the
+//! basis started from the clusters' own subspaces aligned to the global one (`MBD_START=aligned`,
+//! the default) or from the global subspace (`MBD_START=global`, `mbd_walls`' control).
+//! Reported per method: iterations, wall and process CPU time (the `CMBD` rows exclude CPCA's
+//! clustering, which the `CPCA` row times), relative MSE on jittered samples and its ratio to
+//! CPCA's, and the seam
+//! metric (σ = 1 denoised, valid voxels) at CPCA's cluster boundaries and at the hat grid's
+//! basis cells.
+
+use std::time::Instant;
+
+use prt_benches::mbd::clusters::{ClusterStart, LabelSmoothing, fit_clustered};
+use prt_benches::mbd::{cached_volume_path, env_or, load_average, read_cached};
+use prt_benches::{Table, cpu_seconds};
+use prt_core::{Aabb, Compressor, FieldModel, NoProgress, SpatialKernels, resample_to_grid};
+use prt_mbd::*;
+
+fn enabled(method: &str) -> bool {
+    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,BPCA,CPCA,CMBD".into());
+    list.split(',')
+        .any(|m| m.trim().eq_ignore_ascii_case(method))
+}
+
+fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
+    let (t, cpu) = (Instant::now(), cpu_seconds());
+    let value = fit();
+    (value, t.elapsed().as_secs_f64(), cpu_seconds() - cpu)
+}
+
+struct Row {
+    name: String,
+    iterations: String,
+    wall: f64,
+    cpu: f64,
+    relative_mse: f64,
+    seams: [SeamMetric; 2],
+}
+
+fn main() {
+    let scene = std::env::var("MBD_FIELD").unwrap_or_else(|_| "sponza".into());
+    let n: usize = env_or("MBD_N", 48);
+    let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
+    let field = if scene == "synthetic" {
+        SyntheticField {
+            dims: [n; 3],
+            dim: 324,
+            harmonics: 4,
+            seed: 1,
+        }
+        .build(Aabb::UNIT)
+        .expect("synthetic field")
+    } else {
+        let path = cached_volume_path(&scene, n);
+        read_cached(&path).unwrap_or_else(|| {
+            eprintln!(
+                "mbd_clustered: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
+                path.display()
+            );
+            std::process::exit(1);
+        })
+    };
+    let f = &field;
+    let valid: Vec<bool> = (0..f.num_voxels())
+        .map(|v| f.voxel(v).iter().any(|&t| t != 0.0))
+        .collect();
+    let dims = f.dims();
+    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let count: usize = nodes.iter().product();
+    println!(
+        "{scene} {}×{}×{} × {}, {} invalid voxels; L = {l}, {count} basis nodes / clusters; load average before: {}",
+        dims[0],
+        dims[1],
+        dims[2],
+        f.dim(),
+        valid.iter().filter(|v| !**v).count(),
+        load_average()
+    );
+    let options = MbdOptions {
+        rank: l,
+        max_iterations: env_or("MBD_ITERS", 128),
+        tolerance: env_or("MBD_TOL", MbdOptions::default().tolerance),
+        ..MbdOptions::default()
+    };
+    let mbd = Mbd {
+        basis_nodes: nodes,
+        options: options.clone(),
+    };
+    let (_, hat) = mbd.kernels(f).expect("kernels");
+    let hat_labels = kernel_labels(&hat, f).expect("labels");
+    let cpca = ClusteredPca::new(l, count)
+        .compress(f, &NoProgress)
+        .expect("cpca");
+    let cluster_labels = cpca.labels().to_vec();
+    // How fragmented the clusters are in space: valid voxels with a valid face neighbour of
+    // another cluster.
+    let stride = [1, dims[0], dims[0] * dims[1]];
+    let on_boundary = (0..f.num_voxels())
+        .filter(|&v| valid[v])
+        .filter(|&v| {
+            let c = f.coords(v);
+            (0..3).any(|k| {
+                [
+                    (c[k] > 0).then(|| v - stride[k]),
+                    (c[k] + 1 < dims[k]).then(|| v + stride[k]),
+                ]
+                .into_iter()
+                .flatten()
+                .any(|u| valid[u] && cluster_labels[u] != cluster_labels[v])
+            })
+        })
+        .count();
+    println!(
+        "CPCA's clusters: {:.1} % of the valid voxels have a valid face neighbour in another cluster",
+        100.0 * on_boundary as f64 / valid.iter().filter(|v| **v).count().max(1) as f64
+    );
+    let mut rows: Vec<Row> = Vec::new();
+    let mut add = |name: String,
+                   iterations: String,
+                   wall: f64,
+                   cpu: f64,
+                   model: &dyn FieldModel| {
+        let e = evaluate(model, f, &EvalOptions::default()).expect("evaluate");
+        let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
+        let seam = |labels: &[u32]| {
+            seam_metric_with(
+                f,
+                &recon,
+                labels,
+                &SeamOptions {
+                    denoise_sigma: 1.0,
+                    valid: Some(&valid),
+                },
+            )
+            .expect("seam")
+        };
+        eprintln!(
+            "{name}: {iterations} iterations, {wall:.1} s (CPU {cpu:.1} s), relative MSE {:.3e}",
+            e.relative_mse
+        );
+        rows.push(Row {
+            name,
+            iterations,
+            wall,
+            cpu,
+            relative_mse: e.relative_mse,
+            seams: [seam(&cluster_labels), seam(&hat_labels)],
+        });
+    };
+    if enabled("CPCA") {
+        let (m, wall, cpu) = measure(|| {
+            ClusteredPca::new(l, count)
+                .compress(f, &NoProgress)
+                .expect("cpca")
+        });
+        add("CPCA".into(), "–".into(), wall, cpu, &m);
+    }
+    if enabled("HAT") {
+        let ((model, report), wall, cpu) = measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        add(
+            format!("MBD, {count} hat kernels"),
+            report.history.len().to_string(),
+            wall,
+            cpu,
+            &model,
+        );
+    }
+    if enabled("BPCA") {
+        let (m, wall, cpu) = measure(|| {
+            BlockPca {
+                rank: l,
+                blocks: nodes,
+                window: 1.0,
+            }
+            .compress(f, &NoProgress)
+            .expect("bpca")
+        });
+        add("BPCA".into(), "–".into(), wall, cpu, &m);
+    }
+    if enabled("CMBD") {
+        let radii = std::env::var("MBD_RADII").unwrap_or_else(|_| "0,1,2".into());
+        let falloff: f32 = env_or("MBD_FALLOFF", 0.5);
+        let start = match std::env::var("MBD_START").as_deref() {
+            Ok("global") => ClusterStart::GlobalPca,
+            _ => ClusterStart::AlignedClusters,
+        };
+        for radius in radii
+            .split(',')
+            .filter_map(|r| r.trim().parse::<usize>().ok())
+        {
+            let smoothing = LabelSmoothing { radius, falloff };
+            let ((model, report), wall, cpu) = measure(|| {
+                fit_clustered(f, &cpca, &smoothing, start, &options).expect("clustered mbd")
+            });
+            add(
+                format!(
+                    "MBD on CPCA's clusters, radius {radius}, falloff {falloff}, {start:?} start (≤ {} kernels at a point)",
+                    model.basis_kernels().max_support()
+                ),
+                report.history.len().to_string(),
+                wall,
+                cpu,
+                &model,
+            );
+        }
+    }
+    let cpca_error = rows
+        .iter()
+        .find(|r| r.name == "CPCA")
+        .map(|r| r.relative_mse);
+    let mut table = Table::new(&[
+        "method",
+        "iterations",
+        "wall (CPU) s",
+        "relative MSE",
+        "/ CPCA",
+        "seam at CPCA's clusters: excess (ratio)",
+        "seam at the hat cells: excess (ratio)",
+    ]);
+    for r in &rows {
+        table.row(vec![
+            r.name.clone(),
+            r.iterations.clone(),
+            format!("{:.1} ({:.1})", r.wall, r.cpu),
+            format!("{:.3e}", r.relative_mse),
+            cpca_error.map_or("–".into(), |c| format!("{:.2}", r.relative_mse / c)),
+            format!("{:.2e} ({:.2})", r.seams[0].excess(), r.seams[0].ratio()),
+            format!("{:.2e} ({:.2})", r.seams[1].excess(), r.seams[1].ratio()),
+        ]);
+    }
+    println!("{}", table.markdown());
+    println!("load average after: {}", load_average());
+}

@@ -1,0 +1,206 @@
+//! `prt_benches::mbd::clusters::LabelKernels`: the kernels the MBD sweeps build from clustered
+//! PCA's labels.
+
+use glam::Vec3;
+use proptest::prelude::*;
+use prt_benches::mbd::clusters::{LabelKernels, LabelSmoothing};
+use prt_core::{Aabb, GridField, KernelWeights, SpatialKernels};
+use prt_mbd::MbdError;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+fn bounds() -> Aabb {
+    Aabb::new(Vec3::new(-1.0, 0.5, 2.0), Vec3::new(2.0, 1.5, 2.8))
+}
+
+fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    (0..n).map(|_| rng.random_range(0..len as u32)).collect()
+}
+
+/// The weights at `x` as a dense vector over the family.
+fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
+    let mut w = KernelWeights::default();
+    kernels.eval(x, &mut w).unwrap();
+    let mut out = vec![0.0; kernels.len()];
+    for (i, wi) in w.iter() {
+        out[i as usize] += f64::from(wi);
+    }
+    out
+}
+
+fn point(bounds: Aabb, u: [f32; 3]) -> Vec3 {
+    bounds.min + bounds.size() * Vec3::from(u)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// A non-negative partition of unity everywhere, continuous (a small step moves the weights
+    /// by at most the step times the largest weight gradient of trilinear interpolation), and
+    /// never more kernels at a point than `max_support`.
+    #[test]
+    fn label_kernels_are_a_continuous_partition_of_unity(
+        dims in [1usize..6, 1usize..6, 1usize..6],
+        len in 1usize..6,
+        radius in 0usize..3,
+        falloff in 0.1f32..=1.0,
+        with_mask in any::<bool>(),
+        seed in 0u64..1000,
+        u in [0.0f32..1.0, 0.0f32..1.0, 0.0f32..1.0],
+    ) {
+        let n = dims.iter().product();
+        let labels = random_labels(n, len, seed);
+        let valid: Vec<bool> = (0..n).map(|v| !(v as u64 + seed).is_multiple_of(3)).collect();
+        let kernels = LabelKernels::new(
+            dims,
+            bounds(),
+            &labels,
+            len,
+            with_mask.then_some(valid.as_slice()),
+            &LabelSmoothing { radius, falloff },
+        )
+        .unwrap();
+        let x = point(bounds(), u);
+        let w = dense(&kernels, x);
+        prop_assert!(w.iter().all(|&wi| wi >= 0.0));
+        prop_assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-5);
+        prop_assert!(w.iter().filter(|&&wi| wi > 0.0).count() <= kernels.max_support());
+        // Trilinear interpolation of values in [0, 1]: |∂w/∂x_k| ≤ voxels per unit length.
+        let h = 1e-3f32;
+        let step = Vec3::splat(h) * bounds().size();
+        let near = dense(&kernels, x + step);
+        let largest = w.iter().zip(&near).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        prop_assert!(largest <= 3.0 * f64::from(h) * dims.iter().max().copied().unwrap() as f64 + 1e-5,
+            "weights jump by {largest} over a step of {h} of the box");
+    }
+}
+
+/// Radius 0 at a voxel centre is the indicator of the voxel's label; with one label every
+/// weight is that kernel's.
+#[test]
+fn sharp_labels_are_indicators_at_voxel_centres() {
+    let dims = [4, 3, 5];
+    let field = GridField::new(dims, bounds(), 1).unwrap();
+    let labels = random_labels(60, 4, 7);
+    let sharp = LabelSmoothing {
+        radius: 0,
+        falloff: 0.5,
+    };
+    let kernels = LabelKernels::new(dims, bounds(), &labels, 4, None, &sharp).unwrap();
+    for v in 0..60 {
+        let w = dense(&kernels, field.centre_of(v));
+        for (k, &wk) in w.iter().enumerate() {
+            let expected = if k == labels[v] as usize { 1.0 } else { 0.0 };
+            assert!((wk - expected).abs() < 1e-5, "voxel {v}, kernel {k}: {wk}");
+        }
+    }
+    let one = LabelKernels::new(dims, bounds(), &[0; 60], 1, None, &Default::default()).unwrap();
+    assert_eq!(one.max_support(), 1);
+    assert_eq!(dense(&one, Vec3::new(0.3, 0.9, 2.1)), vec![1.0]);
+}
+
+/// With radius 1 and falloff 1 a voxel's weights are the label shares of its 3³ neighbours,
+/// counting only valid neighbours (and itself).
+#[test]
+fn smoothing_counts_valid_neighbours_only() {
+    let dims = [3, 3, 3];
+    // Label 1 on the x = 0 face, 0 elsewhere; the centre voxel (13) sees 9 of 27 with label 1.
+    let labels: Vec<u32> = (0..27)
+        .map(|v: usize| u32::from(v.is_multiple_of(3)))
+        .collect();
+    let box_filter = LabelSmoothing {
+        radius: 1,
+        falloff: 1.0,
+    };
+    let all = LabelKernels::new(dims, bounds(), &labels, 2, None, &box_filter).unwrap();
+    let shares = |k: &LabelKernels| k.voxel_weights(13).to_vec();
+    assert_eq!(shares(&all).len(), 2);
+    assert!((shares(&all)[1].1 - 9.0 / 27.0).abs() < 1e-6);
+    // The x = 0 face inside geometry: it no longer spreads its label.
+    let valid: Vec<bool> = (0..27).map(|v: usize| !v.is_multiple_of(3)).collect();
+    let masked = LabelKernels::new(dims, bounds(), &labels, 2, Some(&valid), &box_filter).unwrap();
+    assert_eq!(shares(&masked), vec![(0, 1.0)]);
+    // An invalid voxel keeps its own label beside its valid neighbours'.
+    let own = masked.voxel_weights(12).to_vec();
+    assert_eq!(own.len(), 2);
+    // Itself and the 9 valid neighbours at x = 1 of its 18 in the grid.
+    assert!((own[1].1 - 1.0 / 10.0).abs() < 1e-6, "{own:?}");
+}
+
+#[test]
+fn label_kernels_reject_bad_input() {
+    let dims = [2, 2, 2];
+    let labels = [0u32; 8];
+    let ok = LabelSmoothing::default();
+    let err = |r: Result<LabelKernels, MbdError>| r.unwrap_err();
+    assert!(matches!(
+        err(LabelKernels::new(
+            dims,
+            bounds(),
+            &labels[..7],
+            1,
+            None,
+            &ok
+        )),
+        MbdError::ShapeMismatch { what: "labels", .. }
+    ));
+    assert!(matches!(
+        err(LabelKernels::new(
+            dims,
+            bounds(),
+            &labels,
+            1,
+            Some(&[true; 3]),
+            &ok
+        )),
+        MbdError::ShapeMismatch { what: "valid", .. }
+    ));
+    assert!(matches!(
+        err(LabelKernels::new(
+            dims,
+            bounds(),
+            &[0, 0, 0, 0, 0, 0, 0, 2],
+            2,
+            None,
+            &ok
+        )),
+        MbdError::InvalidOption { what: "labels", .. }
+    ));
+    assert!(matches!(
+        err(LabelKernels::new(dims, bounds(), &labels, 0, None, &ok)),
+        MbdError::InvalidKernels { .. }
+    ));
+    assert!(matches!(
+        err(LabelKernels::new([0, 2, 2], bounds(), &[], 1, None, &ok)),
+        MbdError::InvalidKernels { .. }
+    ));
+    for falloff in [0.0, -0.5, 1.5, f32::NAN] {
+        let smoothing = LabelSmoothing { radius: 1, falloff };
+        assert!(matches!(
+            err(LabelKernels::new(
+                dims,
+                bounds(),
+                &labels,
+                1,
+                None,
+                &smoothing
+            )),
+            MbdError::InvalidOption {
+                what: "falloff",
+                ..
+            }
+        ));
+    }
+    let wide = LabelSmoothing {
+        radius: 5,
+        falloff: 0.5,
+    };
+    assert!(matches!(
+        err(LabelKernels::new(dims, bounds(), &labels, 1, None, &wide)),
+        MbdError::InvalidOption { what: "radius", .. }
+    ));
+    let kernels = LabelKernels::new(dims, bounds(), &labels, 1, None, &ok).unwrap();
+    let mut w = KernelWeights::default();
+    assert!(kernels.eval(Vec3::new(f32::NAN, 1.0, 2.5), &mut w).is_err());
+}
