@@ -1,10 +1,8 @@
 //! Helpers shared by the MBD sweeps (`mbd_sweep`, `mbd_walls`, `mbd_clustered`): the
-//! traced-volume cache, environment knobs, the load average, the error by distance to the
-//! nearest wall, and ([`clusters`]) basis kernels from clustered PCA's clusters.
+//! traced-volume cache, environment knobs, the load average and the error by distance to the
+//! nearest wall.
 
 use std::path::PathBuf;
-
-pub mod clusters;
 
 use glam::Vec3;
 use prt_core::{Aabb, FieldModel, GridField, resample_to_grid};

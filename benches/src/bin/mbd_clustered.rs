@@ -1,5 +1,5 @@
-//! MBD whose basis kernels are clustered PCA's clusters, smoothed
-//! (`prt_benches::mbd::clusters`), against MBD on the hat grid, BPCA and CPCA, at rank `MBD_L` (8) with `MBD_B`³ (5³)
+//! MBD whose basis kernels are clustered PCA's clusters, smoothed (`prt_mbd::ClusteredMbd`),
+//! against MBD on the hat grid, BPCA and CPCA, at rank `MBD_L` (8) with `MBD_B`³ (5³)
 //! basis nodes / blocks / clusters; every MBD with the default solver (≤ `MBD_ITERS` = 128
 //! iterations, `MBD_TOL` its stopping tolerance).
 //!
@@ -9,7 +9,10 @@
 //! from `target/mbd_cache/{scene}_{n}_r256_c64_s0.f32`, which `mbd_sweep` writes when it traces
 //! them (`MBD_FIELD=sponza MBD_N=48 mbd_sweep walls`).
 //!
-//! Methods (`MBD_METHODS`, comma-separated, default `HAT,BPCA,CPCA,CMBD`); `CMBD` runs once per
+//! Methods (`MBD_METHODS`, comma-separated, default `HAT,BPCA,CPCA,CMBD`); `CPCA-MAJORITY` (a
+//! control: CPCA's labels after 1..=`MBD_PASSES` (3) rounds of a majority filter over the
+//! valid 3³ neighbours, each cluster's subspace refitted, every voxel projected: how much of
+//! CPCA's lead comes from switching subspaces from voxel to voxel); `CMBD` runs once per
 //! smoothing radius in `MBD_RADII` (default `0,1,2`) with falloff `MBD_FALLOFF` (0.5), the
 //! basis started from the clusters' own subspaces aligned to the global one (`MBD_START=aligned`,
 //! the default) or from the global subspace (`MBD_START=global`, `mbd_walls`' control).
@@ -21,16 +24,123 @@
 
 use std::time::Instant;
 
-use prt_benches::mbd::clusters::{ClusterStart, LabelSmoothing, fit_clustered};
 use prt_benches::mbd::{cached_volume_path, env_or, load_average, read_cached};
 use prt_benches::{Table, cpu_seconds};
-use prt_core::{Aabb, Compressor, FieldModel, NoProgress, SpatialKernels, resample_to_grid};
+use prt_core::{
+    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
+};
 use prt_mbd::*;
 
 fn enabled(method: &str) -> bool {
     let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,BPCA,CPCA,CMBD".into());
     list.split(',')
         .any(|m| m.trim().eq_ignore_ascii_case(method))
+}
+
+/// The share of valid voxels with a valid face neighbour of another label.
+fn boundary_share(f: &GridField, valid: &[bool], labels: &[u32]) -> f64 {
+    let dims = f.dims();
+    let stride = [1, dims[0], dims[0] * dims[1]];
+    let on_boundary = (0..f.num_voxels())
+        .filter(|&v| valid[v])
+        .filter(|&v| {
+            let c = f.coords(v);
+            (0..3).any(|k| {
+                [
+                    (c[k] > 0).then(|| v - stride[k]),
+                    (c[k] + 1 < dims[k]).then(|| v + stride[k]),
+                ]
+                .into_iter()
+                .flatten()
+                .any(|u| valid[u] && labels[u] != labels[v])
+            })
+        })
+        .count();
+    on_boundary as f64 / valid.iter().filter(|v| **v).count().max(1) as f64
+}
+
+/// One round of a majority filter: each valid voxel takes the most frequent label among its
+/// valid 3³ neighbours (itself included; ties keep its own label, then the lowest).
+fn majority_filter(f: &GridField, valid: &[bool], labels: &[u32]) -> Vec<u32> {
+    let dims = f.dims().map(|d| d as i64);
+    (0..f.num_voxels())
+        .map(|v| {
+            if !valid[v] {
+                return labels[v];
+            }
+            let c = f.coords(v).map(|x| x as i64);
+            let mut counts: Vec<(u32, usize)> = Vec::new();
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
+                        if (0..3).any(|k| q[k] < 0 || q[k] >= dims[k]) {
+                            continue;
+                        }
+                        let u = (q[0] + dims[0] * (q[1] + dims[1] * q[2])) as usize;
+                        if !valid[u] {
+                            continue;
+                        }
+                        match counts.iter_mut().find(|e| e.0 == labels[u]) {
+                            Some(e) => e.1 += 1,
+                            None => counts.push((labels[u], 1)),
+                        }
+                    }
+                }
+            }
+            let own = counts.iter().find(|e| e.0 == labels[v]).map_or(0, |e| e.1);
+            counts
+                .iter()
+                .filter(|e| e.1 > own)
+                .max_by_key(|e| (e.1, std::cmp::Reverse(e.0)))
+                .map_or(labels[v], |e| e.0)
+        })
+        .collect()
+}
+
+/// A reconstruction on the field's grid, sampled trilinearly (CPCA's evaluation).
+struct GridModel(GridField);
+
+impl FieldModel for GridModel {
+    fn dim(&self) -> usize {
+        self.0.dim()
+    }
+
+    fn eval(&self, x: glam::Vec3, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
+        self.0.sample(x, out)
+    }
+
+    fn stored_scalars(&self) -> usize {
+        0
+    }
+
+    fn name(&self) -> String {
+        "grid".into()
+    }
+}
+
+/// Clustered PCA with fixed labels: each cluster's uncentred rank-`l` subspace of its voxels,
+/// every voxel projected onto its own.
+fn projected_onto_clusters(f: &GridField, labels: &[u32], l: usize) -> GridModel {
+    let clusters = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
+    let mut members = vec![Vec::new(); clusters];
+    for (v, &k) in labels.iter().enumerate() {
+        members[k as usize].push(v);
+    }
+    let mut data = ndarray::Array2::<f32>::zeros((f.num_voxels(), f.dim()));
+    for voxels in members.iter().filter(|m| !m.is_empty()) {
+        let rows = f.data().select(ndarray::Axis(0), voxels).mapv(f64::from);
+        let svd = prt_linalg::thin_svd(rows.view()).expect("svd");
+        let basis = svd
+            .vt
+            .slice(ndarray::s![..l.min(svd.vt.nrows()), ..])
+            .to_owned();
+        let projected = rows.dot(&basis.t()).dot(&basis);
+        for (row, &v) in projected.rows().into_iter().zip(voxels) {
+            data.row_mut(v).assign(&row.mapv(|x| x as f32));
+        }
+    }
+    GridModel(GridField::from_data(f.dims(), f.bounds(), data).expect("grid"))
 }
 
 fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
@@ -103,27 +213,9 @@ fn main() {
         .compress(f, &NoProgress)
         .expect("cpca");
     let cluster_labels = cpca.labels().to_vec();
-    // How fragmented the clusters are in space: valid voxels with a valid face neighbour of
-    // another cluster.
-    let stride = [1, dims[0], dims[0] * dims[1]];
-    let on_boundary = (0..f.num_voxels())
-        .filter(|&v| valid[v])
-        .filter(|&v| {
-            let c = f.coords(v);
-            (0..3).any(|k| {
-                [
-                    (c[k] > 0).then(|| v - stride[k]),
-                    (c[k] + 1 < dims[k]).then(|| v + stride[k]),
-                ]
-                .into_iter()
-                .flatten()
-                .any(|u| valid[u] && cluster_labels[u] != cluster_labels[v])
-            })
-        })
-        .count();
     println!(
         "CPCA's clusters: {:.1} % of the valid voxels have a valid face neighbour in another cluster",
-        100.0 * on_boundary as f64 / valid.iter().filter(|v| **v).count().max(1) as f64
+        100.0 * boundary_share(f, &valid, &cluster_labels)
     );
     let mut rows: Vec<Row> = Vec::new();
     let mut add = |name: String,
@@ -166,6 +258,24 @@ fn main() {
         });
         add("CPCA".into(), "–".into(), wall, cpu, &m);
     }
+    if enabled("CPCA-MAJORITY") {
+        let passes: usize = env_or("MBD_PASSES", 3);
+        let mut labels = cluster_labels.clone();
+        for pass in 1..=passes {
+            labels = majority_filter(f, &valid, &labels);
+            let (model, wall, cpu) = measure(|| projected_onto_clusters(f, &labels, l));
+            add(
+                format!(
+                    "control: CPCA's labels majority-filtered ×{pass} ({:.1} % on a boundary), bases refitted",
+                    100.0 * boundary_share(f, &valid, &labels)
+                ),
+                "–".into(),
+                wall,
+                cpu,
+                &model,
+            );
+        }
+    }
     if enabled("HAT") {
         let ((model, report), wall, cpu) = measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
         add(
@@ -199,9 +309,16 @@ fn main() {
             .split(',')
             .filter_map(|r| r.trim().parse::<usize>().ok())
         {
-            let smoothing = LabelSmoothing { radius, falloff };
+            let clustered = ClusteredMbd {
+                clusters: count,
+                smoothing: LabelSmoothing { radius, falloff },
+                start,
+                options: options.clone(),
+            };
             let ((model, report), wall, cpu) = measure(|| {
-                fit_clustered(f, &cpca, &smoothing, start, &options).expect("clustered mbd")
+                clustered
+                    .fit_clusters(f, &cpca, &NoProgress)
+                    .expect("clustered mbd")
             });
             add(
                 format!(

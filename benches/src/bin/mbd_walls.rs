@@ -36,7 +36,6 @@
 
 use std::time::Instant;
 
-use prt_benches::mbd::clusters::{LabelKernels, LabelSmoothing};
 use prt_benches::mbd::{
     CAP, cached_volume_path, distance_name, env_or, load_average, read_cached, voxel_energy,
     wall_bins_of_grid, wall_distance,

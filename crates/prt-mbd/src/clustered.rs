@@ -1,36 +1,62 @@
-//! Basis kernels that follow the field's values: clustered PCA's clusters as MBD basis
-//! kernels (`mbd_walls`' `CLUSTER` controls, `mbd_clustered`; MBD sessions 7 and 8 in
-//! `docs/results.md`).
+//! Basis kernels that follow the field's values rather than a grid: MBD on clustered PCA's
+//! clusters (beyond the paper, opt-in).
 //!
-//! At each voxel centre, kernel `n` weighs the share of label `n` among the voxel's neighbours
-//! within Chebyshev distance [`LabelSmoothing::radius`], each neighbour weighted
-//! `falloff^(L1 distance)` (neighbours outside the validity mask do not spread their label);
-//! between voxel centres the weights are interpolated trilinearly, clamped to the box of the
-//! voxel centres like the field's own sampling. A convex combination of partitions of unity is
-//! one, so the family is a non-negative, continuous partition of unity. Radius 0 is the sharp
-//! cluster indicators.
+//! MBD's hat basis kernels sit on a regular grid, so a basis node serves whatever transfer its
+//! cell holds. On scenes whose transfer changes with geometry on scales finer than a basis
+//! cell (Sponza's columns, arches and open roof) clustered PCA, which groups voxels by *value*,
+//! stays far ahead of MBD at the same number of basis vectors: 1.7–1.8× lower error at 5³
+//! nodes (MBD sessions 7 and 8 in `docs/results.md`). Its lead comes from switching subspaces
+//! from voxel to voxel: 69–81 % of Sponza's valid voxels border another cluster, and one round
+//! of a majority filter on CPCA's labels (bases refitted) already costs CPCA 38–57 % of error.
+//! [`ClusteredMbd`] gives MBD the same grouping while keeping the reconstruction continuous:
 //!
-//! Kept in the sweeps rather than in `prt-mbd`: measured, the family does not pay for itself
-//! (1.4× CPCA's error on traced Sponza against the hat grid's 1.84×, at 2–3.5× the CPU, and
-//! worse than the hat grid on the smooth synthetic field), because MBD's coefficients are
-//! trilinear per voxel while CPCA's labels change from voxel to voxel (80 % of Sponza's valid
-//! voxels border another cluster): a basis that switches inside one voxel cell leaves cross
-//! terms `c_A · b_B` the coefficients cannot follow.
+//! 1. **Clusters.** [`crate::ClusteredPca`] (Sloan et al. 2003) with one cluster per basis
+//!    kernel labels every voxel.
+//! 2. **Kernels.** [`LabelKernels`]: at each voxel centre, kernel `n` weighs the share of label
+//!    `n` among the voxel's neighbours within Chebyshev distance [`LabelSmoothing::radius`],
+//!    each neighbour weighted `falloff^(L1 distance)`; voxels inside geometry (exactly zero,
+//!    the baker's convention) do not spread their label. Between voxel centres the weights are
+//!    interpolated trilinearly (clamped to the box of the voxel centres, like the field's own
+//!    sampling). A convex combination of partitions of unity is one, so the family is a
+//!    non-negative, continuous partition of unity, and the model is continuous.
+//! 3. **Start.** Each kernel's basis starts from its cluster's subspace, rotated inside it
+//!    (orthogonal Procrustes) to be as close as possible to the global principal subspace, so
+//!    that neighbouring kernels' `l`-th vectors point the same way and blend without
+//!    cancelling; then [`crate::solve_from_basis`] runs the stochastic solver as for any
+//!    kernels.
+//!
+//! **Why smoothing.** MBD's coefficients are trilinear at voxel resolution, so a basis that
+//! switches inside one voxel cell leaves cross terms `c_A · b_B` that the coefficients cannot
+//! follow: the sharp labels (radius 0) end 21× above CPCA on Sponza. Radius 2 (the default)
+//! blends over about five voxels.
+//!
+//! **Measured** (traced Sponza, L = 8, 125 clusters; MBD / CPCA relative MSE): 1.36× at
+//! 48 × 20 × 30, 1.21× at 72 × 30 × 44, 1.14× at 96 × 40 × 59 (hat grid: 1.84×, 1.73×,
+//! 1.82×); radius 3 with 256 iterations reaches **1.07×** at 96. On smooth fields it gains
+//! nothing (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
+//!
+//! **Cost.** The solve takes 1.5–2× the hat grid's CPU (≈ 5× CPCA's, which it includes). An
+//! engine stores one label per voxel (as for CPCA; neither [`crate::ClusterModel`] nor
+//! [`crate::MbdModel`] counts labels in `stored_scalars`) and blends up to
+//! [`SpatialKernels::max_support`] basis nodes at a point (20–40 on Sponza) instead of a
+//! hat's 8, or stores each voxel's few weights.
 
 use glam::Vec3;
 use ndarray::{Array2, Array3, Axis};
-use prt_core::{Aabb, CoreError, GridField, KernelWeights, NoProgress, SpatialKernels};
+use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use prt_kernels::HatGrid;
-use prt_mbd::{
-    ClusterModel, MbdError, MbdModel, MbdOptions, SolveReport, solve, solve_from_basis,
-    voxel_centre_box,
+
+use crate::subspace::principal_subspace;
+use crate::{
+    ClusterModel, ClusteredPca, MbdError, MbdModel, MbdOptions, SolveReport, solve,
+    solve_from_basis, voxel_centre_box,
 };
 
 /// How [`LabelKernels`] smooth the voxel labels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LabelSmoothing {
     /// Chebyshev radius in voxels of the neighbourhood whose labels a voxel centre blends
-    /// (default 1: the 3³ neighbours; 0: the sharp labels).
+    /// (default 2: the 5³ neighbours; 0: the sharp labels).
     pub radius: usize,
     /// Weight of a neighbour at L1 distance `d` voxels: `falloff^d`, in (0, 1] (default 0.5).
     pub falloff: f32,
@@ -39,7 +65,7 @@ pub struct LabelSmoothing {
 impl Default for LabelSmoothing {
     fn default() -> Self {
         Self {
-            radius: 1,
+            radius: 2,
             falloff: 0.5,
         }
     }
@@ -269,7 +295,7 @@ impl SpatialKernels for LabelKernels {
 /// Rotates each `L × D` block of `bases` (orthonormal rows) inside its row space to be as close
 /// as possible, in the Frobenius norm, to `reference` (`L × D`): orthogonal Procrustes,
 /// `R = V Uᵀ` from the SVD `B Gᵀ = U S Vᵀ`.
-pub fn align_to(bases: &mut Array3<f32>, reference: &Array2<f32>) -> Result<(), MbdError> {
+pub(crate) fn align_to(bases: &mut Array3<f32>, reference: &Array2<f32>) -> Result<(), MbdError> {
     let g = reference.mapv(f64::from);
     for mut block in bases.axis_iter_mut(Axis(0)) {
         let b = block.mapv(f64::from);
@@ -284,66 +310,156 @@ pub fn align_to(bases: &mut Array3<f32>, reference: &Array2<f32>) -> Result<(), 
     Ok(())
 }
 
-/// Where [`fit_clustered`] starts the basis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Where [`ClusteredMbd`] starts the basis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[non_exhaustive]
 pub enum ClusterStart {
-    /// Every kernel starts from the global principal subspace (the solver's default).
-    GlobalPca,
     /// Each kernel starts from its cluster's subspace, rotated inside it to be as close as
-    /// possible to the global principal subspace ([`align_to`]), so that neighbouring kernels'
-    /// `l`-th vectors point the same way.
+    /// possible to the global principal subspace (the default).
+    #[default]
     AlignedClusters,
+    /// Every kernel starts from the global principal subspace, as [`crate::Init::GlobalPca`].
+    GlobalPca,
 }
 
-/// MBD with the default coefficient kernels and CPCA's clusters (`cpca`, fitted at
-/// `options.rank`) as basis kernels, smoothed by `smoothing` over the field's valid voxels
-/// (those not exactly zero, the baker's convention for voxels inside geometry).
-///
-/// # Errors
-/// As [`LabelKernels::new`] and [`solve_from_basis`].
-pub fn fit_clustered(
-    field: &GridField,
-    cpca: &ClusterModel,
-    smoothing: &LabelSmoothing,
-    start: ClusterStart,
-    options: &MbdOptions,
-) -> Result<(MbdModel<HatGrid, LabelKernels>, SolveReport), MbdError> {
-    let valid: Vec<bool> = (0..field.num_voxels())
-        .map(|v| field.voxel(v).iter().any(|&x| x != 0.0))
-        .collect();
-    let bases = cpca.bases();
-    let kernels = LabelKernels::new(
-        field.dims(),
-        field.bounds(),
-        cpca.labels(),
-        bases.dim().0,
-        Some(&valid),
-        smoothing,
-    )?;
-    let coefficient_kernels = HatGrid::new(field.dims(), voxel_centre_box(field)).map_err(|e| {
-        MbdError::InvalidKernels {
-            which: "coefficient",
-            why: e.to_string(),
+/// MBD whose basis kernels are clustered PCA's clusters, smoothed ([`LabelKernels`]; module
+/// docs). A [`Compressor`] with [`crate::Mbd`]'s coefficients and a basis per cluster, plus a
+/// label per voxel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClusteredMbd {
+    /// Number of clusters, i.e. basis kernels (the paper's comparison: MBD's basis-node count).
+    pub clusters: usize,
+    /// How the cluster labels are smoothed into kernels.
+    pub smoothing: LabelSmoothing,
+    /// Where the basis starts.
+    pub start: ClusterStart,
+    /// The solver's options (rank, iterations, stopping rule, seed; `init` is not used).
+    pub options: MbdOptions,
+}
+
+impl ClusteredMbd {
+    /// `clusters` kernels at rank `rank`, the default smoothing, start and solver.
+    pub fn new(rank: usize, clusters: usize) -> Self {
+        Self {
+            clusters,
+            smoothing: LabelSmoothing::default(),
+            start: ClusterStart::default(),
+            options: MbdOptions {
+                rank,
+                ..MbdOptions::default()
+            },
         }
-    })?;
-    match start {
-        ClusterStart::GlobalPca => solve(field, coefficient_kernels, kernels, options, &NoProgress),
-        ClusterStart::AlignedClusters => {
-            let global = prt_mbd::GlobalPca { rank: options.rank };
-            let global = prt_core::Compressor::compress(&global, field, &NoProgress)?;
-            let mut basis = bases.clone();
-            align_to(
-                &mut basis,
-                &global.bases().index_axis(Axis(0), 0).to_owned(),
-            )?;
-            solve_from_basis(
+    }
+
+    /// Clusters the field with [`ClusteredPca`] (`options.rank`, `clusters`), then
+    /// [`ClusteredMbd::fit_clusters`].
+    ///
+    /// # Errors
+    /// As [`ClusteredPca`] and [`ClusteredMbd::fit_clusters`].
+    pub fn fit(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<(MbdModel<HatGrid, LabelKernels>, SolveReport), MbdError> {
+        let cpca = ClusteredPca::new(self.options.rank, self.clusters).compress(field, progress)?;
+        self.fit_clusters(field, &cpca, progress)
+    }
+
+    /// MBD on the clusters of a clustered-PCA model of `field` at rank `options.rank` (e.g.
+    /// one already fitted as a baseline); `self.clusters` is not used. Clusters without voxels
+    /// are dropped (a kernel that is zero everywhere has no curvature for the solver).
+    ///
+    /// # Errors
+    /// [`MbdError::ShapeMismatch`] when `cpca` is not of `field`'s voxels or rank; those of
+    /// [`LabelKernels::new`] and [`solve_from_basis`].
+    pub fn fit_clusters(
+        &self,
+        field: &GridField,
+        cpca: &ClusterModel,
+        progress: &dyn Progress,
+    ) -> Result<(MbdModel<HatGrid, LabelKernels>, SolveReport), MbdError> {
+        let (clusters, rank, dim) = cpca.bases().dim();
+        if cpca.labels().len() != field.num_voxels()
+            || rank != self.options.rank
+            || dim != field.dim()
+        {
+            return Err(MbdError::ShapeMismatch {
+                what: "clusters",
+                expected: vec![field.num_voxels(), self.options.rank, field.dim()],
+                got: vec![cpca.labels().len(), rank, dim],
+            });
+        }
+        let mut index = vec![u32::MAX; clusters];
+        let mut kept = Vec::new();
+        let labels: Vec<u32> = cpca
+            .labels()
+            .iter()
+            .map(|&k| {
+                let k = k as usize;
+                if index[k] == u32::MAX {
+                    index[k] = kept.len() as u32;
+                    kept.push(k);
+                }
+                index[k]
+            })
+            .collect();
+        // The baker's convention: voxels inside geometry hold exactly zero transfer. CPCA puts
+        // them all in one cluster, which must not spread into the open space beside every wall.
+        let valid: Vec<bool> = (0..field.num_voxels())
+            .map(|v| field.voxel(v).iter().any(|&x| x != 0.0))
+            .collect();
+        let kernels = LabelKernels::new(
+            field.dims(),
+            field.bounds(),
+            &labels,
+            kept.len(),
+            Some(&valid),
+            &self.smoothing,
+        )?;
+        let coefficient_kernels =
+            HatGrid::new(field.dims(), voxel_centre_box(field)).map_err(|e| {
+                MbdError::InvalidKernels {
+                    which: "coefficient",
+                    why: e.to_string(),
+                }
+            })?;
+        match self.start {
+            ClusterStart::GlobalPca => solve(
                 field,
                 coefficient_kernels,
                 kernels,
-                &basis,
-                options,
-                &NoProgress,
-            )
+                &MbdOptions {
+                    init: crate::Init::GlobalPca,
+                    ..self.options.clone()
+                },
+                progress,
+            ),
+            ClusterStart::AlignedClusters => {
+                let mut basis = cpca.bases().select(Axis(0), &kept);
+                let global = principal_subspace(field.data().view(), self.options.rank)?;
+                align_to(&mut basis, &global)?;
+                solve_from_basis(
+                    field,
+                    coefficient_kernels,
+                    kernels,
+                    &basis,
+                    &self.options,
+                    progress,
+                )
+            }
         }
+    }
+}
+
+impl Compressor for ClusteredMbd {
+    type Model = MbdModel<HatGrid, LabelKernels>;
+    type Error = MbdError;
+
+    fn compress(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<Self::Model, MbdError> {
+        self.fit(field, progress).map(|(model, _)| model)
     }
 }
