@@ -7,6 +7,25 @@ use std::path::PathBuf;
 use glam::Vec3;
 use prt_core::{Aabb, FieldModel, GridField, resample_to_grid};
 
+/// Whether the comma-separated `MBD_METHODS` list (case-insensitive; `default` when unset)
+/// names `method`.
+pub fn method_enabled(method: &str, default: &str) -> bool {
+    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| default.into());
+    list.split(',')
+        .any(|m| m.trim().eq_ignore_ascii_case(method))
+}
+
+/// Runs `fit`; returns its value with the wall and the process CPU seconds it took.
+pub fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
+    let (start, cpu) = (std::time::Instant::now(), crate::cpu_seconds());
+    let value = fit();
+    (
+        value,
+        start.elapsed().as_secs_f64(),
+        crate::cpu_seconds() - cpu,
+    )
+}
+
 /// The 1, 5 and 15 minute load averages.
 pub fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")

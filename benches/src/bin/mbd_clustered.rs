@@ -22,19 +22,17 @@
 //! metric (σ = 1 denoised, valid voxels) at CPCA's cluster boundaries and at the hat grid's
 //! basis cells.
 
-use std::time::Instant;
-
-use prt_benches::mbd::{cached_volume_path, env_or, load_average, read_cached};
-use prt_benches::{Table, cpu_seconds};
+use prt_benches::Table;
+use prt_benches::mbd::{
+    cached_volume_path, env_or, load_average, measure, method_enabled, read_cached,
+};
 use prt_core::{
     Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
 };
 use prt_mbd::*;
 
 fn enabled(method: &str) -> bool {
-    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,BPCA,CPCA,CMBD".into());
-    list.split(',')
-        .any(|m| m.trim().eq_ignore_ascii_case(method))
+    method_enabled(method, "HAT,BPCA,CPCA,CMBD")
 }
 
 /// The share of valid voxels with a valid face neighbour of another label.
@@ -141,12 +139,6 @@ fn projected_onto_clusters(f: &GridField, labels: &[u32], l: usize) -> GridModel
         }
     }
     GridModel(GridField::from_data(f.dims(), f.bounds(), data).expect("grid"))
-}
-
-fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
-    let (t, cpu) = (Instant::now(), cpu_seconds());
-    let value = fit();
-    (value, t.elapsed().as_secs_f64(), cpu_seconds() - cpu)
 }
 
 struct Row {

@@ -36,18 +36,16 @@
 
 use std::time::Instant;
 
+use prt_benches::Table;
 use prt_benches::mbd::{
-    CAP, cached_volume_path, distance_name, env_or, load_average, read_cached, voxel_energy,
-    wall_bins_of_grid, wall_distance,
+    CAP, cached_volume_path, distance_name, env_or, load_average, measure, method_enabled,
+    read_cached, voxel_energy, wall_bins_of_grid, wall_distance,
 };
-use prt_benches::{Table, cpu_seconds};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_mbd::*;
 
 fn enabled(method: &str) -> bool {
-    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| "HAT,WALL,BPCA,CPCA".into());
-    list.split(',')
-        .any(|m| m.trim().eq_ignore_ascii_case(method))
+    method_enabled(method, "HAT,WALL,BPCA,CPCA")
 }
 
 /// The share of the base kernels' weight at valid voxel centres that the wall-aware family
@@ -154,12 +152,6 @@ struct Row {
     bins: [f64; CAP + 1],
     seam_excess: f64,
     seam_ratio: f64,
-}
-
-fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
-    let (t, cpu) = (Instant::now(), cpu_seconds());
-    let value = fit();
-    (value, t.elapsed().as_secs_f64(), cpu_seconds() - cpu)
 }
 
 fn main() {

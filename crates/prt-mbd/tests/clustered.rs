@@ -9,6 +9,9 @@ use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
+mod common;
+use common::dense;
+
 fn bounds() -> Aabb {
     Aabb::new(Vec3::new(-1.0, 0.5, 2.0), Vec3::new(2.0, 1.5, 2.8))
 }
@@ -16,17 +19,6 @@ fn bounds() -> Aabb {
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     (0..n).map(|_| rng.random_range(0..len as u32)).collect()
-}
-
-/// The weights at `x` as a dense vector over the family.
-fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
-    let mut w = KernelWeights::default();
-    kernels.eval(x, &mut w).unwrap();
-    let mut out = vec![0.0; kernels.len()];
-    for (i, wi) in w.iter() {
-        out[i as usize] += f64::from(wi);
-    }
-    out
 }
 
 fn point(bounds: Aabb, u: [f32; 3]) -> Vec3 {

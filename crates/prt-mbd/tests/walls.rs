@@ -12,6 +12,7 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod common;
+use common::dense;
 
 fn bounds() -> Aabb {
     Aabb::new(Vec3::new(-1.0, 0.5, 2.0), Vec3::new(2.0, 1.5, 2.8))
@@ -39,17 +40,6 @@ fn whole_box_family(
 
 fn zero_field(dims: [usize; 3]) -> GridField {
     GridField::new(dims, bounds(), 1).unwrap()
-}
-
-/// The weights at `x` as a dense vector over the family.
-fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
-    let mut w = KernelWeights::default();
-    kernels.eval(x, &mut w).unwrap();
-    let mut out = vec![0.0; kernels.len()];
-    for (i, wi) in w.iter() {
-        out[i as usize] += f64::from(wi);
-    }
-    out
 }
 
 fn dims_strategy() -> impl Strategy<Value = [usize; 3]> {

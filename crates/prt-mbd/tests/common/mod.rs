@@ -1,7 +1,7 @@
 //! Fields shared by the integration tests.
 
 use glam::Vec3;
-use prt_core::{Aabb, GridField};
+use prt_core::{Aabb, GridField, KernelWeights, SpatialKernels};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -61,4 +61,16 @@ pub fn floor_and_column_scene(
     })
     .unwrap();
     (field, valid)
+}
+
+/// The weights of `kernels` at `x` as a dense vector over the family.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
+    let mut w = KernelWeights::default();
+    kernels.eval(x, &mut w).unwrap();
+    let mut out = vec![0.0; kernels.len()];
+    for (i, wi) in w.iter() {
+        out[i as usize] += f64::from(wi);
+    }
+    out
 }
