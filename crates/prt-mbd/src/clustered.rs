@@ -7,7 +7,7 @@
 //! stays far ahead of MBD at the same number of basis vectors: 1.7–1.8× lower error at 5³
 //! nodes (MBD sessions 7 and 8 in `docs/results.md`). Its lead comes from switching subspaces
 //! from voxel to voxel: 69–81 % of Sponza's valid voxels border another cluster, and one round
-//! of a majority filter on CPCA's labels (bases refitted) already costs CPCA 38–57 % of error.
+//! of a majority filter on CPCA's labels (bases refitted) already costs CPCA 35–57 % of error.
 //! [`ClusteredMbd`] gives MBD the same grouping while keeping the reconstruction continuous:
 //!
 //! 1. **Clusters.** [`crate::ClusteredPca`] (Sloan et al. 2003) with one cluster per basis
@@ -35,11 +35,11 @@
 //! 1.82×); radius 3 with 256 iterations reaches **1.07×** at 96. On smooth fields it gains
 //! nothing (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
 //!
-//! **Cost.** The solve takes 1.5–2× the hat grid's CPU (≈ 5× CPCA's, which it includes). An
+//! **Cost.** The solve takes 1.6–2.8× the hat grid's CPU at radius 2 (4.5–9× CPCA's). An
 //! engine stores one label per voxel (as for CPCA; neither [`crate::ClusterModel`] nor
 //! [`crate::MbdModel`] counts labels in `stored_scalars`) and blends up to
-//! [`SpatialKernels::max_support`] basis nodes at a point (20–40 on Sponza) instead of a
-//! hat's 8, or stores each voxel's few weights.
+//! [`SpatialKernels::max_support`] basis nodes at a point (28–33 on Sponza at radius 2)
+//! instead of a hat's 8, or stores each voxel's few weights.
 
 use glam::Vec3;
 use ndarray::{Array2, Array3, Axis};
