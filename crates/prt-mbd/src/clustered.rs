@@ -45,8 +45,10 @@ use glam::Vec3;
 use ndarray::{Array2, Array3, Axis};
 use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use prt_kernels::HatGrid;
+use rayon::prelude::*;
 
 use crate::subspace::principal_subspace;
+use crate::voxel_weights::VoxelWeights;
 use crate::{
     ClusterModel, ClusteredPca, MbdError, MbdModel, MbdOptions, SolveReport, solve,
     solve_from_basis, voxel_centre_box,
@@ -78,14 +80,9 @@ pub const MAX_LABEL_RADIUS: usize = 4;
 /// voxel centres (module docs).
 #[derive(Debug, Clone)]
 pub struct LabelKernels {
-    dims: [usize; 3],
-    bounds: Aabb,
     len: usize,
     labels: Vec<u32>,
-    /// Per voxel, its weights `(kernel, weight)` in `entries[offsets[v]..offsets[v + 1]]`.
-    offsets: Vec<usize>,
-    entries: Vec<(u32, f32)>,
-    max_support: usize,
+    weights: VoxelWeights,
 }
 
 impl LabelKernels {
@@ -97,7 +94,8 @@ impl LabelKernels {
     /// # Errors
     /// [`MbdError::ShapeMismatch`] when `labels` is not one per voxel;
     /// [`MbdError::InvalidOption`] for a label ≥ `len`, a radius above [`MAX_LABEL_RADIUS`] or
-    /// a falloff outside (0, 1]; [`MbdError::InvalidKernels`] for an empty grid or `len` 0.
+    /// a falloff outside (0, 1] or more than 2^32 voxels; [`MbdError::InvalidKernels`] for an
+    /// empty grid, `len` 0 or a box of zero extent.
     pub fn new(
         dims: [usize; 3],
         bounds: Aabb,
@@ -113,6 +111,7 @@ impl LabelKernels {
                 why: format!("{len} labels on a {dims:?} grid"),
             });
         }
+        VoxelWeights::voxel_count(dims, bounds)?;
         if labels.len() != voxels {
             return Err(MbdError::ShapeMismatch {
                 what: "labels",
@@ -148,54 +147,47 @@ impl LabelKernels {
             });
         }
         let r = smoothing.radius as i64;
-        let mut offsets = Vec::with_capacity(voxels + 1);
-        let mut entries: Vec<(u32, f32)> = Vec::new();
-        offsets.push(0);
-        let mut row: Vec<(u32, f64)> = Vec::new();
-        for z in 0..dims[2] as i64 {
-            for y in 0..dims[1] as i64 {
-                for x in 0..dims[0] as i64 {
-                    row.clear();
-                    for dz in -r..=r {
-                        for dy in -r..=r {
-                            for dx in -r..=r {
-                                let q = [x + dx, y + dy, z + dz];
-                                if (0..3).any(|k| q[k] < 0 || q[k] >= dims[k] as i64) {
-                                    continue;
-                                }
-                                let u = q[0] as usize
-                                    + dims[0] * (q[1] as usize + dims[1] * q[2] as usize);
-                                let own = dx == 0 && dy == 0 && dz == 0;
-                                if !own && valid.is_some_and(|valid| !valid[u]) {
-                                    continue;
-                                }
-                                let w = f64::from(smoothing.falloff)
-                                    .powi((dx.abs() + dy.abs() + dz.abs()) as i32);
-                                match row.iter_mut().find(|e| e.0 == labels[u]) {
-                                    Some(e) => e.1 += w,
-                                    None => row.push((labels[u], w)),
-                                }
-                            }
+        let falloff = f64::from(smoothing.falloff);
+        let row = |v: usize| {
+            let c = [
+                v % dims[0],
+                (v / dims[0]) % dims[1],
+                v / (dims[0] * dims[1]),
+            ]
+            .map(|x| x as i64);
+            let mut row: Vec<(u32, f64)> = Vec::new();
+            for dz in -r..=r {
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let q = [c[0] + dx, c[1] + dy, c[2] + dz];
+                        if (0..3).any(|k| q[k] < 0 || q[k] >= dims[k] as i64) {
+                            continue;
+                        }
+                        let u = q[0] as usize + dims[0] * (q[1] as usize + dims[1] * q[2] as usize);
+                        let own = u == v;
+                        if !own && valid.is_some_and(|valid| !valid[u]) {
+                            continue;
+                        }
+                        let w = falloff.powi((dx.abs() + dy.abs() + dz.abs()) as i32);
+                        match row.iter_mut().find(|e| e.0 == labels[u]) {
+                            Some(e) => e.1 += w,
+                            None => row.push((labels[u], w)),
                         }
                     }
-                    let total: f64 = row.iter().map(|e| e.1).sum();
-                    row.sort_by_key(|e| e.0);
-                    entries.extend(row.iter().map(|&(k, w)| (k, (w / total) as f32)));
-                    offsets.push(entries.len());
                 }
             }
-        }
-        let mut kernels = Self {
-            dims,
-            bounds,
+            let total: f64 = row.iter().map(|e| e.1).sum();
+            row.sort_by_key(|e| e.0);
+            row.into_iter()
+                .map(|(k, w)| (k, (w / total) as f32))
+                .collect::<Vec<_>>()
+        };
+        let rows: Vec<Vec<(u32, f32)>> = (0..voxels).into_par_iter().map(row).collect();
+        Ok(Self {
             len,
             labels: labels.to_vec(),
-            offsets,
-            entries,
-            max_support: 0,
-        };
-        kernels.max_support = kernels.largest_support();
-        Ok(kernels)
+            weights: VoxelWeights::new(dims, bounds, rows),
+        })
     }
 
     /// The voxel labels.
@@ -203,35 +195,10 @@ impl LabelKernels {
         &self.labels
     }
 
-    /// The kernel weights `(kernel, weight)` at the centre of voxel `v` (they sum to one).
-    pub fn voxel_weights(&self, v: usize) -> &[(u32, f32)] {
-        &self.entries[self.offsets[v]..self.offsets[v + 1]]
-    }
-
-    /// The most distinct kernels over the eight voxel centres around any point.
-    fn largest_support(&self) -> usize {
-        let d = self.dims;
-        let mut seen: Vec<u32> = Vec::new();
-        let mut largest = 1;
-        for z in 0..d[2].saturating_sub(1).max(1) {
-            for y in 0..d[1].saturating_sub(1).max(1) {
-                for x in 0..d[0].saturating_sub(1).max(1) {
-                    seen.clear();
-                    for corner in 0..8 {
-                        let c = [x, y, z];
-                        let c = [0, 1, 2].map(|k| (c[k] + (corner >> k & 1)).min(d[k] - 1));
-                        let v = c[0] + d[0] * (c[1] + d[1] * c[2]);
-                        for &(i, _) in self.voxel_weights(v) {
-                            if !seen.contains(&i) {
-                                seen.push(i);
-                            }
-                        }
-                    }
-                    largest = largest.max(seen.len());
-                }
-            }
-        }
-        largest
+    /// The kernel weights `(kernel, weight)` at the centre of voxel `v` (they sum to one);
+    /// empty for `v` out of range.
+    pub fn voxel_weights(&self, v: usize) -> impl Iterator<Item = (u32, f32)> + '_ {
+        self.weights.row(v)
     }
 }
 
@@ -241,54 +208,17 @@ impl SpatialKernels for LabelKernels {
     }
 
     fn max_support(&self) -> usize {
-        self.max_support
+        self.weights.max_support()
     }
 
     fn domain(&self) -> Aabb {
-        self.bounds
+        self.weights.bounds()
     }
 
+    /// The trilinear blend of the eight surrounding voxel centres' weights; points outside the
+    /// box are clamped to it.
     fn eval(&self, x: Vec3, out: &mut KernelWeights) -> Result<(), CoreError> {
-        out.clear();
-        if !x.is_finite() {
-            return Err(CoreError::NonFinite {
-                what: "query point",
-                index: 0,
-            });
-        }
-        let size = self.bounds.size();
-        let mut cell = [0usize; 3];
-        let mut t = [0.0f32; 3];
-        for k in 0..3 {
-            let last = (self.dims[k] - 1) as f32;
-            let u = ((x[k] - self.bounds.min[k]) / size[k] * self.dims[k] as f32 - 0.5)
-                .clamp(0.0, last);
-            cell[k] = (u as usize).min(self.dims[k].saturating_sub(2));
-            t[k] = u - cell[k] as f32;
-        }
-        for corner in 0..8 {
-            let tw: f32 = (0..3)
-                .map(|k| {
-                    if corner >> k & 1 == 1 {
-                        t[k]
-                    } else {
-                        1.0 - t[k]
-                    }
-                })
-                .product();
-            if tw <= 0.0 {
-                continue;
-            }
-            let c = [0, 1, 2].map(|k| (cell[k] + (corner >> k & 1)).min(self.dims[k] - 1));
-            let v = c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2]);
-            for &(i, w) in self.voxel_weights(v) {
-                match out.indices.iter().position(|&j| j == i) {
-                    Some(p) => out.weights[p] += tw * w,
-                    None => out.push(i, tw * w),
-                }
-            }
-        }
-        Ok(())
+        self.weights.eval(x, out)
     }
 }
 

@@ -118,6 +118,7 @@ pub use polish::{
     ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishOptions, PolishRecord,
     PolishReport, PolishStep, PolishedMbd, exact_loss, polish, trilinear_energy,
 };
+mod voxel_weights;
 pub mod walls;
 pub use walls::{WallAware, WallOptions, wall_aware_basis};
 pub mod clustered;

@@ -51,6 +51,7 @@ use prt_kernels::HatGrid;
 use rayon::prelude::*;
 
 use crate::MbdError;
+use crate::voxel_weights::VoxelWeights;
 
 /// Options of [`WallAware`].
 #[derive(Debug, Clone, PartialEq)]
@@ -91,16 +92,7 @@ const SEED_TIE: f32 = 1e-5;
 #[derive(Debug, Clone)]
 pub struct WallAware<K> {
     base: K,
-    dims: [usize; 3],
-    bounds: Aabb,
-    origin: [f64; 3],
-    /// Voxels per unit length, per axis.
-    scale: [f64; 3],
-    /// Per voxel, its weights (CSR: `offsets[v]..offsets[v + 1]` into `indices` / `weights`).
-    offsets: Vec<usize>,
-    indices: Vec<u32>,
-    weights: Vec<f32>,
-    max_support: usize,
+    weights: VoxelWeights,
     /// Per axis, the support-cell group of every voxel-centre cell (hat bases only).
     groups: Option<AxisGroups>,
     fallbacks: usize,
@@ -192,16 +184,7 @@ impl<K: SpatialKernels> WallAware<K> {
         valid: &[bool],
         options: &WallOptions,
     ) -> Result<Self, MbdError> {
-        let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
-        let n = match n {
-            Some(n) if n > 0 && n < u32::MAX as usize => n,
-            _ => {
-                return Err(MbdError::InvalidOption {
-                    what: "dims",
-                    why: format!("{dims:?} is not a non-empty grid of fewer than 2^32 voxels"),
-                });
-            }
-        };
+        let n = VoxelWeights::voxel_count(dims, bounds)?;
         if valid.len() != n {
             return Err(MbdError::ShapeMismatch {
                 what: "validity mask",
@@ -227,43 +210,16 @@ impl<K: SpatialKernels> WallAware<K> {
                 why: "the base family has no kernels".into(),
             });
         }
-        if !bounds.is_valid() || (0..3).any(|k| bounds.max[k] <= bounds.min[k]) {
-            return Err(MbdError::InvalidKernels {
-                which: "basis",
-                why: format!("{bounds:?} is not a box of positive extent"),
-            });
-        }
         let grid = Grid { dims, bounds };
         let rows = base_rows(&base, &grid, n)?;
         let reach = reach_masks(&rows, &grid, valid, base.len(), options);
         let (final_rows, fallbacks) = masked_rows(&rows, &reach, &grid, valid);
-        let mut offsets = Vec::with_capacity(n + 1);
-        let (mut indices, mut weights) = (Vec::new(), Vec::new());
-        offsets.push(0);
-        for row in &final_rows {
-            for &(i, w) in row {
-                indices.push(i);
-                weights.push(w);
-            }
-            offsets.push(indices.len());
-        }
-        let origin = [0, 1, 2].map(|k| f64::from(bounds.min[k]));
-        let scale = [0, 1, 2].map(|k| dims[k] as f64 / (f64::from(bounds.max[k]) - origin[k]));
-        let mut kernels = WallAware {
+        Ok(WallAware {
             base,
-            dims,
-            bounds,
-            origin,
-            scale,
-            offsets,
-            indices,
-            weights,
-            max_support: 0,
+            weights: VoxelWeights::new(dims, bounds, final_rows),
             groups: None,
             fallbacks,
-        };
-        kernels.max_support = kernels.largest_union();
-        Ok(kernels)
+        })
     }
 
     /// The base family.
@@ -279,80 +235,13 @@ impl<K: SpatialKernels> WallAware<K> {
     /// The kernels non-zero at the centre of voxel `v` (renormalised masked base weights), as
     /// `(kernel, weight)` pairs; empty for `v` out of range.
     pub fn voxel_weights(&self, v: usize) -> impl Iterator<Item = (u32, f32)> + '_ {
-        let (a, b) = self.row_range(v);
-        self.indices[a..b]
-            .iter()
-            .copied()
-            .zip(self.weights[a..b].iter().copied())
+        self.weights.row(v)
     }
 
     /// Mean number of kernels non-zero at a voxel centre (the base's is 8 for a hat grid at
     /// generic positions).
     pub fn mean_voxel_support(&self) -> f64 {
-        self.indices.len() as f64 / (self.offsets.len() - 1) as f64
-    }
-
-    fn row_range(&self, v: usize) -> (usize, usize) {
-        match (self.offsets.get(v), self.offsets.get(v + 1)) {
-            (Some(&a), Some(&b)) => (a, b),
-            _ => (0, 0),
-        }
-    }
-
-    /// The voxel-centre cell of `x` (clamped): per axis the lower voxel and the fraction.
-    fn locate(&self, x: Vec3) -> Result<([usize; 3], [f32; 3]), CoreError> {
-        if let Some(index) = (0..3).find(|&k| !x[k].is_finite()) {
-            return Err(CoreError::NonFinite {
-                what: "query point",
-                index,
-            });
-        }
-        let mut cell = [0usize; 3];
-        let mut t = [0.0f32; 3];
-        for k in 0..3 {
-            let last = (self.dims[k] - 1) as f64;
-            let u = ((f64::from(x[k]) - self.origin[k]) * self.scale[k] - 0.5).clamp(0.0, last);
-            let c = (u as usize).min(self.dims[k].saturating_sub(2));
-            cell[k] = c;
-            t[k] = (u - c as f64) as f32;
-        }
-        Ok((cell, t))
-    }
-
-    /// The largest number of distinct kernels among the eight voxels of any voxel-centre cell.
-    fn largest_union(&self) -> usize {
-        let cells = self.dims.map(|d| d.saturating_sub(1).max(1));
-        let count: usize = cells.iter().product();
-        (0..count)
-            .into_par_iter()
-            .map_init(Vec::new, |seen: &mut Vec<u32>, c| {
-                seen.clear();
-                let cell = [
-                    c % cells[0],
-                    (c / cells[0]) % cells[1],
-                    c / (cells[0] * cells[1]),
-                ];
-                for corner in 0..8 {
-                    let v = self.corner_voxel(cell, corner);
-                    let (a, b) = self.row_range(v);
-                    for &i in &self.indices[a..b] {
-                        if !seen.contains(&i) {
-                            seen.push(i);
-                        }
-                    }
-                }
-                seen.len()
-            })
-            .max()
-            .unwrap_or(0)
-    }
-
-    /// Voxel at corner `corner` (bit k: one step up along axis k, clamped) of the voxel-centre
-    /// cell whose lowest voxel is `cell`.
-    #[inline]
-    fn corner_voxel(&self, cell: [usize; 3], corner: usize) -> usize {
-        let c = [0, 1, 2].map(|k| (cell[k] + (corner >> k & 1)).min(self.dims[k] - 1));
-        c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
+        self.weights.mean_row_len()
     }
 }
 
@@ -362,48 +251,24 @@ impl<K: SpatialKernels> SpatialKernels for WallAware<K> {
     }
 
     fn max_support(&self) -> usize {
-        self.max_support
+        self.weights.max_support()
     }
 
     fn domain(&self) -> Aabb {
-        self.bounds
+        self.weights.bounds()
     }
 
     /// The trilinear blend of the eight surrounding voxel centres' weights; points outside the
     /// box are clamped to it.
     fn eval(&self, x: Vec3, out: &mut KernelWeights) -> Result<(), CoreError> {
-        out.clear();
-        let (cell, t) = self.locate(x)?;
-        for corner in 0..8 {
-            let tw = [0, 1, 2]
-                .map(|k| {
-                    if corner >> k & 1 == 1 {
-                        t[k]
-                    } else {
-                        1.0 - t[k]
-                    }
-                })
-                .iter()
-                .product::<f32>();
-            if tw <= 0.0 {
-                continue;
-            }
-            let (a, b) = self.row_range(self.corner_voxel(cell, corner));
-            for (&i, &w) in self.indices[a..b].iter().zip(&self.weights[a..b]) {
-                match out.indices.iter().position(|&j| j == i) {
-                    Some(p) => out.weights[p] += tw * w,
-                    None => out.push(i, tw * w),
-                }
-            }
-        }
-        Ok(())
+        self.weights.eval(x, out)
     }
 
     /// For a hat base: the voxel-centre cells between the same basis-node planes form one
     /// group (they share the same few nodes); other bases have no cells.
     fn support_cell(&self, x: Vec3) -> Option<usize> {
         let groups = self.groups.as_ref()?;
-        let (cell, _) = self.locate(x).ok()?;
+        let (cell, _) = self.weights.locate(x).ok()?;
         let g = [0, 1, 2].map(|k| groups.ids[k][cell[k]] as usize);
         Some(g[0] + groups.counts[0] * (g[1] + groups.counts[1] * g[2]))
     }
