@@ -129,51 +129,6 @@ fn relabelled(
         .collect()
 }
 
-/// A reconstruction on the field's grid, sampled trilinearly (CPCA's evaluation).
-struct GridModel(GridField);
-
-impl FieldModel for GridModel {
-    fn dim(&self) -> usize {
-        self.0.dim()
-    }
-
-    fn eval(&self, x: glam::Vec3, out: &mut [f32]) -> Result<(), prt_core::CoreError> {
-        self.0.sample(x, out)
-    }
-
-    fn stored_scalars(&self) -> usize {
-        0
-    }
-
-    fn name(&self) -> String {
-        "grid".into()
-    }
-}
-
-/// Clustered PCA with fixed labels: each cluster's uncentred rank-`l` subspace of its voxels,
-/// every voxel projected onto its own.
-fn projected_onto_clusters(f: &GridField, labels: &[u32], l: usize) -> GridModel {
-    let clusters = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
-    let mut members = vec![Vec::new(); clusters];
-    for (v, &k) in labels.iter().enumerate() {
-        members[k as usize].push(v);
-    }
-    let mut data = ndarray::Array2::<f32>::zeros((f.num_voxels(), f.dim()));
-    for voxels in members.iter().filter(|m| !m.is_empty()) {
-        let rows = f.data().select(ndarray::Axis(0), voxels).mapv(f64::from);
-        let svd = prt_linalg::thin_svd(rows.view()).expect("svd");
-        let basis = svd
-            .vt
-            .slice(ndarray::s![..l.min(svd.vt.nrows()), ..])
-            .to_owned();
-        let projected = rows.dot(&basis.t()).dot(&basis);
-        for (row, &v) in projected.rows().into_iter().zip(voxels) {
-            data.row_mut(v).assign(&row.mapv(|x| x as f32));
-        }
-    }
-    GridModel(GridField::from_data(f.dims(), f.bounds(), data).expect("grid"))
-}
-
 struct Row {
     name: String,
     iterations: String,
@@ -288,7 +243,9 @@ fn main() {
         let mut labels = cluster_labels.clone();
         for pass in 1..=passes {
             labels = majority_filter(f, &valid, &labels);
-            let (model, wall, cpu) = measure(|| projected_onto_clusters(f, &labels, l));
+            let (model, wall, cpu) = measure(|| {
+                ClusteredPca::with_labels(f, labels.clone(), l, &NoProgress).expect("cpca")
+            });
             add(
                 format!(
                     "control: CPCA's labels majority-filtered ×{pass} ({:.1} % on a boundary), bases refitted",

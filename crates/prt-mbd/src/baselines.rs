@@ -293,6 +293,35 @@ impl ClusteredPca {
     }
 }
 
+impl ClusteredPca {
+    /// Clustered PCA with the clusters given instead of found: each cluster's rank-`rank`
+    /// subspace of its voxels, every voxel projected onto its own (e.g. for labels edited after
+    /// a [`ClusteredPca`] fit). `labels` holds one cluster index per voxel; an empty cluster
+    /// gets the global subspace.
+    ///
+    /// # Errors
+    /// [`MbdError::InvalidRank`], NaN/Inf in the field, [`MbdError::ShapeMismatch`] when
+    /// `labels` is not one per voxel, cancellation.
+    pub fn with_labels(
+        field: &GridField,
+        labels: Vec<u32>,
+        rank: usize,
+        progress: &dyn Progress,
+    ) -> Result<ClusterModel, MbdError> {
+        check_rank(rank, field)?;
+        if labels.len() != field.num_voxels() {
+            return Err(MbdError::ShapeMismatch {
+                what: "labels",
+                expected: vec![field.num_voxels()],
+                got: vec![labels.len()],
+            });
+        }
+        let clusters = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
+        let bases = fit_clusters(field, &labels, clusters, rank, None, progress)?;
+        ClusterModel::projected(format!("CPCA rank {rank}"), field, labels, bases)
+    }
+}
+
 /// Rows per chunk of the distance-to-subspace assignment.
 const ASSIGN_CHUNK: usize = 512;
 

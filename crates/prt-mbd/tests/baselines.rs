@@ -100,6 +100,37 @@ fn clustered_pca_separates_interleaved_subspaces() {
     assert!(rel(&bpca, &field) > 1e-2);
 }
 
+/// CPCA with its own labels given reproduces its fit; the true checkerboard labels are exact,
+/// labels that ignore it are not; a label per voxel is required.
+#[test]
+fn clustered_pca_with_given_labels_fits_those_clusters() {
+    let field = piecewise_subspace_field([6, 6, 6], 9, 2, 2, |c| (c[0] + c[1] + c[2]) % 2);
+    let cpca = ClusteredPca::new(2, 3)
+        .compress(&field, &NoProgress)
+        .unwrap();
+    let again = ClusteredPca::with_labels(&field, cpca.labels().to_vec(), 2, &NoProgress).unwrap();
+    let gap = again
+        .reconstruction()
+        .data()
+        .iter()
+        .zip(cpca.reconstruction().data().iter())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(gap < 1e-5, "{gap}");
+    let checkerboard: Vec<u32> = (0..216)
+        .map(|v| ((v % 6 + (v / 6) % 6 + v / 36) % 2) as u32)
+        .collect();
+    let exact = ClusteredPca::with_labels(&field, checkerboard, 2, &NoProgress).unwrap();
+    assert!(rel(&exact, &field) < 1e-8, "{}", rel(&exact, &field));
+    let halves: Vec<u32> = (0..216).map(|v| u32::from(v % 6 >= 3)).collect();
+    let wrong = ClusteredPca::with_labels(&field, halves, 2, &NoProgress).unwrap();
+    assert!(rel(&wrong, &field) > 1e-2, "{}", rel(&wrong, &field));
+    assert!(matches!(
+        ClusteredPca::with_labels(&field, vec![0; 215], 2, &NoProgress),
+        Err(MbdError::ShapeMismatch { what: "labels", .. })
+    ));
+}
+
 #[test]
 fn vector_quantisation_is_exact_with_one_codeword_per_distinct_value() {
     let field = GridField::from_fn([5, 5, 2], Aabb::UNIT, 3, |p, out| {
