@@ -162,9 +162,7 @@ fn main() {
         })
     };
     let f = &field;
-    let valid: Vec<bool> = (0..f.num_voxels())
-        .map(|v| f.voxel(v).iter().any(|&t| t != 0.0))
-        .collect();
+    let valid = nonzero_voxels(f);
     let dims = f.dims();
     let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
     let count: usize = nodes.iter().product();

@@ -288,10 +288,7 @@ fn sweep_field() -> Input {
     let n = sweep_n();
     let traced = |scene: &str, field: GridField| {
         let [x, y, z] = field.dims();
-        // The baker zeroes the transfer of invalid voxels (inside geometry).
-        let valid: Vec<bool> = (0..field.num_voxels())
-            .map(|v| field.voxel(v).iter().any(|&t| t != 0.0))
-            .collect();
+        let valid = nonzero_voxels(&field);
         let invalid = valid.iter().filter(|v| !**v).count();
         Input {
             name: format!("traced {scene} {x}×{y}×{z} × 324, {invalid} invalid voxels"),

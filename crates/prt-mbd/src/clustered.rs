@@ -333,11 +333,9 @@ impl ClusteredMbd {
                 index[k]
             })
             .collect();
-        // The baker's convention: voxels inside geometry hold exactly zero transfer. CPCA puts
-        // them all in one cluster, which must not spread into the open space beside every wall.
-        let valid: Vec<bool> = (0..field.num_voxels())
-            .map(|v| field.voxel(v).iter().any(|&x| x != 0.0))
-            .collect();
+        // CPCA puts the zero voxels inside geometry all in one cluster, which must not spread
+        // into the open space beside every wall.
+        let valid = crate::nonzero_voxels(field);
         let kernels = LabelKernels::new(
             field.dims(),
             field.bounds(),

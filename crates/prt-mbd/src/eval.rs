@@ -418,6 +418,14 @@ pub fn seam_metric_with(
     })
 }
 
+/// The voxels holding any non-zero value: the validity mask of a baked transfer volume, whose
+/// baker zeroes the voxels inside geometry (prt-trace's convention).
+pub fn nonzero_voxels(field: &GridField) -> Vec<bool> {
+    (0..field.num_voxels())
+        .map(|v| field.voxel(v).iter().any(|&x| x != 0.0))
+        .collect()
+}
+
 /// `field` blurred by a separable Gaussian of `sigma` voxels (taps to 3σ) over the voxels where
 /// `valid` is true only: each output is the weighted mean of the valid voxels under the kernel,
 /// so the box edges and invalid voxels do not pull values towards 0. Invalid voxels are 0;

@@ -107,7 +107,7 @@ pub use hat::{Mbd, basis_box};
 pub mod eval;
 pub use eval::{
     EvalOptions, Evaluation, SeamMetric, SeamOptions, blur_valid, evaluate, kernel_labels,
-    seam_metric, seam_metric_with,
+    nonzero_voxels, seam_metric, seam_metric_with,
 };
 mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};

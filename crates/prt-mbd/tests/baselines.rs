@@ -514,3 +514,13 @@ fn blocks_of_zero_voxels_are_handled() {
         assert!(rel(&mbd, &field).is_finite());
     }
 }
+
+#[test]
+fn nonzero_voxels_marks_voxels_with_any_non_zero_value() {
+    let field = GridField::from_fn([3, 1, 1], Aabb::UNIT, 2, |x, out| {
+        out[0] = 0.0;
+        out[1] = if x.x < 0.5 { -1e-30 } else { 0.0 };
+    })
+    .unwrap();
+    assert_eq!(nonzero_voxels(&field), vec![true, false, false]);
+}
