@@ -26,6 +26,37 @@ pub fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
     )
 }
 
+/// The sweeps' synthetic field: `n`³ voxels of 324-D vectors on a curved manifold (seed 1).
+pub fn synthetic_field(n: usize) -> GridField {
+    prt_mbd::SyntheticField {
+        dims: [n; 3],
+        dim: 324,
+        harmonics: 4,
+        seed: 1,
+    }
+    .build(Aabb::UNIT)
+    .expect("synthetic field")
+}
+
+/// The traced `scene` volume at resolution `n` from the cache; without it, `bin` says how to
+/// trace it and the process exits.
+pub fn cached_volume_or_exit(bin: &str, scene: &str, n: usize) -> GridField {
+    let path = cached_volume_path(scene, n);
+    read_cached(&path).unwrap_or_else(|| {
+        eprintln!(
+            "{bin}: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
+            path.display()
+        );
+        std::process::exit(1);
+    })
+}
+
+/// `b` basis nodes per axis, at least 2 and at most the field's voxels on that axis.
+pub fn basis_nodes(field: &GridField, b: usize) -> [usize; 3] {
+    let dims = field.dims();
+    [0, 1, 2].map(|k| b.min(dims[k].max(2)))
+}
+
 /// The 1, 5 and 15 minute load averages.
 pub fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")

@@ -27,11 +27,10 @@
 
 use prt_benches::Table;
 use prt_benches::mbd::{
-    cached_volume_path, env_or, load_average, measure, method_enabled, read_cached,
+    basis_nodes, cached_volume_or_exit, env_or, load_average, measure, method_enabled,
+    synthetic_field,
 };
-use prt_core::{
-    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
-};
+use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_mbd::*;
 
 fn enabled(method: &str) -> bool {
@@ -143,28 +142,14 @@ fn main() {
     let n: usize = env_or("MBD_N", 48);
     let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
     let field = if scene == "synthetic" {
-        SyntheticField {
-            dims: [n; 3],
-            dim: 324,
-            harmonics: 4,
-            seed: 1,
-        }
-        .build(Aabb::UNIT)
-        .expect("synthetic field")
+        synthetic_field(n)
     } else {
-        let path = cached_volume_path(&scene, n);
-        read_cached(&path).unwrap_or_else(|| {
-            eprintln!(
-                "mbd_clustered: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
-                path.display()
-            );
-            std::process::exit(1);
-        })
+        cached_volume_or_exit("mbd_clustered", &scene, n)
     };
     let f = &field;
     let valid = nonzero_voxels(f);
     let dims = f.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(f, b);
     let count: usize = nodes.iter().product();
     println!(
         "{scene} {}×{}×{} × {}, {} invalid voxels; L = {l}, {count} basis nodes / clusters; load average before: {}",

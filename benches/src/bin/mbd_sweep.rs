@@ -31,30 +31,16 @@ use std::time::Instant;
 
 use glam::Vec3;
 use prt_benches::mbd::{
-    CAP, cached_volume_path, distance_name, env_or, env_usize, load_average, read_cached,
-    voxel_energy, wall_bins, wall_distance, write_cached,
+    CAP, basis_nodes, cached_volume_path, distance_name, env_or, env_usize, load_average,
+    read_cached, synthetic_field, voxel_energy, wall_bins, wall_distance, write_cached,
 };
 use prt_benches::{Table, cpu_seconds, fmt_duration};
-use prt_core::{
-    Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid,
-};
+use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_mbd::*;
 use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 
-const DIM: usize = 324;
 /// The transfer vector as four 9 × 9 operators.
 const BLOCKS: [usize; 4] = [81, 81, 81, 81];
-
-fn synthetic_field(n: usize) -> GridField {
-    SyntheticField {
-        dims: [n; 3],
-        dim: DIM,
-        harmonics: 4,
-        seed: 1,
-    }
-    .build(Aabb::UNIT)
-    .expect("synthetic field")
-}
 
 struct Scores {
     relative_mse: f64,
@@ -176,11 +162,6 @@ fn knobs(default: &[usize]) -> Vec<usize> {
 /// Every enabled method at rank `l` with `b³` basis nodes / blocks / clusters (fewer on a short
 /// axis, as `prt bake` does).
 /// `b` basis nodes per axis, or one per voxel (at least 2) along an axis with fewer voxels.
-fn basis_nodes(field: &GridField, b: usize) -> [usize; 3] {
-    let dims = field.dims();
-    [0, 1, 2].map(|k| b.min(dims[k].max(2)))
-}
-
 fn compare(sweep: &mut Sweep, knob: usize, input: &Input, l: usize, b: usize, iterations: usize) {
     let field = &input.field;
     let nodes = basis_nodes(field, b);

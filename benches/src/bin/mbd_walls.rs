@@ -38,8 +38,8 @@ use std::time::Instant;
 
 use prt_benches::Table;
 use prt_benches::mbd::{
-    CAP, cached_volume_path, distance_name, env_or, load_average, measure, method_enabled,
-    read_cached, voxel_energy, wall_bins_of_grid, wall_distance,
+    CAP, basis_nodes, cached_volume_or_exit, distance_name, env_or, load_average, measure,
+    method_enabled, voxel_energy, wall_bins_of_grid, wall_distance,
 };
 use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_mbd::*;
@@ -160,19 +160,12 @@ fn main() {
     let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
     let iterations: usize = env_or("MBD_ITERS", 128);
     let detour: f32 = env_or("MBD_DETOUR", 1.5);
-    let path = cached_volume_path(&scene, n);
-    let Some(field) = read_cached(&path) else {
-        eprintln!(
-            "mbd_walls: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
-            path.display()
-        );
-        std::process::exit(1);
-    };
+    let field = cached_volume_or_exit("mbd_walls", &scene, n);
     let f = &field;
     let valid = nonzero_voxels(f);
     let invalid = valid.iter().filter(|v| !**v).count();
     let dims = f.dims();
-    let nodes = [0, 1, 2].map(|k| b.min(dims[k].max(2)));
+    let nodes = basis_nodes(f, b);
     let count: usize = nodes.iter().product();
     println!(
         "traced {scene} {}×{}×{} × {}, {invalid} invalid voxels; L = {l}, {count} basis nodes; load average before: {}",
