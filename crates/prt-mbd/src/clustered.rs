@@ -202,6 +202,14 @@ impl LabelKernels {
     }
 }
 
+impl crate::polish::sealed::Sealed for LabelKernels {
+    fn layout(&self) -> crate::polish::BasisLayout<'_> {
+        crate::polish::BasisLayout::Voxels(&self.weights)
+    }
+}
+
+impl crate::PolishBasis for LabelKernels {}
+
 impl SpatialKernels for LabelKernels {
     fn len(&self) -> usize {
         self.len

@@ -50,9 +50,10 @@
 //!   clustered PCA's clusters, smoothed over a few voxels, for scenes whose transfer changes
 //!   faster than a basis cell (traced Sponza: 1.14–1.36× CPCA's error instead of the hat
 //!   grid's 1.73–1.84×); module [`clustered`].
-//! * [`polish`] and [`exact_loss`] (beyond the paper, opt-in): on the hat grids of [`Mbd`] the
-//!   continuous loss is a piecewise polynomial, integrated exactly by a tensor Gauss–Legendre
-//!   rule; `polish` lowers it further by alternating exact solves (basis: dense normal
+//! * [`polish`] and [`exact_loss`] (beyond the paper, opt-in): with the coefficient hats of
+//!   [`Mbd`] and a hat-grid or voxel-stored basis ([`PolishBasis`]: [`WallAware`],
+//!   [`LabelKernels`]) the continuous loss is a piecewise polynomial, integrated exactly by a
+//!   tensor Gauss–Legendre rule; `polish` lowers it further by alternating exact solves (basis: dense normal
 //!   equations; coefficients: block-sparse conjugate gradients) with extrapolation, and
 //!   `exact_loss` / [`trilinear_energy`] give the exact value of [`evaluate`]'s relative MSE
 //!   for MBD and for the grid-resampled baselines. [`PolishedMbd`] chains the two: the
@@ -113,10 +114,10 @@ mod als;
 pub use als::{ALS_MAX_BASIS_UNKNOWNS, solve_als};
 mod adapted;
 pub use adapted::{AdaptedBasisOptions, Placement, scene_adapted_basis};
-mod polish;
+pub(crate) mod polish;
 pub use polish::{
-    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishOptions, PolishRecord,
-    PolishReport, PolishStep, PolishedMbd, exact_loss, polish, trilinear_energy,
+    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishBasis, PolishOptions,
+    PolishRecord, PolishReport, PolishStep, PolishedMbd, exact_loss, polish, trilinear_energy,
 };
 mod voxel_weights;
 pub mod walls;

@@ -1,13 +1,15 @@
-//! Exact polish of an MBD on hat grids (beyond the paper): alternating exact minimisation of
-//! the *continuous* loss, which the stochastic solver only estimates.
+//! Exact polish of an MBD (beyond the paper): alternating exact minimisation of the
+//! *continuous* loss, which the stochastic solver only estimates.
 //!
-//! With the hat grids of [`crate::Mbd`] (coefficient nodes at the voxel centres, clamped outside
-//! them; basis nodes spanning the voxel centres' box, or any box inside the field's, clamped
-//! outside it) and the trilinear target of the field, every factor is piecewise linear along
-//! each axis: the coefficients `c(x)` and the target `f(x)` between voxel centres (constant in
-//! the outer half voxels), the basis `b(x)` between basis nodes. Splitting each axis at all those breakpoints leaves intervals on which the residual
-//! `f̂ − f = c·b − f` is a polynomial of degree ≤ 2 per axis, so its square has degree ≤ 4: a
-//! tensor 3-point Gauss–Legendre rule on every interval box integrates the loss
+//! With the coefficient hats of [`crate::Mbd`] (nodes at the voxel centres, clamped outside
+//! them) and the trilinear target of the field, every factor is piecewise linear along each
+//! axis: the coefficients `c(x)` and the target `f(x)` between voxel centres (constant in the
+//! outer half voxels), and the basis `b(x)` between its own breakpoints — basis nodes for a hat
+//! grid over any box inside the field's (clamped outside it), voxel centres for the families
+//! stored at the voxel centres ([`crate::WallAware`], [`crate::LabelKernels`]; see
+//! [`PolishBasis`]). Splitting each axis at all those breakpoints leaves intervals on which the
+//! residual `f̂ − f = c·b − f` is a polynomial of degree ≤ 2 per axis, so its square has
+//! degree ≤ 4: a tensor 3-point Gauss–Legendre rule on every interval box integrates the loss
 //!
 //! ```text
 //! E(c, B) = ∫ ‖f(x) − f̂(x)‖² dx + λ/2 ‖c‖²        (x in units of one voxel's volume)
@@ -27,6 +29,12 @@
 //! Each half-step's result is rounded to the model's f32 storage and accepted only if the exact
 //! loss did not increase, so the loss of the returned model never exceeds the input's. Memory:
 //! the coefficient system holds `27 L²` f64 per voxel (13.8 KB at L = 8: 450 MB for 32³).
+//!
+//! For the voxel-stored families both systems are assembled per voxel-centre cell from the
+//! blended bases of its eight corners, whose rows hold a few kernels each (Sponza, 125
+//! clustered kernels: 6.3 on average at radius 2, 10.1 at radius 3), so a sweep costs about
+//! what it costs on the hat grid (traced Sponza 48 × 20 × 30, L = 8, radius 3: ~9 s wall on
+//! two cores with the extrapolation's extra basis system).
 
 use std::ops::Range;
 use std::time::Instant;
@@ -38,6 +46,7 @@ use rayon::prelude::*;
 
 use crate::baselines::voxel_centre_box;
 use crate::subspace::{cholesky_in_place, cholesky_solve_in_place, linalg_error};
+use crate::voxel_weights::VoxelWeights;
 use crate::{Mbd, MbdError, MbdModel, MbdOptions, SolveReport};
 
 /// Largest `N·L` (basis nodes × rank) for which [`polish`] assembles and factors the dense
@@ -103,6 +112,35 @@ impl Default for PolishOptions {
         }
     }
 }
+
+/// Basis kernels whose exact continuous loss [`polish`] and [`exact_loss`] integrate (a sealed
+/// trait): a [`HatGrid`] over a box inside the field's (the basis of [`crate::Mbd`]), and the
+/// kernel families stored at the field's voxel centres and blended trilinearly between them,
+/// [`crate::WallAware`] and [`crate::LabelKernels`]. For the latter every factor of the model is
+/// trilinear between voxel centres, so the breakpoints are the voxel centres alone.
+pub trait PolishBasis: SpatialKernels + sealed::Sealed {}
+
+pub(crate) mod sealed {
+    /// How a [`super::PolishBasis`] is laid out (crate-private).
+    pub trait Sealed {
+        /// The layout the quadrature needs.
+        fn layout(&self) -> super::BasisLayout<'_>;
+    }
+}
+
+/// The two layouts the quadrature integrates exactly.
+pub enum BasisLayout<'a> {
+    Hat(&'a HatGrid),
+    Voxels(&'a VoxelWeights),
+}
+
+impl sealed::Sealed for HatGrid {
+    fn layout(&self) -> BasisLayout<'_> {
+        BasisLayout::Hat(self)
+    }
+}
+
+impl PolishBasis for HatGrid {}
 
 /// The exact continuous loss of a model (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -182,16 +220,22 @@ impl PolishReport {
 ///
 /// # Errors
 /// As [`polish`].
-pub fn exact_loss(
+pub fn exact_loss<B: PolishBasis>(
     field: &GridField,
-    model: &MbdModel<HatGrid, HatGrid>,
+    model: &MbdModel<HatGrid, B>,
     lambda: f32,
 ) -> Result<ExactLoss, MbdError> {
     let options = PolishOptions {
         lambda,
         ..PolishOptions::default()
     };
-    let quadrature = Quadrature::new(field, model, &options)?;
+    let quadrature = Systems::new(
+        field,
+        model.coefficient_kernels(),
+        model.basis_kernels(),
+        model.basis(),
+        &options,
+    )?;
     let l = model.rank();
     let c: Vec<f64> = model.coefficients().iter().map(|&v| v as f64).collect();
     let b = basis_rows(model.basis())?;
@@ -211,22 +255,23 @@ pub fn exact_loss(
 /// checked between basis cells and conjugate-gradient iterations.
 ///
 /// # Errors
-/// [`MbdError::InvalidKernels`] unless the kernels are those of [`crate::Mbd`] for `field`
-/// (coefficient hats at the voxel centres, a basis hat grid over a box inside the field's) and the field
-/// has at least 2 voxels per axis; [`MbdError::ShapeMismatch`] if the model's dimension differs
+/// [`MbdError::InvalidKernels`] unless the coefficient kernels are those of [`crate::Mbd`] for
+/// `field` (hats at the voxel centres), the basis is a hat grid of at least 2 nodes per axis
+/// over a box inside the field's or a voxel-stored family on the field's own voxels and box,
+/// and the field has at least 2 voxels per axis; [`MbdError::ShapeMismatch`] if the model's dimension differs
 /// from the field's; [`MbdError::InvalidOption`] for a negative or non-finite λ or tolerance, a
 /// non-positive `cg_tolerance`, `max_cg_iterations == 0`, or `N·L` above
 /// [`POLISH_MAX_BASIS_UNKNOWNS`]; non-finite field values; cancellation.
-pub fn polish(
+pub fn polish<B: PolishBasis>(
     field: &GridField,
-    model: MbdModel<HatGrid, HatGrid>,
+    model: MbdModel<HatGrid, B>,
     options: &PolishOptions,
     progress: &dyn Progress,
-) -> Result<(MbdModel<HatGrid, HatGrid>, PolishReport), MbdError> {
+) -> Result<(MbdModel<HatGrid, B>, PolishReport), MbdError> {
     let start = Instant::now();
-    let quadrature = Quadrature::new(field, &model, options)?;
     let l = model.rank();
     let (coefficient_kernels, basis_kernels, coefficients, basis) = model.into_parts();
+    let quadrature = Systems::new(field, &coefficient_kernels, &basis_kernels, &basis, options)?;
     let mut c: Vec<f64> = coefficients.iter().map(|&v| v as f64).collect();
     let mut b = basis_rows(&basis)?;
     let energy = quadrature.energy(field);
@@ -439,6 +484,9 @@ impl Compressor for PolishedMbd {
         Ok(self.fit(field, progress)?.0)
     }
 }
+
+mod voxels;
+use voxels::VoxelQuadrature;
 
 /// `∫ ‖f(x)‖² dx` of the trilinear interpolation of `field` over its box (clamped in the outer
 /// half voxels, as [`GridField::sample`]), in units of one voxel's volume, computed exactly.
@@ -700,12 +748,21 @@ fn validate_options(options: &PolishOptions) -> Result<(), MbdError> {
     Ok(())
 }
 
-impl Quadrature {
-    fn new(
+/// The exact systems of a model's basis family.
+enum Systems<'a> {
+    Hat(Quadrature),
+    Voxels(VoxelQuadrature<'a>),
+}
+
+impl<'a> Systems<'a> {
+    /// Checks the field, the model's kernels and shapes and the options.
+    fn new<B: PolishBasis>(
         field: &GridField,
-        model: &MbdModel<HatGrid, HatGrid>,
+        coefficient_kernels: &HatGrid,
+        basis_kernels: &'a B,
+        basis: &Array3<f32>,
         options: &PolishOptions,
-    ) -> Result<Quadrature, MbdError> {
+    ) -> Result<Self, MbdError> {
         field.check_finite()?;
         let voxels = field.dims();
         let invalid = |which: &'static str, why: String| MbdError::InvalidKernels { which, why };
@@ -720,33 +777,101 @@ impl Quadrature {
         }
         let expected = HatGrid::new(voxels, voxel_centre_box(field))
             .map_err(|e| invalid("coefficient", e.to_string()))?;
-        if *model.coefficient_kernels() != expected {
+        if *coefficient_kernels != expected {
             return Err(invalid(
                 "coefficient",
                 "the polish needs one hat per voxel centre of the field (as crate::Mbd)".into(),
             ));
         }
-        let basis = model.basis_kernels();
-        let nodes = basis.nodes();
-        let spans = basis_spans(field, basis.domain()).filter(|_| nodes.iter().all(|&n| n >= 2));
-        let Some(spans) = spans else {
-            return Err(invalid(
-                "basis",
-                "the polish needs a hat grid of at least 2 nodes per axis over a box inside the \
-                 field's"
-                    .into(),
-            ));
+        let systems = match basis_kernels.layout() {
+            BasisLayout::Hat(hats) => Systems::Hat(Quadrature::new(field, hats)?),
+            BasisLayout::Voxels(weights) => {
+                Systems::Voxels(VoxelQuadrature::new(field, weights, basis_kernels.len())?)
+            }
         };
-        let (l, d) = (model.rank(), field.dim());
-        if model.basis().dim().2 != d {
+        let (n, l, d) = basis.dim();
+        if n != basis_kernels.len() || d != field.dim() {
             return Err(MbdError::ShapeMismatch {
                 what: "basis tensor",
-                expected: vec![basis.len(), l, d],
-                got: model.basis().shape().to_vec(),
+                expected: vec![basis_kernels.len(), l, field.dim()],
+                got: basis.shape().to_vec(),
             });
         }
         validate_options(options)?;
-        check_basis_size(basis.len(), l)?;
+        check_basis_size(n, l)?;
+        Ok(systems)
+    }
+
+    /// `∫ ‖f‖² dx` of the field's trilinear interpolation.
+    fn energy(&self, field: &GridField) -> f64 {
+        match self {
+            Systems::Hat(q) => q.energy(field),
+            Systems::Voxels(_) => trilinear_energy(field),
+        }
+    }
+
+    /// The basis step's normal equations at coefficients `c`.
+    fn basis_system(
+        &self,
+        field: &GridField,
+        c: &[f64],
+        l: usize,
+        progress: &dyn Progress,
+    ) -> Result<BasisSystem, MbdError> {
+        match self {
+            Systems::Hat(q) => q.basis_system(field, c, l, progress),
+            Systems::Voxels(q) => q.basis_system(field, c, l, progress),
+        }
+    }
+
+    /// The coefficient step's block-sparse normal equations at basis `b`, the ridge included.
+    fn coefficient_system(
+        &self,
+        field: &GridField,
+        b: &[f64],
+        l: usize,
+        lambda: f32,
+        progress: &dyn Progress,
+    ) -> Result<CoefficientSystem, MbdError> {
+        let voxels = field.dims();
+        let count: usize = voxels.iter().product();
+        let ll = l * l;
+        let mut system = CoefficientSystem {
+            voxels,
+            rank: l,
+            blocks: vec![0.0; count * 27 * ll],
+            rhs: vec![0.0; count * l],
+        };
+        match self {
+            Systems::Hat(q) => q.add_coefficient_system(field, b, l, &mut system, progress)?,
+            Systems::Voxels(q) => q.add_coefficient_system(field, b, l, &mut system, progress)?,
+        }
+        let half_lambda = 0.5 * lambda as f64;
+        for v in 0..count {
+            let block =
+                &mut system.blocks[(v * 27 + SELF_BLOCK) * ll..(v * 27 + SELF_BLOCK + 1) * ll];
+            for i in 0..l {
+                block[i * l + i] += half_lambda;
+            }
+        }
+        Ok(system)
+    }
+}
+
+impl Quadrature {
+    /// The quadrature for a basis hat grid over a box inside the field's.
+    fn new(field: &GridField, basis: &HatGrid) -> Result<Quadrature, MbdError> {
+        let voxels = field.dims();
+        let nodes = basis.nodes();
+        let spans = basis_spans(field, basis.domain()).filter(|_| nodes.iter().all(|&n| n >= 2));
+        let Some(spans) = spans else {
+            return Err(MbdError::InvalidKernels {
+                which: "basis",
+                why: "the polish needs a hat grid of at least 2 nodes per axis over a box inside \
+                      the field's"
+                    .into(),
+            });
+        };
         Ok(Quadrature {
             axes: [0, 1, 2].map(|k| Axis::new(voxels[k], nodes[k], spans[k])),
             voxels,
@@ -913,24 +1038,17 @@ impl Quadrature {
         Ok(BasisSystem { gram, rhs })
     }
 
-    /// The coefficient step's block-sparse normal equations at basis `b` (ridge included).
-    fn coefficient_system(
+    /// Adds the coefficient step's normal equations at basis `b` (without the ridge) to
+    /// `system`.
+    fn add_coefficient_system(
         &self,
         field: &GridField,
         b: &[f64],
         l: usize,
-        lambda: f32,
+        system: &mut CoefficientSystem,
         progress: &dyn Progress,
-    ) -> Result<CoefficientSystem, MbdError> {
+    ) -> Result<(), MbdError> {
         let d = field.dim();
-        let voxels: usize = self.voxels.iter().product();
-        let ll = l * l;
-        let mut system = CoefficientSystem {
-            voxels: self.voxels,
-            rank: l,
-            blocks: vec![0.0; voxels * 27 * ll],
-            rhs: vec![0.0; voxels * l],
-        };
         let cells: Vec<usize> = (0..self.num_cells()).collect();
         for batch in cells.chunks(CELL_BATCH) {
             let parts: Vec<Result<Vec<BoxSystem>, MbdError>> = batch
@@ -946,15 +1064,7 @@ impl Quadrature {
                 }
             }
         }
-        let half_lambda = 0.5 * lambda as f64;
-        for v in 0..voxels {
-            let block =
-                &mut system.blocks[(v * 27 + SELF_BLOCK) * ll..(v * 27 + SELF_BLOCK + 1) * ll];
-            for i in 0..l {
-                block[i * l + i] += half_lambda;
-            }
-        }
-        Ok(system)
+        Ok(())
     }
 
     /// The coefficient-system contributions of basis cell `cell`, one per coefficient cell
@@ -1152,44 +1262,14 @@ struct CoefficientSystem {
 impl CoefficientSystem {
     fn add(&mut self, boxed: &BoxSystem, voxels: [usize; 3]) {
         let l = self.rank;
-        let ll = l * l;
-        let voxel = |k: usize| {
-            let at = [0, 1, 2].map(|a| boxed.lower[a] + (k >> a & 1));
-            at[0] + voxels[0] * (at[1] + voxels[1] * at[2])
-        };
-        let mut pair = 0;
+        add_pair_blocks(&mut self.blocks, [l, l], boxed.lower, &boxed.a, voxels);
         for k in 0..8 {
-            let vk = voxel(k);
+            let vk = corner_voxel(boxed.lower, k, voxels);
             for (o, &x) in self.rhs[vk * l..(vk + 1) * l]
                 .iter_mut()
                 .zip(&boxed.r[k * l..(k + 1) * l])
             {
                 *o += x;
-            }
-            for k2 in k..8 {
-                let src = &boxed.a[pair * ll..(pair + 1) * ll];
-                pair += 1;
-                let delta = |from: usize, to: usize| -> usize {
-                    (0..3)
-                        .map(|a| {
-                            ((to >> a & 1) as isize - (from >> a & 1) as isize + 1) as usize
-                                * [1, 3, 9][a]
-                        })
-                        .sum()
-                };
-                let forward = (vk * 27 + delta(k, k2)) * ll;
-                for (o, &x) in self.blocks[forward..forward + ll].iter_mut().zip(src) {
-                    *o += x;
-                }
-                if k2 != k {
-                    // The transposed block, seen from the other voxel.
-                    let backward = (voxel(k2) * 27 + delta(k2, k)) * ll;
-                    for i in 0..l {
-                        for j in 0..l {
-                            self.blocks[backward + i * l + j] += src[j * l + i];
-                        }
-                    }
-                }
             }
         }
     }
@@ -1300,6 +1380,57 @@ impl CoefficientSystem {
             });
         }
         Ok((x.into_iter().map(round_f32).collect(), iterations))
+    }
+}
+
+/// Global index of corner `k` (bit a: one step up along axis a) of the voxel-centre cell whose
+/// lowest voxel is `lower`.
+fn corner_voxel(lower: [usize; 3], k: usize, voxels: [usize; 3]) -> usize {
+    let at = [0, 1, 2].map(|a| lower[a] + (k >> a & 1));
+    at[0] + voxels[0] * (at[1] + voxels[1] * at[2])
+}
+
+/// Adds one voxel-centre cell's corner-pair blocks `a` (pairs `k ≤ k'` in order, each
+/// `shape[0] × shape[1]`, row-major) to per-voxel neighbour blocks `blocks` (27 per voxel,
+/// neighbour `(dx, dy, dz)` at `(dx+1) + 3(dy+1) + 9(dz+1)`): the block of pair `(k, k')` at
+/// voxel `k` towards `k'`, and its transpose at `k'` towards `k`.
+fn add_pair_blocks(
+    blocks: &mut [f64],
+    shape: [usize; 2],
+    lower: [usize; 3],
+    a: &[f64],
+    voxels: [usize; 3],
+) {
+    let [rows, cols] = shape;
+    let size = rows * cols;
+    let delta = |from: usize, to: usize| -> usize {
+        (0..3)
+            .map(|axis| {
+                ((to >> axis & 1) as isize - (from >> axis & 1) as isize + 1) as usize
+                    * [1, 3, 9][axis]
+            })
+            .sum()
+    };
+    let mut pair = 0;
+    for k in 0..8 {
+        let vk = corner_voxel(lower, k, voxels);
+        for k2 in k..8 {
+            let src = &a[pair * size..(pair + 1) * size];
+            pair += 1;
+            let forward = (vk * 27 + delta(k, k2)) * size;
+            for (o, &x) in blocks[forward..forward + size].iter_mut().zip(src) {
+                *o += x;
+            }
+            if k2 != k {
+                // The transposed block, seen from the other voxel.
+                let backward = (corner_voxel(lower, k2, voxels) * 27 + delta(k2, k)) * size;
+                for i in 0..rows {
+                    for j in 0..cols {
+                        blocks[backward + j * rows + i] += src[i * cols + j];
+                    }
+                }
+            }
+        }
     }
 }
 

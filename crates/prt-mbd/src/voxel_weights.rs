@@ -12,7 +12,7 @@ use crate::MbdError;
 /// the voxel centres like the field's own sampling. If every row is a non-negative partition
 /// of unity, so is the blend, and it is continuous.
 #[derive(Debug, Clone)]
-pub(crate) struct VoxelWeights {
+pub struct VoxelWeights {
     dims: [usize; 3],
     bounds: Aabb,
     origin: [f64; 3],
@@ -77,6 +77,10 @@ impl VoxelWeights {
         };
         table.max_support = table.largest_union();
         table
+    }
+
+    pub(crate) fn dims(&self) -> [usize; 3] {
+        self.dims
     }
 
     pub(crate) fn bounds(&self) -> Aabb {

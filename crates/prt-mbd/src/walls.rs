@@ -245,6 +245,14 @@ impl<K: SpatialKernels> WallAware<K> {
     }
 }
 
+impl<K> crate::polish::sealed::Sealed for WallAware<K> {
+    fn layout(&self) -> crate::polish::BasisLayout<'_> {
+        crate::polish::BasisLayout::Voxels(&self.weights)
+    }
+}
+
+impl<K: SpatialKernels> crate::PolishBasis for WallAware<K> {}
+
 impl<K: SpatialKernels> SpatialKernels for WallAware<K> {
     fn len(&self) -> usize {
         self.base.len()

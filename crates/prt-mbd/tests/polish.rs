@@ -4,14 +4,14 @@
 use glam::Vec3;
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
-use prt_core::{Aabb, FieldModel, GridField, NoProgress};
+use prt_core::{Aabb, GridField, NoProgress};
 use prt_kernels::HatGrid;
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod common;
-use common::global_rank_field;
+use common::{check_exact_loss, global_rank_field};
 
 /// A model with random tensors on the hat grids of [`Mbd`] for `field`.
 fn random_model(
@@ -33,30 +33,6 @@ fn random_model(
         rng.random::<f32>() - 0.5
     });
     MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
-}
-
-/// `∫ ‖f − f̂‖²` and `∫ ‖f‖²` (voxel units) by the composite midpoint rule with `s³` points per
-/// voxel.
-fn midpoint(field: &GridField, model: &dyn FieldModel, s: usize) -> (f64, f64) {
-    let d = field.dim();
-    let (mut f, mut g) = (vec![0.0f32; d], vec![0.0f32; d]);
-    let (mut err, mut energy) = (0.0, 0.0);
-    let size = field.voxel_size();
-    for v in 0..field.num_voxels() {
-        let corner = field.centre_of(v) - 0.5 * size;
-        for i in 0..s * s * s {
-            let t = Vec3::new((i % s) as f32, (i / s % s) as f32, (i / (s * s)) as f32) + 0.5;
-            let x = corner + t / s as f32 * size;
-            field.sample(x, &mut f).unwrap();
-            model.eval(x, &mut g).unwrap();
-            for (a, b) in f.iter().zip(&g) {
-                err += ((a - b) as f64).powi(2);
-                energy += (*a as f64).powi(2);
-            }
-        }
-    }
-    let n = (s * s * s) as f64;
-    (err / n, energy / n)
 }
 
 /// The exact loss is the integral. The composite midpoint rule's error falls as h², so its
@@ -88,37 +64,6 @@ fn exact_loss_is_the_continuous_integral() {
     for model in [centred, whole_box] {
         check_exact_loss(&field, &model);
     }
-}
-
-fn check_exact_loss(field: &GridField, model: &MbdModel<HatGrid, HatGrid>) {
-    let exact = exact_loss(field, model, 1e-4).unwrap();
-    let (err8, energy8) = midpoint(field, model, 8);
-    let (err16, energy16) = midpoint(field, model, 16);
-    let richardson = |coarse: f64, fine: f64| (4.0 * fine - coarse) / 3.0;
-    let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs();
-    assert!(
-        !close(err16, exact.data, 5e-5),
-        "midpoint alone should differ: {err16} vs {}",
-        exact.data
-    );
-    assert!(
-        close(richardson(err8, err16), exact.data, 2e-6),
-        "{} vs {}",
-        richardson(err8, err16),
-        exact.data
-    );
-    assert!(
-        close(richardson(energy8, energy16), exact.energy, 2e-6),
-        "{} vs {}",
-        richardson(energy8, energy16),
-        exact.energy
-    );
-    let c2: f64 = model
-        .coefficients()
-        .iter()
-        .map(|&v| (v as f64).powi(2))
-        .sum();
-    assert!(close(exact.ridge, 0.5e-4 * c2, 1e-6));
 }
 
 /// The trilinear energy is the polish's `∫‖f‖²`, and a constant field's is its volume in voxels

@@ -74,3 +74,65 @@ pub fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
     }
     out
 }
+
+/// `∫ ‖f − f̂‖²` and `∫ ‖f‖²` (voxel units) by the composite midpoint rule with `s³` points per
+/// voxel.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn midpoint(field: &GridField, model: &dyn prt_core::FieldModel, s: usize) -> (f64, f64) {
+    let d = field.dim();
+    let (mut f, mut g) = (vec![0.0f32; d], vec![0.0f32; d]);
+    let (mut err, mut energy) = (0.0, 0.0);
+    let size = field.voxel_size();
+    for v in 0..field.num_voxels() {
+        let corner = field.centre_of(v) - 0.5 * size;
+        for i in 0..s * s * s {
+            let t = Vec3::new((i % s) as f32, (i / s % s) as f32, (i / (s * s)) as f32) + 0.5;
+            let x = corner + t / s as f32 * size;
+            field.sample(x, &mut f).unwrap();
+            model.eval(x, &mut g).unwrap();
+            for (a, b) in f.iter().zip(&g) {
+                err += ((a - b) as f64).powi(2);
+                energy += (*a as f64).powi(2);
+            }
+        }
+    }
+    let n = (s * s * s) as f64;
+    (err / n, energy / n)
+}
+
+/// Checks [`prt_mbd::exact_loss`] against the Richardson extrapolation of the midpoint rule
+/// (8³ and 16³ points per voxel; either alone is off by more than 5e-5), and the ridge.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn check_exact_loss<B: prt_mbd::PolishBasis + Clone>(
+    field: &GridField,
+    model: &prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
+) {
+    let exact = prt_mbd::exact_loss(field, model, 1e-4).unwrap();
+    let (err8, energy8) = midpoint(field, model, 8);
+    let (err16, energy16) = midpoint(field, model, 16);
+    let richardson = |coarse: f64, fine: f64| (4.0 * fine - coarse) / 3.0;
+    let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs();
+    assert!(
+        !close(err16, exact.data, 5e-5),
+        "midpoint alone should differ: {err16} vs {}",
+        exact.data
+    );
+    assert!(
+        close(richardson(err8, err16), exact.data, 2e-6),
+        "{} vs {}",
+        richardson(err8, err16),
+        exact.data
+    );
+    assert!(
+        close(richardson(energy8, energy16), exact.energy, 2e-6),
+        "{} vs {}",
+        richardson(energy8, energy16),
+        exact.energy
+    );
+    let c2: f64 = model
+        .coefficients()
+        .iter()
+        .map(|&v| (v as f64).powi(2))
+        .sum();
+    assert!(close(exact.ridge, 0.5e-4 * c2, 1e-6));
+}

@@ -1,0 +1,184 @@
+//! The exact polish with basis kernels stored at the voxel centres ([`LabelKernels`],
+//! [`WallAware`]): its loss is the continuous integral, it never increases, it fits an exactly
+//! representable field, it is deterministic, and it refuses kernels of another grid.
+
+use glam::Vec3;
+use ndarray::{Array2, Array3};
+use proptest::prelude::*;
+use prt_core::{Aabb, GridField, NoProgress, SpatialKernels};
+use prt_kernels::HatGrid;
+use prt_mbd::*;
+use rand::{Rng, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+mod common;
+use common::{check_exact_loss, floor_and_column_scene, global_rank_field};
+
+fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    (0..n).map(|_| rng.random_range(0..len as u32)).collect()
+}
+
+fn label_kernels(field: &GridField, len: usize, radius: usize, seed: u64) -> LabelKernels {
+    let labels = random_labels(field.num_voxels(), len, seed);
+    let smoothing = LabelSmoothing {
+        radius,
+        falloff: 0.5,
+    };
+    LabelKernels::new(field.dims(), field.bounds(), &labels, len, None, &smoothing).unwrap()
+}
+
+/// A model with random tensors: `Mbd`'s coefficient hats and the given basis kernels.
+fn random_model<B: SpatialKernels>(
+    field: &GridField,
+    basis_kernels: B,
+    rank: usize,
+    seed: u64,
+) -> MbdModel<HatGrid, B> {
+    let coefficient_kernels = HatGrid::new(field.dims(), voxel_centre_box(field)).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let coefficients =
+        Array2::from_shape_fn((field.num_voxels(), rank), |_| rng.random::<f32>() - 0.5);
+    let basis = Array3::from_shape_fn((basis_kernels.len(), rank, field.dim()), |_| {
+        rng.random::<f32>() - 0.5
+    });
+    MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
+}
+
+/// The exact loss is the continuous integral for label kernels (sharp and smoothed) and for
+/// wall-aware hats, on a box that is not the unit cube.
+#[test]
+fn exact_loss_with_voxel_kernels_is_the_continuous_integral() {
+    let bounds = Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(2.0, 1.5, 5.0));
+    let field = SyntheticField {
+        dims: [6, 5, 7],
+        dim: 5,
+        harmonics: 3,
+        seed: 4,
+    }
+    .build(bounds)
+    .unwrap();
+    for radius in [0, 2] {
+        let model = random_model(&field, label_kernels(&field, 4, radius, 9), 2, 7);
+        check_exact_loss(&field, &model);
+    }
+    let (scene, valid) = floor_and_column_scene(
+        Vec3::new(-1.0, 0.0, 2.0),
+        Vec3::new(2.0, 1.5, 5.0),
+        4,
+        3.0,
+        5,
+    );
+    let walls = wall_aware_basis(&scene, &valid, [3, 3, 2], &WallOptions::default()).unwrap();
+    check_exact_loss(&scene, &random_model(&scene, walls, 2, 3));
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(6))]
+
+    /// No half-step raises the exact loss, the report's last loss is the returned model's, and
+    /// the polish lowers the loss of a short clustered solve.
+    #[test]
+    fn polish_with_label_kernels_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, radius in 0usize..3) {
+        let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
+        let clustered = ClusteredMbd {
+            clusters: 4,
+            smoothing: LabelSmoothing { radius, falloff: 0.5 },
+            start: ClusterStart::AlignedClusters,
+            options: MbdOptions { rank, max_iterations: 8, seed, ..MbdOptions::default() },
+        };
+        let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
+        let options = PolishOptions { sweeps: 4, tolerance: 0.0, ..PolishOptions::default() };
+        let start = exact_loss(&field, &model, options.lambda).unwrap();
+        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
+        prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
+        let mut previous = report.initial.loss();
+        for r in &report.history {
+            prop_assert!(r.loss.loss() <= previous * (1.0 + 1e-12), "{:?}: {} > {previous}", r.step, r.loss.loss());
+            previous = r.loss.loss();
+        }
+        let end = exact_loss(&field, &polished, options.lambda).unwrap();
+        prop_assert!((end.loss() - report.last().loss()).abs() <= 1e-9 * end.loss(), "{end:?} vs {:?}", report.last());
+        prop_assert!(end.loss() < start.loss(), "{} !< {}", end.loss(), start.loss());
+    }
+
+    /// A field that is exactly a rank-L MBD with one global basis (the same basis on every
+    /// kernel, blended by a partition of unity, is that basis) is fitted to rounding after a
+    /// short clustered solve.
+    #[test]
+    fn polish_with_label_kernels_is_exact_on_a_rank_l_field(seed in 0u64..1000, rank in 1usize..4) {
+        let field = global_rank_field([5, 6, 4], 9, rank, seed);
+        let mut clustered = ClusteredMbd::new(rank, 3);
+        clustered.options.max_iterations = 4;
+        clustered.options.seed = seed;
+        let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
+        let options = PolishOptions { sweeps: 8, lambda: 1e-7, ..PolishOptions::default() };
+        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
+        let relative = report.last().relative_mse();
+        prop_assert!(relative < 1e-10, "relative MSE {relative:e} (start {:e})", report.initial.relative_mse());
+        let evaluated = evaluate(&polished, &field, &EvalOptions::default()).unwrap().relative_mse;
+        prop_assert!(evaluated < 1e-10, "evaluate {evaluated:e}");
+    }
+}
+
+/// The same model on 1 and 2 threads, bit for bit.
+#[test]
+fn polish_with_label_kernels_is_deterministic_across_thread_counts() {
+    let field = SyntheticField {
+        dims: [9, 8, 7],
+        dim: 12,
+        harmonics: 3,
+        seed: 3,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let model = random_model(&field, label_kernels(&field, 6, 2, 1), 3, 1);
+    let options = PolishOptions {
+        sweeps: 2,
+        tolerance: 0.0,
+        ..PolishOptions::default()
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| polish(&field, model.clone(), &options, &NoProgress).unwrap())
+    };
+    let (one, report_one) = run(1);
+    let (two, report_two) = run(2);
+    assert_eq!(one.coefficients(), two.coefficients());
+    assert_eq!(one.basis(), two.basis());
+    let losses = |r: &PolishReport| r.history.iter().map(|h| h.loss).collect::<Vec<_>>();
+    assert_eq!(losses(&report_one), losses(&report_two));
+}
+
+/// Kernels stored on another grid (other dims, or the same dims over another box) are typed
+/// errors.
+#[test]
+fn polish_refuses_voxel_kernels_of_another_grid() {
+    let field = SyntheticField {
+        dims: [6, 5, 4],
+        dim: 5,
+        harmonics: 2,
+        seed: 1,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let smoothing = LabelSmoothing::default();
+    let other_dims =
+        LabelKernels::new([6, 5, 5], Aabb::UNIT, &[0; 150], 1, None, &smoothing).unwrap();
+    let shifted = Aabb::new(Vec3::splat(0.5), Vec3::splat(1.5));
+    let other_box = LabelKernels::new([6, 5, 4], shifted, &[0; 120], 1, None, &smoothing).unwrap();
+    for kernels in [other_dims, other_box] {
+        let model = random_model(&field, kernels, 1, 2);
+        assert!(matches!(
+            exact_loss(&field, &model, 1e-4),
+            Err(MbdError::InvalidKernels { which: "basis", .. })
+        ));
+        assert!(matches!(
+            polish(&field, model, &PolishOptions::default(), &NoProgress),
+            Err(MbdError::InvalidKernels { which: "basis", .. })
+        ));
+    }
+}
