@@ -34,10 +34,6 @@ pub(super) struct VoxelQuadrature<'a> {
     kernels: usize,
 }
 
-/// A cell's lowest voxel, and per corner pair `k ≤ k'` its `∫ φ_k φ_k' c cᵀ` (`L × L`) and
-/// `∫ φ_k φ_k' c` (`L`).
-type CellMoments = ([usize; 3], Vec<f64>, Vec<f64>);
-
 /// A voxel's share of the basis system: the kernels of its neighbours' rows with their
 /// `L × L` blocks of `Σ_u W_u ⊗ H_{v,u}`, and its `L × D` right-hand side `Σ_u T_{v,u} f_uᵀ`.
 type VoxelBasisPart = (Vec<u32>, Vec<f64>, Vec<f64>);
@@ -110,6 +106,33 @@ impl<'a> VoxelQuadrature<'a> {
         }
     }
 
+    /// Runs `assemble(lower, corners)` on every voxel-centre cell (its lowest voxel and its
+    /// corners' indices) in parallel batches, and hands the results to `add` in cell order, so
+    /// that the sums do not depend on the thread count.
+    fn for_cells<T: Send>(
+        &self,
+        progress: &dyn Progress,
+        assemble: impl Fn([usize; 3], [usize; 8]) -> T + Sync,
+        mut add: impl FnMut([usize; 3], T),
+    ) -> Result<(), MbdError> {
+        let cells: Vec<usize> = (0..self.num_cells()).collect();
+        for batch in cells.chunks(CELL_BATCH) {
+            progress.check()?;
+            let parts: Vec<([usize; 3], T)> = batch
+                .par_iter()
+                .map(|&index| {
+                    let lower = self.lower(index);
+                    let corners = std::array::from_fn(|k| corner_voxel(lower, k, self.voxels));
+                    (lower, assemble(lower, corners))
+                })
+                .collect();
+            for (lower, part) in parts {
+                add(lower, part);
+            }
+        }
+        Ok(())
+    }
+
     /// The lowest voxel of voxel-centre cell `cell`.
     fn lower(&self, cell: usize) -> [usize; 3] {
         let [cx, cy, _] = self.voxels.map(|n| n - 1);
@@ -134,53 +157,45 @@ impl<'a> VoxelQuadrature<'a> {
         let corner_pairs = corner_pairs();
         let mut h = vec![0.0; count * 27 * ll];
         let mut t = vec![0.0; count * 27 * l];
-        let cells: Vec<usize> = (0..self.num_cells()).collect();
-        for batch in cells.chunks(CELL_BATCH) {
-            let parts: Vec<Result<CellMoments, MbdError>> = batch
-                .par_iter()
-                .map(|&index| {
-                    progress.check()?;
-                    let lower = self.lower(index);
-                    let corners: [usize; 8] =
-                        std::array::from_fn(|k| corner_voxel(lower, k, self.voxels));
-                    let mut a = vec![0.0; corner_pairs.len() * ll];
-                    let mut moments = vec![0.0; corner_pairs.len() * l];
-                    let (mut cx, mut cc) = (vec![0.0; l], vec![0.0; ll]);
-                    self.for_points(lower, |w, phi| {
-                        cx.fill(0.0);
-                        for k in 0..8 {
-                            let ck = &c[corners[k] * l..(corners[k] + 1) * l];
-                            for (o, &x) in cx.iter_mut().zip(ck) {
-                                *o += phi[k] * x;
-                            }
+        self.for_cells(
+            progress,
+            |lower, corners| {
+                let mut a = vec![0.0; corner_pairs.len() * ll];
+                let mut moments = vec![0.0; corner_pairs.len() * l];
+                let (mut cx, mut cc) = (vec![0.0; l], vec![0.0; ll]);
+                self.for_points(lower, |w, phi| {
+                    cx.fill(0.0);
+                    for k in 0..8 {
+                        let ck = &c[corners[k] * l..(corners[k] + 1) * l];
+                        for (o, &x) in cx.iter_mut().zip(ck) {
+                            *o += phi[k] * x;
                         }
-                        for i in 0..l {
-                            for j in 0..l {
-                                cc[i * l + j] = cx[i] * cx[j];
-                            }
+                    }
+                    for i in 0..l {
+                        for j in 0..l {
+                            cc[i * l + j] = cx[i] * cx[j];
                         }
-                        for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                            let weight = w * phi[k] * phi[k2];
-                            if weight == 0.0 {
-                                continue;
-                            }
-                            for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&cc) {
-                                *o += weight * x;
-                            }
-                            for (o, &x) in moments[pair * l..(pair + 1) * l].iter_mut().zip(&cx) {
-                                *o += weight * x;
-                            }
+                    }
+                    for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
+                        let weight = w * phi[k] * phi[k2];
+                        if weight == 0.0 {
+                            continue;
                         }
-                    });
-                    Ok((lower, a, moments))
-                })
-                .collect();
-            for part in parts {
-                let (lower, a, moments) = part?;
+                        for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&cc) {
+                            *o += weight * x;
+                        }
+                        for (o, &x) in moments[pair * l..(pair + 1) * l].iter_mut().zip(&cx) {
+                            *o += weight * x;
+                        }
+                    }
+                });
+                (a, moments)
+            },
+            |lower, (a, moments)| {
                 add_pair_blocks(&mut h, [l, l], lower, &a, self.voxels);
                 add_pair_blocks(&mut t, [l, 1], lower, &moments, self.voxels);
-            }
-        }
+            },
+        )?;
         // Per voxel v (parallel batches, added in voxel order): Q_v = Σ_u W_u ⊗ H_{v,u} over
         // the kernels of its neighbours' rows and R_v = Σ_u T_{v,u} f_uᵀ; then
         // G += W_vᵀ ⊗ Q_v and R += W_vᵀ ⊗ R_v.
@@ -283,109 +298,97 @@ impl<'a> VoxelQuadrature<'a> {
                 got: vec![b.len()],
             });
         }
-        let cells: Vec<usize> = (0..self.num_cells()).collect();
-        for batch in cells.chunks(CELL_BATCH) {
-            let parts: Vec<Result<BoxSystem, MbdError>> = batch
-                .par_iter()
-                .map(|&index| {
-                    progress.check()?;
-                    let lower = self.lower(index);
-                    let corners: [usize; 8] =
-                        std::array::from_fn(|k| corner_voxel(lower, k, self.voxels));
-                    // The corners' blended bases β_k = Σ_n W_{k,n} B_n (8L × D), their Gram and
-                    // their products with the corners' values (one GEMM each).
-                    let mut beta = Array2::<f64>::zeros((8 * l, d));
-                    {
-                        let out = beta.as_slice_mut().unwrap_or(&mut []);
-                        for (k, &v) in corners.iter().enumerate() {
-                            let out = &mut out[k * l * d..(k + 1) * l * d];
-                            for (n, a) in self.weights.row(v) {
-                                let src = &b[n as usize * l * d..(n as usize + 1) * l * d];
-                                for (o, &x) in out.iter_mut().zip(src) {
-                                    *o += f64::from(a) * x;
-                                }
+        self.for_cells(
+            progress,
+            |lower, corners| {
+                // The corners' blended bases β_k = Σ_n W_{k,n} B_n (8L × D), their Gram and
+                // their products with the corners' values (one GEMM each).
+                let mut beta = Array2::<f64>::zeros((8 * l, d));
+                {
+                    let out = beta.as_slice_mut().unwrap_or(&mut []);
+                    for (k, &v) in corners.iter().enumerate() {
+                        let out = &mut out[k * l * d..(k + 1) * l * d];
+                        for (n, a) in self.weights.row(v) {
+                            let src = &b[n as usize * l * d..(n as usize + 1) * l * d];
+                            for (o, &x) in out.iter_mut().zip(src) {
+                                *o += f64::from(a) * x;
                             }
                         }
                     }
-                    let mut gram = Array2::<f64>::zeros((8 * l, 8 * l));
-                    general_mat_mul(1.0, &beta, &beta.t(), 0.0, &mut gram);
-                    let f = Array2::from_shape_fn((d, 8), |(i, k)| {
-                        f64::from(field.voxel(corners[k])[i])
-                    });
-                    let mut products = Array2::<f64>::zeros((8 * l, 8));
-                    general_mat_mul(1.0, &beta, &f, 0.0, &mut products);
-                    // b(x) b(x)ᵀ = Σ_{k ≤ k'} φ_k φ_k' K_kk', the pair standing for both orders.
-                    let mut pair_gram = vec![0.0; corner_pairs.len() * ll];
+                }
+                let mut gram = Array2::<f64>::zeros((8 * l, 8 * l));
+                general_mat_mul(1.0, &beta, &beta.t(), 0.0, &mut gram);
+                let f =
+                    Array2::from_shape_fn((d, 8), |(i, k)| f64::from(field.voxel(corners[k])[i]));
+                let mut products = Array2::<f64>::zeros((8 * l, 8));
+                general_mat_mul(1.0, &beta, &f, 0.0, &mut products);
+                // b(x) b(x)ᵀ = Σ_{k ≤ k'} φ_k φ_k' K_kk', the pair standing for both orders.
+                let mut pair_gram = vec![0.0; corner_pairs.len() * ll];
+                for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
+                    for i in 0..l {
+                        for j in 0..l {
+                            let mut x = gram[[k * l + i, k2 * l + j]];
+                            if k != k2 {
+                                x += gram[[k2 * l + i, k * l + j]];
+                            }
+                            pair_gram[pair * ll + i * l + j] = x;
+                        }
+                    }
+                }
+                // b(x) f(x) = Σ_k Σ_k' φ_k φ_k' β_k f_k'.
+                let projections: Vec<f64> = (0..64)
+                    .flat_map(|e| {
+                        let (k, k2) = (e / 8, e % 8);
+                        let products = &products;
+                        (0..l).map(move |i| products[[k * l + i, k2]])
+                    })
+                    .collect();
+                let mut a = vec![0.0; corner_pairs.len() * ll];
+                let mut r = vec![0.0; 8 * l];
+                let (mut m, mut s) = (vec![0.0; ll], vec![0.0; l]);
+                self.for_points(lower, |w, phi| {
+                    m.fill(0.0);
                     for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                        for i in 0..l {
-                            for j in 0..l {
-                                let mut x = gram[[k * l + i, k2 * l + j]];
-                                if k != k2 {
-                                    x += gram[[k2 * l + i, k * l + j]];
-                                }
-                                pair_gram[pair * ll + i * l + j] = x;
-                            }
+                        let weight = phi[k] * phi[k2];
+                        if weight == 0.0 {
+                            continue;
+                        }
+                        for (o, &x) in m.iter_mut().zip(&pair_gram[pair * ll..(pair + 1) * ll]) {
+                            *o += weight * x;
                         }
                     }
-                    // b(x) f(x) = Σ_k Σ_k' φ_k φ_k' β_k f_k'.
-                    let projections: Vec<f64> = (0..64)
-                        .flat_map(|e| {
-                            let (k, k2) = (e / 8, e % 8);
-                            let products = &products;
-                            (0..l).map(move |i| products[[k * l + i, k2]])
-                        })
-                        .collect();
-                    let mut a = vec![0.0; corner_pairs.len() * ll];
-                    let mut r = vec![0.0; 8 * l];
-                    let (mut m, mut s) = (vec![0.0; ll], vec![0.0; l]);
-                    self.for_points(lower, |w, phi| {
-                        m.fill(0.0);
-                        for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
+                    s.fill(0.0);
+                    for k in 0..8 {
+                        for k2 in 0..8 {
                             let weight = phi[k] * phi[k2];
                             if weight == 0.0 {
                                 continue;
                             }
-                            for (o, &x) in m.iter_mut().zip(&pair_gram[pair * ll..(pair + 1) * ll])
-                            {
+                            let p = &projections[(k * 8 + k2) * l..(k * 8 + k2 + 1) * l];
+                            for (o, &x) in s.iter_mut().zip(p) {
                                 *o += weight * x;
                             }
                         }
-                        s.fill(0.0);
-                        for k in 0..8 {
-                            for k2 in 0..8 {
-                                let weight = phi[k] * phi[k2];
-                                if weight == 0.0 {
-                                    continue;
-                                }
-                                let p = &projections[(k * 8 + k2) * l..(k * 8 + k2 + 1) * l];
-                                for (o, &x) in s.iter_mut().zip(p) {
-                                    *o += weight * x;
-                                }
-                            }
+                    }
+                    for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
+                        let weight = w * phi[k] * phi[k2];
+                        if weight == 0.0 {
+                            continue;
                         }
-                        for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                            let weight = w * phi[k] * phi[k2];
-                            if weight == 0.0 {
-                                continue;
-                            }
-                            for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&m) {
-                                *o += weight * x;
-                            }
+                        for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&m) {
+                            *o += weight * x;
                         }
-                        for k in 0..8 {
-                            let weight = w * phi[k];
-                            for (o, &x) in r[k * l..(k + 1) * l].iter_mut().zip(&s) {
-                                *o += weight * x;
-                            }
+                    }
+                    for k in 0..8 {
+                        let weight = w * phi[k];
+                        for (o, &x) in r[k * l..(k + 1) * l].iter_mut().zip(&s) {
+                            *o += weight * x;
                         }
-                    });
-                    Ok(BoxSystem { lower, a, r })
-                })
-                .collect();
-            for part in parts {
-                system.add(&part?, self.voxels);
-            }
-        }
-        Ok(())
+                    }
+                });
+                BoxSystem { lower, a, r }
+            },
+            |_, boxed| system.add(&boxed, self.voxels),
+        )
     }
 }
