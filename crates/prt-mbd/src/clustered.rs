@@ -33,8 +33,9 @@
 //! **Measured** (traced Sponza, L = 8, 125 clusters; MBD / CPCA relative MSE): 1.36× at
 //! 48 × 20 × 30, 1.21× at 72 × 30 × 44, 1.14× at 96 × 40 × 59 (hat grid: 1.84×, 1.73×,
 //! 1.82×); 256 iterations reach **1.09×** at 96 (radius 3: 1.07×). The exact [`crate::polish`]
-//! takes these kernels: at radius 3, 8 sweeps after the solver's own stop reach **1.07×** at 96,
-//! 256 iterations and 16 sweeps **1.09×** at 72, while 48 stays at 1.16× after 16 sweeps (MBD
+//! takes these kernels and brings all three within 10 %: **1.07×** at 96 (radius 3, 8 sweeps
+//! after the solver's own stop), **1.09×** at 72 (radius 3, 256 iterations, 16 sweeps),
+//! **1.095×** at 48 (radius 4, 256 iterations, 32 sweeps), at 30–150× CPCA's time (MBD
 //! session 9). On smooth fields it gains nothing (Cornell: 0.79×, as the hat grid; the
 //! synthetic field: worse than the hat grid).
 //!
