@@ -11,7 +11,9 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod common;
-use common::{check_exact_loss, global_rank_field};
+use common::{
+    check_exact_loss, check_polish_descends, check_polish_fits_exactly, global_rank_field,
+};
 
 /// A model with random tensors on the hat grids of [`Mbd`] for `field`.
 fn random_model(
@@ -127,17 +129,7 @@ proptest! {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
         let model = if random { random_model(&field, [3, 2, 2], rank, seed) } else { quick_fit(&field, [3, 2, 2], rank, 8, seed) };
         let options = PolishOptions { sweeps: 4, tolerance: 0.0, extrapolation, ..PolishOptions::default() };
-        let start = exact_loss(&field, &model, options.lambda).unwrap();
-        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
-        prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
-        let mut previous = report.initial.loss();
-        for r in &report.history {
-            prop_assert!(r.loss.loss() <= previous * (1.0 + 1e-12), "{:?}: {} > {previous}", r.step, r.loss.loss());
-            previous = r.loss.loss();
-        }
-        let end = exact_loss(&field, &polished, options.lambda).unwrap();
-        prop_assert!((end.loss() - report.last().loss()).abs() <= 1e-9 * end.loss(), "{end:?} vs {:?}", report.last());
-        prop_assert!(end.loss() < start.loss(), "{} !< {}", end.loss(), start.loss());
+        check_polish_descends(&field, model, &options)?;
     }
 
     /// A field that is exactly a rank-L MBD (one global basis) is fitted to rounding.
@@ -146,11 +138,7 @@ proptest! {
         let field = global_rank_field([5, 6, 4], 9, rank, seed);
         let model = quick_fit(&field, [2, 3, 2], rank, 4, seed);
         let options = PolishOptions { sweeps: 6, lambda: 1e-7, ..PolishOptions::default() };
-        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
-        let relative = report.last().relative_mse();
-        prop_assert!(relative < 1e-10, "relative MSE {relative:e} (start {:e})", report.initial.relative_mse());
-        let evaluated = evaluate(&polished, &field, &EvalOptions::default()).unwrap().relative_mse;
-        prop_assert!(evaluated < 1e-10, "evaluate {evaluated:e}");
+        check_polish_fits_exactly(&field, model, &options)?;
     }
 }
 

@@ -12,7 +12,10 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod common;
-use common::{check_exact_loss, floor_and_column_scene, global_rank_field};
+use common::{
+    check_exact_loss, check_polish_descends, check_polish_fits_exactly, floor_and_column_scene,
+    global_rank_field,
+};
 
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
@@ -89,17 +92,7 @@ proptest! {
         };
         let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
         let options = PolishOptions { sweeps: 4, tolerance: 0.0, ..PolishOptions::default() };
-        let start = exact_loss(&field, &model, options.lambda).unwrap();
-        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
-        prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
-        let mut previous = report.initial.loss();
-        for r in &report.history {
-            prop_assert!(r.loss.loss() <= previous * (1.0 + 1e-12), "{:?}: {} > {previous}", r.step, r.loss.loss());
-            previous = r.loss.loss();
-        }
-        let end = exact_loss(&field, &polished, options.lambda).unwrap();
-        prop_assert!((end.loss() - report.last().loss()).abs() <= 1e-9 * end.loss(), "{end:?} vs {:?}", report.last());
-        prop_assert!(end.loss() < start.loss(), "{} !< {}", end.loss(), start.loss());
+        check_polish_descends(&field, model, &options)?;
     }
 
     /// A field that is exactly a rank-L MBD with one global basis (the same basis on every
@@ -113,11 +106,7 @@ proptest! {
         clustered.options.seed = seed;
         let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
         let options = PolishOptions { sweeps: 8, lambda: 1e-7, ..PolishOptions::default() };
-        let (polished, report) = polish(&field, model, &options, &NoProgress).unwrap();
-        let relative = report.last().relative_mse();
-        prop_assert!(relative < 1e-10, "relative MSE {relative:e} (start {:e})", report.initial.relative_mse());
-        let evaluated = evaluate(&polished, &field, &EvalOptions::default()).unwrap().relative_mse;
-        prop_assert!(evaluated < 1e-10, "evaluate {evaluated:e}");
+        check_polish_fits_exactly(&field, model, &options)?;
     }
 }
 

@@ -136,3 +136,64 @@ pub fn check_exact_loss<B: prt_mbd::PolishBasis + Clone>(
         .sum();
     assert!(close(exact.ridge, 0.5e-4 * c2, 1e-6));
 }
+
+/// Polishes `model` and checks the polish's laws: the report starts at the model's exact loss,
+/// no half-step raises it, the report ends at the returned model's exact loss, and that is
+/// below the start.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn check_polish_descends<B: prt_mbd::PolishBasis + Clone>(
+    field: &GridField,
+    model: prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
+    options: &prt_mbd::PolishOptions,
+) -> Result<(), proptest::test_runner::TestCaseError> {
+    use proptest::prop_assert;
+    let start = prt_mbd::exact_loss(field, &model, options.lambda).unwrap();
+    let (polished, report) = prt_mbd::polish(field, model, options, &prt_core::NoProgress).unwrap();
+    prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
+    let mut previous = report.initial.loss();
+    for r in &report.history {
+        prop_assert!(
+            r.loss.loss() <= previous * (1.0 + 1e-12),
+            "{:?}: {} > {previous}",
+            r.step,
+            r.loss.loss()
+        );
+        previous = r.loss.loss();
+    }
+    let end = prt_mbd::exact_loss(field, &polished, options.lambda).unwrap();
+    prop_assert!(
+        (end.loss() - report.last().loss()).abs() <= 1e-9 * end.loss(),
+        "{end:?} vs {:?}",
+        report.last()
+    );
+    prop_assert!(
+        end.loss() < start.loss(),
+        "{} !< {}",
+        end.loss(),
+        start.loss()
+    );
+    Ok(())
+}
+
+/// Polishes `model` of a field that is exactly representable and checks that the exact and the
+/// sampled relative MSE end below 1e-10.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn check_polish_fits_exactly<B: prt_mbd::PolishBasis + Clone>(
+    field: &GridField,
+    model: prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
+    options: &prt_mbd::PolishOptions,
+) -> Result<(), proptest::test_runner::TestCaseError> {
+    use proptest::prop_assert;
+    let (polished, report) = prt_mbd::polish(field, model, options, &prt_core::NoProgress).unwrap();
+    let relative = report.last().relative_mse();
+    prop_assert!(
+        relative < 1e-10,
+        "relative MSE {relative:e} (start {:e})",
+        report.initial.relative_mse()
+    );
+    let evaluated = prt_mbd::evaluate(&polished, field, &prt_mbd::EvalOptions::default())
+        .unwrap()
+        .relative_mse;
+    prop_assert!(evaluated < 1e-10, "evaluate {evaluated:e}");
+    Ok(())
+}
