@@ -7,8 +7,6 @@ use proptest::prelude::*;
 use prt_core::{Aabb, GridField, NoProgress};
 use prt_kernels::HatGrid;
 use prt_mbd::*;
-use rand::{Rng, SeedableRng};
-use rand_pcg::Pcg64Mcg;
 
 mod common;
 use common::{
@@ -26,15 +24,8 @@ fn random_model(
         basis_nodes: nodes,
         options: MbdOptions::default(),
     };
-    let (coefficient_kernels, basis_kernels) = mbd.kernels(field).unwrap();
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let d = field.dim();
-    let coefficients =
-        Array2::from_shape_fn((field.num_voxels(), rank), |_| rng.random::<f32>() - 0.5);
-    let basis = Array3::from_shape_fn((nodes.iter().product(), rank, d), |_| {
-        rng.random::<f32>() - 0.5
-    });
-    MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
+    let (_, basis_kernels) = mbd.kernels(field).unwrap();
+    common::random_model(field, basis_kernels, rank, seed)
 }
 
 /// The exact loss is the integral. The composite midpoint rule's error falls as h², so its

@@ -3,10 +3,8 @@
 //! representable field, it is deterministic, and it refuses kernels of another grid.
 
 use glam::Vec3;
-use ndarray::{Array2, Array3};
 use proptest::prelude::*;
-use prt_core::{Aabb, GridField, NoProgress, SpatialKernels};
-use prt_kernels::HatGrid;
+use prt_core::{Aabb, GridField, NoProgress};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -14,7 +12,7 @@ use rand_pcg::Pcg64Mcg;
 mod common;
 use common::{
     check_exact_loss, check_polish_descends, check_polish_fits_exactly, floor_and_column_scene,
-    global_rank_field,
+    global_rank_field, random_model,
 };
 
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
@@ -29,23 +27,6 @@ fn label_kernels(field: &GridField, len: usize, radius: usize, seed: u64) -> Lab
         falloff: 0.5,
     };
     LabelKernels::new(field.dims(), field.bounds(), &labels, len, None, &smoothing).unwrap()
-}
-
-/// A model with random tensors: `Mbd`'s coefficient hats and the given basis kernels.
-fn random_model<B: SpatialKernels>(
-    field: &GridField,
-    basis_kernels: B,
-    rank: usize,
-    seed: u64,
-) -> MbdModel<HatGrid, B> {
-    let coefficient_kernels = HatGrid::new(field.dims(), voxel_centre_box(field)).unwrap();
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let coefficients =
-        Array2::from_shape_fn((field.num_voxels(), rank), |_| rng.random::<f32>() - 0.5);
-    let basis = Array3::from_shape_fn((basis_kernels.len(), rank, field.dim()), |_| {
-        rng.random::<f32>() - 0.5
-    });
-    MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
 }
 
 /// The exact loss is the continuous integral for label kernels (sharp and smoothed) and for

@@ -197,3 +197,22 @@ pub fn check_polish_fits_exactly<B: prt_mbd::PolishBasis + Clone>(
     prop_assert!(evaluated < 1e-10, "evaluate {evaluated:e}");
     Ok(())
 }
+
+/// A model with random tensors: `Mbd`'s coefficient hats and the given basis kernels.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn random_model<B: SpatialKernels>(
+    field: &GridField,
+    basis_kernels: B,
+    rank: usize,
+    seed: u64,
+) -> prt_mbd::MbdModel<prt_kernels::HatGrid, B> {
+    let coefficient_kernels =
+        prt_kernels::HatGrid::new(field.dims(), prt_mbd::voxel_centre_box(field)).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let coefficients =
+        ndarray::Array2::from_shape_fn((field.num_voxels(), rank), |_| rng.random::<f32>() - 0.5);
+    let basis = ndarray::Array3::from_shape_fn((basis_kernels.len(), rank, field.dim()), |_| {
+        rng.random::<f32>() - 0.5
+    });
+    prt_mbd::MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
+}
