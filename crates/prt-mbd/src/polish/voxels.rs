@@ -24,6 +24,7 @@ use crate::voxel_weights::VoxelWeights;
 /// order (the sums do not depend on the thread count).
 const CELL_BATCH: usize = 512;
 
+/// The quadrature of a field with basis kernels stored at its voxel centres (module docs).
 pub(super) struct VoxelQuadrature<'a> {
     weights: &'a VoxelWeights,
     axes: [Axis; 3],
