@@ -22,11 +22,14 @@
 //! With `MBD_SWEEPS` > 0 (default 0) every MBD row is followed by the same model after that many
 //! sweeps of the exact `polish` (tolerance `MBD_PTOL`, default 0: all sweeps), with the exact
 //! relative MSE before and after in its name; its time is the polish's alone.
+//! `WBPCA` (blocks of twice the size, off by default) is a method too.
 //! Reported per method: iterations, wall and process CPU time (the `CMBD` rows exclude CPCA's
 //! clustering, which the `CPCA` row times), relative MSE on jittered samples and its ratio to
 //! CPCA's, and the seam
 //! metric (σ = 1 denoised, valid voxels) at CPCA's cluster boundaries and at the hat grid's
-//! basis cells.
+//! basis cells, and the basis-projection seam ratio (`prt_mbd::projection_seam_ratio`, prt-cli's
+//! seam view: the σ = 1 denoised field projected onto each voxel's basis) at CPCA's clusters and
+//! at BPCA's blocks.
 
 use prt_benches::Table;
 use prt_benches::mbd::{
@@ -138,6 +141,8 @@ struct Row {
     cpu: f64,
     relative_mse: f64,
     seams: [SeamMetric; 2],
+    /// Basis-projection seam ratio at CPCA's clusters and at BPCA's blocks.
+    projection: [f64; 2],
 }
 
 /// `model` after `MBD_SWEEPS` exact polish sweeps (none when 0), with a name giving the sweeps
@@ -178,6 +183,22 @@ fn polished<B: PolishBasis>(
         report.last().relative_mse()
     );
     Some((model, name, wall, cpu))
+}
+
+/// The per-voxel bases of a clustered model, for the projection seams.
+fn clustered_basis(model: &ClusterModel) -> LocalBasis<'_> {
+    LocalBasis::Clustered {
+        labels: model.labels(),
+        bases: model.bases(),
+    }
+}
+
+/// The moving basis of an MBD model, for the projection seams.
+fn moving<B: SpatialKernels>(model: &MbdModel<prt_kernels::HatGrid, B>) -> LocalBasis<'_> {
+    LocalBasis::Moving {
+        kernels: model.basis_kernels(),
+        basis: model.basis(),
+    }
 }
 
 fn main() {
@@ -226,12 +247,29 @@ fn main() {
         "CPCA's clusters: {:.1} % of the valid voxels have a valid face neighbour in another cluster",
         100.0 * boundary_share(f, &valid, &cluster_labels)
     );
+    // BPCA is fitted up front: its blocks are the other boundaries of the projection seams.
+    let (bpca, bpca_wall, bpca_cpu) = measure(|| {
+        BlockPca {
+            rank: l,
+            blocks: nodes,
+            window: 1.0,
+        }
+        .compress(f, &NoProgress)
+        .expect("bpca")
+    });
+    let block_labels = bpca.labels().to_vec();
+    let smoothed = blur_valid(f, &valid, 1.0).expect("blur");
     let mut rows: Vec<Row> = Vec::new();
     let mut add = |name: String,
                    iterations: String,
                    wall: f64,
                    cpu: f64,
-                   model: &dyn FieldModel| {
+                   model: &dyn FieldModel,
+                   basis: LocalBasis<'_>| {
+        let residuals = projection_residuals(&smoothed, &valid, &basis).expect("projection");
+        let projection = [&cluster_labels, &block_labels].map(|labels| {
+            residual_seam_ratio(&smoothed, &valid, labels, &residuals).expect("projection seams")
+        });
         let e = evaluate(model, f, &EvalOptions::default()).expect("evaluate");
         let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
         let seam = |labels: &[u32]| {
@@ -257,6 +295,7 @@ fn main() {
             cpu,
             relative_mse: e.relative_mse,
             seams: [seam(&cluster_labels), seam(&hat_labels)],
+            projection,
         });
     };
     if enabled("CPCA") {
@@ -271,6 +310,7 @@ fn main() {
             cpca_wall,
             cpca_cpu,
             &cpca,
+            clustered_basis(&cpca),
         );
     }
     if enabled("CPCA-MAJORITY") {
@@ -290,6 +330,7 @@ fn main() {
                 wall,
                 cpu,
                 &model,
+                clustered_basis(&model),
             );
         }
     }
@@ -301,6 +342,7 @@ fn main() {
             wall,
             cpu,
             &model,
+            moving(&model),
         );
         if let Some((polished, name, wall, cpu)) = polished(f, model) {
             add(
@@ -309,20 +351,38 @@ fn main() {
                 wall,
                 cpu,
                 &polished,
+                moving(&polished),
             );
         }
     }
     if enabled("BPCA") {
+        add(
+            "BPCA".into(),
+            "–".into(),
+            bpca_wall,
+            bpca_cpu,
+            &bpca,
+            clustered_basis(&bpca),
+        );
+    }
+    if enabled("WBPCA") {
         let (m, wall, cpu) = measure(|| {
             BlockPca {
                 rank: l,
                 blocks: nodes,
-                window: 1.0,
+                window: 2.0,
             }
             .compress(f, &NoProgress)
-            .expect("bpca")
+            .expect("wbpca")
         });
-        add("BPCA".into(), "–".into(), wall, cpu, &m);
+        add(
+            "WBPCA".into(),
+            "–".into(),
+            wall,
+            cpu,
+            &m,
+            clustered_basis(&m),
+        );
     }
     if enabled("CMBD") {
         let radii = std::env::var("MBD_RADII").unwrap_or_else(|_| "0,1,2".into());
@@ -355,6 +415,7 @@ fn main() {
                 wall,
                 cpu,
                 &model,
+                moving(&model),
             );
             if let Some((polished, name, wall, cpu)) = polished(f, model) {
                 add(
@@ -363,6 +424,7 @@ fn main() {
                     wall,
                     cpu,
                     &polished,
+                    moving(&polished),
                 );
             }
         }
@@ -427,6 +489,7 @@ fn main() {
                 wall,
                 cpu,
                 &next,
+                moving(&next),
             );
             model = next;
         }
@@ -443,6 +506,8 @@ fn main() {
         "/ CPCA",
         "seam at CPCA's clusters: excess (ratio)",
         "seam at the hat cells: excess (ratio)",
+        "projection seam ratio at CPCA's clusters",
+        "projection seam ratio at BPCA's blocks",
     ]);
     for r in &rows {
         table.row(vec![
@@ -453,6 +518,8 @@ fn main() {
             cpca_error.map_or("–".into(), |c| format!("{:.2}", r.relative_mse / c)),
             format!("{:.2e} ({:.2})", r.seams[0].excess(), r.seams[0].ratio()),
             format!("{:.2e} ({:.2})", r.seams[1].excess(), r.seams[1].ratio()),
+            format!("{:.2}", r.projection[0]),
+            format!("{:.2}", r.projection[1]),
         ]);
     }
     println!("{}", table.markdown());

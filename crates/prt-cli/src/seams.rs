@@ -14,60 +14,9 @@
 //! where the basis jumps: at block and cluster boundaries.
 
 use anyhow::{Result, ensure};
-use ndarray::{Array3, Axis};
-use prt_core::{GridField, KernelWeights, SpatialKernels};
-use prt_kernels::HatGrid;
-use rayon::prelude::*;
+use prt_core::GridField;
 
-/// The basis a method applies at each voxel.
-pub enum LocalBasis<'a> {
-    /// MBD: `B(x) = Σₙ wₙ(x) Bₙ` with the basis grid's hat kernels; `basis` is nodes × L × D.
-    Moving {
-        kernels: &'a HatGrid,
-        basis: &'a Array3<f32>,
-    },
-    /// BPCA, CPCA: voxel `v` uses the basis of cluster `labels[v]`; `bases` is K × L × D.
-    Clustered {
-        labels: &'a [u32],
-        bases: &'a Array3<f32>,
-    },
-}
-
-/// Orthonormalises the rows of `rows` (each of length `d`) in place by modified Gram–Schmidt in
-/// f64; rows that are numerically dependent on the earlier ones become zero.
-fn orthonormalise(rows: &mut [f64], d: usize) {
-    for i in 0..rows.len() / d {
-        let (done, rest) = rows.split_at_mut(i * d);
-        let row = &mut rest[..d];
-        let norm0 = row.iter().map(|x| x * x).sum::<f64>().sqrt();
-        for q in done.chunks_exact(d) {
-            let dot: f64 = q.iter().zip(row.iter()).map(|(a, b)| a * b).sum();
-            row.iter_mut().zip(q).for_each(|(r, a)| *r -= dot * a);
-        }
-        let norm = row.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if norm <= 1e-6 * norm0 || norm == 0.0 {
-            row.fill(0.0);
-        } else {
-            row.iter_mut().for_each(|x| *x /= norm);
-        }
-    }
-}
-
-/// `out = Qᵀ Q s − s` for orthonormal (or zero) rows `q`: the residual of projecting `s`.
-fn residual(q: &[f64], s: &[f32], out: &mut [f32]) {
-    let d = s.len();
-    let mut projected = vec![0.0f64; d];
-    for row in q.chunks_exact(d) {
-        let dot: f64 = row.iter().zip(s).map(|(a, &b)| a * b as f64).sum();
-        projected
-            .iter_mut()
-            .zip(row)
-            .for_each(|(p, a)| *p += dot * a);
-    }
-    for ((o, p), &x) in out.iter_mut().zip(&projected).zip(s) {
-        *o = (p - x as f64) as f32;
-    }
-}
+pub use prt_mbd::LocalBasis;
 
 /// Gaussian standard deviation of the denoising blur, in voxels.
 pub const BLUR_SIGMA: f64 = 1.0;
@@ -89,61 +38,6 @@ pub struct SeamView {
     /// Over the whole volume: RMS jump `‖e_u − e_v‖` between valid neighbours with different
     /// labels, over the same between neighbours with equal labels. About 1 without seams.
     pub seam_ratio: f64,
-}
-
-/// The residual `e = P s − s` of every valid voxel of the smoothed field (`voxels × D`, zero for
-/// invalid voxels).
-fn residual_volume(
-    smoothed: &GridField,
-    valid: &[bool],
-    basis: &LocalBasis<'_>,
-) -> Result<Vec<f32>> {
-    let d = smoothed.dim();
-    let mut out = vec![0.0f32; smoothed.num_voxels() * d];
-    match basis {
-        LocalBasis::Clustered { labels, bases } => {
-            ensure!(labels.len() == valid.len(), "labels size");
-            ensure!(bases.dim().2 == d, "basis dimension");
-            // Each cluster's rows, orthonormalised once.
-            let q: Vec<Vec<f64>> = bases
-                .axis_iter(Axis(0))
-                .map(|b| {
-                    let mut rows: Vec<f64> = b.iter().map(|&x| x as f64).collect();
-                    orthonormalise(&mut rows, d);
-                    rows
-                })
-                .collect();
-            out.par_chunks_mut(d).enumerate().for_each(|(v, e)| {
-                if valid[v] {
-                    residual(&q[labels[v] as usize], smoothed.voxel(v), e);
-                }
-            });
-        }
-        LocalBasis::Moving { kernels, basis } => {
-            ensure!(basis.dim().2 == d, "basis dimension");
-            let rank = basis.dim().1;
-            out.par_chunks_mut(d).enumerate().try_for_each_init(
-                || (KernelWeights::default(), vec![0.0f64; rank * d]),
-                |(weights, rows), (v, e)| -> Result<()> {
-                    if !valid[v] {
-                        return Ok(());
-                    }
-                    kernels.eval(smoothed.centre_of(v), weights)?;
-                    rows.fill(0.0);
-                    for (n, w) in weights.iter() {
-                        let node = basis.index_axis(Axis(0), n as usize);
-                        rows.iter_mut()
-                            .zip(node.iter())
-                            .for_each(|(r, &b)| *r += w as f64 * b as f64);
-                    }
-                    orthonormalise(rows, d);
-                    residual(rows, smoothed.voxel(v), e);
-                    Ok(())
-                },
-            )?;
-        }
-    }
-    Ok(out)
 }
 
 fn norm(x: &[f32]) -> f64 {
@@ -168,54 +62,12 @@ pub fn seam_view(
     y: usize,
 ) -> Result<SeamView> {
     ensure!(labels.len() == smoothed.num_voxels(), "labels size");
-    let e = residual_volume(smoothed, valid, basis)?;
+    let e = prt_mbd::projection_residuals(smoothed, valid, basis)?;
+    let seam_ratio = prt_mbd::residual_seam_ratio(smoothed, valid, labels, &e)?;
     let d = smoothed.dim();
     let err = |v: usize| &e[v * d..(v + 1) * d];
     let dims = smoothed.dims();
     let strides = [1, dims[0], dims[0] * dims[1]];
-
-    // [boundary sum, boundary count, interior sum, interior count], per z-slab then in order.
-    let slabs: Vec<[f64; 4]> = (0..dims[2])
-        .into_par_iter()
-        .map(|z| {
-            let mut acc = [0.0f64; 4];
-            for yy in 0..dims[1] {
-                for x in 0..dims[0] {
-                    let v = smoothed.index(x, yy, z);
-                    if !valid[v] {
-                        continue;
-                    }
-                    for (k, c) in [x, yy, z].into_iter().enumerate() {
-                        let u = v + strides[k];
-                        if c + 1 >= dims[k] || !valid[u] {
-                            continue;
-                        }
-                        let slot = if labels[u] != labels[v] { 0 } else { 2 };
-                        acc[slot] += distance(err(u), err(v)).powi(2);
-                        acc[slot + 1] += 1.0;
-                    }
-                }
-            }
-            acc
-        })
-        .collect();
-    let acc = slabs.iter().fold([0.0f64; 4], |mut a, s| {
-        a.iter_mut().zip(s).for_each(|(a, b)| *a += b);
-        a
-    });
-    let rms = |sum: f64, count: f64| {
-        if count > 0.0 {
-            (sum / count).sqrt()
-        } else {
-            0.0
-        }
-    };
-    let interior = rms(acc[2], acc[3]);
-    let seam_ratio = if interior > 0.0 {
-        rms(acc[0], acc[1]) / interior
-    } else {
-        0.0
-    };
 
     // Relative measures divide by the field's norm, but never by less than a tenth of its RMS:
     // enclosed voxels that no light reaches (a zero field) would otherwise turn noise-level
@@ -389,7 +241,7 @@ mod tests {
         let valid = vec![true; field.num_voxels()];
         let labels = halves(&field);
         // Two basis nodes along x (e0 on the left, e1 on the right), blended by hat kernels.
-        let kernels = HatGrid::new([2, 2, 2], field.bounds()).expect("kernels");
+        let kernels = prt_kernels::HatGrid::new([2, 2, 2], field.bounds()).expect("kernels");
         let mut data = Vec::new();
         for node in 0..8 {
             data.extend(if node % 2 == 0 {
@@ -430,26 +282,5 @@ mod tests {
             max_jump(&clustered_view)
         );
         assert!(moving_view.seam_ratio < 0.5 * clustered_view.seam_ratio);
-    }
-
-    #[test]
-    fn residual_removes_the_span_and_keeps_the_complement() {
-        // Rows span e0 and e0 + e1 (not orthonormal); s = 2 e0 + 3 e1 + 5 e2.
-        let mut rows = vec![1.0, 0.0, 0.0, 1.0, 1.0, 0.0];
-        orthonormalise(&mut rows, 3);
-        let mut e = vec![0.0f32; 3];
-        residual(&rows, &[2.0, 3.0, 5.0], &mut e);
-        assert!(e[0].abs() < 1e-6 && e[1].abs() < 1e-6);
-        assert!((e[2] + 5.0).abs() < 1e-6);
-    }
-
-    #[test]
-    fn dependent_rows_are_dropped() {
-        let mut rows = vec![1.0, 1.0, 2.0, 2.0];
-        orthonormalise(&mut rows, 2);
-        assert_eq!(&rows[2..], &[0.0, 0.0]);
-        let mut e = vec![0.0f32; 2];
-        residual(&rows, &[1.0, 0.0], &mut e);
-        assert!((e[0] + 0.5).abs() < 1e-6 && (e[1] - 0.5).abs() < 1e-6);
     }
 }

@@ -40,7 +40,9 @@
 //! * [`evaluate`] (relative MSE on dense jittered samples, per-block operator Frobenius error) and
 //!   [`seam_metric_with`] (the error's jump across cluster boundaries against the jumps inside
 //!   them, optionally against a denoised reference and over a validity mask; [`seam_metric`] is
-//!   the raw form).
+//!   the raw form), and [`projection_seam_ratio`] (module [`projection`]: the same jump of the
+//!   residual of projecting a denoised field onto each voxel's basis, which tells a method's
+//!   seams from the field's own structure on traced scenes; prt-cli's seam view).
 //! * [`scene_adapted_basis`] (beyond the paper): Shepard basis kernels at weighted k-means
 //!   centres of the valid voxels, for scenes where much of the box is inside geometry.
 //! * [`wall_aware_basis`] / [`WallAware`] (beyond the paper, opt-in): the hat basis cut back
@@ -123,4 +125,8 @@ mod voxel_weights;
 pub mod walls;
 pub use walls::{WallAware, WallOptions, wall_aware_basis};
 pub mod clustered;
+pub mod projection;
 pub use clustered::{ClusterStart, ClusteredMbd, LabelKernels, LabelSmoothing};
+pub use projection::{
+    LocalBasis, projection_residuals, projection_seam_ratio, residual_seam_ratio,
+};

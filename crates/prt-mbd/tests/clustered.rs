@@ -289,3 +289,71 @@ fn clustered_mbd_rejects_mismatched_clusters() {
             .is_ok()
     );
 }
+
+/// The basis-projection seam ratio: a clustered basis that switches between two directions at a
+/// cluster boundary makes a seam there; the same two bases as label kernels blended over two
+/// voxels move continuously and make none, while a label without a basis is a typed error.
+#[test]
+fn label_kernels_move_continuously_where_clusters_jump() {
+    let dims = [12, 4, 4];
+    let field = GridField::from_fn(dims, Aabb::UNIT, 3, |p, out| {
+        out.copy_from_slice(&[1.0, 0.5 + p.x, 0.2])
+    })
+    .unwrap();
+    let valid = vec![true; field.num_voxels()];
+    let labels: Vec<u32> = (0..field.num_voxels())
+        .map(|v| u32::from(field.coords(v)[0] >= 6))
+        .collect();
+    let bases =
+        ndarray::Array3::from_shape_vec((2, 1, 3), vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0]).unwrap();
+    let kernels = LabelKernels::new(
+        dims,
+        Aabb::UNIT,
+        &labels,
+        2,
+        None,
+        &LabelSmoothing {
+            radius: 2,
+            falloff: 0.5,
+        },
+    )
+    .unwrap();
+    let clustered = projection_seam_ratio(
+        &field,
+        &valid,
+        &labels,
+        &LocalBasis::Clustered {
+            labels: &labels,
+            bases: &bases,
+        },
+    )
+    .unwrap();
+    let moving = projection_seam_ratio(
+        &field,
+        &valid,
+        &labels,
+        &LocalBasis::Moving {
+            kernels: &kernels,
+            basis: &bases,
+        },
+    )
+    .unwrap();
+    assert!(clustered > 3.0, "clustered {clustered}");
+    assert!(
+        moving < 0.5 * clustered,
+        "moving {moving} vs clustered {clustered}"
+    );
+    let one_basis = bases.slice(ndarray::s![..1, .., ..]).to_owned();
+    assert!(matches!(
+        projection_seam_ratio(
+            &field,
+            &valid,
+            &labels,
+            &LocalBasis::Clustered {
+                labels: &labels,
+                bases: &one_basis,
+            },
+        ),
+        Err(MbdError::ShapeMismatch { .. })
+    ));
+}
