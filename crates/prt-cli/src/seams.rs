@@ -12,6 +12,9 @@
 //! coefficients; for MBD it is the least-squares coefficient the solver approximates at a voxel
 //! centre. Without the noise, the jump `‖e_u − e_v‖` between neighbouring voxels is large only
 //! where the basis jumps: at block and cluster boundaries.
+//!
+//! The residuals and the volume's seam ratio come from [`prt_mbd::projection`]; this module
+//! adds the slice images of the report.
 
 use anyhow::{Result, ensure};
 use prt_core::GridField;
