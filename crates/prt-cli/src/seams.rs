@@ -16,7 +16,7 @@
 //! The residuals and the volume's seam ratio come from [`prt_mbd::projection`]; this module
 //! adds the slice images of the report.
 
-use anyhow::{Result, ensure};
+use anyhow::Result;
 use prt_core::GridField;
 
 pub use prt_mbd::LocalBasis;
@@ -64,7 +64,6 @@ pub fn seam_view(
     basis: &LocalBasis<'_>,
     y: usize,
 ) -> Result<SeamView> {
-    ensure!(labels.len() == smoothed.num_voxels(), "labels size");
     let e = prt_mbd::projection_residuals(smoothed, valid, basis)?;
     let seam_ratio = prt_mbd::residual_seam_ratio(smoothed, valid, labels, &e)?;
     let d = smoothed.dim();

@@ -237,6 +237,59 @@ impl SeamOptions<'_> {
     }
 }
 
+/// Per axis `[boundary sum, boundary count, interior sum, interior count]` of the squared jump
+/// `‖e_u − e_v‖²` of `err` (`voxels × d`, x fastest on a `dims` grid) between face neighbours
+/// that are both `valid`, split by whether their `labels` differ. Summed per z-slab in parallel
+/// and the slabs in order, so the result does not depend on the thread count.
+pub(crate) fn neighbour_jumps(
+    dims: [usize; 3],
+    d: usize,
+    valid: &(impl Fn(usize) -> bool + Sync),
+    labels: &[u32],
+    err: &[f32],
+) -> [[f64; 4]; 3] {
+    let at = |v: usize| &err[v * d..(v + 1) * d];
+    let strides = [1, dims[0], dims[0] * dims[1]];
+    let slabs: Vec<[[f64; 4]; 3]> = (0..dims[2])
+        .into_par_iter()
+        .map(|z| {
+            let mut acc = [[0.0f64; 4]; 3];
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let v = x + dims[0] * (y + dims[1] * z);
+                    if !valid(v) {
+                        continue;
+                    }
+                    for (k, c) in [x, y, z].into_iter().enumerate() {
+                        let u = v + strides[k];
+                        if c + 1 >= dims[k] || !valid(u) {
+                            continue;
+                        }
+                        let jump: f64 = at(u)
+                            .iter()
+                            .zip(at(v))
+                            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
+                            .sum();
+                        let slot = if labels[u] != labels[v] { 0 } else { 2 };
+                        acc[k][slot] += jump;
+                        acc[k][slot + 1] += 1.0;
+                    }
+                }
+            }
+            acc
+        })
+        .collect();
+    let mut total = [[0.0f64; 4]; 3];
+    for slab in slabs {
+        for (t, s) in total.iter_mut().zip(slab) {
+            for (a, b) in t.iter_mut().zip(s) {
+                *a += b;
+            }
+        }
+    }
+    total
+}
+
 /// The raw [`SeamMetric`] (no blur, all voxels) of `reconstruction` (on the field's grid, e.g.
 /// from [`prt_core::resample_to_grid`]) with voxel cluster `labels`: [`seam_metric_with`] with
 /// default options.
@@ -332,53 +385,33 @@ pub fn seam_metric_with(
                 *e = r - f;
             }
         });
-    let err = |v: usize| &error[v * d..(v + 1) * d];
     let dims = field.dims();
-    let strides = [1, dims[0], dims[0] * dims[1]];
-    // Per z-slab: per axis [boundary sum, boundary count, interior sum, interior count], then
-    // [energy, voxels].
-    let slabs: Vec<[f64; 14]> = (0..dims[2])
+    let jumps = neighbour_jumps(dims, d, &valid, labels, &error);
+    // [energy, voxels] of the valid voxels, per z-slab then in order.
+    let slabs: Vec<[f64; 2]> = (0..dims[2])
         .into_par_iter()
         .map(|z| {
-            let mut acc = [0.0f64; 14];
+            let mut acc = [0.0f64; 2];
             for y in 0..dims[1] {
                 for x in 0..dims[0] {
                     let v = field.index(x, y, z);
-                    if !valid(v) {
-                        continue;
-                    }
-                    acc[12] += field
-                        .voxel(v)
-                        .iter()
-                        .map(|&a| (a as f64) * (a as f64))
-                        .sum::<f64>();
-                    acc[13] += 1.0;
-                    for (k, c) in [x, y, z].into_iter().enumerate() {
-                        let u = v + strides[k];
-                        if c + 1 >= dims[k] || !valid(u) {
-                            continue;
-                        }
-                        let jump: f64 = err(u)
+                    if valid(v) {
+                        acc[0] += field
+                            .voxel(v)
                             .iter()
-                            .zip(err(v))
-                            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-                            .sum();
-                        let slot = 4 * k + if labels[u] != labels[v] { 0 } else { 2 };
-                        acc[slot] += jump;
-                        acc[slot + 1] += 1.0;
+                            .map(|&a| (a as f64) * (a as f64))
+                            .sum::<f64>();
+                        acc[1] += 1.0;
                     }
                 }
             }
             acc
         })
         .collect();
-    let mut acc = [0.0f64; 14];
-    for s in slabs {
-        for (a, v) in acc.iter_mut().zip(s) {
-            *a += v;
-        }
-    }
-    let axis = |k: usize| &acc[4 * k..4 * k + 4];
+    let (energy, counted) = slabs
+        .iter()
+        .fold((0.0, 0.0), |(e, n), s| (e + s[0], n + s[1]));
+    let axis = |k: usize| &jumps[k];
     let sum = |i: usize| (0..3).map(|k| axis(k)[i]).sum::<f64>();
     let (boundary_sum, boundary_count) = (sum(0), sum(1));
     let interior_mean = if sum(3) > 0.0 { sum(2) / sum(3) } else { 0.0 };
@@ -396,11 +429,7 @@ pub fn seam_metric_with(
     } else {
         interior_mean
     };
-    let mean_energy = if acc[13] > 0.0 {
-        acc[12] / acc[13]
-    } else {
-        0.0
-    };
+    let mean_energy = if counted > 0.0 { energy / counted } else { 0.0 };
     let rel = |mean_square: f64| {
         if mean_energy > 0.0 {
             (mean_square / mean_energy).sqrt()

@@ -20,6 +20,7 @@ use prt_core::{CoreError, GridField, KernelWeights, SpatialKernels};
 use rayon::prelude::*;
 
 use crate::MbdError;
+use crate::eval::neighbour_jumps;
 
 /// The basis a method applies at each voxel.
 pub enum LocalBasis<'a> {
@@ -175,42 +176,8 @@ pub fn residual_seam_ratio(
     check_len("validity mask", voxels, valid.len())?;
     check_len("labels", voxels, labels.len())?;
     check_len("residuals", voxels * d, residuals.len())?;
-    let err = |v: usize| &residuals[v * d..(v + 1) * d];
-    let dims = smoothed.dims();
-    let strides = [1, dims[0], dims[0] * dims[1]];
-    // [boundary sum, boundary count, interior sum, interior count], per z-slab then in order.
-    let slabs: Vec<[f64; 4]> = (0..dims[2])
-        .into_par_iter()
-        .map(|z| {
-            let mut acc = [0.0f64; 4];
-            for y in 0..dims[1] {
-                for x in 0..dims[0] {
-                    let v = smoothed.index(x, y, z);
-                    if !valid[v] {
-                        continue;
-                    }
-                    for (k, c) in [x, y, z].into_iter().enumerate() {
-                        let u = v + strides[k];
-                        if c + 1 >= dims[k] || !valid[u] {
-                            continue;
-                        }
-                        let slot = if labels[u] != labels[v] { 0 } else { 2 };
-                        acc[slot] += err(u)
-                            .iter()
-                            .zip(err(v))
-                            .map(|(&a, &b)| (a as f64 - b as f64).powi(2))
-                            .sum::<f64>();
-                        acc[slot + 1] += 1.0;
-                    }
-                }
-            }
-            acc
-        })
-        .collect();
-    let acc = slabs.iter().fold([0.0f64; 4], |mut a, s| {
-        a.iter_mut().zip(s).for_each(|(a, b)| *a += b);
-        a
-    });
+    let jumps = neighbour_jumps(smoothed.dims(), d, &|v: usize| valid[v], labels, residuals);
+    let sum = |i: usize| jumps.iter().map(|axis| axis[i]).sum::<f64>();
     let rms = |sum: f64, count: f64| {
         if count > 0.0 {
             (sum / count).sqrt()
@@ -218,9 +185,9 @@ pub fn residual_seam_ratio(
             0.0
         }
     };
-    let interior = rms(acc[2], acc[3]);
+    let interior = rms(sum(2), sum(3));
     Ok(if interior > 0.0 {
-        rms(acc[0], acc[1]) / interior
+        rms(sum(0), sum(1)) / interior
     } else {
         0.0
     })
