@@ -10,7 +10,8 @@ use prt_mbd::*;
 
 mod common;
 use common::{
-    check_exact_loss, check_polish_descends, check_polish_fits_exactly, global_rank_field,
+    check_exact_loss, check_polish_descends, check_polish_fits_exactly,
+    check_polish_is_deterministic, global_rank_field,
 };
 
 /// A model with random tensors on the hat grids of [`Mbd`] for `field`.
@@ -150,25 +151,7 @@ fn polish_is_deterministic_across_thread_counts() {
         tolerance: 0.0,
         ..PolishOptions::default()
     };
-    let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| polish(&field, model.clone(), &options, &NoProgress).unwrap())
-    };
-    let (one, report_one) = run(1);
-    let (two, report_two) = run(2);
-    assert_eq!(one.coefficients(), two.coefficients());
-    assert_eq!(one.basis(), two.basis());
-    let strip = |r: &PolishReport| {
-        r.history
-            .iter()
-            .map(|h| (h.step, h.loss, h.accepted, h.cg_iterations))
-            .collect::<Vec<_>>()
-    };
-    assert_eq!(strip(&report_one), strip(&report_two));
-    assert_eq!(report_one.initial, report_two.initial);
+    check_polish_is_deterministic(&field, &model, &options);
 }
 
 /// Kernels other than those of `Mbd`, bad options and too large a basis are typed errors.

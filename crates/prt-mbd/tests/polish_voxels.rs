@@ -11,8 +11,8 @@ use rand_pcg::Pcg64Mcg;
 
 mod common;
 use common::{
-    check_exact_loss, check_polish_descends, check_polish_fits_exactly, floor_and_column_scene,
-    global_rank_field, random_model,
+    check_exact_loss, check_polish_descends, check_polish_fits_exactly,
+    check_polish_is_deterministic, floor_and_column_scene, global_rank_field, random_model,
 };
 
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
@@ -108,19 +108,7 @@ fn polish_with_label_kernels_is_deterministic_across_thread_counts() {
         tolerance: 0.0,
         ..PolishOptions::default()
     };
-    let run = |threads: usize| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| polish(&field, model.clone(), &options, &NoProgress).unwrap())
-    };
-    let (one, report_one) = run(1);
-    let (two, report_two) = run(2);
-    assert_eq!(one.coefficients(), two.coefficients());
-    assert_eq!(one.basis(), two.basis());
-    let losses = |r: &PolishReport| r.history.iter().map(|h| h.loss).collect::<Vec<_>>();
-    assert_eq!(losses(&report_one), losses(&report_two));
+    check_polish_is_deterministic(&field, &model, &options);
 }
 
 /// Kernels stored on another grid (other dims, or the same dims over another box) are typed

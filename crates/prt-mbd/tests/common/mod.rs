@@ -216,3 +216,35 @@ pub fn random_model<B: SpatialKernels>(
     });
     prt_mbd::MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis).unwrap()
 }
+
+/// Polishes `model` on 1 and on 2 threads and checks that the models and the reports (every
+/// half-step's kind, exact loss, acceptance and CG iterations, and the initial loss) are the
+/// same bit for bit.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn check_polish_is_deterministic<B: prt_mbd::PolishBasis + Clone + Send + Sync>(
+    field: &GridField,
+    model: &prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
+    options: &prt_mbd::PolishOptions,
+) {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            prt_mbd::polish(field, model.clone(), options, &prt_core::NoProgress).unwrap()
+        })
+    };
+    let (one, report_one) = run(1);
+    let (two, report_two) = run(2);
+    assert_eq!(one.coefficients(), two.coefficients());
+    assert_eq!(one.basis(), two.basis());
+    let strip = |r: &prt_mbd::PolishReport| {
+        r.history
+            .iter()
+            .map(|h| (h.step, h.loss, h.accepted, h.cg_iterations))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(strip(&report_one), strip(&report_two));
+    assert_eq!(report_one.initial, report_two.initial);
+}
