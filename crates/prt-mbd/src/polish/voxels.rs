@@ -16,7 +16,9 @@ use ndarray::{Array2, linalg::general_mat_mul};
 use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
-use super::{Axis, BasisSystem, BoxSystem, CoefficientSystem, add_pair_blocks, corner_voxel};
+use super::{
+    Axis, BasisSystem, BoxSystem, CoefficientSystem, add_pair_blocks, corner_voxel, zeroed,
+};
 use crate::MbdError;
 use crate::voxel_weights::VoxelWeights;
 
@@ -151,12 +153,13 @@ impl<'a> VoxelQuadrature<'a> {
         field: &GridField,
         c: &[f64],
         l: usize,
+        h: &mut Vec<f64>,
         progress: &dyn Progress,
     ) -> Result<BasisSystem, MbdError> {
         let (d, ll) = (field.dim(), l * l);
         let count: usize = self.voxels.iter().product();
         let corner_pairs = corner_pairs();
-        let mut h = vec![0.0; count * 27 * ll];
+        zeroed(h, count * 27 * ll);
         let mut t = vec![0.0; count * 27 * l];
         self.for_cells(
             progress,
@@ -193,7 +196,7 @@ impl<'a> VoxelQuadrature<'a> {
                 (a, moments)
             },
             |lower, (a, moments)| {
-                add_pair_blocks(&mut h, [l, l], lower, &a, self.voxels);
+                add_pair_blocks(h, [l, l], lower, &a, self.voxels);
                 add_pair_blocks(&mut t, [l, 1], lower, &moments, self.voxels);
             },
         )?;
