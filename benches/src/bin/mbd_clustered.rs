@@ -400,12 +400,14 @@ fn main() {
                 smoothing: LabelSmoothing { radius, falloff },
                 start,
                 options: options.clone(),
+                polish: None,
             };
-            let ((model, report), wall, cpu) = measure(|| {
+            let (fit, wall, cpu) = measure(|| {
                 clustered
                     .fit_clusters(f, &cpca, &NoProgress)
                     .expect("clustered mbd")
             });
+            let (model, report) = (fit.model, fit.solve);
             add(
                 format!(
                     "MBD on CPCA's clusters, radius {radius}, falloff {falloff}, {start:?} start (≤ {} kernels at a point)",
@@ -444,12 +446,14 @@ fn main() {
             smoothing,
             start: ClusterStart::AlignedClusters,
             options: options.clone(),
+            polish: None,
         };
-        let ((mut model, _), _, _) = measure(|| {
+        let (fit, _, _) = measure(|| {
             clustered
                 .fit_clusters(f, &cpca, &NoProgress)
                 .expect("clustered mbd")
         });
+        let mut model = fit.model;
         for round in 1..=rounds {
             let ((next, report), wall, cpu) = measure(|| {
                 let labels = relabelled(f, &valid, &model);

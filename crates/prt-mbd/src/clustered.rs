@@ -54,8 +54,8 @@ use rayon::prelude::*;
 use crate::subspace::principal_subspace;
 use crate::voxel_weights::VoxelWeights;
 use crate::{
-    ClusterModel, ClusteredPca, MbdError, MbdModel, MbdOptions, SolveReport, solve,
-    solve_from_basis, voxel_centre_box,
+    ClusterModel, ClusteredPca, MbdError, MbdModel, MbdOptions, PolishOptions, PolishReport,
+    SolveReport, solve, solve_from_basis, voxel_centre_box,
 };
 
 /// How [`LabelKernels`] smooth the voxel labels.
@@ -277,6 +277,10 @@ pub struct ClusteredMbd {
     pub start: ClusterStart,
     /// The solver's options (rank, iterations, stopping rule, seed; `init` is not used).
     pub options: MbdOptions,
+    /// Exact [`crate::polish`] sweeps after the solver (opt-in; default `None`: the solver's
+    /// model as it stops). The solver leaves these kernels well above their optimum on
+    /// scenes such as Sponza, and the wider the smoothing the further (module docs).
+    pub polish: Option<PolishOptions>,
 }
 
 impl ClusteredMbd {
@@ -290,6 +294,7 @@ impl ClusteredMbd {
                 rank,
                 ..MbdOptions::default()
             },
+            polish: None,
         }
     }
 
@@ -302,24 +307,27 @@ impl ClusteredMbd {
         &self,
         field: &GridField,
         progress: &dyn Progress,
-    ) -> Result<(MbdModel<HatGrid, LabelKernels>, SolveReport), MbdError> {
+    ) -> Result<ClusteredFit, MbdError> {
+        self.check_polish(self.clusters)?;
         let cpca = ClusteredPca::new(self.options.rank, self.clusters).compress(field, progress)?;
         self.fit_clusters(field, &cpca, progress)
     }
 
     /// MBD on the clusters of a clustered-PCA model of `field` at rank `options.rank` (e.g.
     /// one already fitted as a baseline); `self.clusters` is not used. Clusters without voxels
-    /// are dropped (a kernel that is zero everywhere has no curvature for the solver).
+    /// are dropped (a kernel that is zero everywhere has no curvature for the solver). Then
+    /// the `polish` sweeps, if any.
     ///
     /// # Errors
     /// [`MbdError::ShapeMismatch`] when `cpca` is not of `field`'s voxels or rank; those of
-    /// [`LabelKernels::new`] and [`solve_from_basis`].
+    /// [`LabelKernels::new`], [`solve_from_basis`] and [`crate::polish`] (bad polish options
+    /// fail before the solve).
     pub fn fit_clusters(
         &self,
         field: &GridField,
         cpca: &ClusterModel,
         progress: &dyn Progress,
-    ) -> Result<(MbdModel<HatGrid, LabelKernels>, SolveReport), MbdError> {
+    ) -> Result<ClusteredFit, MbdError> {
         let (clusters, rank, dim) = cpca.bases().dim();
         if cpca.labels().len() != field.num_voxels()
             || rank != self.options.rank
@@ -331,6 +339,7 @@ impl ClusteredMbd {
                 got: vec![cpca.labels().len(), rank, dim],
             });
         }
+        self.check_polish(clusters)?;
         let mut index = vec![u32::MAX; clusters];
         let mut kept = Vec::new();
         let labels: Vec<u32> = cpca
@@ -363,7 +372,7 @@ impl ClusteredMbd {
                     why: e.to_string(),
                 }
             })?;
-        match self.start {
+        let (model, solve_report) = match self.start {
             ClusterStart::GlobalPca => solve(
                 field,
                 coefficient_kernels,
@@ -387,8 +396,42 @@ impl ClusteredMbd {
                     progress,
                 )
             }
+        }?;
+        let (model, polish_report) = match &self.polish {
+            Some(options) => {
+                let (model, report) = crate::polish(field, model, options, progress)?;
+                (model, Some(report))
+            }
+            None => (model, None),
+        };
+        Ok(ClusteredFit {
+            model,
+            solve: solve_report,
+            polish: polish_report,
+        })
+    }
+
+    /// Bad polish options fail before the clustering and the solve, not after them.
+    fn check_polish(&self, clusters: usize) -> Result<(), MbdError> {
+        match &self.polish {
+            Some(polish) => {
+                crate::polish::validate_options(polish)?;
+                crate::polish::check_basis_size(clusters, self.options.rank)
+            }
+            None => Ok(()),
         }
     }
+}
+
+/// What [`ClusteredMbd::fit`] returns.
+#[derive(Debug, Clone)]
+pub struct ClusteredFit {
+    /// The fitted model.
+    pub model: MbdModel<HatGrid, LabelKernels>,
+    /// The stochastic solver's report.
+    pub solve: SolveReport,
+    /// The polish's report, when [`ClusteredMbd::polish`] asked for one.
+    pub polish: Option<PolishReport>,
 }
 
 impl Compressor for ClusteredMbd {
@@ -400,6 +443,6 @@ impl Compressor for ClusteredMbd {
         field: &GridField,
         progress: &dyn Progress,
     ) -> Result<Self::Model, MbdError> {
-        self.fit(field, progress).map(|(model, _)| model)
+        self.fit(field, progress).map(|fit| fit.model)
     }
 }

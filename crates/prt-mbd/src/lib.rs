@@ -126,7 +126,7 @@ pub mod walls;
 pub use walls::{WallAware, WallOptions, wall_aware_basis};
 pub mod clustered;
 pub mod projection;
-pub use clustered::{ClusterStart, ClusteredMbd, LabelKernels, LabelSmoothing};
+pub use clustered::{ClusterStart, ClusteredFit, ClusteredMbd, LabelKernels, LabelSmoothing};
 pub use projection::{
     LocalBasis, projection_residuals, projection_seam_ratio, residual_seam_ratio,
 };

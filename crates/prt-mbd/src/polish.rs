@@ -403,7 +403,7 @@ pub fn polish<B: PolishBasis>(
 
 /// The basis step's dense system has `nodes · rank` unknowns: at most
 /// [`POLISH_MAX_BASIS_UNKNOWNS`].
-fn check_basis_size(nodes: usize, rank: usize) -> Result<(), MbdError> {
+pub(crate) fn check_basis_size(nodes: usize, rank: usize) -> Result<(), MbdError> {
     if nodes.saturating_mul(rank) > POLISH_MAX_BASIS_UNKNOWNS {
         return Err(MbdError::InvalidOption {
             what: "polish basis size",
@@ -727,7 +727,7 @@ impl Span {
 }
 
 /// Checks the options that do not depend on the model.
-fn validate_options(options: &PolishOptions) -> Result<(), MbdError> {
+pub(crate) fn validate_options(options: &PolishOptions) -> Result<(), MbdError> {
     for (what, value) in [
         ("lambda", options.lambda as f64),
         ("tolerance", options.tolerance),

@@ -236,8 +236,11 @@ fn clustered_mbd_follows_stripes_the_hat_grid_cannot() {
         },
         start: ClusterStart::AlignedClusters,
         options: options.clone(),
+        polish: None,
     };
-    let (model, report) = clustered.fit(&field, &NoProgress).unwrap();
+    let fit = clustered.fit(&field, &NoProgress).unwrap();
+    assert!(fit.polish.is_none());
+    let (model, report) = (fit.model, fit.solve);
     assert!(report.history.iter().all(|r| r.loss_after <= r.loss_before));
     let clustered_error = evaluate(&model, &field, &eval).unwrap().relative_mse;
     let hat = Mbd {

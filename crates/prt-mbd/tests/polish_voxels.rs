@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 use proptest::prelude::*;
-use prt_core::{Aabb, GridField, NoProgress};
+use prt_core::{Aabb, Compressor, GridField, NoProgress};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -70,8 +70,9 @@ proptest! {
             smoothing: LabelSmoothing { radius, falloff: 0.5 },
             start: ClusterStart::AlignedClusters,
             options: MbdOptions { rank, max_iterations: 8, seed, ..MbdOptions::default() },
+            polish: None,
         };
-        let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
+        let model = clustered.fit(&field, &NoProgress).unwrap().model;
         let options = PolishOptions { sweeps: 4, tolerance: 0.0, ..PolishOptions::default() };
         check_polish_descends(&field, model, &options)?;
     }
@@ -85,7 +86,7 @@ proptest! {
         let mut clustered = ClusteredMbd::new(rank, 3);
         clustered.options.max_iterations = 4;
         clustered.options.seed = seed;
-        let (model, _) = clustered.fit(&field, &NoProgress).unwrap();
+        let model = clustered.fit(&field, &NoProgress).unwrap().model;
         let options = PolishOptions { sweeps: 8, lambda: 1e-7, ..PolishOptions::default() };
         check_polish_fits_exactly(&field, model, &options)?;
     }
@@ -139,4 +140,66 @@ fn polish_refuses_voxel_kernels_of_another_grid() {
             Err(MbdError::InvalidKernels { which: "basis", .. })
         ));
     }
+}
+
+/// `ClusteredMbd` with `polish` set is its solve followed by that polish, bit for bit, and bad
+/// polish options fail before the solve.
+#[test]
+fn clustered_mbd_chains_the_polish() {
+    let field = SyntheticField {
+        dims: [7, 6, 5],
+        dim: 9,
+        harmonics: 3,
+        seed: 5,
+    }
+    .build(Aabb::UNIT)
+    .unwrap();
+    let options = PolishOptions {
+        sweeps: 3,
+        tolerance: 0.0,
+        ..PolishOptions::default()
+    };
+    let mut clustered = ClusteredMbd::new(2, 4);
+    clustered.options.max_iterations = 6;
+    let solved = clustered.fit(&field, &NoProgress).unwrap();
+    assert!(solved.polish.is_none());
+    let (expected, expected_report) =
+        polish(&field, solved.model.clone(), &options, &NoProgress).unwrap();
+    clustered.polish = Some(options);
+    let chained = clustered.fit(&field, &NoProgress).unwrap();
+    let losses = |history: &[IterationRecord]| -> Vec<f64> {
+        history.iter().map(|r| r.loss_after).collect()
+    };
+    assert_eq!(
+        losses(&chained.solve.history),
+        losses(&solved.solve.history)
+    );
+    let polished = chained.polish.expect("a polish report");
+    assert_eq!(polished.initial, expected_report.initial);
+    assert_eq!(polished.history.len(), expected_report.history.len());
+    for (got, want) in polished.history.iter().zip(&expected_report.history) {
+        assert_eq!(
+            (got.step, got.loss, got.accepted),
+            (want.step, want.loss, want.accepted)
+        );
+    }
+    assert_eq!(chained.model.coefficients(), expected.coefficients());
+    assert_eq!(chained.model.basis(), expected.basis());
+    let before = exact_loss(&field, &solved.model, 1e-8).unwrap().loss();
+    let after = exact_loss(&field, &chained.model, 1e-8).unwrap().loss();
+    assert!(after < before, "polish {before:.4e} -> {after:.4e}");
+    let compressed = clustered.compress(&field, &NoProgress).unwrap();
+    assert_eq!(compressed.basis(), chained.model.basis());
+
+    clustered.polish = Some(PolishOptions {
+        tolerance: -1.0,
+        ..PolishOptions::default()
+    });
+    let cancelled = prt_core::AtomicProgress::new();
+    cancelled.cancel();
+    // Rejected before the solve: a cancelled progress would otherwise end the fit first.
+    assert!(matches!(
+        clustered.fit(&field, &cancelled),
+        Err(MbdError::InvalidOption { .. })
+    ));
 }
