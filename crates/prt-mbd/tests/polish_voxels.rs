@@ -87,7 +87,7 @@ proptest! {
         clustered.options.max_iterations = 4;
         clustered.options.seed = seed;
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
-        let options = PolishOptions { sweeps: 8, lambda: 1e-7, ..PolishOptions::default() };
+        let options = PolishOptions { sweeps: 16, lambda: 1e-7, ..PolishOptions::default() };
         check_polish_fits_exactly(&field, model, &options)?;
     }
 }
