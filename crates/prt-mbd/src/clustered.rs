@@ -38,9 +38,10 @@
 //! **1.095×** at 48 (radius 4, 256 iterations, 32 sweeps), at 30–150× CPCA's time (MBD
 //! session 9). Wider smoothing keeps that error with smoother bases: with falloff 0.75 at
 //! radius 4 the solver alone ends further off (1.20× at 96, 1.44× at 48), but the polish goes
-//! further, to **1.075×** at 96 (16 sweeps) and **1.097×** at 48 (64 sweeps), with the
-//! basis-projection seam ratio at CPCA's boundaries at 1.98 and 2.47 against CPCA's 5.86 and
-//! 5.08 (falloff 0.5: 2.58 and 3.17; MBD session 10). [`ClusteredMbd::polish`] chains the
+//! further, to **1.075×** at 96 (16 sweeps), **1.084×** at 72 (48 sweeps) and **1.097×** at 48
+//! (64 sweeps), with the basis-projection seam ratio at CPCA's boundaries at 1.98, 2.12 and
+//! 2.47 against CPCA's 5.86, 6.08 and 5.08 (falloff 0.5: 2.58 at 96, 3.17 at 48; MBD
+//! session 10). [`ClusteredMbd::polish`] chains the
 //! sweeps. On smooth fields it gains nothing (Cornell: 0.79×, as the hat grid; the synthetic
 //! field: worse than the hat grid).
 //!
