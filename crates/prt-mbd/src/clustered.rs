@@ -41,9 +41,8 @@
 //! further, to **1.075×** at 96 (16 sweeps), **1.084×** at 72 (48 sweeps) and **1.097×** at 48
 //! (64 sweeps), with the basis-projection seam ratio at CPCA's boundaries at 1.98, 2.12 and
 //! 2.47 against CPCA's 5.86, 6.08 and 5.08 (falloff 0.5: 2.58 at 96, 3.17 at 48; MBD
-//! session 10). [`ClusteredMbd::polish`] chains the
-//! sweeps. On smooth fields it gains nothing (Cornell: 0.79×, as the hat grid; the synthetic
-//! field: worse than the hat grid).
+//! session 10). [`ClusteredMbd::polish`] chains the sweeps. On smooth fields it gains nothing
+//! (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
 //!
 //! **Cost.** The solve takes 1.6–2.8× the hat grid's CPU at radius 2 (4.5–9× CPCA's). An
 //! engine stores one label per voxel (as for CPCA; neither [`crate::ClusterModel`] nor
