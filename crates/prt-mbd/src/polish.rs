@@ -306,23 +306,24 @@ pub fn polish<B: PolishBasis>(
     // The coefficients at the end of the previous sweep, and the extrapolation factor.
     let mut previous: Option<Vec<f64>> = None;
     let mut beta = 1.0;
-    // The basis step's solution when an accepted extrapolation has already computed it.
-    let mut solved_basis: Option<Array2<f64>> = None;
+    // Whether `b` already solves the basis system (an accepted extrapolation solved it for its
+    // coefficients), so that the basis step has nothing left to do.
+    let mut basis_solved = false;
     for _ in 0..options.sweeps {
         progress.check()?;
         let sweep_start = loss;
         // Basis step.
-        let before = basis_system.quadratic(&b);
-        let trial = match solved_basis.take() {
-            Some(solved) => solved,
-            None => basis_system.solve()?,
+        let accepted = std::mem::take(&mut basis_solved) || {
+            let before = basis_system.quadratic(&b);
+            let trial = basis_system.solve()?;
+            let after = basis_system.quadratic(&trial);
+            let accepted = after <= before;
+            if accepted {
+                b = trial;
+                loss = exact(after + ridge(&c, lambda), &c);
+            }
+            accepted
         };
-        let after = basis_system.quadratic(&trial);
-        let accepted = after <= before;
-        if accepted {
-            b = trial;
-            loss = exact(after + ridge(&c, lambda), &c);
-        }
         report.history.push(PolishRecord {
             step: PolishStep::Basis,
             loss,
@@ -384,9 +385,8 @@ pub fn polish<B: PolishBasis>(
                     elapsed: start.elapsed().as_secs_f64(),
                 });
                 if accepted {
-                    (c, loss) = (c_hat, trial);
-                    b.clone_from(&b_hat);
-                    solved_basis = Some(b_hat);
+                    (c, b, loss) = (c_hat, b_hat, trial);
+                    basis_solved = true;
                     beta = (beta * EXTRAPOLATION_GROWTH).min(MAX_EXTRAPOLATION);
                     system
                 } else {
