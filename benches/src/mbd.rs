@@ -72,6 +72,22 @@ pub fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
         .unwrap_or(default)
 }
 
+/// The polish's acceleration from `MBD_ACCEL`: `none`, `extrapolation` or `cg` (default:
+/// `PolishOptions`' own, `cg` since MBD session 11). Earlier sessions' switch `MBD_EXTRAP`
+/// (before session 11 the extrapolation was the default): 0 means `none`, 1 `extrapolation`.
+pub fn polish_acceleration() -> prt_mbd::PolishAcceleration {
+    use prt_mbd::PolishAcceleration as A;
+    match (
+        std::env::var("MBD_ACCEL").as_deref(),
+        std::env::var("MBD_EXTRAP").as_deref(),
+    ) {
+        (Ok("none"), _) | (Err(_), Ok("0")) => A::None,
+        (Ok("extrapolation"), _) | (Err(_), Ok("1")) => A::Extrapolation,
+        (Ok("cg"), _) => A::ConjugateGradients,
+        _ => prt_mbd::PolishOptions::default().acceleration,
+    }
+}
+
 /// [`env_or`] for counts and switches.
 pub fn env_usize(name: &str, default: usize) -> usize {
     env_or(name, default)

@@ -20,7 +20,8 @@
 //! relabelling every valid voxel to the kernel whose fitted basis captures most of its energy
 //! and solving again from the fitted bases.
 //! With `MBD_SWEEPS` > 0 (default 0) every MBD row is followed by the same model after that many
-//! sweeps of the exact `polish` (tolerance `MBD_PTOL`, default 0: all sweeps), with the exact
+//! sweeps of the exact `polish` (tolerance `MBD_PTOL`, default 0: all sweeps; acceleration
+//! `MBD_ACCEL`: `cg` (default), `extrapolation` or `none`), with the exact
 //! relative MSE before and after in its name; its time is the polish's alone.
 //! `WBPCA` (blocks of twice the size, off by default) is a method too.
 //! Reported per method: iterations, wall and process CPU time (the `CMBD` rows exclude CPCA's
@@ -158,6 +159,7 @@ fn polished<B: PolishBasis>(
     let options = PolishOptions {
         sweeps,
         tolerance: env_or("MBD_PTOL", 0.0),
+        acceleration: prt_benches::mbd::polish_acceleration(),
         ..PolishOptions::default()
     };
     let ((model, report), wall, cpu) =

@@ -1178,7 +1178,7 @@ fn ridge() {
 /// sweeps, with its tolerance `MBD_PTOL` (default 0: all sweeps), ridge `MBD_PLAMBDA` (default
 /// `PolishOptions`' 1e-8; the solver's 1e-4 dominates the loss near the optimum, so the polish
 /// then trades coefficient scale for basis scale instead of lowering the error) and
-/// extrapolation `MBD_EXTRAP` (default 1 = on). Prints the exact relative MSE after every
+/// acceleration `MBD_ACCEL` (`none`, `extrapolation` or `cg`, the default). Prints the exact relative MSE after every
 /// half-step with the wall time, `evaluate`'s estimate and the seam metric before and after,
 /// and BPCA / WBPCA / CPCA as `MBD_METHODS` enables (exact errors through `trilinear_energy`).
 /// With `MBD_HISTORY_DIR` the error curve of both phases is written to
@@ -1215,7 +1215,7 @@ fn polish_sweep() {
         sweeps: env_usize("MBD_SWEEPS", 16),
         lambda: env_or("MBD_PLAMBDA", PolishOptions::default().lambda),
         tolerance: env_or("MBD_PTOL", 0.0),
-        extrapolation: env_usize("MBD_EXTRAP", 1) != 0,
+        acceleration: prt_benches::mbd::polish_acceleration(),
         ..PolishOptions::default()
     };
     let ((polished, polish_report), polish_cost) =

@@ -55,8 +55,9 @@
 //! * [`polish`] and [`exact_loss`] (beyond the paper, opt-in): with the coefficient hats of
 //!   [`Mbd`] and a hat-grid or voxel-stored basis ([`PolishBasis`]: [`WallAware`],
 //!   [`LabelKernels`]) the continuous loss is a piecewise polynomial, integrated exactly by a
-//!   tensor Gauss–Legendre rule; `polish` lowers it further by alternating exact solves (basis: dense normal
-//!   equations; coefficients: block-sparse conjugate gradients) with extrapolation, and
+//!   tensor Gauss–Legendre rule; `polish` lowers it further by exact solves (basis: dense normal
+//!   equations; coefficients: block-sparse conjugate gradients), alternated or, by default,
+//!   driving nonlinear conjugate gradients on the loss with the basis solved out, and
 //!   `exact_loss` / [`trilinear_energy`] give the exact value of [`evaluate`]'s relative MSE
 //!   for MBD and for the grid-resampled baselines. [`PolishedMbd`] chains the two: the
 //!   stochastic solver until its rule fires, then polish sweeps until one gains less than 3 %
@@ -118,8 +119,9 @@ mod adapted;
 pub use adapted::{AdaptedBasisOptions, Placement, scene_adapted_basis};
 pub(crate) mod polish;
 pub use polish::{
-    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishBasis, PolishOptions,
-    PolishRecord, PolishReport, PolishStep, PolishedMbd, exact_loss, polish, trilinear_energy,
+    ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, POLISH_STALL_TOLERANCE, PolishAcceleration, PolishBasis,
+    PolishOptions, PolishRecord, PolishReport, PolishStep, PolishedMbd, exact_loss, polish,
+    trilinear_energy,
 };
 mod voxel_weights;
 pub mod walls;

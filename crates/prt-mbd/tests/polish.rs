@@ -117,10 +117,11 @@ proptest! {
     /// No half-step raises the exact loss, the report's last loss is the returned model's, and
     /// the polish lowers the loss of a short stochastic solve.
     #[test]
-    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY, extrapolation in proptest::bool::ANY) {
+    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY, acceleration in 0usize..3) {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
         let model = if random { random_model(&field, [3, 2, 2], rank, seed) } else { quick_fit(&field, [3, 2, 2], rank, 8, seed) };
-        let options = PolishOptions { sweeps: 4, tolerance: 0.0, extrapolation, ..PolishOptions::default() };
+        let acceleration = [PolishAcceleration::None, PolishAcceleration::Extrapolation, PolishAcceleration::ConjugateGradients][acceleration];
+        let options = PolishOptions { sweeps: 4, tolerance: 0.0, acceleration, ..PolishOptions::default() };
         check_polish_descends(&field, model, &options)?;
     }
 
@@ -130,6 +131,20 @@ proptest! {
         let field = global_rank_field([5, 6, 4], 9, rank, seed);
         let model = quick_fit(&field, [2, 3, 2], rank, 4, seed);
         let options = PolishOptions { sweeps: 6, lambda: 1e-7, ..PolishOptions::default() };
+        check_polish_fits_exactly(&field, model, &options)?;
+    }
+
+    /// The conjugate-gradient polish fits a rank-L field to rounding too.
+    #[test]
+    fn conjugate_polish_is_exact_on_a_rank_l_field(seed in 0u64..1000, rank in 1usize..4) {
+        let field = global_rank_field([5, 6, 4], 9, rank, seed);
+        let model = quick_fit(&field, [2, 3, 2], rank, 4, seed);
+        let options = PolishOptions {
+            sweeps: 8,
+            lambda: 1e-7,
+            acceleration: PolishAcceleration::ConjugateGradients,
+            ..PolishOptions::default()
+        };
         check_polish_fits_exactly(&field, model, &options)?;
     }
 }
@@ -146,12 +161,18 @@ fn polish_is_deterministic_across_thread_counts() {
     .build(Aabb::UNIT)
     .unwrap();
     let model = quick_fit(&field, [3, 3, 2], 3, 6, 1);
-    let options = PolishOptions {
-        sweeps: 2,
-        tolerance: 0.0,
-        ..PolishOptions::default()
-    };
-    check_polish_is_deterministic(&field, &model, &options);
+    for acceleration in [
+        PolishAcceleration::Extrapolation,
+        PolishAcceleration::ConjugateGradients,
+    ] {
+        let options = PolishOptions {
+            sweeps: 3,
+            tolerance: 0.0,
+            acceleration,
+            ..PolishOptions::default()
+        };
+        check_polish_is_deterministic(&field, &model, &options);
+    }
 }
 
 /// Kernels other than those of `Mbd`, bad options and too large a basis are typed errors.
@@ -339,31 +360,46 @@ fn polish_stops_on_its_tolerance() {
     .build(Aabb::UNIT)
     .unwrap();
     let model = quick_fit(&field, [3, 2, 2], 2, 8, 2);
-    let run = |tolerance: f64| {
-        let options = PolishOptions {
-            sweeps: 3,
-            tolerance,
-            ..PolishOptions::default()
+    for acceleration in [
+        PolishAcceleration::Extrapolation,
+        PolishAcceleration::ConjugateGradients,
+    ] {
+        let run = |tolerance: f64| {
+            let options = PolishOptions {
+                sweeps: 4,
+                tolerance,
+                acceleration,
+                ..PolishOptions::default()
+            };
+            polish(&field, model.clone(), &options, &NoProgress)
+                .unwrap()
+                .1
         };
-        polish(&field, model.clone(), &options, &NoProgress)
-            .unwrap()
-            .1
-    };
-    let stopped = run(10.0);
-    assert!(stopped.converged);
-    assert_eq!(
-        stopped.history.iter().map(|r| r.step).collect::<Vec<_>>(),
-        [PolishStep::Basis, PolishStep::Coefficients]
-    );
-    let full = run(0.0);
-    assert!(!full.converged);
-    assert_eq!(
-        full.history
-            .iter()
-            .filter(|r| r.step == PolishStep::Coefficients)
-            .count(),
-        3
-    );
+        let sweeps = |report: &PolishReport| {
+            report
+                .history
+                .iter()
+                .filter(|r| r.step == PolishStep::Coefficients)
+                .count()
+        };
+        let stopped = run(10.0);
+        assert!(stopped.converged);
+        assert_eq!(stopped.history[0].step, PolishStep::Basis);
+        // The conjugate gradients judge the mean of their last three iterations.
+        let first_chance = if acceleration == PolishAcceleration::ConjugateGradients {
+            3
+        } else {
+            1
+        };
+        assert_eq!(sweeps(&stopped), first_chance, "{acceleration:?}");
+        assert_eq!(
+            stopped.history.last().unwrap().step,
+            PolishStep::Coefficients
+        );
+        let full = run(0.0);
+        assert!(!full.converged);
+        assert_eq!(sweeps(&full), 4, "{acceleration:?}");
+    }
 }
 
 /// Extremes: a zero field stays exactly zero (no error, zero energy), a constant field is
