@@ -41,7 +41,10 @@
 //! further, to **1.075×** at 96 (16 sweeps), **1.084×** at 72 (48 sweeps) and **1.097×** at 48
 //! (64 sweeps), with the basis-projection seam ratio at CPCA's boundaries at 1.98, 2.12 and
 //! 2.47 against CPCA's 5.86, 6.08 and 5.08 (falloff 0.5: 2.58 at 96, 3.17 at 48; MBD
-//! session 10). [`ClusteredMbd::polish`] chains the sweeps. On smooth fields it gains nothing
+//! session 10). [`ClusteredMbd::polish`] chains the sweeps. With the polish's conjugate
+//! gradients (its default since MBD session 11) a 16-iteration solve is enough: the polish then
+//! stops by its own rule at **1.085×** at 48 (46 iterations) and **1.077×** at 72 (47), with the
+//! same seams (2.59 and 2.19). On smooth fields it gains nothing
 //! (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
 //!
 //! **Cost.** The solve takes 1.6–2.8× the hat grid's CPU at radius 2 (4.5–9× CPCA's). An
