@@ -110,9 +110,10 @@ pub struct PolishOptions {
 /// Measured (`docs/results.md`, MBD session 11): on Sponza 48 (wide label kernels, 16 solver
 /// iterations) 24 iterations end at 3.07e-4 with conjugate gradients against 3.14e-4 with the
 /// extrapolation (−2.2 %, 15 % more time per iteration), and the conjugate gradients stop by
-/// the default tolerance after 43 iterations at 1.088× clustered PCA; on the synthetic
-/// 32³ × 324 field (6³ hat grid, 128 solver iterations), 16 iterations end at 5.99e-9 against
-/// 6.27e-9 (−4.5 %, less CPU).
+/// the default tolerance after 46 iterations at 1.085× clustered PCA (72: 47, 1.077×); on the
+/// synthetic 32³ × 324 field (6³ hat grid, 128 solver iterations), 16 iterations end at
+/// 5.99e-9 against 6.27e-9 (−4.5 %, less CPU), and after a 16-iteration solve they stop by
+/// their rule after 73 iterations at 4.99e-9, 28 % below blockwise PCA.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum PolishAcceleration {
@@ -349,105 +350,98 @@ pub fn polish<B: PolishBasis>(
             progress,
         };
         ctx.run(&mut c, &mut b, &mut loss, basis_system, blocks, &mut report)?;
-        return finish(
-            coefficient_kernels,
-            basis_kernels,
-            coefficients.dim(),
-            basis.dim(),
-            &c,
-            &b,
-        )
-        .map(|model| (model, report));
-    }
-    // The coefficients at the end of the previous sweep, and the extrapolation factor.
-    let mut previous: Option<Vec<f64>> = None;
-    let mut beta = 1.0;
-    // Whether `b` already solves the basis system (an accepted extrapolation solved it for its
-    // coefficients), so that the basis step has nothing left to do.
-    let mut basis_solved = false;
-    for _ in 0..options.sweeps {
-        progress.check()?;
-        let sweep_start = loss;
-        // Basis step.
-        let accepted = std::mem::take(&mut basis_solved) || {
-            let after = basis_system.step(&mut b)?;
-            if let Some(after) = after {
-                loss = exact(after + ridge(&c, lambda), &c);
-            }
-            after.is_some()
-        };
-        report.history.push(PolishRecord {
-            step: PolishStep::Basis,
-            loss,
-            accepted,
-            cg_iterations: 0,
-            elapsed: start.elapsed().as_secs_f64(),
-        });
-        // Coefficient step.
-        let system = quadrature.coefficient_system(
-            field,
-            b.as_slice().unwrap_or(&[]),
-            l,
-            lambda,
-            std::mem::take(&mut blocks),
-            progress,
-        )?;
-        let before = system.quadratic(&c);
-        let (trial, cg_iterations) = system.solve(&c, options, progress)?;
-        let after = system.quadratic(&trial);
-        blocks = system.into_blocks();
-        let accepted = after <= before;
-        if accepted {
-            c = trial;
-            loss = exact(after, &c);
-        }
-        report.history.push(PolishRecord {
-            step: PolishStep::Coefficients,
-            loss,
-            accepted,
-            cg_iterations,
-            elapsed: start.elapsed().as_secs_f64(),
-        });
-        progress.inc(1);
-        progress.message(&format!("polish relative MSE {:.4e}", loss.relative_mse()));
-        let decrease = sweep_start.loss() - loss.loss();
-        if options.tolerance > 0.0 && decrease <= options.tolerance * sweep_start.data {
-            report.converged = true;
-            break;
-        }
-        basis_system = match previous.replace(c.clone()) {
-            Some(c_prev) if options.acceleration == PolishAcceleration::Extrapolation => {
-                // Extrapolate the coefficients along this sweep's displacement and solve the
-                // basis for them; keep the point only if the exact loss falls (its basis system
-                // is the next basis step's, so a success costs nothing).
-                let c_hat: Vec<f64> = c
-                    .iter()
-                    .zip(&c_prev)
-                    .map(|(&x, &y)| round_f32(x + beta * (x - y)))
-                    .collect();
-                let system = quadrature.basis_system(field, &c_hat, l, &mut blocks, progress)?;
-                let b_hat = system.solve()?;
-                let trial = exact(system.quadratic(&b_hat) + ridge(&c_hat, lambda), &c_hat);
-                let accepted = trial.loss() < loss.loss();
-                report.history.push(PolishRecord {
-                    step: PolishStep::Extrapolation,
-                    loss: if accepted { trial } else { loss },
-                    accepted,
-                    cg_iterations: 0,
-                    elapsed: start.elapsed().as_secs_f64(),
-                });
-                if accepted {
-                    (c, b, loss) = (c_hat, b_hat, trial);
-                    basis_solved = true;
-                    beta = (beta * EXTRAPOLATION_GROWTH).min(MAX_EXTRAPOLATION);
-                    system
-                } else {
-                    beta = 1.0;
-                    quadrature.basis_system(field, &c, l, &mut blocks, progress)?
+    } else {
+        // The coefficients at the end of the previous sweep, and the extrapolation factor.
+        let mut previous: Option<Vec<f64>> = None;
+        let mut beta = 1.0;
+        // Whether `b` already solves the basis system (an accepted extrapolation solved it for its
+        // coefficients), so that the basis step has nothing left to do.
+        let mut basis_solved = false;
+        for _ in 0..options.sweeps {
+            progress.check()?;
+            let sweep_start = loss;
+            // Basis step.
+            let accepted = std::mem::take(&mut basis_solved) || {
+                let after = basis_system.step(&mut b)?;
+                if let Some(after) = after {
+                    loss = exact(after + ridge(&c, lambda), &c);
                 }
+                after.is_some()
+            };
+            report.history.push(PolishRecord {
+                step: PolishStep::Basis,
+                loss,
+                accepted,
+                cg_iterations: 0,
+                elapsed: start.elapsed().as_secs_f64(),
+            });
+            // Coefficient step.
+            let system = quadrature.coefficient_system(
+                field,
+                b.as_slice().unwrap_or(&[]),
+                l,
+                lambda,
+                std::mem::take(&mut blocks),
+                progress,
+            )?;
+            let before = system.quadratic(&c);
+            let (trial, cg_iterations) = system.solve(&c, options, progress)?;
+            let after = system.quadratic(&trial);
+            blocks = system.into_blocks();
+            let accepted = after <= before;
+            if accepted {
+                c = trial;
+                loss = exact(after, &c);
             }
-            _ => quadrature.basis_system(field, &c, l, &mut blocks, progress)?,
-        };
+            report.history.push(PolishRecord {
+                step: PolishStep::Coefficients,
+                loss,
+                accepted,
+                cg_iterations,
+                elapsed: start.elapsed().as_secs_f64(),
+            });
+            progress.inc(1);
+            progress.message(&format!("polish relative MSE {:.4e}", loss.relative_mse()));
+            let decrease = sweep_start.loss() - loss.loss();
+            if options.tolerance > 0.0 && decrease <= options.tolerance * sweep_start.data {
+                report.converged = true;
+                break;
+            }
+            basis_system = match previous.replace(c.clone()) {
+                Some(c_prev) if options.acceleration == PolishAcceleration::Extrapolation => {
+                    // Extrapolate the coefficients along this sweep's displacement and solve the
+                    // basis for them; keep the point only if the exact loss falls (its basis system
+                    // is the next basis step's, so a success costs nothing).
+                    let c_hat: Vec<f64> = c
+                        .iter()
+                        .zip(&c_prev)
+                        .map(|(&x, &y)| round_f32(x + beta * (x - y)))
+                        .collect();
+                    let system =
+                        quadrature.basis_system(field, &c_hat, l, &mut blocks, progress)?;
+                    let b_hat = system.solve()?;
+                    let trial = exact(system.quadratic(&b_hat) + ridge(&c_hat, lambda), &c_hat);
+                    let accepted = trial.loss() < loss.loss();
+                    report.history.push(PolishRecord {
+                        step: PolishStep::Extrapolation,
+                        loss: if accepted { trial } else { loss },
+                        accepted,
+                        cg_iterations: 0,
+                        elapsed: start.elapsed().as_secs_f64(),
+                    });
+                    if accepted {
+                        (c, b, loss) = (c_hat, b_hat, trial);
+                        basis_solved = true;
+                        beta = (beta * EXTRAPOLATION_GROWTH).min(MAX_EXTRAPOLATION);
+                        system
+                    } else {
+                        beta = 1.0;
+                        quadrature.basis_system(field, &c, l, &mut blocks, progress)?
+                    }
+                }
+                _ => quadrature.basis_system(field, &c, l, &mut blocks, progress)?,
+            };
+        }
     }
     let model = finish(
         coefficient_kernels,
