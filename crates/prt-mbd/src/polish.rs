@@ -78,7 +78,8 @@ const SELF_BLOCK: usize = 13;
 /// Options of [`polish`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct PolishOptions {
-    /// Alternating sweeps (basis step, then coefficient step), at most (default 16).
+    /// Sweeps (basis step, then coefficient step) or conjugate-gradient iterations, at most
+    /// (default 16).
     pub sweeps: usize,
     /// Ridge weight λ on the coefficients (default 1e-8, not the solver's 1e-4). The
     /// stochastic solver needs the ridge to fix the scale ambiguity `c_l b_l = (s c_l)(b_l / s)`;
@@ -214,13 +215,14 @@ impl ExactLoss {
     }
 }
 
-/// Which half of a sweep a [`PolishRecord`] describes.
+/// Which step of a sweep or conjugate-gradient iteration a [`PolishRecord`] describes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum PolishStep {
     /// The basis solve with the coefficients fixed.
     Basis,
-    /// The coefficient solve with the basis fixed.
+    /// The coefficient solve with the basis fixed (for the conjugate gradients: the end of an
+    /// iteration, whose preconditioner that solve is).
     Coefficients,
     /// The extrapolation after a sweep ([`PolishAcceleration::Extrapolation`]).
     Extrapolation,
