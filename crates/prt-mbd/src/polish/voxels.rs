@@ -8,11 +8,14 @@
 //! voxel-centre cell the residual has degree ≤ 2 per axis and the 3-point rule per interval is
 //! exact. The loss depends on the basis only through each voxel's blended basis
 //! `β_v = Σ_n W_{v,n} B_n`, so both systems are assembled per voxel-centre cell from its eight
-//! corners' rows (a few kernels each), whatever the union of kernels a cell blends.
+//! corners' rows (a few kernels each), whatever the union of kernels a cell blends: the
+//! coefficient system from the corners' `β` (each voxel slice blended once), the basis system
+//! per voxel over its neighbours' rows. The products of the corners' hats that a cell
+//! integrates factor over the axes ([`CellHats`]), so no loop visits the quadrature points.
 
 use std::ops::Range;
 
-use ndarray::{Array2, linalg::general_mat_mul};
+use ndarray::{Array2, Axis as ArrayAxis, linalg::general_mat_mul, s};
 use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
@@ -37,9 +40,80 @@ pub(super) struct VoxelQuadrature<'a> {
     kernels: usize,
 }
 
-/// A voxel's share of the basis system: the kernels of its neighbours' rows with their
-/// `L × L` blocks of `Σ_u W_u ⊗ H_{v,u}`, and its `L × D` right-hand side `Σ_u T_{v,u} f_uᵀ`.
+/// A voxel's share of the basis system: the kernels `n` of its neighbours' rows with their
+/// `L × L` blocks of `Σ_u W_u ⊗ H_{v,u}` and their `L`-vectors `S_{v,n} = Σ_u W_{u,n} T_{v,u}`.
 type VoxelBasisPart = (Vec<u32>, Vec<f64>, Vec<f64>);
+
+/// Offsets `(dx, dy)` of the neighbours within a voxel slice whose Grams `β_v β_uᵀ` voxel `v`
+/// holds (the other four are the transposes its neighbours hold), and of all nine in the next
+/// slice.
+const WITHIN_SLICE: [(isize, isize); 5] = [(0, 0), (1, 0), (-1, 1), (0, 1), (1, 1)];
+const ACROSS_SLICES: [(isize, isize); 9] = [
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+    (-1, 0),
+    (0, 0),
+    (1, 0),
+    (-1, 1),
+    (0, 1),
+    (1, 1),
+];
+
+/// The quadrature over one voxel-centre cell of products of its corners' trilinear hats
+/// `φ_k = Π_a h_{k_a}(t_a)` (`h_0 = 1 − t`, `h_1 = t`; bit `a` of `k` is the step along axis `a`).
+/// The hats and the quadrature factor over the axes, and a product of hats along an axis depends
+/// only on how many of them are `t`: `quartic[a][q] = Σ w (1 − t)^{4−q} t^q` and
+/// `cubic[a][q] = Σ w (1 − t)^{3−q} t^q` over the cell's points along axis `a`. The products
+/// the systems need follow from these 27 numbers instead of a loop over the cell's points.
+struct CellHats {
+    quartic: [[f64; 5]; 3],
+    cubic: [[f64; 4]; 3],
+}
+
+impl CellHats {
+    /// `∫ φ_j φ_k φ_k'`.
+    fn cubic(&self, j: usize, k: usize, k2: usize) -> f64 {
+        (0..3)
+            .map(|a| self.cubic[a][(j >> a & 1) + (k >> a & 1) + (k2 >> a & 1)])
+            .product()
+    }
+
+    /// `Σ_{k,k'} ∫ φ_j φ_j' φ_k φ_k' X_kk'` for the corner pairs `j ≤ j'` in order, from the 64
+    /// blocks `X_kk'` (`size` values each, at `8k + k'`): one pass per axis, each replacing that
+    /// axis's bits of `(k, k')` by those of `(j, j')`.
+    fn quartic(&self, mut x: Vec<f64>, size: usize, pairs: &[(usize, usize)]) -> Vec<f64> {
+        let mut next = vec![0.0; x.len()];
+        for axis in 0..3 {
+            let bit = 1 << axis;
+            for (e, out) in next.chunks_mut(size).enumerate() {
+                let (j, j2) = (e >> 3, e & 7);
+                let ones = (j >> axis & 1) + (j2 >> axis & 1);
+                out.fill(0.0);
+                for p in 0..2 {
+                    for q in 0..2 {
+                        let weight = self.quartic[axis][ones + p + q];
+                        let k = (j & !bit) | p << axis;
+                        let k2 = (j2 & !bit) | q << axis;
+                        let src = &x[(8 * k + k2) * size..(8 * k + k2 + 1) * size];
+                        for (o, &v) in out.iter_mut().zip(src) {
+                            *o += weight * v;
+                        }
+                    }
+                }
+            }
+            std::mem::swap(&mut x, &mut next);
+        }
+        pairs
+            .iter()
+            .flat_map(|&(j, j2)| {
+                x[(8 * j + j2) * size..(8 * j + j2 + 1) * size]
+                    .iter()
+                    .copied()
+            })
+            .collect()
+    }
+}
 
 /// The corner pairs `k ≤ k'` of a voxel-centre cell, in the order of [`BoxSystem::a`].
 fn corner_pairs() -> Vec<(usize, usize)> {
@@ -89,36 +163,37 @@ impl<'a> VoxelQuadrature<'a> {
         self.voxels.iter().map(|n| n - 1).product()
     }
 
-    /// Calls `visit(w, φ)` for every quadrature point of the voxel-centre cell whose lowest
-    /// voxel is `lower`: the point's weight and the eight corners' hat weights.
-    fn for_points(&self, lower: [usize; 3], mut visit: impl FnMut(f64, &[f64; 8])) {
-        let mut phi = [0.0; 8];
-        let ranges = [0, 1, 2].map(|k| self.runs[k][lower[k]].clone());
-        for pz in &self.axes[2].points[ranges[2].clone()] {
-            for py in &self.axes[1].points[ranges[1].clone()] {
-                for px in &self.axes[0].points[ranges[0].clone()] {
-                    let t = [px.ct, py.ct, pz.ct];
-                    for (k, o) in phi.iter_mut().enumerate() {
-                        *o = (0..3)
-                            .map(|a| if k >> a & 1 == 1 { t[a] } else { 1.0 - t[a] })
-                            .product();
-                    }
-                    visit(px.w * py.w * pz.w, &phi);
+    /// The hat integrals of the voxel-centre cell whose lowest voxel is `lower`.
+    fn cell_hats(&self, lower: [usize; 3]) -> CellHats {
+        let mut hats = CellHats {
+            quartic: [[0.0; 5]; 3],
+            cubic: [[0.0; 4]; 3],
+        };
+        for axis in 0..3 {
+            for p in &self.axes[axis].points[self.runs[axis][lower[axis]].clone()] {
+                let (t, s) = (p.ct, 1.0 - p.ct);
+                for q in 0..5 {
+                    hats.quartic[axis][q] += p.w * s.powi(4 - q as i32) * t.powi(q as i32);
+                }
+                for q in 0..4 {
+                    hats.cubic[axis][q] += p.w * s.powi(3 - q as i32) * t.powi(q as i32);
                 }
             }
         }
+        hats
     }
 
-    /// Runs `assemble(lower, corners)` on every voxel-centre cell (its lowest voxel and its
-    /// corners' indices) in parallel batches, and hands the results to `add` in cell order, so
+    /// Runs `assemble(lower, corners)` on the voxel-centre cells `cells` (its lowest voxel and
+    /// its corners' indices) in parallel batches, and hands the results to `add` in cell order, so
     /// that the sums do not depend on the thread count.
     fn for_cells<T: Send>(
         &self,
+        cells: Range<usize>,
         progress: &dyn Progress,
         assemble: impl Fn([usize; 3], [usize; 8]) -> T + Sync,
         mut add: impl FnMut([usize; 3], T),
     ) -> Result<(), MbdError> {
-        let cells: Vec<usize> = (0..self.num_cells()).collect();
+        let cells: Vec<usize> = cells.collect();
         for batch in cells.chunks(CELL_BATCH) {
             progress.check()?;
             let parts: Vec<([usize; 3], T)> = batch
@@ -147,7 +222,9 @@ impl<'a> VoxelQuadrature<'a> {
     /// the 27-neighbour blocks `H_{v,u} = ∫ w_v w_u c cᵀ` and the right-hand sides
     /// `Σ_u T_{v,u} f_uᵀ`, `T_{v,u} = ∫ w_v w_u c`; so `G = Σ_{v,u} W_vᵀ W_u ⊗ H_{v,u}` and
     /// `R = Σ_v W_vᵀ ⊗ Σ_u T_{v,u} f_uᵀ`, whose cost grows with the rows' lengths (a few
-    /// kernels) rather than with the cells' unions.
+    /// kernels) rather than with the cells' unions. As `T` is symmetric, `R`'s block of kernel
+    /// `n` is `Σ_v S_{v,n} f_vᵀ` with `S_{v,n} = Σ_u W_{u,n} T_{v,u}`: `L`-vectors per voxel,
+    /// then one GEMM per batch of voxels instead of an `L × D` sum at each.
     pub(super) fn basis_system(
         &self,
         field: &GridField,
@@ -162,37 +239,30 @@ impl<'a> VoxelQuadrature<'a> {
         zeroed(h, count * 27 * ll);
         let mut t = vec![0.0; count * 27 * l];
         self.for_cells(
+            0..self.num_cells(),
             progress,
             |lower, corners| {
-                let mut a = vec![0.0; corner_pairs.len() * ll];
+                // ∫ φ_k φ_k' c cᵀ and ∫ φ_k φ_k' c with c(x) = Σ_j φ_j c_j.
+                let hats = self.cell_hats(lower);
+                let mut outer = vec![0.0; 64 * ll];
+                for (e, block) in outer.chunks_mut(ll).enumerate() {
+                    let (cj, cj2) = (corners[e >> 3] * l, corners[e & 7] * l);
+                    for (row, &x) in block.chunks_mut(l).zip(&c[cj..cj + l]) {
+                        for (o, &y) in row.iter_mut().zip(&c[cj2..cj2 + l]) {
+                            *o = x * y;
+                        }
+                    }
+                }
+                let a = hats.quartic(outer, ll, &corner_pairs);
                 let mut moments = vec![0.0; corner_pairs.len() * l];
-                let (mut cx, mut cc) = (vec![0.0; l], vec![0.0; ll]);
-                self.for_points(lower, |w, phi| {
-                    cx.fill(0.0);
-                    for k in 0..8 {
-                        let ck = &c[corners[k] * l..(corners[k] + 1) * l];
-                        for (o, &x) in cx.iter_mut().zip(ck) {
-                            *o += phi[k] * x;
-                        }
-                    }
-                    for i in 0..l {
-                        for j in 0..l {
-                            cc[i * l + j] = cx[i] * cx[j];
-                        }
-                    }
-                    for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                        let weight = w * phi[k] * phi[k2];
-                        if weight == 0.0 {
-                            continue;
-                        }
-                        for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&cc) {
-                            *o += weight * x;
-                        }
-                        for (o, &x) in moments[pair * l..(pair + 1) * l].iter_mut().zip(&cx) {
+                for (out, &(k, k2)) in moments.chunks_mut(l).zip(&corner_pairs) {
+                    for (j, &v) in corners.iter().enumerate() {
+                        let weight = hats.cubic(j, k, k2);
+                        for (o, &x) in out.iter_mut().zip(&c[v * l..(v + 1) * l]) {
                             *o += weight * x;
                         }
                     }
-                });
+                }
                 (a, moments)
             },
             |lower, (a, moments)| {
@@ -200,9 +270,9 @@ impl<'a> VoxelQuadrature<'a> {
                 add_pair_blocks(&mut t, [l, 1], lower, &moments, self.voxels);
             },
         )?;
-        // Per voxel v (parallel batches, added in voxel order): Q_v = Σ_u W_u ⊗ H_{v,u} over
-        // the kernels of its neighbours' rows and R_v = Σ_u T_{v,u} f_uᵀ; then
-        // G += W_vᵀ ⊗ Q_v and R += W_vᵀ ⊗ R_v.
+        // Per voxel v (parallel batches, added in voxel order): Q_v = Σ_u W_u ⊗ H_{v,u} and
+        // S_v over the kernels of its neighbours' rows; then G += W_vᵀ ⊗ Q_v and
+        // R_n += S_{v,n} f_vᵀ.
         let unknowns = self.kernels * l;
         let mut gram = Array2::<f64>::zeros((unknowns, unknowns));
         let mut rhs = Array2::<f64>::zeros((unknowns, d));
@@ -213,16 +283,17 @@ impl<'a> VoxelQuadrature<'a> {
                 .par_iter()
                 .map(|&v| {
                     let mut kernels: Vec<u32> = Vec::new();
-                    let mut q: Vec<f64> = Vec::new();
-                    let mut r = vec![0.0; l * d];
+                    let (mut q, mut sums): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
                     for (nbr, u) in self.neighbours(v) {
                         let block = &h[(v * 27 + nbr) * ll..(v * 27 + nbr + 1) * ll];
+                        let moment = &t[(v * 27 + nbr) * l..(v * 27 + nbr + 1) * l];
                         for (n, a) in self.weights.row(u) {
                             let j = match kernels.iter().position(|&m| m == n) {
                                 Some(j) => j,
                                 None => {
                                     kernels.push(n);
                                     q.resize(q.len() + ll, 0.0);
+                                    sums.resize(sums.len() + l, 0.0);
                                     kernels.len() - 1
                                 }
                             };
@@ -230,21 +301,16 @@ impl<'a> VoxelQuadrature<'a> {
                             for (o, &x) in q[j * ll..(j + 1) * ll].iter_mut().zip(block) {
                                 *o += a * x;
                             }
-                        }
-                        let moment = &t[(v * 27 + nbr) * l..(v * 27 + nbr + 1) * l];
-                        let fu = field.voxel(u);
-                        for (row, &m) in r.chunks_mut(d).zip(moment) {
-                            for (o, &x) in row.iter_mut().zip(fu) {
-                                *o += m * f64::from(x);
+                            for (o, &x) in sums[j * l..(j + 1) * l].iter_mut().zip(moment) {
+                                *o += a * x;
                             }
                         }
                     }
-                    (kernels, q, r)
+                    (kernels, q, sums)
                 })
                 .collect();
             let g = gram.as_slice_mut().unwrap_or(&mut []);
-            let out = rhs.as_slice_mut().unwrap_or(&mut []);
-            for (&v, (kernels, q, r)) in batch.iter().zip(&parts) {
+            for (&v, (kernels, q, _)) in batch.iter().zip(&parts) {
                 for (n, a) in self.weights.row(v) {
                     let a = f64::from(a);
                     for (&n2, block) in kernels.iter().zip(q.chunks(ll)) {
@@ -256,11 +322,39 @@ impl<'a> VoxelQuadrature<'a> {
                             }
                         }
                     }
-                    let at = n as usize * l * d;
-                    for (o, &x) in out[at..at + l * d].iter_mut().zip(r) {
-                        *o += a * x;
+                }
+            }
+            // R_n += Σ_v S_{v,n} f_vᵀ over the batch's voxels: one GEMM over the kernels the
+            // batch touches.
+            let mut columns = vec![usize::MAX; self.kernels];
+            let mut touched: Vec<u32> = Vec::new();
+            for (kernels, _, _) in &parts {
+                for &n in kernels {
+                    if columns[n as usize] == usize::MAX {
+                        columns[n as usize] = touched.len();
+                        touched.push(n);
                     }
                 }
+            }
+            let mut weights = Array2::<f64>::zeros((batch.len(), touched.len() * l));
+            for (mut row, (kernels, _, sums)) in weights.rows_mut().into_iter().zip(&parts) {
+                for (&n, sum) in kernels.iter().zip(sums.chunks(l)) {
+                    let at = columns[n as usize] * l;
+                    row.slice_mut(s![at..at + l])
+                        .iter_mut()
+                        .zip(sum)
+                        .for_each(|(o, &x)| *o = x);
+                }
+            }
+            let values = Array2::from_shape_fn((batch.len(), d), |(i, j)| {
+                f64::from(field.voxel(batch[i])[j])
+            });
+            let mut sums = Array2::<f64>::zeros((touched.len() * l, d));
+            general_mat_mul(1.0, &weights.t(), &values, 0.0, &mut sums);
+            for (&n, sum) in touched.iter().zip(sums.axis_chunks_iter(ArrayAxis(0), l)) {
+                let at = n as usize * l;
+                let mut rows = rhs.slice_mut(s![at..at + l, ..]);
+                rows += &sum;
             }
         }
         Ok(BasisSystem { gram, rhs })
@@ -302,97 +396,174 @@ impl<'a> VoxelQuadrature<'a> {
                 got: vec![b.len()],
             });
         }
-        self.for_cells(
-            progress,
-            |lower, corners| {
-                // The corners' blended bases β_k = Σ_n W_{k,n} B_n (8L × D), their Gram and
-                // their products with the corners' values (one GEMM each).
-                let mut beta = Array2::<f64>::zeros((8 * l, d));
-                {
-                    let out = beta.as_slice_mut().unwrap_or(&mut []);
-                    for (k, &v) in corners.iter().enumerate() {
-                        let out = &mut out[k * l * d..(k + 1) * l * d];
-                        for (n, a) in self.weights.row(v) {
-                            let src = &b[n as usize * l * d..(n as usize + 1) * l * d];
-                            for (o, &x) in out.iter_mut().zip(src) {
-                                *o += f64::from(a) * x;
-                            }
+        let [nx, ny, nz] = self.voxels;
+        let (slice, cells_per_slab) = (nx * ny, (nx - 1) * (ny - 1));
+        // The slab of cells between voxel slices z and z + 1 blends the bases of those two
+        // slices, each blended once rather than at each of its eight cells, and takes the Grams
+        // β_v β_uᵀ of neighbouring voxels, each computed once rather than at each cell that has
+        // both as corners (up to eight).
+        let mut below = self.blended_bases(b, l, d, 0);
+        let mut within_below = self.neighbour_grams(&below, &below, &WITHIN_SLICE, l);
+        for z in 0..nz - 1 {
+            let above = self.blended_bases(b, l, d, z + 1);
+            let within_above = self.neighbour_grams(&above, &above, &WITHIN_SLICE, l);
+            let across = self.neighbour_grams(&below, &above, &ACROSS_SLICES, l);
+            let slices = [&below, &above];
+            let within = [&within_below, &within_above];
+            // β_k β_k'ᵀ for corners k, k' of the cell: stored from one of the two, transposed
+            // when stored from the other.
+            let corner_gram = |corners: &[usize; 8], k: usize, k2: usize, out: &mut [f64]| {
+                let at = |k: usize| corners[k] - (z + (k >> 2)) * slice;
+                let step = |k: usize, k2: usize| {
+                    let bit = |k: usize, a: usize| (k >> a & 1) as isize;
+                    (bit(k2, 0) - bit(k, 0), bit(k2, 1) - bit(k, 1))
+                };
+                let slot = |offsets: &[(isize, isize)], d| {
+                    offsets
+                        .iter()
+                        .position(|&o| o == d)
+                        .expect("a cell's corners are neighbours")
+                };
+                let (grams, offsets, from, d, transpose) = match (k >> 2).cmp(&(k2 >> 2)) {
+                    std::cmp::Ordering::Equal => {
+                        let d = step(k, k2);
+                        if WITHIN_SLICE.contains(&d) {
+                            (within[k >> 2], &WITHIN_SLICE[..], at(k), d, false)
+                        } else {
+                            (within[k >> 2], &WITHIN_SLICE[..], at(k2), step(k2, k), true)
                         }
+                    }
+                    std::cmp::Ordering::Less => {
+                        (&across, &ACROSS_SLICES[..], at(k), step(k, k2), false)
+                    }
+                    std::cmp::Ordering::Greater => {
+                        (&across, &ACROSS_SLICES[..], at(k2), step(k2, k), true)
+                    }
+                };
+                let start = (from * offsets.len() + slot(offsets, d)) * ll;
+                let block = &grams[start..start + ll];
+                for i in 0..l {
+                    for j in 0..l {
+                        out[i * l + j] = if transpose {
+                            block[j * l + i]
+                        } else {
+                            block[i * l + j]
+                        };
                     }
                 }
-                let mut gram = Array2::<f64>::zeros((8 * l, 8 * l));
-                general_mat_mul(1.0, &beta, &beta.t(), 0.0, &mut gram);
-                let f =
-                    Array2::from_shape_fn((d, 8), |(i, k)| f64::from(field.voxel(corners[k])[i]));
-                let mut products = Array2::<f64>::zeros((8 * l, 8));
-                general_mat_mul(1.0, &beta, &f, 0.0, &mut products);
-                // b(x) b(x)ᵀ = Σ_{k ≤ k'} φ_k φ_k' K_kk', the pair standing for both orders.
-                let mut pair_gram = vec![0.0; corner_pairs.len() * ll];
-                for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                    for i in 0..l {
-                        for j in 0..l {
-                            let mut x = gram[[k * l + i, k2 * l + j]];
-                            if k != k2 {
-                                x += gram[[k2 * l + i, k * l + j]];
-                            }
-                            pair_gram[pair * ll + i * l + j] = x;
-                        }
+            };
+            self.for_cells(
+                z * cells_per_slab..(z + 1) * cells_per_slab,
+                progress,
+                |lower, corners| {
+                    // The corners' blended bases β_k (8L × D) and their products with the
+                    // corners' values (one GEMM).
+                    let mut beta = Array2::<f64>::zeros((8 * l, d));
+                    for (k, mut rows) in beta.axis_chunks_iter_mut(ArrayAxis(0), l).enumerate() {
+                        let upper = k >> 2;
+                        let at = corners[k] - (z + upper) * slice;
+                        rows.assign(&slices[upper].slice(s![at * l..(at + 1) * l, ..]));
                     }
-                }
-                // b(x) f(x) = Σ_k Σ_k' φ_k φ_k' β_k f_k'.
-                let projections: Vec<f64> = (0..64)
-                    .flat_map(|e| {
-                        let (k, k2) = (e / 8, e % 8);
-                        let products = &products;
-                        (0..l).map(move |i| products[[k * l + i, k2]])
-                    })
-                    .collect();
-                let mut a = vec![0.0; corner_pairs.len() * ll];
-                let mut r = vec![0.0; 8 * l];
-                let (mut m, mut s) = (vec![0.0; ll], vec![0.0; l]);
-                self.for_points(lower, |w, phi| {
-                    m.fill(0.0);
-                    for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                        let weight = phi[k] * phi[k2];
-                        if weight == 0.0 {
-                            continue;
-                        }
-                        for (o, &x) in m.iter_mut().zip(&pair_gram[pair * ll..(pair + 1) * ll]) {
-                            *o += weight * x;
-                        }
+                    let f = Array2::from_shape_fn((d, 8), |(i, k)| {
+                        f64::from(field.voxel(corners[k])[i])
+                    });
+                    let mut products = Array2::<f64>::zeros((8 * l, 8));
+                    general_mat_mul(1.0, &beta, &f, 0.0, &mut products);
+                    // ∫ φ_j φ_j' b bᵀ and ∫ φ_j b f with b(x) b(x)ᵀ = Σ_{k,k'} φ_k φ_k' β_k β_k'ᵀ
+                    // and b(x) f(x) = Σ_{k,k'} φ_k φ_k' β_k f_k'.
+                    let hats = self.cell_hats(lower);
+                    let mut blocks = vec![0.0; 64 * ll];
+                    for (e, block) in blocks.chunks_mut(ll).enumerate() {
+                        corner_gram(&corners, e >> 3, e & 7, block);
                     }
-                    s.fill(0.0);
-                    for k in 0..8 {
-                        for k2 in 0..8 {
-                            let weight = phi[k] * phi[k2];
-                            if weight == 0.0 {
-                                continue;
-                            }
-                            let p = &projections[(k * 8 + k2) * l..(k * 8 + k2 + 1) * l];
-                            for (o, &x) in s.iter_mut().zip(p) {
+                    let a = hats.quartic(blocks, ll, &corner_pairs);
+                    let mut r = vec![0.0; 8 * l];
+                    for (j, out) in r.chunks_mut(l).enumerate() {
+                        for e in 0..64 {
+                            let weight = hats.cubic(j, e >> 3, e & 7);
+                            for (o, &x) in out.iter_mut().zip(
+                                &products
+                                    .column(e & 7)
+                                    .slice(s![(e >> 3) * l..(e >> 3) * l + l]),
+                            ) {
                                 *o += weight * x;
                             }
                         }
                     }
-                    for (pair, &(k, k2)) in corner_pairs.iter().enumerate() {
-                        let weight = w * phi[k] * phi[k2];
-                        if weight == 0.0 {
+                    BoxSystem { lower, a, r }
+                },
+                |_, boxed| system.add(&boxed, self.voxels),
+            )?;
+            below = above;
+            within_below = within_above;
+        }
+        Ok(())
+    }
+
+    /// `β_v β_uᵀ` (`L × L`, row-major) for every voxel `v` of the slice whose blended bases are
+    /// `from` and its neighbours `u` at `offsets` `(dx, dy)` in slice `to`, `offsets.len()`
+    /// blocks per voxel; those of neighbours outside the grid stay zero. One GEMM per voxel and
+    /// neighbour row.
+    fn neighbour_grams(
+        &self,
+        from: &Array2<f64>,
+        to: &Array2<f64>,
+        offsets: &[(isize, isize)],
+        l: usize,
+    ) -> Vec<f64> {
+        let [nx, ny, _] = self.voxels.map(|n| n as isize);
+        let ll = l * l;
+        let mut grams = vec![0.0; (nx * ny) as usize * offsets.len() * ll];
+        grams
+            .par_chunks_mut(offsets.len() * ll)
+            .enumerate()
+            .for_each(|(i, out)| {
+                let (x, y) = ((i as isize) % nx, (i as isize) / nx);
+                let bv = from.slice(s![i * l..(i + 1) * l, ..]);
+                for dy in -1..=1 {
+                    let dxs = || offsets.iter().enumerate().filter(move |(_, o)| o.1 == dy);
+                    let lo = dxs().map(|(_, o)| o.0).min().map(|dx| dx.max(-x));
+                    let hi = dxs().map(|(_, o)| o.0).max().map(|dx| dx.min(nx - 1 - x));
+                    let (Some(lo), Some(hi)) = (lo, hi) else {
+                        continue;
+                    };
+                    if y + dy < 0 || y + dy >= ny || lo > hi {
+                        continue;
+                    }
+                    let start = ((y + dy) * nx + x + lo) as usize;
+                    let count = (hi - lo + 1) as usize;
+                    let bu = to.slice(s![start * l..(start + count) * l, ..]);
+                    let mut g = Array2::<f64>::zeros((l, count * l));
+                    general_mat_mul(1.0, &bv, &bu.t(), 0.0, &mut g);
+                    for (slot, &(dx, _)) in dxs() {
+                        if dx < lo || dx > hi {
                             continue;
                         }
-                        for (o, &x) in a[pair * ll..(pair + 1) * ll].iter_mut().zip(&m) {
-                            *o += weight * x;
+                        let column = (dx - lo) as usize * l;
+                        let block = g.slice(s![.., column..column + l]);
+                        for (o, &v) in out[slot * ll..(slot + 1) * ll].iter_mut().zip(block) {
+                            *o = v;
                         }
                     }
-                    for k in 0..8 {
-                        let weight = w * phi[k];
-                        for (o, &x) in r[k * l..(k + 1) * l].iter_mut().zip(&s) {
-                            *o += weight * x;
-                        }
+                }
+            });
+        grams
+    }
+
+    /// The blended bases `β_v = Σ_n W_{v,n} B_n` of voxel slice `z` (`L` rows of `D` per voxel).
+    fn blended_bases(&self, b: &[f64], l: usize, d: usize, z: usize) -> Array2<f64> {
+        let slice = self.voxels[0] * self.voxels[1];
+        let mut beta = Array2::<f64>::zeros((slice * l, d));
+        if let Some(out) = beta.as_slice_mut() {
+            out.par_chunks_mut(l * d).enumerate().for_each(|(i, out)| {
+                for (n, a) in self.weights.row(z * slice + i) {
+                    let src = &b[n as usize * l * d..(n as usize + 1) * l * d];
+                    for (o, &x) in out.iter_mut().zip(src) {
+                        *o += f64::from(a) * x;
                     }
-                });
-                BoxSystem { lower, a, r }
-            },
-            |_, boxed| system.add(&boxed, self.voxels),
-        )
+                }
+            });
+        }
+        beta
     }
 }
