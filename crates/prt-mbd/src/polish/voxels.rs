@@ -309,20 +309,29 @@ impl<'a> VoxelQuadrature<'a> {
                     (kernels, q, sums)
                 })
                 .collect();
-            let g = gram.as_slice_mut().unwrap_or(&mut []);
-            for (&v, (kernels, q, _)) in batch.iter().zip(&parts) {
+            // G's rows of kernel n in parallel over n, each summing its voxels in batch order.
+            let mut by_kernel: Vec<Vec<(usize, f64)>> = vec![Vec::new(); self.kernels];
+            for (i, &v) in batch.iter().enumerate() {
                 for (n, a) in self.weights.row(v) {
-                    let a = f64::from(a);
-                    for (&n2, block) in kernels.iter().zip(q.chunks(ll)) {
-                        for i in 0..l {
-                            let at = (n as usize * l + i) * unknowns + n2 as usize * l;
-                            for (o, &x) in g[at..at + l].iter_mut().zip(&block[i * l..(i + 1) * l])
-                            {
-                                *o += a * x;
+                    by_kernel[n as usize].push((i, f64::from(a)));
+                }
+            }
+            if let Some(g) = gram.as_slice_mut() {
+                g.par_chunks_mut(l * unknowns)
+                    .zip(&by_kernel)
+                    .for_each(|(rows, voxels)| {
+                        for &(i, a) in voxels {
+                            let (kernels, q, _) = &parts[i];
+                            for (&n2, block) in kernels.iter().zip(q.chunks(ll)) {
+                                for (row, src) in rows.chunks_mut(unknowns).zip(block.chunks(l)) {
+                                    let at = n2 as usize * l;
+                                    for (o, &x) in row[at..at + l].iter_mut().zip(src) {
+                                        *o += a * x;
+                                    }
+                                }
                             }
                         }
-                    }
-                }
+                    });
             }
             // R_n += Σ_v S_{v,n} f_vᵀ over the batch's voxels: one GEMM over the kernels the
             // batch touches.
