@@ -43,8 +43,9 @@
 //! 2.47 against CPCA's 5.86, 6.08 and 5.08 (falloff 0.5: 2.58 at 96, 3.17 at 48; MBD
 //! session 10). [`ClusteredMbd::polish`] chains the sweeps. With the polish's conjugate
 //! gradients (its default since MBD session 11) a 16-iteration solve is enough: the polish then
-//! stops by its own rule at **1.085×** at 48 (46 iterations) and **1.077×** at 72 (47), with the
-//! same seams (2.59 and 2.19). On smooth fields it gains nothing
+//! stops by its own rule at **1.085×** at 48 (46 iterations), **1.077×** at 72 (47) and
+//! **1.042×** at 96 (38), with the same seams (2.59, 2.19 and 2.11; MBD sessions 11 and 12).
+//! On smooth fields it gains nothing
 //! (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
 //!
 //! **Cost.** The solve takes 1.6–2.8× the hat grid's CPU at radius 2 (4.5–9× CPCA's). An

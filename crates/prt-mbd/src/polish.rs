@@ -108,13 +108,13 @@ pub struct PolishOptions {
 
 /// How [`polish`] speeds up the alternating solves ([`PolishOptions::acceleration`]).
 ///
-/// Measured (`docs/results.md`, MBD session 11): on Sponza 48 (wide label kernels, 16 solver
-/// iterations) 24 iterations end at 3.07e-4 with conjugate gradients against 3.14e-4 with the
-/// extrapolation (−2.2 %, 15 % more time per iteration), and the conjugate gradients stop by
-/// the default tolerance after 46 iterations at 1.085× clustered PCA (72: 47, 1.077×); on the
-/// synthetic 32³ × 324 field (6³ hat grid, 128 solver iterations), 16 iterations end at
-/// 5.99e-9 against 6.27e-9 (−4.5 %, less CPU), and after a 16-iteration solve they stop by
-/// their rule after 73 iterations at 4.99e-9, 28 % below blockwise PCA.
+/// Measured (`docs/results.md`, MBD sessions 11 and 12): on Sponza 48 (wide label kernels, 16
+/// solver iterations) 24 iterations end at 3.07e-4 with conjugate gradients against 3.14e-4
+/// with the extrapolation (−2.2 %, 15 % more time per iteration), and the conjugate gradients
+/// stop by the default tolerance after 46 iterations at 1.085× clustered PCA (72: 47, 1.077×;
+/// 96: 38, 1.042×); on the synthetic 32³ × 324 field (6³ hat grid, 128 solver iterations), 16
+/// iterations end at 5.99e-9 against 6.27e-9 (−4.5 %, less CPU), and after a 16-iteration
+/// solve they stop by their rule after 73 iterations at 4.99e-9, 28 % below blockwise PCA.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum PolishAcceleration {
