@@ -45,9 +45,10 @@ pub(super) struct VoxelQuadrature<'a> {
 type VoxelBasisPart = (Vec<u32>, Vec<f64>, Vec<f64>);
 
 /// Offsets `(dx, dy)` of the neighbours within a voxel slice whose Grams `β_v β_uᵀ` voxel `v`
-/// holds (the other four are the transposes its neighbours hold), and of all nine in the next
-/// slice.
+/// holds (the other four are the transposes its neighbours hold).
 const WITHIN_SLICE: [(isize, isize); 5] = [(0, 0), (1, 0), (-1, 1), (0, 1), (1, 1)];
+/// Offsets `(dx, dy)` of the neighbours in the next voxel slice whose Grams voxel `v` holds:
+/// all nine.
 const ACROSS_SLICES: [(isize, isize); 9] = [
     (-1, -1),
     (0, -1),
