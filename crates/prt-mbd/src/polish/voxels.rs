@@ -15,7 +15,7 @@
 
 use std::ops::Range;
 
-use ndarray::{Array2, Axis as ArrayAxis, linalg::general_mat_mul, s};
+use ndarray::{Array2, ArrayView2, ArrayViewMut2, Axis as ArrayAxis, linalg::general_mat_mul, s};
 use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
@@ -278,6 +278,9 @@ impl<'a> VoxelQuadrature<'a> {
         let mut gram = Array2::<f64>::zeros((unknowns, unknowns));
         let mut rhs = Array2::<f64>::zeros((unknowns, d));
         let voxels: Vec<usize> = (0..count).collect();
+        // The right-hand side's GEMM operands, reused from batch to batch.
+        let (mut weights_buffer, mut values_buffer, mut sums_buffer) =
+            (Vec::new(), Vec::new(), Vec::new());
         for batch in voxels.chunks(CELL_BATCH) {
             progress.check()?;
             let parts: Vec<VoxelBasisPart> = batch
@@ -346,7 +349,10 @@ impl<'a> VoxelQuadrature<'a> {
                     }
                 }
             }
-            let mut weights = Array2::<f64>::zeros((batch.len(), touched.len() * l));
+            let shape = (batch.len(), touched.len() * l);
+            zeroed(&mut weights_buffer, shape.0 * shape.1);
+            let mut weights = ArrayViewMut2::from_shape(shape, &mut weights_buffer[..])
+                .expect("the buffer has the batch's shape");
             for (mut row, (kernels, _, sums)) in weights.rows_mut().into_iter().zip(&parts) {
                 for (&n, sum) in kernels.iter().zip(sums.chunks(l)) {
                     let at = columns[n as usize] * l;
@@ -356,10 +362,17 @@ impl<'a> VoxelQuadrature<'a> {
                         .for_each(|(o, &x)| *o = x);
                 }
             }
-            let values = Array2::from_shape_fn((batch.len(), d), |(i, j)| {
-                f64::from(field.voxel(batch[i])[j])
-            });
-            let mut sums = Array2::<f64>::zeros((touched.len() * l, d));
+            values_buffer.clear();
+            values_buffer.extend(
+                batch
+                    .iter()
+                    .flat_map(|&v| field.voxel(v).iter().map(|&x| f64::from(x))),
+            );
+            let values = ArrayView2::from_shape((batch.len(), d), &values_buffer[..])
+                .expect("the buffer has the batch's shape");
+            zeroed(&mut sums_buffer, touched.len() * l * d);
+            let mut sums = ArrayViewMut2::from_shape((touched.len() * l, d), &mut sums_buffer[..])
+                .expect("the buffer has the sums' shape");
             general_mat_mul(1.0, &weights.t(), &values, 0.0, &mut sums);
             for (&n, sum) in touched.iter().zip(sums.axis_chunks_iter(ArrayAxis(0), l)) {
                 let at = n as usize * l;
@@ -412,12 +425,16 @@ impl<'a> VoxelQuadrature<'a> {
         // slices, each blended once rather than at each of its eight cells, and takes the Grams
         // β_v β_uᵀ of neighbouring voxels, each computed once rather than at each cell that has
         // both as corners (up to eight).
-        let mut below = self.blended_bases(b, l, d, 0);
-        let mut within_below = self.neighbour_grams(&below, &below, &WITHIN_SLICE, l);
+        // Two slices' buffers, reused from slab to slab (fresh ones cost page faults).
+        let mut below = Array2::<f64>::zeros((slice * l, d));
+        let mut above = Array2::<f64>::zeros((slice * l, d));
+        let (mut within_below, mut within_above, mut across) = (Vec::new(), Vec::new(), Vec::new());
+        self.blend_bases(b, l, 0, &mut below);
+        self.neighbour_grams(&below, &below, &WITHIN_SLICE, l, &mut within_below);
         for z in 0..nz - 1 {
-            let above = self.blended_bases(b, l, d, z + 1);
-            let within_above = self.neighbour_grams(&above, &above, &WITHIN_SLICE, l);
-            let across = self.neighbour_grams(&below, &above, &ACROSS_SLICES, l);
+            self.blend_bases(b, l, z + 1, &mut above);
+            self.neighbour_grams(&above, &above, &WITHIN_SLICE, l, &mut within_above);
+            self.neighbour_grams(&below, &above, &ACROSS_SLICES, l, &mut across);
             let slices = [&below, &above];
             let within = [&within_below, &within_above];
             // β_k β_k'ᵀ for corners k, k' of the cell: stored from one of the two, transposed
@@ -504,26 +521,27 @@ impl<'a> VoxelQuadrature<'a> {
                 },
                 |_, boxed| system.add(&boxed, self.voxels),
             )?;
-            below = above;
-            within_below = within_above;
+            std::mem::swap(&mut below, &mut above);
+            std::mem::swap(&mut within_below, &mut within_above);
         }
         Ok(())
     }
 
     /// `β_v β_uᵀ` (`L × L`, row-major) for every voxel `v` of the slice whose blended bases are
     /// `from` and its neighbours `u` at `offsets` `(dx, dy)` in slice `to`, `offsets.len()`
-    /// blocks per voxel; those of neighbours outside the grid stay zero. One GEMM per voxel and
-    /// neighbour row.
+    /// blocks per voxel, written over `grams`; those of neighbours outside the grid are zero. One
+    /// GEMM per voxel and neighbour row.
     fn neighbour_grams(
         &self,
         from: &Array2<f64>,
         to: &Array2<f64>,
         offsets: &[(isize, isize)],
         l: usize,
-    ) -> Vec<f64> {
+        grams: &mut Vec<f64>,
+    ) {
         let [nx, ny, _] = self.voxels.map(|n| n as isize);
         let ll = l * l;
-        let mut grams = vec![0.0; (nx * ny) as usize * offsets.len() * ll];
+        zeroed(grams, (nx * ny) as usize * offsets.len() * ll);
         grams
             .par_chunks_mut(offsets.len() * ll)
             .enumerate()
@@ -557,15 +575,16 @@ impl<'a> VoxelQuadrature<'a> {
                     }
                 }
             });
-        grams
     }
 
-    /// The blended bases `β_v = Σ_n W_{v,n} B_n` of voxel slice `z` (`L` rows of `D` per voxel).
-    fn blended_bases(&self, b: &[f64], l: usize, d: usize, z: usize) -> Array2<f64> {
+    /// The blended bases `β_v = Σ_n W_{v,n} B_n` of voxel slice `z` (`L` rows of `D` per voxel),
+    /// written over `beta`.
+    fn blend_bases(&self, b: &[f64], l: usize, z: usize, beta: &mut Array2<f64>) {
+        let d = beta.ncols();
         let slice = self.voxels[0] * self.voxels[1];
-        let mut beta = Array2::<f64>::zeros((slice * l, d));
         if let Some(out) = beta.as_slice_mut() {
             out.par_chunks_mut(l * d).enumerate().for_each(|(i, out)| {
+                out.fill(0.0);
                 for (n, a) in self.weights.row(z * slice + i) {
                     let src = &b[n as usize * l * d..(n as usize + 1) * l * d];
                     for (o, &x) in out.iter_mut().zip(src) {
@@ -574,6 +593,5 @@ impl<'a> VoxelQuadrature<'a> {
                 }
             });
         }
-        beta
     }
 }
