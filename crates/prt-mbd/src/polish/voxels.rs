@@ -32,10 +32,10 @@ const CELL_BATCH: usize = 512;
 /// The quadrature of a field with basis kernels stored at its voxel centres (module docs).
 pub(super) struct VoxelQuadrature<'a> {
     weights: &'a VoxelWeights,
-    axes: [Axis; 3],
-    /// Per axis, the points of each voxel-centre cell `i` (between centres `i` and `i + 1`;
-    /// the first and last also hold the outer half voxels).
-    runs: [Vec<Range<usize>>; 3],
+    /// Per axis, the hat integrals `(quartic, cubic)` of [`CellHats`] over each voxel-centre
+    /// cell `i` (between centres `i` and `i + 1`; the first and last also hold the outer half
+    /// voxels).
+    hats: [Vec<AxisHats>; 3],
     voxels: [usize; 3],
     kernels: usize,
 }
@@ -116,6 +116,9 @@ impl CellHats {
     }
 }
 
+/// One axis's factors of [`CellHats`] over one voxel-centre cell: `(quartic, cubic)`.
+type AxisHats = ([f64; 5], [f64; 4]);
+
 /// The corner pairs `k ≤ k'` of a voxel-centre cell, in the order of [`BoxSystem::a`].
 fn corner_pairs() -> Vec<(usize, usize)> {
     (0..8).flat_map(|k| (k..8).map(move |m| (k, m))).collect()
@@ -142,19 +145,25 @@ impl<'a> VoxelQuadrature<'a> {
                 ),
             });
         }
-        let axes = [0, 1, 2].map(|k| Axis::new(voxels[k], 2, (0.0, voxels[k] as f64)));
-        let runs = [0, 1, 2].map(|k| {
-            let points = &axes[k].points;
-            (0..voxels[k] - 1)
-                .map(|i| {
-                    points.partition_point(|p| p.ci < i)..points.partition_point(|p| p.ci <= i)
-                })
-                .collect()
+        let hats = [0, 1, 2].map(|k| {
+            let axis = Axis::new(voxels[k], 2, (0.0, voxels[k] as f64));
+            let mut hats = vec![([0.0; 5], [0.0; 4]); voxels[k] - 1];
+            for p in &axis.points {
+                // `ci` ≤ n − 2: the outer half voxels' points are the first and last cells'.
+                let (quartic, cubic) = &mut hats[p.ci];
+                let (t, s) = (p.ct, 1.0 - p.ct);
+                for (q, o) in quartic.iter_mut().enumerate() {
+                    *o += p.w * s.powi(4 - q as i32) * t.powi(q as i32);
+                }
+                for (q, o) in cubic.iter_mut().enumerate() {
+                    *o += p.w * s.powi(3 - q as i32) * t.powi(q as i32);
+                }
+            }
+            hats
         });
         Ok(Self {
             weights,
-            axes,
-            runs,
+            hats,
             voxels,
             kernels,
         })
@@ -166,22 +175,10 @@ impl<'a> VoxelQuadrature<'a> {
 
     /// The hat integrals of the voxel-centre cell whose lowest voxel is `lower`.
     fn cell_hats(&self, lower: [usize; 3]) -> CellHats {
-        let mut hats = CellHats {
-            quartic: [[0.0; 5]; 3],
-            cubic: [[0.0; 4]; 3],
-        };
-        for axis in 0..3 {
-            for p in &self.axes[axis].points[self.runs[axis][lower[axis]].clone()] {
-                let (t, s) = (p.ct, 1.0 - p.ct);
-                for q in 0..5 {
-                    hats.quartic[axis][q] += p.w * s.powi(4 - q as i32) * t.powi(q as i32);
-                }
-                for q in 0..4 {
-                    hats.cubic[axis][q] += p.w * s.powi(3 - q as i32) * t.powi(q as i32);
-                }
-            }
+        CellHats {
+            quartic: [0, 1, 2].map(|a| self.hats[a][lower[a]].0),
+            cubic: [0, 1, 2].map(|a| self.hats[a][lower[a]].1),
         }
-        hats
     }
 
     /// Runs `assemble(lower, corners)` on the voxel-centre cells `cells` (its lowest voxel and
