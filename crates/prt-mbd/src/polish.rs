@@ -387,7 +387,8 @@ pub fn polish<B: PolishBasis>(
                 progress,
             )?;
             let before = system.quadratic(&c);
-            let (trial, cg_iterations) = system.solve(&c, options, progress)?;
+            let (trial, cg_iterations) =
+                system.solve(&c, system.residual(&c), options, progress)?;
             let after = system.quadratic(&trial);
             blocks = system.into_blocks();
             let accepted = after <= before;
@@ -445,35 +446,17 @@ pub fn polish<B: PolishBasis>(
             };
         }
     }
-    let model = finish(
-        coefficient_kernels,
-        basis_kernels,
-        coefficients.dim(),
-        basis.dim(),
-        &c,
-        &b,
-    )?;
-    Ok((model, report))
-}
-
-/// The model of coefficients `c` and basis rows `b` (rounded to f32).
-fn finish<B: PolishBasis>(
-    coefficient_kernels: HatGrid,
-    basis_kernels: B,
-    coefficient_shape: (usize, usize),
-    basis_shape: (usize, usize, usize),
-    c: &[f64],
-    b: &Array2<f64>,
-) -> Result<MbdModel<HatGrid, B>, MbdError> {
     let to_f32 = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     let shape_error = |e: ndarray::ShapeError| MbdError::InvalidOption {
         what: "tensor shape",
         why: e.to_string(),
     };
-    let coefficients = Array2::from_shape_vec(coefficient_shape, to_f32(c)).map_err(shape_error)?;
-    let basis = Array3::from_shape_vec(basis_shape, to_f32(b.as_slice().unwrap_or(&[])))
+    let coefficients =
+        Array2::from_shape_vec(coefficients.dim(), to_f32(&c)).map_err(shape_error)?;
+    let basis = Array3::from_shape_vec(basis.dim(), to_f32(b.as_slice().unwrap_or(&[])))
         .map_err(shape_error)?;
-    MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)
+    let model = MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)?;
+    Ok((model, report))
 }
 
 /// Longest step of the conjugate-gradient line search, in multiples of the step that is optimal
@@ -565,15 +548,11 @@ impl Conjugate<'_, '_> {
                 std::mem::take(&mut blocks),
                 self.progress,
             )?;
-            let (alternating, cg_iterations) = system.solve(c, options, self.progress)?;
             // Half the gradient of g: `A c − r` at the optimal basis (envelope theorem); the
             // alternating step is `−A⁻¹` of it, the preconditioned gradient.
-            let mut gradient = vec![0.0; c.len()];
-            system.apply(c, &mut gradient);
-            gradient
-                .iter_mut()
-                .zip(&system.rhs)
-                .for_each(|(g, &r)| *g -= r);
+            let residual = system.residual(c);
+            let gradient: Vec<f64> = residual.iter().map(|&r| -r).collect();
+            let (alternating, cg_iterations) = system.solve(c, residual, options, self.progress)?;
             let preconditioned: Vec<f64> =
                 c.iter().zip(&alternating).map(|(&x, &y)| x - y).collect();
             let mut direction: Vec<f64> = preconditioned.iter().map(|&x| -x).collect();
@@ -864,7 +843,6 @@ fn basis_rows(basis: &Array3<f32>) -> Result<Array2<f64>, MbdError> {
     })
 }
 
-/// `λ/2 ‖c‖²`.
 /// The exact loss whose coefficient quadratic `cᵀ A c − 2 rᵀ c` (the ridge included) is
 /// `quadratic`.
 fn exact_from(quadratic: f64, c: &[f64], lambda: f32, energy: f64) -> ExactLoss {
@@ -876,6 +854,7 @@ fn exact_from(quadratic: f64, c: &[f64], lambda: f32, energy: f64) -> ExactLoss 
     }
 }
 
+/// `λ/2 ‖c‖²`.
 fn ridge(c: &[f64], lambda: f32) -> f64 {
     0.5 * lambda as f64 * c.iter().map(|v| v * v).sum::<f64>()
 }
@@ -1646,11 +1625,24 @@ impl CoefficientSystem {
         dot(c, &ac) - 2.0 * dot(&self.rhs, c)
     }
 
-    /// Block-Jacobi preconditioned conjugate gradients from `start`; the solution rounded to
-    /// f32, and the iterations taken.
+    /// `r − A x`.
+    fn residual(&self, x: &[f64]) -> Vec<f64> {
+        let mut residual = vec![0.0; x.len()];
+        self.apply(x, &mut residual);
+        residual
+            .iter_mut()
+            .zip(&self.rhs)
+            .for_each(|(o, &b)| *o = b - *o);
+        residual
+    }
+
+    /// Block-Jacobi preconditioned conjugate gradients from `start`, whose residual
+    /// [`CoefficientSystem::residual`] is `residual`; the solution rounded to f32, and the
+    /// iterations taken.
     fn solve(
         &self,
         start: &[f64],
+        residual: Vec<f64>,
         options: &PolishOptions,
         progress: &dyn Progress,
     ) -> Result<(Vec<f64>, usize), MbdError> {
@@ -1678,9 +1670,7 @@ impl CoefficientSystem {
                 });
         };
         let mut x = start.to_vec();
-        let mut r = vec![0.0; x.len()];
-        self.apply(&x, &mut r);
-        r.iter_mut().zip(&self.rhs).for_each(|(r, &b)| *r = b - *r);
+        let mut r = residual;
         let target = options.cg_tolerance * dot(&self.rhs, &self.rhs).sqrt();
         let mut z = vec![0.0; x.len()];
         precondition(&r, &mut z);
