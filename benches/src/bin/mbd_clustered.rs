@@ -23,7 +23,9 @@
 //! sweeps of the exact `polish` (tolerance `MBD_PTOL`, default 0: all sweeps; acceleration
 //! `MBD_ACCEL`: `cg` (default), `extrapolation` or `none`), with the exact
 //! relative MSE before and after in its name; its time is the polish's alone.
-//! `WBPCA` (blocks of twice the size, off by default) is a method too.
+//! `WBPCA` (blocks of twice the size, off by default) is a method too, and so is `PCA` (global
+//! PCA, off by default: one basis everywhere, so it has no seams, and its seam ratios are the
+//! floor the field's own structure sets at each set of boundaries).
 //! Reported per method: iterations, wall and process CPU time (the `CMBD` rows exclude CPCA's
 //! clustering, which the `CPCA` row times), relative MSE on jittered samples and its ratio to
 //! CPCA's, and the seam
@@ -365,6 +367,21 @@ fn main() {
             bpca_cpu,
             &bpca,
             clustered_basis(&bpca),
+        );
+    }
+    if enabled("PCA") {
+        let (m, wall, cpu) = measure(|| {
+            GlobalPca { rank: l }
+                .compress(f, &NoProgress)
+                .expect("pca")
+        });
+        add(
+            "control: global PCA (no seams)".into(),
+            "–".into(),
+            wall,
+            cpu,
+            &m,
+            clustered_basis(&m),
         );
     }
     if enabled("WBPCA") {
