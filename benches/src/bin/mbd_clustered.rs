@@ -370,11 +370,8 @@ fn main() {
         );
     }
     if enabled("PCA") {
-        let (m, wall, cpu) = measure(|| {
-            GlobalPca { rank: l }
-                .compress(f, &NoProgress)
-                .expect("pca")
-        });
+        let (m, wall, cpu) =
+            measure(|| GlobalPca { rank: l }.compress(f, &NoProgress).expect("pca"));
         add(
             "control: global PCA (no seams)".into(),
             "–".into(),
