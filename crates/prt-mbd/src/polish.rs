@@ -23,8 +23,9 @@
 //! * **basis given the coefficients**: the normal equations `G vec(B) = R`, with one Gram `G` of
 //!   size `N·L` shared by all D outputs (Cholesky);
 //! * **coefficients given the basis**: neighbouring voxels couple through overlapping hats, so
-//!   the normal equations are block-sparse (27 neighbour blocks of `L × L` per voxel, the ridge
-//!   on the diagonal), solved by conjugate gradients preconditioned with the diagonal blocks.
+//!   the normal equations are block-sparse (`L × L` blocks between each voxel and its 3³
+//!   neighbours, the ridge on the diagonal), solved by conjugate gradients preconditioned with
+//!   the diagonal blocks.
 //!
 //! Alternation creeps along the valley of the coupled problem, so by default [`polish`] runs
 //! nonlinear conjugate gradients on the loss with the basis solved out, preconditioned by the
@@ -32,7 +33,8 @@
 //!
 //! Each step's result is rounded to the model's f32 storage and accepted only if the exact
 //! loss did not increase, so the loss of the returned model never exceeds the input's. Memory:
-//! the coefficient system holds `27 L²` f64 per voxel (13.8 KB at L = 8: 450 MB for 32³).
+//! the coefficient system stores each pair of neighbours' block once, `14 L²` f64 per voxel
+//! (7.2 KB at L = 8: 235 MB for 32³).
 //!
 //! For the voxel-stored families both systems are assembled per voxel-centre cell from the
 //! blended bases of its eight corners, whose rows hold a few kernels each (Sponza, 125
@@ -72,8 +74,24 @@ const EXTRAPOLATION_GROWTH: f64 = 1.5;
 const MAX_EXTRAPOLATION: f64 = 16.0;
 /// Points per GEMM of the basis step's Gram.
 const GRAM_BATCH: usize = 2048;
-/// Index of the centre block among a voxel's 27 neighbour blocks.
+/// Index of the voxel itself among its 3³ neighbours `(dx+1) + 3(dy+1) + 9(dz+1)`.
 const SELF_BLOCK: usize = 13;
+/// Blocks stored per voxel for data on pairs of neighbouring voxels with `X_{u,v} = X_{v,u}ᵀ`
+/// (the coefficient system's blocks, the basis system's `H` and `T`): each pair is stored once,
+/// by the voxel that sees the other as a forward neighbour (index above [`SELF_BLOCK`]), so a
+/// voxel stores its own block at slot 0 and those towards its 13 forward neighbours after it.
+const STORED_BLOCKS: usize = 14;
+
+/// The stored block of the pair of voxel `v` and its neighbour `u` (neighbour index `nbr`):
+/// stored by `v` when `u` is a forward neighbour, else by `u` (then transposed as seen from
+/// `v`, which makes no difference to the symmetric blocks the polish stores).
+fn pair_block(v: usize, u: usize, nbr: usize) -> usize {
+    if nbr >= SELF_BLOCK {
+        v * STORED_BLOCKS + nbr - SELF_BLOCK
+    } else {
+        u * STORED_BLOCKS + SELF_BLOCK - nbr
+    }
+}
 
 /// Options of [`polish`].
 #[derive(Debug, Clone, PartialEq)]
@@ -326,9 +344,9 @@ pub fn polish<B: PolishBasis>(
     let lambda = options.lambda;
     let exact = |quadratic: f64, c: &[f64]| exact_from(quadratic, c, lambda, energy);
     progress.set_len(options.sweeps as u64);
-    // One buffer of 27 `L × L` blocks per voxel, passed between the coefficient system and the
+    // One buffer of 14 `L × L` blocks per voxel, passed between the coefficient system and the
     // voxel-stored basis step's neighbour blocks, so that the two are never held at once and
-    // are not allocated afresh at every half-step (3.1 GB each on Sponza 96 × 40 × 59).
+    // are not allocated afresh at every half-step (1.6 GB each on Sponza 96 × 40 × 59).
     let mut blocks = Vec::new();
     let mut basis_system = quadrature.basis_system(field, &c, l, &mut blocks, progress)?;
     let initial = ExactLoss {
@@ -1129,7 +1147,7 @@ impl<'a> Systems<'a> {
         let voxels = field.dims();
         let count: usize = voxels.iter().product();
         let ll = l * l;
-        zeroed(&mut blocks, count * 27 * ll);
+        zeroed(&mut blocks, count * STORED_BLOCKS * ll);
         let mut system = CoefficientSystem {
             voxels,
             rank: l,
@@ -1140,10 +1158,11 @@ impl<'a> Systems<'a> {
             Systems::Hat(q) => q.add_coefficient_system(field, b, l, &mut system, progress)?,
             Systems::Voxels(q) => q.add_coefficient_system(field, b, l, &mut system, progress)?,
         }
+        symmetrise(&mut system.blocks, l);
         let half_lambda = 0.5 * lambda as f64;
         for v in 0..count {
-            let block =
-                &mut system.blocks[(v * 27 + SELF_BLOCK) * ll..(v * 27 + SELF_BLOCK + 1) * ll];
+            let own = v * STORED_BLOCKS;
+            let block = &mut system.blocks[own * ll..(own + 1) * ll];
             for i in 0..l {
                 block[i * l + i] += half_lambda;
             }
@@ -1556,8 +1575,8 @@ impl BasisSystem {
     }
 }
 
-/// The coefficient step's normal equations: per voxel 27 neighbour blocks `L × L` (neighbour
-/// `(dx, dy, dz) ∈ {−1, 0, 1}³` at index `(dx+1) + 3(dy+1) + 9(dz+1)`), the ridge included.
+/// The coefficient step's normal equations: `L × L` blocks between each voxel and its 3³
+/// neighbours, each pair's stored once ([`STORED_BLOCKS`], [`pair_block`]), the ridge included.
 struct CoefficientSystem {
     voxels: [usize; 3],
     rank: usize,
@@ -1604,10 +1623,12 @@ impl CoefficientSystem {
                             continue;
                         }
                         let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
-                        let block = &self.blocks[(v * 27 + nbr) * ll..(v * 27 + nbr + 1) * ll];
+                        let at = pair_block(v, u, nbr);
+                        let block = &self.blocks[at * ll..(at + 1) * ll];
                         let xu = &x[u * l..(u + 1) * l];
-                        // Every block is symmetric (a weighted sum of b(x) b(x)ᵀ, plus the
-                        // ridge), so y += A x runs along rows: L axpys that vectorise.
+                        // Every block is symmetric (made exactly so by `symmetrise`), so it
+                        // serves both voxels of its pair, and y += A x runs along its rows:
+                        // L axpys that vectorise.
                         for (row, &xj) in block.chunks(l).zip(xu) {
                             for (o, &a) in yv.iter_mut().zip(row) {
                                 *o += a * xj;
@@ -1653,8 +1674,8 @@ impl CoefficientSystem {
         let factors: Vec<Option<Vec<f64>>> = (0..voxels)
             .into_par_iter()
             .map(|v| {
-                let mut a = self.blocks[(v * 27 + SELF_BLOCK) * ll..(v * 27 + SELF_BLOCK + 1) * ll]
-                    .to_vec();
+                let own = v * STORED_BLOCKS;
+                let mut a = self.blocks[own * ll..(own + 1) * ll].to_vec();
                 cholesky_in_place(&mut a, l).then_some(a)
             })
             .collect();
@@ -1705,6 +1726,23 @@ impl CoefficientSystem {
     }
 }
 
+/// Makes each `l × l` block of `blocks` exactly symmetric, `(X + Xᵀ) / 2`: blocks that are
+/// symmetric in exact arithmetic (`∫ w b bᵀ`) come out of their sums asymmetric by rounding,
+/// and the conjugate gradients want an exactly symmetric operator.
+fn symmetrise(blocks: &mut [f64], l: usize) {
+    blocks.par_chunks_mut(NODE_CHUNK * l * l).for_each(|chunk| {
+        for block in chunk.chunks_mut(l * l) {
+            for i in 0..l {
+                for j in i + 1..l {
+                    let mean = 0.5 * (block[i * l + j] + block[j * l + i]);
+                    block[i * l + j] = mean;
+                    block[j * l + i] = mean;
+                }
+            }
+        }
+    });
+}
+
 /// `buffer` as `len` zeros, reusing its allocation.
 fn zeroed(buffer: &mut Vec<f64>, len: usize) {
     buffer.clear();
@@ -1719,9 +1757,9 @@ fn corner_voxel(lower: [usize; 3], k: usize, voxels: [usize; 3]) -> usize {
 }
 
 /// Adds one voxel-centre cell's corner-pair blocks `a` (pairs `k ≤ k'` in order, each
-/// `shape[0] × shape[1]`, row-major) to per-voxel neighbour blocks `blocks` (27 per voxel,
-/// neighbour `(dx, dy, dz)` at `(dx+1) + 3(dy+1) + 9(dz+1)`): the block of pair `(k, k')` at
-/// voxel `k` towards `k'`, and its transpose at `k'` towards `k`.
+/// `shape[0] × shape[1]`, row-major) to per-voxel neighbour blocks `blocks` stored once per pair
+/// ([`STORED_BLOCKS`]): the block of pair `(k, k')` at voxel `k` towards `k'` when `k'` is a
+/// forward neighbour of `k`, else its transpose at `k'` towards `k`.
 fn add_pair_blocks(
     blocks: &mut [f64],
     shape: [usize; 2],
@@ -1745,16 +1783,19 @@ fn add_pair_blocks(
         for k2 in k..8 {
             let src = &a[pair * size..(pair + 1) * size];
             pair += 1;
-            let forward = (vk * 27 + delta(k, k2)) * size;
-            for (o, &x) in blocks[forward..forward + size].iter_mut().zip(src) {
-                *o += x;
-            }
-            if k2 != k {
-                // The transposed block, seen from the other voxel.
-                let backward = (corner_voxel(lower, k2, voxels) * 27 + delta(k2, k)) * size;
+            let nbr = delta(k, k2);
+            if nbr >= SELF_BLOCK {
+                let at = (vk * STORED_BLOCKS + nbr - SELF_BLOCK) * size;
+                for (o, &x) in blocks[at..at + size].iter_mut().zip(src) {
+                    *o += x;
+                }
+            } else {
+                // Stored by the other voxel, towards this one: transposed.
+                let vk2 = corner_voxel(lower, k2, voxels);
+                let at = (vk2 * STORED_BLOCKS + SELF_BLOCK - nbr) * size;
                 for i in 0..rows {
                     for j in 0..cols {
-                        blocks[backward + j * rows + i] += src[i * cols + j];
+                        blocks[at + j * rows + i] += src[i * cols + j];
                     }
                 }
             }
@@ -1770,4 +1811,40 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         .map(|(a, b)| a.iter().zip(b).map(|(&x, &y)| x * y).sum::<f64>())
         .collect();
     partial.iter().sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each pair of neighbouring voxels has one stored block, the same seen from either voxel,
+    /// and no two pairs share one.
+    #[test]
+    fn pair_blocks_are_stored_once_per_pair() {
+        let [nx, ny, nz] = [3, 4, 2];
+        let count = nx * ny * nz;
+        let mut owner = vec![None; count * STORED_BLOCKS];
+        for v in 0..count {
+            let at = [v % nx, v / nx % ny, v / (nx * ny)];
+            for nbr in 0..27 {
+                let q = [0, 1, 2].map(|k| at[k] + [nbr % 3, nbr / 3 % 3, nbr / 9][k]);
+                if (0..3).any(|k| q[k] == 0 || q[k] > [nx, ny, nz][k]) {
+                    continue;
+                }
+                let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
+                let slot = pair_block(v, u, nbr);
+                assert_eq!(slot, pair_block(u, v, 26 - nbr));
+                let pair = (v.min(u), v.max(u));
+                assert_eq!(*owner[slot].get_or_insert(pair), pair);
+            }
+        }
+        assert_eq!(pair_block(5, 5, SELF_BLOCK), 5 * STORED_BLOCKS);
+    }
+
+    #[test]
+    fn symmetrise_averages_each_block_with_its_transpose() {
+        let mut blocks = vec![1.0, 2.0, 4.0, 3.0, 0.0, -1.0, 1.0, 5.0];
+        symmetrise(&mut blocks, 2);
+        assert_eq!(blocks, vec![1.0, 3.0, 3.0, 3.0, 0.0, 0.0, 0.0, 5.0]);
+    }
 }

@@ -20,7 +20,8 @@ use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
 use super::{
-    Axis, BasisSystem, BoxSystem, CoefficientSystem, add_pair_blocks, corner_voxel, zeroed,
+    Axis, BasisSystem, BoxSystem, CoefficientSystem, STORED_BLOCKS, add_pair_blocks, corner_voxel,
+    pair_block, symmetrise, zeroed,
 };
 use crate::MbdError;
 use crate::voxel_weights::VoxelWeights;
@@ -234,8 +235,8 @@ impl<'a> VoxelQuadrature<'a> {
         let (d, ll) = (field.dim(), l * l);
         let count: usize = self.voxels.iter().product();
         let corner_pairs = corner_pairs();
-        zeroed(h, count * 27 * ll);
-        let mut t = vec![0.0; count * 27 * l];
+        zeroed(h, count * STORED_BLOCKS * ll);
+        let mut t = vec![0.0; count * STORED_BLOCKS * l];
         self.for_cells(
             0..self.num_cells(),
             progress,
@@ -268,6 +269,7 @@ impl<'a> VoxelQuadrature<'a> {
                 add_pair_blocks(&mut t, [l, 1], lower, &moments, self.voxels);
             },
         )?;
+        symmetrise(h, l);
         // Per voxel v (parallel batches, added in voxel order): Q_v = Σ_u W_u ⊗ H_{v,u} and
         // S_v over the kernels of its neighbours' rows; then G += W_vᵀ ⊗ Q_v and
         // R_n += S_{v,n} f_vᵀ.
@@ -286,8 +288,11 @@ impl<'a> VoxelQuadrature<'a> {
                     let mut kernels: Vec<u32> = Vec::new();
                     let (mut q, mut sums): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
                     for (nbr, u) in self.neighbours(v) {
-                        let block = &h[(v * 27 + nbr) * ll..(v * 27 + nbr + 1) * ll];
-                        let moment = &t[(v * 27 + nbr) * l..(v * 27 + nbr + 1) * l];
+                        // H's blocks are symmetric, T's are columns: both serve either voxel
+                        // of their pair as stored.
+                        let at = pair_block(v, u, nbr);
+                        let block = &h[at * ll..(at + 1) * ll];
+                        let moment = &t[at * l..(at + 1) * l];
                         for (n, a) in self.weights.row(u) {
                             let j = match kernels.iter().position(|&m| m == n) {
                                 Some(j) => j,
