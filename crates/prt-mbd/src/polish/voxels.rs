@@ -20,8 +20,8 @@ use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
 use super::{
-    Axis, BasisSystem, BoxSystem, CoefficientSystem, STORED_BLOCKS, add_pair_blocks, corner_voxel,
-    pair_block, symmetrise, zeroed,
+    Axis, BasisSystem, BoxSystem, CoefficientSystem, STORED_BLOCKS, add_pair_blocks, column_order,
+    corner_voxel, pair_block, symmetrise, zeroed,
 };
 use crate::MbdError;
 use crate::voxel_weights::VoxelWeights;
@@ -276,7 +276,8 @@ impl<'a> VoxelQuadrature<'a> {
         let unknowns = self.kernels * l;
         let mut gram = Array2::<f64>::zeros((unknowns, unknowns));
         let mut rhs = Array2::<f64>::zeros((unknowns, d));
-        let voxels: Vec<usize> = (0..count).collect();
+        // In columns, so that the blocks read from backward neighbours are still in cache.
+        let (voxels, _) = column_order(self.voxels);
         // The right-hand side's GEMM operands, reused from batch to batch.
         let (mut weights_buffer, mut values_buffer, mut sums_buffer) =
             (Vec::new(), Vec::new(), Vec::new());
