@@ -1653,8 +1653,8 @@ impl CoefficientSystem {
                             continue;
                         }
                         let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
-                        let at = pair_block(v, u, nbr);
-                        let block = &self.blocks[at * ll..(at + 1) * ll];
+                        let stored = pair_block(v, u, nbr);
+                        let block = &self.blocks[stored * ll..(stored + 1) * ll];
                         let xu = &x[u * l..(u + 1) * l];
                         // Every block is symmetric (made exactly so by `symmetrise`), so it
                         // serves both voxels of its pair, and y += A x runs along its rows:

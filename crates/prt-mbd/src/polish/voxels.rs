@@ -270,7 +270,7 @@ impl<'a> VoxelQuadrature<'a> {
             },
         )?;
         symmetrise(h, l);
-        // Per voxel v (parallel batches, added in voxel order): Q_v = Σ_u W_u ⊗ H_{v,u} and
+        // Per voxel v (parallel batches, added in column order): Q_v = Σ_u W_u ⊗ H_{v,u} and
         // S_v over the kernels of its neighbours' rows; then G += W_vᵀ ⊗ Q_v and
         // R_n += S_{v,n} f_vᵀ.
         let unknowns = self.kernels * l;
@@ -291,9 +291,9 @@ impl<'a> VoxelQuadrature<'a> {
                     for (nbr, u) in self.neighbours(v) {
                         // H's blocks are symmetric, T's are columns: both serve either voxel
                         // of their pair as stored.
-                        let at = pair_block(v, u, nbr);
-                        let block = &h[at * ll..(at + 1) * ll];
-                        let moment = &t[at * l..(at + 1) * l];
+                        let stored = pair_block(v, u, nbr);
+                        let block = &h[stored * ll..(stored + 1) * ll];
+                        let moment = &t[stored * l..(stored + 1) * l];
                         for (n, a) in self.weights.row(u) {
                             let j = match kernels.iter().position(|&m| m == n) {
                                 Some(j) => j,
