@@ -44,7 +44,10 @@
 //! session 10). [`ClusteredMbd::polish`] chains the sweeps. With the polish's conjugate
 //! gradients (its default since MBD session 11) a 16-iteration solve is enough: the polish then
 //! stops by its own rule at **1.085×** at 48 (46 iterations), **1.077×** at 72 (47) and
-//! **1.042×** at 96 (38), with the same seams (2.59, 2.19 and 2.11; MBD sessions 11 and 12).
+//! **1.042×** at 96 (38), with the same seams (2.59, 2.19 and 2.11; MBD sessions 11 and 12;
+//! since session 13's exactly symmetric blocks, 1.0435× in 37 at 96, seams 2.09). A basis
+//! that cannot jump (global PCA) reads 1.75, 1.84 and 1.71 there: above that floor CPCA's
+//! seams (5.08, 6.08, 5.86) stand 4–12× higher than these.
 //! On smooth fields it gains nothing
 //! (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
 //!

@@ -155,7 +155,7 @@ pub struct PolishOptions {
 /// solver iterations) 24 iterations end at 3.07e-4 with conjugate gradients against 3.14e-4
 /// with the extrapolation (−2.2 %, 15 % more time per iteration), and the conjugate gradients
 /// stop by the default tolerance after 46 iterations at 1.085× clustered PCA (72: 47, 1.077×;
-/// 96: 38, 1.042×); on the synthetic 32³ × 324 field (6³ hat grid, 128 solver iterations), 16
+/// 96: 38, 1.042×; 37, 1.0435× since session 13); on the synthetic 32³ × 324 field (6³ hat grid, 128 solver iterations), 16
 /// iterations end at 5.99e-9 against 6.27e-9 (−4.5 %, less CPU), and after a 16-iteration
 /// solve they stop by their rule after 73 iterations at 4.99e-9, 28 % below blockwise PCA.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
