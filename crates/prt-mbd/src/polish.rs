@@ -107,6 +107,20 @@ fn column_order([nx, ny, nz]: [usize; 3]) -> (Vec<usize>, Vec<usize>) {
     (order, starts)
 }
 
+/// The neighbours `u` of voxel `v` in its 3³ block that lie in the grid, with their index
+/// `(dx+1) + 3(dy+1) + 9(dz+1)`.
+fn neighbours(v: usize, [nx, ny, nz]: [usize; 3]) -> impl Iterator<Item = (usize, usize)> {
+    let at = [v % nx, v / nx % ny, v / (nx * ny)];
+    (0..27).filter_map(move |nbr| {
+        // Coordinates shifted by one, so that −1 is 0.
+        let q = [0, 1, 2].map(|k| at[k] + [nbr % 3, nbr / 3 % 3, nbr / 9][k]);
+        if (0..3).any(|k| q[k] == 0 || q[k] > [nx, ny, nz][k]) {
+            return None;
+        }
+        Some((nbr, (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1))))
+    })
+}
+
 /// The stored block of the pair of voxel `v` and its neighbour `u` (neighbour index `nbr`):
 /// stored by `v` when `u` is a forward neighbour, else by `u` (then transposed as seen from
 /// `v`, which makes no difference to the symmetric blocks the polish stores).
@@ -1637,7 +1651,6 @@ impl CoefficientSystem {
     fn apply(&self, x: &[f64], y: &mut [f64]) {
         let l = self.rank;
         let ll = l * l;
-        let [nx, ny, nz] = self.voxels;
         let (order, starts) = &self.columns;
         let columns: Vec<Vec<f64>> = starts
             .par_windows(2)
@@ -1645,14 +1658,7 @@ impl CoefficientSystem {
                 let voxels = &order[range[0]..range[1]];
                 let mut out = vec![0.0; voxels.len() * l];
                 for (yv, &v) in out.chunks_mut(l).zip(voxels) {
-                    let at = [v % nx, v / nx % ny, v / (nx * ny)];
-                    for nbr in 0..27 {
-                        // Neighbour coordinates shifted by one, so that −1 is 0.
-                        let q = [0, 1, 2].map(|k| at[k] + [nbr % 3, nbr / 3 % 3, nbr / 9][k]);
-                        if (0..3).any(|k| q[k] == 0 || q[k] > [nx, ny, nz][k]) {
-                            continue;
-                        }
-                        let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
+                    for (nbr, u) in neighbours(v, self.voxels) {
                         let stored = pair_block(v, u, nbr);
                         let block = &self.blocks[stored * ll..(stored + 1) * ll];
                         let xu = &x[u * l..(u + 1) * l];
@@ -1858,17 +1864,15 @@ mod tests {
     /// and no two pairs share one.
     #[test]
     fn pair_blocks_are_stored_once_per_pair() {
-        let [nx, ny, nz] = [3, 4, 2];
-        let count = nx * ny * nz;
+        let voxels = [3, 4, 2];
+        let count = voxels.iter().product();
         let mut owner = vec![None; count * STORED_BLOCKS];
+        // Per axis a voxel has 2 or 3 neighbours in its 3-block (itself included): 7, 10 and 4
+        // summed over the axes' positions.
+        let pairs: usize = (0..count).map(|v| neighbours(v, voxels).count()).sum();
+        assert_eq!(pairs, 7 * 10 * 4);
         for v in 0..count {
-            let at = [v % nx, v / nx % ny, v / (nx * ny)];
-            for nbr in 0..27 {
-                let q = [0, 1, 2].map(|k| at[k] + [nbr % 3, nbr / 3 % 3, nbr / 9][k]);
-                if (0..3).any(|k| q[k] == 0 || q[k] > [nx, ny, nz][k]) {
-                    continue;
-                }
-                let u = (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1));
+            for (nbr, u) in neighbours(v, voxels) {
                 let slot = pair_block(v, u, nbr);
                 assert_eq!(slot, pair_block(u, v, 26 - nbr));
                 let pair = (v.min(u), v.max(u));

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 
 use super::{
     Axis, BasisSystem, BoxSystem, CoefficientSystem, STORED_BLOCKS, add_pair_blocks, column_order,
-    corner_voxel, pair_block, symmetrise, zeroed,
+    corner_voxel, neighbours, pair_block, symmetrise, zeroed,
 };
 use crate::MbdError;
 use crate::voxel_weights::VoxelWeights;
@@ -288,7 +288,7 @@ impl<'a> VoxelQuadrature<'a> {
                 .map(|&v| {
                     let mut kernels: Vec<u32> = Vec::new();
                     let (mut q, mut sums): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
-                    for (nbr, u) in self.neighbours(v) {
+                    for (nbr, u) in neighbours(v, self.voxels) {
                         // H's blocks are symmetric, T's are columns: both serve either voxel
                         // of their pair as stored.
                         let stored = pair_block(v, u, nbr);
@@ -384,21 +384,6 @@ impl<'a> VoxelQuadrature<'a> {
             }
         }
         Ok(BasisSystem { gram, rhs })
-    }
-
-    /// The neighbours `u` of voxel `v` in its 3³ block that lie in the grid, with their index
-    /// `(dx+1) + 3(dy+1) + 9(dz+1)`.
-    fn neighbours(&self, v: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
-        let [nx, ny, nz] = self.voxels;
-        let at = [v % nx, v / nx % ny, v / (nx * ny)];
-        (0..27).filter_map(move |nbr| {
-            // Coordinates shifted by one, so that −1 is 0.
-            let q = [0, 1, 2].map(|k| at[k] + [nbr % 3, nbr / 3 % 3, nbr / 9][k]);
-            if (0..3).any(|k| q[k] == 0 || q[k] > [nx, ny, nz][k]) {
-                return None;
-            }
-            Some((nbr, (q[0] - 1) + nx * ((q[1] - 1) + ny * (q[2] - 1))))
-        })
     }
 
     /// Adds the coefficient step's normal equations at basis `b` (`N·L × D` rows, without the
