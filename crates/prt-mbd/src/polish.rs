@@ -1634,7 +1634,7 @@ impl CoefficientSystem {
 
     fn add(&mut self, boxed: &BoxSystem, voxels: [usize; 3]) {
         let l = self.rank;
-        add_pair_blocks(&mut self.blocks, [l, l], boxed.lower, &boxed.a, voxels);
+        add_pair_blocks(&mut self.blocks, l * l, boxed.lower, &boxed.a, voxels);
         for k in 0..8 {
             let vk = corner_voxel(boxed.lower, k, voxels);
             for (o, &x) in self.rhs[vk * l..(vk + 1) * l]
@@ -1799,19 +1799,18 @@ fn corner_voxel(lower: [usize; 3], k: usize, voxels: [usize; 3]) -> usize {
     at[0] + voxels[0] * (at[1] + voxels[1] * at[2])
 }
 
-/// Adds one voxel-centre cell's corner-pair blocks `a` (pairs `k ≤ k'` in order, each
-/// `shape[0] × shape[1]`, row-major) to per-voxel neighbour blocks `blocks` stored once per pair
-/// ([`STORED_BLOCKS`]): the block of pair `(k, k')` at voxel `k` towards `k'` when `k'` is a
-/// forward neighbour of `k`, else its transpose at `k'` towards `k`.
+/// Adds one voxel-centre cell's corner-pair blocks `a` (pairs `k ≤ k'` in order, `size`
+/// values each) to per-voxel neighbour blocks `blocks` stored once per pair ([`pair_block`]).
+/// The blocks are symmetric in exact arithmetic (`∫ w b bᵀ`, `∫ w c cᵀ`, or columns), so the
+/// block of `(k, k')` serves as that of `(k', k)` without being transposed; [`symmetrise`]
+/// removes the rounding.
 fn add_pair_blocks(
     blocks: &mut [f64],
-    shape: [usize; 2],
+    size: usize,
     lower: [usize; 3],
     a: &[f64],
     voxels: [usize; 3],
 ) {
-    let [rows, cols] = shape;
-    let size = rows * cols;
     let delta = |from: usize, to: usize| -> usize {
         (0..3)
             .map(|axis| {
@@ -1826,21 +1825,9 @@ fn add_pair_blocks(
         for k2 in k..8 {
             let src = &a[pair * size..(pair + 1) * size];
             pair += 1;
-            let nbr = delta(k, k2);
-            if nbr >= SELF_BLOCK {
-                let at = (vk * STORED_BLOCKS + nbr - SELF_BLOCK) * size;
-                for (o, &x) in blocks[at..at + size].iter_mut().zip(src) {
-                    *o += x;
-                }
-            } else {
-                // Stored by the other voxel, towards this one: transposed.
-                let vk2 = corner_voxel(lower, k2, voxels);
-                let at = (vk2 * STORED_BLOCKS + SELF_BLOCK - nbr) * size;
-                for i in 0..rows {
-                    for j in 0..cols {
-                        blocks[at + j * rows + i] += src[i * cols + j];
-                    }
-                }
+            let at = pair_block(vk, corner_voxel(lower, k2, voxels), delta(k, k2)) * size;
+            for (o, &x) in blocks[at..at + size].iter_mut().zip(src) {
+                *o += x;
             }
         }
     }

@@ -265,8 +265,8 @@ impl<'a> VoxelQuadrature<'a> {
                 (a, moments)
             },
             |lower, (a, moments)| {
-                add_pair_blocks(h, [l, l], lower, &a, self.voxels);
-                add_pair_blocks(&mut t, [l, 1], lower, &moments, self.voxels);
+                add_pair_blocks(h, ll, lower, &a, self.voxels);
+                add_pair_blocks(&mut t, l, lower, &moments, self.voxels);
             },
         )?;
         symmetrise(h, l);
