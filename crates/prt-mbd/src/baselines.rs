@@ -1,5 +1,5 @@
 //! The PCA-family baselines of the MBD paper, each a [`Compressor`] producing a
-//! [`ClusterModel`]: global PCA, blockwise PCA (BPCA), windowed blockwise PCA (WBPCA), clustered
+//! [`PiecewisePcaModel`]: global PCA, blockwise PCA (BPCA), windowed blockwise PCA (WBPCA), clustered
 //! PCA (CPCA, Sloan et al. 2003) and k-means vector quantisation.
 //!
 //! Every PCA here is *uncentred* (a truncated SVD of the cluster's rows): a rank-L cluster
@@ -21,7 +21,7 @@ use crate::subspace::{linalg_error, principal_subspace};
 /// `labels[v]` and is `coefficients[v] · bases[labels[v]]`; between voxel centres the
 /// reconstruction is interpolated trilinearly.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ClusterModel {
+pub struct PiecewisePcaModel {
     name: String,
     labels: Vec<u32>,
     bases: Array3<f32>,
@@ -30,7 +30,7 @@ pub struct ClusterModel {
     stored_scalars: usize,
 }
 
-impl ClusterModel {
+impl PiecewisePcaModel {
     /// Builds the model and its voxel reconstruction. `stored_scalars` is what the method
     /// stores (for vector quantisation, one index per voxel rather than coefficients).
     /// A subspace model: every voxel projected onto its cluster's basis; it stores the bases
@@ -95,7 +95,7 @@ impl ClusterModel {
     }
 }
 
-impl FieldModel for ClusterModel {
+impl FieldModel for PiecewisePcaModel {
     fn dim(&self) -> usize {
         self.reconstruction.dim()
     }
@@ -147,20 +147,20 @@ pub struct GlobalPca {
 }
 
 impl Compressor for GlobalPca {
-    type Model = ClusterModel;
+    type Model = PiecewisePcaModel;
     type Error = MbdError;
 
     fn compress(
         &self,
         field: &GridField,
         progress: &dyn Progress,
-    ) -> Result<ClusterModel, MbdError> {
+    ) -> Result<PiecewisePcaModel, MbdError> {
         check_rank(self.rank, field)?;
         progress.check()?;
         let basis = principal_subspace(field.data().view(), self.rank)?;
         let bases = basis.insert_axis(Axis(0));
         let labels = vec![0u32; field.num_voxels()];
-        ClusterModel::projected(format!("PCA rank {}", self.rank), field, labels, bases)
+        PiecewisePcaModel::projected(format!("PCA rank {}", self.rank), field, labels, bases)
     }
 }
 
@@ -193,14 +193,14 @@ impl BlockPca {
 }
 
 impl Compressor for BlockPca {
-    type Model = ClusterModel;
+    type Model = PiecewisePcaModel;
     type Error = MbdError;
 
     fn compress(
         &self,
         field: &GridField,
         progress: &dyn Progress,
-    ) -> Result<ClusterModel, MbdError> {
+    ) -> Result<PiecewisePcaModel, MbdError> {
         check_rank(self.rank, field)?;
         let dims = field.dims();
         if (0..3).any(|k| self.blocks[k] == 0 || self.blocks[k] > dims[k]) {
@@ -261,7 +261,7 @@ impl Compressor for BlockPca {
         }
         let labels = self.labels(field);
         let name = if self.window > 1.0 { "WBPCA" } else { "BPCA" };
-        ClusterModel::projected(format!("{name} rank {l}"), field, labels, stacked)
+        PiecewisePcaModel::projected(format!("{name} rank {l}"), field, labels, stacked)
     }
 }
 
@@ -307,7 +307,7 @@ impl ClusteredPca {
         labels: Vec<u32>,
         rank: usize,
         progress: &dyn Progress,
-    ) -> Result<ClusterModel, MbdError> {
+    ) -> Result<PiecewisePcaModel, MbdError> {
         check_rank(rank, field)?;
         if labels.len() != field.num_voxels() {
             return Err(MbdError::ShapeMismatch {
@@ -318,7 +318,7 @@ impl ClusteredPca {
         }
         let clusters = labels.iter().map(|&k| k as usize + 1).max().unwrap_or(1);
         let bases = fit_clusters(field, &labels, clusters, rank, None, progress)?;
-        ClusterModel::projected(format!("CPCA rank {rank}"), field, labels, bases)
+        PiecewisePcaModel::projected(format!("CPCA rank {rank}"), field, labels, bases)
     }
 }
 
@@ -398,14 +398,14 @@ fn assign_to_subspaces(data: ArrayView2<'_, f32>, bases: &Array3<f32>) -> Vec<u3
 }
 
 impl Compressor for ClusteredPca {
-    type Model = ClusterModel;
+    type Model = PiecewisePcaModel;
     type Error = MbdError;
 
     fn compress(
         &self,
         field: &GridField,
         progress: &dyn Progress,
-    ) -> Result<ClusterModel, MbdError> {
+    ) -> Result<PiecewisePcaModel, MbdError> {
         check_rank(self.rank, field)?;
         if self.clusters == 0 || self.clusters > field.num_voxels() {
             return Err(MbdError::InvalidOption {
@@ -449,7 +449,7 @@ impl Compressor for ClusteredPca {
                 break;
             }
         }
-        ClusterModel::projected(format!("CPCA rank {}", self.rank), field, labels, bases)
+        PiecewisePcaModel::projected(format!("CPCA rank {}", self.rank), field, labels, bases)
     }
 }
 
@@ -466,14 +466,14 @@ pub struct KMeansVq {
 }
 
 impl Compressor for KMeansVq {
-    type Model = ClusterModel;
+    type Model = PiecewisePcaModel;
     type Error = MbdError;
 
     fn compress(
         &self,
         field: &GridField,
         progress: &dyn Progress,
-    ) -> Result<ClusterModel, MbdError> {
+    ) -> Result<PiecewisePcaModel, MbdError> {
         field.check_finite()?;
         let opts = KMeansOptions {
             max_iters: self.iterations.max(1),
@@ -495,7 +495,7 @@ impl Compressor for KMeansVq {
                 })?;
         let coefficients = Array2::<f32>::ones((field.num_voxels(), 1));
         let stored = bases.len() + field.num_voxels();
-        ClusterModel::new(
+        PiecewisePcaModel::new(
             format!("VQ k={}", self.codewords),
             field,
             km.assignments,

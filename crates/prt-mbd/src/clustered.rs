@@ -1,14 +1,11 @@
-//! Basis kernels that follow the field's values rather than a grid: MBD on clustered PCA's
-//! clusters (beyond the paper, opt-in).
+//! Basis kernels that follow the field's values rather than a grid ([`crate::Basis::Clusters`],
+//! beyond the paper).
 //!
-//! MBD's hat basis kernels sit on a regular grid, so a basis node serves whatever transfer its
-//! cell holds. On scenes whose transfer changes with geometry on scales finer than a basis
-//! cell (Sponza's columns, arches and open roof) clustered PCA, which groups voxels by *value*,
-//! stays far ahead of MBD at the same number of basis vectors: 1.7–1.8× lower error at 5³
-//! nodes (MBD sessions 7 and 8 in `docs/results.md`). Its lead comes from switching subspaces
-//! from voxel to voxel: 69–81 % of Sponza's valid voxels border another cluster, and one round
-//! of a majority filter on CPCA's labels (bases refitted) already costs CPCA 35–57 % of error.
-//! [`ClusteredMbd`] gives MBD the same grouping while keeping the reconstruction continuous:
+//! A hat basis node serves whatever transfer its cell holds. Where transfer changes with
+//! geometry on scales finer than a basis cell (columns, arches, openings), clustered PCA, which
+//! groups voxels by *value* and switches subspaces from voxel to voxel, stays far ahead of MBD
+//! on the hat grid at the same number of basis vectors. These kernels give MBD the same
+//! grouping while keeping the reconstruction continuous:
 //!
 //! 1. **Clusters.** [`crate::ClusteredPca`] (Sloan et al. 2003) with one cluster per basis
 //!    kernel labels every voxel.
@@ -22,53 +19,21 @@
 //! 3. **Start.** Each kernel's basis starts from its cluster's subspace, rotated inside it
 //!    (orthogonal Procrustes) to be as close as possible to the global principal subspace, so
 //!    that neighbouring kernels' `l`-th vectors point the same way and blend without
-//!    cancelling; then [`crate::solve_from_basis`] runs the stochastic solver as for any
-//!    kernels.
+//!    cancelling; then the stochastic solver runs as for any kernels.
 //!
 //! **Why smoothing.** MBD's coefficients are trilinear at voxel resolution, so a basis that
 //! switches inside one voxel cell leaves cross terms `c_A · b_B` that the coefficients cannot
-//! follow: the sharp labels (radius 0) end 21× above CPCA on Sponza. Radius 2 (the default)
-//! blends over about five voxels.
-//!
-//! **Measured** (traced Sponza, L = 8, 125 clusters; MBD / CPCA relative MSE): 1.36× at
-//! 48 × 20 × 30, 1.21× at 72 × 30 × 44, 1.14× at 96 × 40 × 59 (hat grid: 1.84×, 1.73×,
-//! 1.82×); 256 iterations reach **1.09×** at 96 (radius 3: 1.07×). The exact [`crate::polish`]
-//! takes these kernels and brings all three within 10 %: **1.07×** at 96 (radius 3, 8 sweeps
-//! after the solver's own stop), **1.09×** at 72 (radius 3, 256 iterations, 16 sweeps),
-//! **1.095×** at 48 (radius 4, 256 iterations, 32 sweeps), at 30–150× CPCA's time (MBD
-//! session 9). Wider smoothing keeps that error with smoother bases: with falloff 0.75 at
-//! radius 4 the solver alone ends further off (1.20× at 96, 1.44× at 48), but the polish goes
-//! further, to **1.075×** at 96 (16 sweeps), **1.084×** at 72 (48 sweeps) and **1.097×** at 48
-//! (64 sweeps), with the basis-projection seam ratio at CPCA's boundaries at 1.98, 2.12 and
-//! 2.47 against CPCA's 5.86, 6.08 and 5.08 (falloff 0.5: 2.58 at 96, 3.17 at 48; MBD
-//! session 10). [`ClusteredMbd::polish`] chains the sweeps. With the polish's conjugate
-//! gradients (its default since MBD session 11) a 16-iteration solve is enough: the polish then
-//! stops by its own rule at **1.085×** at 48 (46 iterations), **1.077×** at 72 (47) and
-//! **1.042×** at 96 (38), with the same seams (2.59, 2.19 and 2.11; MBD sessions 11 and 12;
-//! since session 13's exactly symmetric blocks, 1.0435× in 37 at 96, seams 2.09). A basis
-//! that cannot jump (global PCA) reads 1.75, 1.84 and 1.71 there: above that floor CPCA's
-//! seams (5.08, 6.08, 5.86) stand 4–12× higher than these.
-//! On smooth fields it gains nothing
-//! (Cornell: 0.79×, as the hat grid; the synthetic field: worse than the hat grid).
-//!
-//! **Cost.** The solve takes 1.6–2.8× the hat grid's CPU at radius 2 (4.5–9× CPCA's). An
-//! engine stores one label per voxel (as for CPCA; neither [`crate::ClusterModel`] nor
-//! [`crate::MbdModel`] counts labels in `stored_scalars`) and blends up to
-//! [`SpatialKernels::max_support`] basis nodes at a point (28–33 on Sponza at radius 2)
-//! instead of a hat's 8, or stores each voxel's few weights.
+//! follow; the default radius 2 blends over about five voxels.
 
 use glam::Vec3;
 use ndarray::{Array2, Array3, Axis};
-use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
-use prt_kernels::HatGrid;
+use prt_core::{Aabb, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use rayon::prelude::*;
 
+use crate::fit::{BasisKernels, coefficient_kernels};
 use crate::subspace::principal_subspace;
 use crate::voxel_weights::VoxelWeights;
-use crate::{
-    ClusterModel, ClusteredPca, MbdError, MbdModel, MbdOptions, PolishOptions, PolishReport,
-    SolveReport, solve, solve_from_basis, voxel_centre_box,
-};
+use crate::{Basis, Mbd, MbdError, MbdFit, PiecewisePcaModel, solve_from_basis};
 
 /// How [`LabelKernels`] smooth the voxel labels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -224,7 +189,7 @@ impl crate::polish::sealed::Sealed for LabelKernels {
     }
 }
 
-impl crate::PolishBasis for LabelKernels {}
+impl crate::polish::PolishBasis for LabelKernels {}
 
 impl SpatialKernels for LabelKernels {
     fn len(&self) -> usize {
@@ -264,197 +229,72 @@ pub(crate) fn align_to(bases: &mut Array3<f32>, reference: &Array2<f32>) -> Resu
     Ok(())
 }
 
-/// Where [`ClusteredMbd`] starts the basis.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[non_exhaustive]
-pub enum ClusterStart {
-    /// Each kernel starts from its cluster's subspace, rotated inside it to be as close as
-    /// possible to the global principal subspace (the default).
-    #[default]
-    AlignedClusters,
-    /// Every kernel starts from the global principal subspace, as [`crate::Init::GlobalPca`].
-    GlobalPca,
-}
-
-/// MBD whose basis kernels are clustered PCA's clusters, smoothed ([`LabelKernels`]; module
-/// docs). A [`Compressor`] with [`crate::Mbd`]'s coefficients and a basis per cluster, plus a
-/// label per voxel.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ClusteredMbd {
-    /// Number of clusters, i.e. basis kernels (the paper's comparison: MBD's basis-node count).
-    pub clusters: usize,
-    /// How the cluster labels are smoothed into kernels.
-    pub smoothing: LabelSmoothing,
-    /// Where the basis starts.
-    pub start: ClusterStart,
-    /// The solver's options (rank, iterations, stopping rule, seed; `init` is not used).
-    pub options: MbdOptions,
-    /// Exact [`crate::polish`] sweeps after the solver (opt-in; default `None`: the solver's
-    /// model as it stops). The solver leaves these kernels well above their optimum on
-    /// scenes such as Sponza, and the wider the smoothing the further (module docs).
-    pub polish: Option<PolishOptions>,
-}
-
-impl ClusteredMbd {
-    /// `clusters` kernels at rank `rank`, the default smoothing, start and solver.
-    pub fn new(rank: usize, clusters: usize) -> Self {
-        Self {
-            clusters,
-            smoothing: LabelSmoothing::default(),
-            start: ClusterStart::default(),
-            options: MbdOptions {
-                rank,
-                ..MbdOptions::default()
-            },
-            polish: None,
-        }
+/// MBD with [`crate::Basis::Clusters`] on the clusters of a clustered-PCA model of `field` at
+/// `mbd.rank` (e.g. one already fitted as a baseline; the basis's `count` is not used).
+/// Clusters without voxels are dropped (a kernel that is zero everywhere has no curvature for
+/// the solver). Then the polish, if `mbd` asks for one.
+///
+/// # Errors
+/// [`MbdError::InvalidOption`] when `mbd.basis` is not [`crate::Basis::Clusters`];
+/// [`MbdError::ShapeMismatch`] when `clusters` is not of `field`'s voxels or `mbd.rank`; those
+/// of [`LabelKernels::new`], [`crate::expert::solve_from_basis`] and [`crate::expert::polish`]
+/// (bad polish options fail before the solve).
+pub fn fit_on_clusters(
+    mbd: &Mbd,
+    field: &GridField,
+    clusters: &PiecewisePcaModel,
+    progress: &dyn Progress,
+) -> Result<MbdFit, MbdError> {
+    let Basis::Clusters { smoothing, .. } = mbd.basis else {
+        return Err(MbdError::InvalidOption {
+            what: "basis",
+            why: "fitting on clusters needs Basis::Clusters".into(),
+        });
+    };
+    let (count, rank, dim) = clusters.bases().dim();
+    if clusters.labels().len() != field.num_voxels() || rank != mbd.rank || dim != field.dim() {
+        return Err(MbdError::ShapeMismatch {
+            what: "clusters",
+            expected: vec![field.num_voxels(), mbd.rank, field.dim()],
+            got: vec![clusters.labels().len(), rank, dim],
+        });
     }
-
-    /// Clusters the field with [`ClusteredPca`] (`options.rank`, `clusters`), then
-    /// [`ClusteredMbd::fit_clusters`].
-    ///
-    /// # Errors
-    /// As [`ClusteredPca`] and [`ClusteredMbd::fit_clusters`].
-    pub fn fit(
-        &self,
-        field: &GridField,
-        progress: &dyn Progress,
-    ) -> Result<ClusteredFit, MbdError> {
-        self.check_polish(self.clusters)?;
-        let cpca = ClusteredPca::new(self.options.rank, self.clusters).compress(field, progress)?;
-        self.fit_clusters(field, &cpca, progress)
-    }
-
-    /// MBD on the clusters of a clustered-PCA model of `field` at rank `options.rank` (e.g.
-    /// one already fitted as a baseline); `self.clusters` is not used. Clusters without voxels
-    /// are dropped (a kernel that is zero everywhere has no curvature for the solver). Then
-    /// the `polish` sweeps, if any.
-    ///
-    /// # Errors
-    /// [`MbdError::ShapeMismatch`] when `cpca` is not of `field`'s voxels or rank; those of
-    /// [`LabelKernels::new`], [`solve_from_basis`] and [`crate::polish`] (bad polish options
-    /// fail before the solve).
-    pub fn fit_clusters(
-        &self,
-        field: &GridField,
-        cpca: &ClusterModel,
-        progress: &dyn Progress,
-    ) -> Result<ClusteredFit, MbdError> {
-        let (clusters, rank, dim) = cpca.bases().dim();
-        if cpca.labels().len() != field.num_voxels()
-            || rank != self.options.rank
-            || dim != field.dim()
-        {
-            return Err(MbdError::ShapeMismatch {
-                what: "clusters",
-                expected: vec![field.num_voxels(), self.options.rank, field.dim()],
-                got: vec![cpca.labels().len(), rank, dim],
-            });
-        }
-        self.check_polish(clusters)?;
-        let mut index = vec![u32::MAX; clusters];
-        let mut kept = Vec::new();
-        let labels: Vec<u32> = cpca
-            .labels()
-            .iter()
-            .map(|&k| {
-                let k = k as usize;
-                if index[k] == u32::MAX {
-                    index[k] = kept.len() as u32;
-                    kept.push(k);
-                }
-                index[k]
-            })
-            .collect();
-        // CPCA puts the zero voxels inside geometry all in one cluster, which must not spread
-        // into the open space beside every wall.
-        let valid = crate::nonzero_voxels(field);
-        let kernels = LabelKernels::new(
-            field.dims(),
-            field.bounds(),
-            &labels,
-            kept.len(),
-            Some(&valid),
-            &self.smoothing,
-        )?;
-        let coefficient_kernels =
-            HatGrid::new(field.dims(), voxel_centre_box(field)).map_err(|e| {
-                MbdError::InvalidKernels {
-                    which: "coefficient",
-                    why: e.to_string(),
-                }
-            })?;
-        let (model, solve_report) = match self.start {
-            ClusterStart::GlobalPca => solve(
-                field,
-                coefficient_kernels,
-                kernels,
-                &MbdOptions {
-                    init: crate::Init::GlobalPca,
-                    ..self.options.clone()
-                },
-                progress,
-            ),
-            ClusterStart::AlignedClusters => {
-                let mut basis = cpca.bases().select(Axis(0), &kept);
-                let global = principal_subspace(field.data().view(), self.options.rank)?;
-                align_to(&mut basis, &global)?;
-                solve_from_basis(
-                    field,
-                    coefficient_kernels,
-                    kernels,
-                    &basis,
-                    &self.options,
-                    progress,
-                )
+    mbd.check_polish(count)?;
+    let mut index = vec![u32::MAX; count];
+    let mut kept = Vec::new();
+    let labels: Vec<u32> = clusters
+        .labels()
+        .iter()
+        .map(|&k| {
+            let k = k as usize;
+            if index[k] == u32::MAX {
+                index[k] = kept.len() as u32;
+                kept.push(k);
             }
-        }?;
-        let (model, polish_report) = match &self.polish {
-            Some(options) => {
-                let (model, report) = crate::polish(field, model, options, progress)?;
-                (model, Some(report))
-            }
-            None => (model, None),
-        };
-        Ok(ClusteredFit {
-            model,
-            solve: solve_report,
-            polish: polish_report,
+            index[k]
         })
-    }
-
-    /// Bad polish options fail before the clustering and the solve, not after them.
-    fn check_polish(&self, clusters: usize) -> Result<(), MbdError> {
-        match &self.polish {
-            Some(polish) => {
-                crate::polish::validate_options(polish)?;
-                crate::polish::check_basis_size(clusters, self.options.rank)
-            }
-            None => Ok(()),
-        }
-    }
-}
-
-/// What [`ClusteredMbd::fit`] returns.
-#[derive(Debug, Clone)]
-pub struct ClusteredFit {
-    /// The fitted model.
-    pub model: MbdModel<HatGrid, LabelKernels>,
-    /// The stochastic solver's report.
-    pub solve: SolveReport,
-    /// The polish's report, when [`ClusteredMbd::polish`] asked for one.
-    pub polish: Option<PolishReport>,
-}
-
-impl Compressor for ClusteredMbd {
-    type Model = MbdModel<HatGrid, LabelKernels>;
-    type Error = MbdError;
-
-    fn compress(
-        &self,
-        field: &GridField,
-        progress: &dyn Progress,
-    ) -> Result<Self::Model, MbdError> {
-        self.fit(field, progress).map(|fit| fit.model)
-    }
+        .collect();
+    // CPCA puts the zero voxels inside geometry all in one cluster, which must not spread
+    // into the open space beside every wall.
+    let valid = crate::eval::nonzero_voxels(field);
+    let kernels = LabelKernels::new(
+        field.dims(),
+        field.bounds(),
+        &labels,
+        kept.len(),
+        Some(&valid),
+        &smoothing,
+    )?;
+    let mut basis = clusters.bases().select(Axis(0), &kept);
+    let global = principal_subspace(field.data().view(), mbd.rank)?;
+    align_to(&mut basis, &global)?;
+    let (model, solve_report) = solve_from_basis(
+        field,
+        coefficient_kernels(field)?,
+        BasisKernels::Clusters(kernels),
+        &basis,
+        &mbd.solver,
+        progress,
+    )?;
+    mbd.finish(field, model, solve_report, progress)
 }

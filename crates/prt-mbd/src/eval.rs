@@ -1,5 +1,5 @@
 //! Evaluation: relative MSE over dense jittered samples, per-block operator Frobenius errors,
-//! and a seam metric.
+//! and the error's seams.
 
 use glam::Vec3;
 use prt_core::{CoreError, FieldModel, GridField};
@@ -167,7 +167,7 @@ fn ratio(num: f64, den: f64) -> f64 {
 ///   costs anyway, for comparison. Each axis's interior mean is weighted by that axis's share
 ///   of the boundary pairs (all axes alike without boundaries), so an error that changes faster
 ///   along one axis than the others does not make boundaries across that axis look like seams.
-/// * [`SeamMetric::ratio`] = `boundary / interior`: about 1 when a viewer cannot tell where the
+/// * [`ErrorSeams::ratio`] = `boundary / interior`: about 1 when a viewer cannot tell where the
 ///   boundaries are, well above 1 when the error steps there. This is **the seam metric** of the
 ///   sweeps (on the denoised error, [`SeamOptions::denoised`]).
 ///
@@ -175,14 +175,14 @@ fn ratio(num: f64, den: f64) -> f64 {
 /// zero (the jumps are then reported unnormalised, so a non-zero error on a zero field is still
 /// visible).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SeamMetric {
+pub struct ErrorSeams {
     /// RMS error jump across cluster boundaries, relative to the field's RMS.
     pub boundary: f64,
     /// RMS error jump between neighbours inside clusters, relative to the field's RMS.
     pub interior: f64,
 }
 
-impl SeamMetric {
+impl ErrorSeams {
     /// `boundary / interior`: 1 when boundaries look like the inside of clusters. 0 without
     /// boundary pairs or jumps there; `∞` when only the boundaries jump.
     pub fn ratio(&self) -> f64 {
@@ -205,7 +205,7 @@ impl SeamMetric {
     }
 }
 
-/// Options of [`seam_metric_with`].
+/// Options of [`error_seams`].
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct SeamOptions<'a> {
     /// Standard deviation, in voxels, of a Gaussian blur of the *reference* field before the
@@ -290,32 +290,18 @@ pub(crate) fn neighbour_jumps(
     total
 }
 
-/// The raw [`SeamMetric`] (no blur, all voxels) of `reconstruction` (on the field's grid, e.g.
-/// from [`prt_core::resample_to_grid`]) with voxel cluster `labels`: [`seam_metric_with`] with
-/// default options.
-///
-/// # Errors
-/// As [`seam_metric_with`].
-pub fn seam_metric(
-    field: &GridField,
-    reconstruction: &GridField,
-    labels: &[u32],
-) -> Result<SeamMetric, MbdError> {
-    seam_metric_with(field, reconstruction, labels, &SeamOptions::default())
-}
-
-/// The [`SeamMetric`] of `reconstruction` (on the field's grid) with voxel cluster `labels`,
+/// The [`ErrorSeams`] of `reconstruction` (on the field's grid) with voxel cluster `labels`,
 /// measured on the error blurred by `options.denoise_sigma` over the `options.valid` voxels.
 ///
 /// # Errors
 /// Grid or dimension mismatch between `field` and `reconstruction`; `labels` or `options.valid`
 /// not of the number of voxels; a negative or non-finite `denoise_sigma`.
-pub fn seam_metric_with(
+pub fn error_seams(
     field: &GridField,
     reconstruction: &GridField,
     labels: &[u32],
     options: &SeamOptions<'_>,
-) -> Result<SeamMetric, MbdError> {
+) -> Result<ErrorSeams, MbdError> {
     if reconstruction.dims() != field.dims() {
         return Err(MbdError::ShapeMismatch {
             what: "reconstruction grid",
@@ -437,7 +423,7 @@ pub fn seam_metric_with(
             mean_square.sqrt()
         }
     };
-    Ok(SeamMetric {
+    Ok(ErrorSeams {
         boundary: if boundary_count > 0.0 {
             rel(boundary_sum / boundary_count)
         } else {
@@ -458,7 +444,7 @@ pub fn nonzero_voxels(field: &GridField) -> Vec<bool> {
 /// `field` blurred by a separable Gaussian of `sigma` voxels (taps to 3σ) over the voxels where
 /// `valid` is true only: each output is the weighted mean of the valid voxels under the kernel,
 /// so the box edges and invalid voxels do not pull values towards 0. Invalid voxels are 0;
-/// `sigma <= 0` only zeroes them. This is the denoised reference [`seam_metric_with`] measures
+/// `sigma <= 0` only zeroes them. This is the denoised reference [`error_seams`] measures
 /// against (see [`SeamOptions`]).
 ///
 /// # Errors

@@ -5,10 +5,10 @@
 //! a property of the basis, not of the noise: BPCA and CPCA give every block or cluster its own
 //! rank-L basis, so the part of a field they cannot represent changes abruptly where the basis
 //! changes; MBD's basis `B(x) = Σ_n ψ_n(x) B_n` moves continuously with `x` (for any continuous
-//! basis kernels: hats, [`crate::WallAware`], [`crate::LabelKernels`]), so it cannot jump.
+//! basis kernels: hats, [`crate::expert::LabelKernels`]), so it cannot jump.
 //!
 //! [`projection_residuals`] therefore projects a *denoised* reference `s` (e.g. the traced field
-//! blurred by [`crate::blur_valid`]) onto the basis each method uses at every voxel,
+//! blurred by [`crate::expert::blur_valid`]) onto the basis each method uses at every voxel,
 //! `e(x) = P(x) s(x) − s(x)`. Projection is exactly how BPCA and CPCA compute their
 //! coefficients; for MBD it is the least-squares coefficient the solver approximates at a voxel
 //! centre. Without the noise, the jump `‖e_u − e_v‖` between neighbouring voxels is large only

@@ -1,5 +1,5 @@
 //! Kernel weights stored at voxel centres and blended trilinearly between them: the storage
-//! and evaluation shared by [`crate::WallAware`] and [`crate::LabelKernels`].
+//! and evaluation of [`crate::expert::LabelKernels`].
 
 use glam::Vec3;
 use prt_core::{Aabb, CoreError, KernelWeights};
@@ -100,11 +100,6 @@ impl VoxelWeights {
             .iter()
             .copied()
             .zip(self.weights[a..b].iter().copied())
-    }
-
-    /// Mean number of kernels in a voxel's row.
-    pub(crate) fn mean_row_len(&self) -> f64 {
-        self.indices.len() as f64 / (self.offsets.len() - 1) as f64
     }
 
     fn row_range(&self, v: usize) -> (usize, usize) {

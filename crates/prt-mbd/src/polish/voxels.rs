@@ -1,5 +1,5 @@
-//! The exact quadrature for basis kernels stored at the voxel centres ([`crate::WallAware`],
-//! [`crate::LabelKernels`]).
+//! The exact quadrature for basis kernels stored at the voxel centres
+//! ([`crate::expert::LabelKernels`]).
 //!
 //! The basis `b(x) = Σ_n ψ_n(x) B_n` with `ψ_n(x) = Σ_v w_v(x) W_{v,n}` (the voxel centres'
 //! rows `W_v`, blended by the same trilinear hats `w_v` as the coefficients and the target) is

@@ -1,0 +1,266 @@
+//! The front door: [`Mbd`] fits a Moving Basis Decomposition to a [`GridField`].
+
+use glam::Vec3;
+use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
+use prt_kernels::HatGrid;
+
+use crate::baselines::voxel_centre_box;
+use crate::clustered::{LabelKernels, LabelSmoothing, fit_on_clusters};
+use crate::polish::{self, BasisLayout, PolishBasis, PolishOptions, PolishReport};
+use crate::{ClusteredPca, MbdError, MbdModel, SolveReport, SolverOptions, solve};
+
+/// Rank-L Moving Basis Decomposition (Silvennoinen & Sloan 2021): one trilinear coefficient hat
+/// per voxel centre, a moving basis on [`Mbd::basis`] kernels, fitted by the paper's stochastic
+/// quasi-Newton solver and, optionally, the exact [`polish`](Mbd::polish).
+///
+/// `Mbd::default()` is rank 8 on a 5³ hat grid with the default solver and no polish.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mbd {
+    /// Moving basis vectors per point, L (1..=D).
+    pub rank: usize,
+    /// Where the basis kernels sit.
+    pub basis: Basis,
+    /// The stochastic solver's options.
+    pub solver: SolverOptions,
+    /// Exact polish of the continuous loss after the solver (beyond the paper, opt-in; `None`:
+    /// the solver's model as it stops). It pays where the solver stops far above the optimum:
+    /// clustered basis kernels on scenes like Sponza, smooth noise-free fields.
+    pub polish: Option<PolishOptions>,
+}
+
+impl Default for Mbd {
+    fn default() -> Self {
+        Self::new(8, Basis::HatGrid { nodes: [5; 3] })
+    }
+}
+
+/// The basis kernels of an [`Mbd`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum Basis {
+    /// The paper's: trilinear hats on a grid of `nodes` per axis (at least 2) spanning the box
+    /// of the voxel centres ([`crate::expert::basis_box`]).
+    HatGrid {
+        /// Basis nodes per axis.
+        nodes: [usize; 3],
+    },
+    /// Beyond the paper: one kernel per cluster of clustered PCA (Sloan et al. 2003, `count`
+    /// clusters at the same rank), its voxel labels smoothed over a few voxels so that the basis
+    /// stays continuous. For scenes whose transfer changes faster than a basis cell (walls,
+    /// columns, openings), where it comes close to clustered PCA's error without its seams; an
+    /// engine then stores a label per voxel and blends more kernels per point than a hat's 8.
+    Clusters {
+        /// Number of clusters, i.e. basis kernels.
+        count: usize,
+        /// How the labels are smoothed into kernels.
+        smoothing: LabelSmoothing,
+    },
+}
+
+/// The basis kernels of a fitted [`Mbd`]: the [`Basis`] realised on a field.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub enum BasisKernels {
+    /// [`Basis::HatGrid`].
+    HatGrid(HatGrid),
+    /// [`Basis::Clusters`].
+    Clusters(LabelKernels),
+}
+
+/// What [`Mbd::fit`] returns.
+#[derive(Debug, Clone)]
+pub struct MbdFit {
+    /// The fitted model.
+    pub model: MbdModel<HatGrid, BasisKernels>,
+    /// The stochastic solver's report.
+    pub solve: SolveReport,
+    /// The polish's report, when [`Mbd::polish`] asked for one.
+    pub polish: Option<PolishReport>,
+}
+
+impl Mbd {
+    /// Rank `rank` on `basis`, the default solver, no polish.
+    pub fn new(rank: usize, basis: Basis) -> Self {
+        Self {
+            rank,
+            basis,
+            solver: SolverOptions::default(),
+            polish: None,
+        }
+    }
+
+    /// Fits the model to `field` (the target is the field's trilinear interpolation). Progress
+    /// sees the clustering (for [`Basis::Clusters`]), the solver's iterations, then the
+    /// polish's. Deterministic for the solver's seed on any thread count.
+    ///
+    /// # Errors
+    /// [`MbdError::InvalidRank`], [`MbdError::InvalidKernels`] (a hat grid with fewer than 2
+    /// nodes on an axis, zero clusters), [`MbdError::InvalidOption`] (bad solver or polish
+    /// options, checked before any work), non-finite field values, cancellation, and
+    /// [`MbdError::Diverged`].
+    pub fn fit(&self, field: &GridField, progress: &dyn Progress) -> Result<MbdFit, MbdError> {
+        match self.basis {
+            Basis::HatGrid { nodes } => {
+                let basis = hat_basis(field, nodes)?;
+                self.check_polish(basis.len())?;
+                let (model, solve_report) = solve(
+                    field,
+                    coefficient_kernels(field)?,
+                    BasisKernels::HatGrid(basis),
+                    self.rank,
+                    &self.solver,
+                    progress,
+                )?;
+                self.finish(field, model, solve_report, progress)
+            }
+            Basis::Clusters { count, .. } => {
+                if count == 0 {
+                    return Err(MbdError::InvalidKernels {
+                        which: "basis",
+                        why: "zero clusters".into(),
+                    });
+                }
+                self.check_polish(count)?;
+                let clusters = ClusteredPca::new(self.rank, count).compress(field, progress)?;
+                fit_on_clusters(self, field, &clusters, progress)
+            }
+        }
+    }
+
+    /// Bad polish options fail before the solve, not after it.
+    pub(crate) fn check_polish(&self, basis_kernels: usize) -> Result<(), MbdError> {
+        match &self.polish {
+            Some(options) => {
+                polish::validate_options(options)?;
+                polish::check_basis_size(basis_kernels, self.rank)
+            }
+            None => Ok(()),
+        }
+    }
+
+    /// The polish, if asked for, and the result.
+    pub(crate) fn finish(
+        &self,
+        field: &GridField,
+        model: MbdModel<HatGrid, BasisKernels>,
+        solve: SolveReport,
+        progress: &dyn Progress,
+    ) -> Result<MbdFit, MbdError> {
+        let (model, polish) = match &self.polish {
+            Some(options) => {
+                let (model, report) = polish::polish(field, model, options, progress)?;
+                (model, Some(report))
+            }
+            None => (model, None),
+        };
+        Ok(MbdFit {
+            model,
+            solve,
+            polish,
+        })
+    }
+}
+
+impl Compressor for Mbd {
+    type Model = MbdModel<HatGrid, BasisKernels>;
+    type Error = MbdError;
+
+    fn compress(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<Self::Model, MbdError> {
+        Ok(self.fit(field, progress)?.model)
+    }
+}
+
+/// The coefficient kernels of [`Mbd`] on `field`: one hat per voxel centre.
+pub(crate) fn coefficient_kernels(field: &GridField) -> Result<HatGrid, MbdError> {
+    HatGrid::new(field.dims(), voxel_centre_box(field)).map_err(|e| MbdError::InvalidKernels {
+        which: "coefficient",
+        why: e.to_string(),
+    })
+}
+
+/// The hat basis of [`Basis::HatGrid`] on `field`.
+fn hat_basis(field: &GridField, nodes: [usize; 3]) -> Result<HatGrid, MbdError> {
+    if let Some(axis) = (0..3).find(|&k| nodes[k] < 2) {
+        return Err(MbdError::InvalidKernels {
+            which: "basis",
+            why: format!("axis {axis} has {} nodes, need at least 2", nodes[axis]),
+        });
+    }
+    HatGrid::new(nodes, basis_box(field)).map_err(|e| MbdError::InvalidKernels {
+        which: "basis",
+        why: e.to_string(),
+    })
+}
+
+/// The box the hat basis nodes of [`Basis::HatGrid`] span: the box of the voxel centres (on an
+/// axis of one voxel, the field's box). The target and the coefficient kernels are constant in
+/// the outer half voxel, so nodes on the field's faces would spend half a voxel per side where
+/// nothing changes.
+pub fn basis_box(field: &GridField) -> Aabb {
+    let (centres, bounds, dims) = (voxel_centre_box(field), field.bounds(), field.dims());
+    let pick = |c: Vec3, b: Vec3| {
+        Vec3::new(
+            if dims[0] >= 2 { c.x } else { b.x },
+            if dims[1] >= 2 { c.y } else { b.y },
+            if dims[2] >= 2 { c.z } else { b.z },
+        )
+    };
+    Aabb::new(pick(centres.min, bounds.min), pick(centres.max, bounds.max))
+}
+
+impl BasisKernels {
+    fn as_dyn(&self) -> &dyn SpatialKernels {
+        match self {
+            BasisKernels::HatGrid(k) => k,
+            BasisKernels::Clusters(k) => k,
+        }
+    }
+}
+
+impl SpatialKernels for BasisKernels {
+    fn len(&self) -> usize {
+        self.as_dyn().len()
+    }
+
+    fn max_support(&self) -> usize {
+        self.as_dyn().max_support()
+    }
+
+    fn domain(&self) -> Aabb {
+        self.as_dyn().domain()
+    }
+
+    fn eval(&self, x: Vec3, out: &mut KernelWeights) -> Result<(), CoreError> {
+        match self {
+            BasisKernels::HatGrid(k) => k.eval(x, out),
+            BasisKernels::Clusters(k) => k.eval(x, out),
+        }
+    }
+
+    fn support_cell(&self, x: Vec3) -> Option<usize> {
+        self.as_dyn().support_cell(x)
+    }
+
+    fn num_support_cells(&self) -> usize {
+        self.as_dyn().num_support_cells()
+    }
+
+    fn centre(&self, i: usize) -> Option<Vec3> {
+        self.as_dyn().centre(i)
+    }
+}
+
+impl polish::sealed::Sealed for BasisKernels {
+    fn layout(&self) -> BasisLayout<'_> {
+        match self {
+            BasisKernels::HatGrid(k) => polish::sealed::Sealed::layout(k),
+            BasisKernels::Clusters(k) => polish::sealed::Sealed::layout(k),
+        }
+    }
+}
+
+impl PolishBasis for BasisKernels {}
