@@ -15,7 +15,8 @@ use criterion::{
 use glam::Vec3;
 use prt_core::{Aabb, GridField, NoProgress};
 use prt_kernels::HatGrid;
-use prt_mbd::{EvalScratch, Mbd, MbdModel, MbdOptions, SyntheticField};
+use prt_mbd::expert::EvalScratch;
+use prt_mbd::{Basis, Mbd, MbdModel, SolverOptions, SyntheticField};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
@@ -49,16 +50,15 @@ fn solver_iteration(c: &mut Criterion) {
         group.bench_function(id, |bench| {
             bench.iter_custom(|iterations| {
                 let mbd = Mbd {
-                    basis_nodes: [b; 3],
-                    options: MbdOptions {
-                        rank,
+                    solver: SolverOptions {
                         max_iterations: iterations as usize,
                         // Never stop early: every requested iteration runs.
                         tolerance: 0.0,
-                        ..MbdOptions::default()
+                        ..SolverOptions::default()
                     },
+                    ..Mbd::new(rank, Basis::HatGrid { nodes: [b; 3] })
                 };
-                let (_, report) = mbd.fit(&f, &NoProgress).expect("mbd");
+                let report = mbd.fit(&f, &NoProgress).expect("mbd").solve;
                 let end = report.history.last().map_or(0.0, |r| r.elapsed);
                 Duration::from_secs_f64((end - report.init_seconds).max(0.0))
             });

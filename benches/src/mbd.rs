@@ -1,32 +1,107 @@
-//! Helpers shared by the MBD sweeps (`mbd_sweep`, `mbd_walls`, `mbd_clustered`): the
-//! traced-volume cache, environment knobs, the load average and the error by distance to the
-//! nearest wall.
+//! Helpers shared by the MBD experiments (`mbd_sweep`, `mbd_clustered`, `mbd_scale`): the
+//! field a run works on (synthetic, or a traced scene cached on disk), the cost of a fit, basis
+//! node counts and the load average.
 
 use std::path::PathBuf;
+use std::time::Instant;
 
 use glam::Vec3;
-use prt_core::{Aabb, FieldModel, GridField, resample_to_grid};
+use prt_core::{Aabb, GridField, NoProgress};
+use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
 
-/// Whether the comma-separated `MBD_METHODS` list (case-insensitive; `default` when unset)
-/// names `method`.
-pub fn method_enabled(method: &str, default: &str) -> bool {
-    let list = std::env::var("MBD_METHODS").unwrap_or_else(|_| default.into());
-    list.split(',')
-        .any(|m| m.trim().eq_ignore_ascii_case(method))
+/// The field an MBD experiment runs on.
+#[derive(Debug, Clone, clap::Args)]
+pub struct FieldArgs {
+    /// `synthetic` (a smooth 324-D field on a curved manifold, n³ voxels), `cornell` (the
+    /// built-in Cornell box) or `sponza` (../shared/scenes/sponza), the scenes traced at `prt
+    /// bake`'s defaults (256 rays, 64 cache rays, seed 0) and cached in target/mbd_cache/.
+    #[arg(long, default_value = "synthetic")]
+    pub field: String,
+    /// Voxels along the field's longest axis.
+    #[arg(long, default_value_t = 32)]
+    pub n: usize,
 }
 
-/// Runs `fit`; returns its value with the wall and the process CPU seconds it took.
-pub fn measure<T>(fit: impl FnOnce() -> T) -> (T, f64, f64) {
-    let (start, cpu) = (std::time::Instant::now(), crate::cpu_seconds());
-    let value = fit();
-    (
-        value,
-        start.elapsed().as_secs_f64(),
-        crate::cpu_seconds() - cpu,
-    )
+/// A field with its description and the voxels that count for the seam measures.
+pub struct Input {
+    /// The field.
+    pub field: GridField,
+    /// What it is, for table headings.
+    pub name: String,
+    /// The baker's validity mask (`None`: every voxel, for the synthetic field).
+    pub valid: Option<Vec<bool>>,
+    /// Blur of the reference for the error seams: one voxel for traced (noisy) volumes, none
+    /// for the noise-free synthetic field, where the blur's own bias would be the largest
+    /// error of an accurate method.
+    pub seam_sigma: f64,
 }
 
-/// The sweeps' synthetic field: `n`³ voxels of 324-D vectors on a curved manifold (seed 1).
+impl FieldArgs {
+    /// The field, traced (and cached) on first use.
+    pub fn load(&self) -> Input {
+        let n = self.n;
+        match self.field.as_str() {
+            "synthetic" => Input {
+                field: synthetic_field(n),
+                name: format!("synthetic {n}³ × 324"),
+                valid: None,
+                seam_sigma: 0.0,
+            },
+            scene @ ("cornell" | "sponza") => {
+                let field = traced_field(scene, n);
+                let [x, y, z] = field.dims();
+                let valid = prt_mbd::expert::nonzero_voxels(&field);
+                let invalid = valid.iter().filter(|v| !**v).count();
+                Input {
+                    name: format!("traced {scene} {x}×{y}×{z} × 324, {invalid} invalid voxels"),
+                    field,
+                    valid: Some(valid),
+                    seam_sigma: 1.0,
+                }
+            }
+            other => {
+                eprintln!("unknown --field {other} (synthetic, cornell or sponza)");
+                std::process::exit(2);
+            }
+        }
+    }
+}
+
+/// Wall and process CPU seconds of one fit.
+#[derive(Debug, Clone, Copy)]
+pub struct Cost {
+    /// Wall seconds.
+    pub wall: f64,
+    /// User + system CPU seconds of the whole process (all threads).
+    pub cpu: f64,
+}
+
+impl Cost {
+    /// Runs `fit` and returns its value with what it cost.
+    pub fn measure<T>(fit: impl FnOnce() -> T) -> (T, Cost) {
+        let (start, cpu) = (Instant::now(), crate::cpu_seconds());
+        let value = fit();
+        let cost = Cost {
+            wall: start.elapsed().as_secs_f64(),
+            cpu: crate::cpu_seconds() - cpu,
+        };
+        (value, cost)
+    }
+}
+
+/// Whether `methods` (empty: `default`) names `method`, case-insensitively.
+pub fn method_enabled(methods: &[String], default: &[&str], method: &str) -> bool {
+    if methods.is_empty() {
+        default.iter().any(|m| m.eq_ignore_ascii_case(method))
+    } else {
+        methods
+            .iter()
+            .any(|m| m.trim().eq_ignore_ascii_case(method))
+    }
+}
+
+/// The synthetic field of the experiments: `n`³ voxels of 324-D vectors on a curved manifold
+/// (seed 1).
 pub fn synthetic_field(n: usize) -> GridField {
     prt_mbd::SyntheticField {
         dims: [n; 3],
@@ -38,17 +113,45 @@ pub fn synthetic_field(n: usize) -> GridField {
     .expect("synthetic field")
 }
 
-/// The traced `scene` volume at resolution `n` from the cache; without it, `bin` says how to
-/// trace it and the process exits.
-pub fn cached_volume_or_exit(bin: &str, scene: &str, n: usize) -> GridField {
-    let path = cached_volume_path(scene, n);
-    read_cached(&path).unwrap_or_else(|| {
-        eprintln!(
-            "{bin}: no cached volume at {} (run `MBD_FIELD={scene} MBD_N={n} mbd_sweep walls` once to trace it)",
-            path.display()
+/// The built-in Cornell box (`"cornell"`) or Sponza (`"sponza"`) traced at `n` voxels along its
+/// longest axis with `prt bake`'s defaults, read from the cache when an earlier run wrote it.
+pub fn traced_field(scene_name: &str, n: usize) -> GridField {
+    let path = cached_volume_path(scene_name, n);
+    if let Some(field) = read_cached(&path) {
+        eprintln!("{scene_name} {n}: read {}", path.display());
+        return field;
+    }
+    let scene = if scene_name == "sponza" {
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../shared/scenes/sponza/Sponza.gltf"
         );
-        std::process::exit(1);
-    })
+        Scene::load_gltf(path, &LoadOptions::default())
+            .unwrap_or_else(|e| panic!("cannot load Sponza from {path}: {e}"))
+    } else {
+        Scene::cornell_box()
+    };
+    let bounds = scene.bounds().expect("the scene has triangles");
+    let size = bounds.size().to_array();
+    let longest = size.iter().copied().fold(0.0f32, f32::max);
+    let resolution = size.map(|s| ((s / longest * n as f32).round() as usize).clamp(2, n));
+    let options = BakeOptions {
+        resolution,
+        ..BakeOptions::default()
+    };
+    let (volume, cost) = Cost::measure(|| {
+        TransferBaker::new(&scene, options)
+            .and_then(|baker| baker.bake(&NoProgress))
+            .expect("bake")
+    });
+    eprintln!(
+        "{scene_name} {n}: traced {resolution:?} in {:.2} s (CPU {:.2} s)",
+        cost.wall, cost.cpu
+    );
+    if let Err(e) = write_cached(&path, &volume.field) {
+        eprintln!("cannot cache {}: {e}", path.display());
+    }
+    volume.field
 }
 
 /// `b` basis nodes per axis, at least 2 and at most the field's voxels on that axis.
@@ -64,33 +167,14 @@ pub fn load_average() -> String {
         .unwrap_or_else(|_| "unknown".into())
 }
 
-/// The environment variable `name` parsed, or `default` when it is unset or does not parse.
-pub fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
-
-/// The polish's acceleration from `MBD_ACCEL`: `none`, `extrapolation` or `cg` (default:
-/// `PolishOptions`' own, `cg` since MBD session 11). Earlier sessions' switch `MBD_EXTRAP`
-/// (before session 11 the extrapolation was the default): 0 means `none`, 1 `extrapolation`.
-pub fn polish_acceleration() -> prt_mbd::PolishAcceleration {
-    use prt_mbd::PolishAcceleration as A;
-    match (
-        std::env::var("MBD_ACCEL").as_deref(),
-        std::env::var("MBD_EXTRAP").as_deref(),
-    ) {
-        (Ok("none"), _) | (Err(_), Ok("0")) => A::None,
-        (Ok("extrapolation"), _) | (Err(_), Ok("1")) => A::Extrapolation,
-        (Ok("cg"), _) => A::ConjugateGradients,
-        _ => prt_mbd::PolishOptions::default().acceleration,
-    }
-}
-
-/// [`env_or`] for counts and switches.
-pub fn env_usize(name: &str, default: usize) -> usize {
-    env_or(name, default)
+/// A `/proc/self/status` memory line (`VmRSS:`, `VmHWM:`) in GiB (NaN where unavailable).
+pub fn memory_gib(key: &str) -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix(key))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / (1024.0 * 1024.0))
 }
 
 /// Folder for cached traced volumes: `$CARGO_TARGET_DIR` or the workspace's `target/`.
@@ -122,7 +206,10 @@ pub fn write_cached(path: &std::path::Path, field: &GridField) -> std::io::Resul
     for v in field.data().iter() {
         bytes.extend(v.to_le_bytes());
     }
-    std::fs::write(path, bytes)
+    // Write, then rename: a run stopped midway leaves no truncated cache behind.
+    let partial = path.with_extension("partial");
+    std::fs::write(&partial, bytes)?;
+    std::fs::rename(partial, path)
 }
 
 /// The cached field, or `None` when the file is missing or malformed.
@@ -149,80 +236,4 @@ pub fn read_cached(path: &std::path::Path) -> Option<GridField> {
         .collect();
     let data = ndarray::Array2::from_shape_vec((count / dim.max(1), dim), data).ok()?;
     GridField::from_data(dims, bounds, data).ok()
-}
-
-/// Cap of [`wall_distance`].
-pub const CAP: usize = 4;
-
-/// Chebyshev distance (in voxels) of every voxel to the nearest invalid voxel: 0 = invalid,
-/// 1 = touching an invalid voxel, ..., capped at [`CAP`].
-pub fn wall_distance(f: &GridField, valid: &[bool]) -> Vec<usize> {
-    let dims = f.dims();
-    (0..f.num_voxels())
-        .map(|v| {
-            if !valid[v] {
-                return 0;
-            }
-            let (x, y, z) = (
-                v % dims[0],
-                (v / dims[0]) % dims[1],
-                v / (dims[0] * dims[1]),
-            );
-            (1..CAP)
-                .find(|&r| {
-                    let lo = |c: usize| c.saturating_sub(r);
-                    let hi = |c: usize, n: usize| (c + r).min(n - 1);
-                    (lo(z)..=hi(z, dims[2])).any(|k| {
-                        (lo(y)..=hi(y, dims[1])).any(|j| {
-                            (lo(x)..=hi(x, dims[0]))
-                                .any(|i| !valid[i + dims[0] * (j + dims[1] * k)])
-                        })
-                    })
-                })
-                .unwrap_or(CAP)
-        })
-        .collect()
-}
-
-/// Squared error of `model` at the voxel centres, summed per [`wall_distance`] bin.
-pub fn wall_bins(f: &GridField, model: &dyn FieldModel, distance: &[usize]) -> [f64; CAP + 1] {
-    let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
-    wall_bins_of_grid(f, &recon, distance)
-}
-
-/// [`wall_bins`] of a reconstruction already resampled to `f`'s voxel centres.
-pub fn wall_bins_of_grid(f: &GridField, recon: &GridField, distance: &[usize]) -> [f64; CAP + 1] {
-    let mut bins = [0.0f64; CAP + 1];
-    for v in 0..f.num_voxels() {
-        let err: f64 = f
-            .voxel(v)
-            .iter()
-            .zip(recon.voxel(v))
-            .map(|(&a, &b)| (f64::from(a) - f64::from(b)).powi(2))
-            .sum();
-        bins[distance[v]] += err;
-    }
-    bins
-}
-
-/// `Σ ‖f(v)‖²` over the voxels `keep` accepts.
-pub fn voxel_energy(f: &GridField, keep: &dyn Fn(usize) -> bool) -> f64 {
-    (0..f.num_voxels())
-        .filter(|&v| keep(v))
-        .map(|v| {
-            f.voxel(v)
-                .iter()
-                .map(|&x| f64::from(x).powi(2))
-                .sum::<f64>()
-        })
-        .sum()
-}
-
-/// A [`wall_distance`] bin's name in table headers: `3`, or `≥ 4` for the last.
-pub fn distance_name(d: usize) -> String {
-    if d == CAP {
-        format!("≥ {CAP}")
-    } else {
-        d.to_string()
-    }
 }

@@ -1,49 +1,75 @@
-//! MBD whose basis kernels are clustered PCA's clusters, smoothed (`prt_mbd::ClusteredMbd`),
-//! against MBD on the hat grid, BPCA and CPCA, at rank `MBD_L` (8) with `MBD_B`³ (5³)
-//! basis nodes / blocks / clusters; every MBD with the default solver (≤ `MBD_ITERS` = 128
-//! iterations, `MBD_TOL` its stopping tolerance).
+//! MBD on smoothed clustered-PCA clusters (`prt_mbd::Basis::Clusters`) against MBD on the hat
+//! grid, BPCA and CPCA, at rank `--rank` with `--nodes`³ basis nodes / blocks / clusters; every
+//! MBD with the default solver (≤ `--iterations` iterations, `--tolerance` its stopping rule),
+//! optionally followed by the exact polish (`--polish-iterations`).
 //!
-//! `MBD_FIELD=synthetic|cornell|sponza MBD_N=48 nice -n 10 cargo run --release -p prt-benches --bin mbd_clustered`
+//! ```text
+//! cargo run --release -p prt-benches --bin mbd_clustered -- --field sponza --n 48 --methods HAT,BPCA,CPCA,CMBD --radii 2
+//! ```
 //!
-//! The synthetic field is `mbd_sweep`'s (`MBD_N`³ × 324, seed 1); the traced volumes are read
-//! from `target/mbd_cache/{scene}_{n}_r256_c64_s0.f32`, which `mbd_sweep` writes when it traces
-//! them (`MBD_FIELD=sponza MBD_N=48 mbd_sweep walls`).
+//! Methods (`--methods`, default `HAT,BPCA,CPCA,CMBD`): `HAT` (MBD on the hat grid), `CMBD`
+//! (MBD on CPCA's clusters, once per smoothing radius in `--radii` with `--falloff`), `CPCA`,
+//! `BPCA`, `WBPCA` (blocks of twice the size), `PCA` (global PCA: one basis everywhere, so it
+//! has no seams and its seam ratios are the floor the field's own structure sets at each set of
+//! boundaries) and `CPCA-MAJORITY` (a control: CPCA's labels after 1..=`--passes` rounds of a
+//! majority filter over the valid 3³ neighbours, each cluster's subspace refitted: how much of
+//! CPCA's lead comes from switching subspaces from voxel to voxel).
 //!
-//! Methods (`MBD_METHODS`, comma-separated, default `HAT,BPCA,CPCA,CMBD`); `CPCA-MAJORITY` (a
-//! control: CPCA's labels after 1..=`MBD_PASSES` (3) rounds of a majority filter over the
-//! valid 3³ neighbours, each cluster's subspace refitted, every voxel projected: how much of
-//! CPCA's lead comes from switching subspaces from voxel to voxel); `CMBD` runs once per
-//! smoothing radius in `MBD_RADII` (default `0,1,2`) with falloff `MBD_FALLOFF` (0.5), the
-//! basis started from the clusters' own subspaces aligned to the global one (`MBD_START=aligned`,
-//! the default) or from the global subspace (`MBD_START=global`, `mbd_walls`' control);
-//! `CMBD-RELABEL`: radius `MBD_RELABEL_RADIUS` (2), then `MBD_RELABEL_ROUNDS` (2) rounds of
-//! relabelling every valid voxel to the kernel whose fitted basis captures most of its energy
-//! and solving again from the fitted bases.
-//! With `MBD_SWEEPS` > 0 (default 0) every MBD row is followed by the same model after that many
-//! sweeps of the exact `polish` (tolerance `MBD_PTOL`, default 0: all sweeps; acceleration
-//! `MBD_ACCEL`: `cg` (default), `extrapolation` or `none`), with the exact
-//! relative MSE before and after in its name; its time is the polish's alone.
-//! `WBPCA` (blocks of twice the size, off by default) is a method too, and so is `PCA` (global
-//! PCA, off by default: one basis everywhere, so it has no seams, and its seam ratios are the
-//! floor the field's own structure sets at each set of boundaries).
 //! Reported per method: iterations, wall and process CPU time (the `CMBD` rows exclude CPCA's
 //! clustering, which the `CPCA` row times), relative MSE on jittered samples and its ratio to
-//! CPCA's, and the seam
-//! metric (σ = 1 denoised, valid voxels) at CPCA's cluster boundaries and at the hat grid's
-//! basis cells, and the basis-projection seam ratio (`prt_mbd::projection_seam_ratio`, prt-cli's
-//! seam view: the σ = 1 denoised field projected onto each voxel's basis) at CPCA's clusters and
-//! at BPCA's blocks.
+//! CPCA's, the error seams (σ = 1 denoised, valid voxels) at CPCA's cluster boundaries and at
+//! the hat grid's basis cells, and the basis-projection seam ratio (`prt_mbd::
+//! projection_seam_ratio`, the report's seam view) at CPCA's clusters and at BPCA's blocks.
+//! With `--polish-iterations` > 0 every MBD row is followed by the same model after the exact
+//! polish, with the exact relative MSE before and after in its name; its time is the polish's
+//! alone.
 
+use clap::Parser;
 use prt_benches::Table;
-use prt_benches::mbd::{
-    basis_nodes, cached_volume_or_exit, env_or, load_average, measure, method_enabled,
-    synthetic_field,
-};
+use prt_benches::mbd::{Cost, FieldArgs, basis_nodes, load_average, method_enabled};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
+use prt_kernels::HatGrid;
+use prt_mbd::expert::{
+    PolishBasis, PolishStep, blur_valid, fit_on_clusters, kernel_labels, nonzero_voxels, polish,
+    projection_residuals, residual_seam_ratio, trilinear_energy,
+};
 use prt_mbd::*;
 
-fn enabled(method: &str) -> bool {
-    method_enabled(method, "HAT,BPCA,CPCA,CMBD")
+#[derive(Debug, Parser)]
+#[command(about = "MBD on smoothed CPCA clusters against the hat grid, BPCA and CPCA")]
+struct Cli {
+    #[command(flatten)]
+    field: FieldArgs,
+    /// Methods: HAT, CMBD, CPCA, BPCA, WBPCA, PCA, CPCA-MAJORITY.
+    #[arg(long, value_delimiter = ',', default_value = "HAT,BPCA,CPCA,CMBD")]
+    methods: Vec<String>,
+    /// Rank L.
+    #[arg(long, default_value_t = 8)]
+    rank: usize,
+    /// Basis nodes (blocks; their product: clusters) per axis.
+    #[arg(long, default_value_t = 5)]
+    nodes: usize,
+    /// Solver iteration cap.
+    #[arg(long, default_value_t = 128)]
+    iterations: usize,
+    /// Solver stopping tolerance [default: the solver's].
+    #[arg(long)]
+    tolerance: Option<f64>,
+    /// Smoothing radii of the CMBD rows.
+    #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
+    radii: Vec<usize>,
+    /// Smoothing falloff of the CMBD rows.
+    #[arg(long, default_value_t = 0.5)]
+    falloff: f32,
+    /// Majority-filter rounds of the CPCA-MAJORITY control.
+    #[arg(long, default_value_t = 3)]
+    passes: usize,
+    /// Exact polish iterations after every MBD row (0: none).
+    #[arg(long, default_value_t = 0)]
+    polish_iterations: usize,
+    /// The polish's stopping tolerance (0: every iteration).
+    #[arg(long, default_value_t = 0.0)]
+    polish_tolerance: f64,
 }
 
 /// The share of valid voxels with a valid face neighbour of another label.
@@ -107,65 +133,34 @@ fn majority_filter(f: &GridField, valid: &[bool], labels: &[u32]) -> Vec<u32> {
         .collect()
 }
 
-/// Each valid voxel's label: the kernel whose fitted basis (orthonormalised) captures the most
-/// of the voxel's energy; other voxels keep theirs.
-fn relabelled(
-    f: &GridField,
-    valid: &[bool],
-    model: &MbdModel<prt_kernels::HatGrid, LabelKernels>,
-) -> Vec<u32> {
-    let bases: Vec<ndarray::Array2<f64>> = model
-        .basis()
-        .outer_iter()
-        .map(|b| {
-            prt_linalg::thin_svd(b.mapv(f64::from).view())
-                .expect("svd")
-                .vt
-        })
-        .collect();
-    (0..f.num_voxels())
-        .map(|v| {
-            if !valid[v] {
-                return model.basis_kernels().labels()[v];
-            }
-            let x = ndarray::Array1::from_iter(f.voxel(v).iter().map(|&t| f64::from(t)));
-            let energy = |b: &ndarray::Array2<f64>| b.dot(&x).iter().map(|c| c * c).sum::<f64>();
-            (0..bases.len())
-                .max_by(|&a, &b| energy(&bases[a]).total_cmp(&energy(&bases[b])))
-                .unwrap_or(0) as u32
-        })
-        .collect()
-}
-
 struct Row {
     name: String,
     iterations: String,
     wall: f64,
     cpu: f64,
     relative_mse: f64,
-    seams: [SeamMetric; 2],
+    seams: [ErrorSeams; 2],
     /// Basis-projection seam ratio at CPCA's clusters and at BPCA's blocks.
     projection: [f64; 2],
 }
 
-/// `model` after `MBD_SWEEPS` exact polish sweeps (none when 0), with a name giving the sweeps
-/// and the exact relative MSE before and after, and the polish's wall and CPU time.
+/// `model` after the exact polish (none without `--polish-iterations`), with a name giving the
+/// iterations and the exact relative MSE before and after, and the polish's cost.
 fn polished<B: PolishBasis>(
+    cli: &Cli,
     f: &GridField,
-    model: MbdModel<prt_kernels::HatGrid, B>,
-) -> Option<(MbdModel<prt_kernels::HatGrid, B>, String, f64, f64)> {
-    let sweeps: usize = env_or("MBD_SWEEPS", 0);
-    if sweeps == 0 {
+    model: MbdModel<HatGrid, B>,
+) -> Option<(MbdModel<HatGrid, B>, String, Cost)> {
+    if cli.polish_iterations == 0 {
         return None;
     }
     let options = PolishOptions {
-        sweeps,
-        tolerance: env_or("MBD_PTOL", 0.0),
-        acceleration: prt_benches::mbd::polish_acceleration(),
+        iterations: cli.polish_iterations,
+        tolerance: cli.polish_tolerance,
         ..PolishOptions::default()
     };
-    let ((model, report), wall, cpu) =
-        measure(|| polish(f, model, &options, &NoProgress).expect("polish"));
+    let ((model, report), cost) =
+        Cost::measure(|| polish(f, model, &options, &NoProgress).expect("polish"));
     for r in &report.history {
         eprintln!(
             "  polish {:?}{}: exact {:.4e} at {:.1} s ({} CG iterations)",
@@ -182,15 +177,15 @@ fn polished<B: PolishBasis>(
         .filter(|r| r.step == PolishStep::Coefficients)
         .count();
     let name = format!(
-        "+ {done} polish sweeps (exact {:.3e} → {:.3e})",
+        "+ {done} polish iterations (exact {:.3e} → {:.3e})",
         report.initial.relative_mse(),
         report.last().relative_mse()
     );
-    Some((model, name, wall, cpu))
+    Some((model, name, cost))
 }
 
 /// The per-voxel bases of a clustered model, for the projection seams.
-fn clustered_basis(model: &ClusterModel) -> LocalBasis<'_> {
+fn clustered_basis(model: &PiecewisePcaModel) -> LocalBasis<'_> {
     LocalBasis::Clustered {
         labels: model.labels(),
         bases: model.bases(),
@@ -198,7 +193,7 @@ fn clustered_basis(model: &ClusterModel) -> LocalBasis<'_> {
 }
 
 /// The moving basis of an MBD model, for the projection seams.
-fn moving<B: SpatialKernels>(model: &MbdModel<prt_kernels::HatGrid, B>) -> LocalBasis<'_> {
+fn moving<B: SpatialKernels>(model: &MbdModel<HatGrid, B>) -> LocalBasis<'_> {
     LocalBasis::Moving {
         kernels: model.basis_kernels(),
         basis: model.basis(),
@@ -206,42 +201,33 @@ fn moving<B: SpatialKernels>(model: &MbdModel<prt_kernels::HatGrid, B>) -> Local
 }
 
 fn main() {
-    let scene = std::env::var("MBD_FIELD").unwrap_or_else(|_| "sponza".into());
-    let n: usize = env_or("MBD_N", 48);
-    let (l, b) = (env_or("MBD_L", 8usize), env_or("MBD_B", 5usize));
-    let field = if scene == "synthetic" {
-        synthetic_field(n)
-    } else {
-        cached_volume_or_exit("mbd_clustered", &scene, n)
-    };
-    let f = &field;
+    let cli = Cli::parse();
+    let enabled = |m: &str| method_enabled(&cli.methods, &[], m);
+    let input = cli.field.load();
+    let (f, l) = (&input.field, cli.rank);
     let valid = nonzero_voxels(f);
-    let dims = f.dims();
-    let nodes = basis_nodes(f, b);
+    let nodes = basis_nodes(f, cli.nodes);
     let count: usize = nodes.iter().product();
     println!(
-        "{scene} {}×{}×{} × {}, {} invalid voxels; L = {l}, {count} basis nodes / clusters; load average before: {}",
-        dims[0],
-        dims[1],
-        dims[2],
-        f.dim(),
-        valid.iter().filter(|v| !**v).count(),
+        "{}; L = {l}, {count} basis nodes / clusters; load average before: {}",
+        input.name,
         load_average()
     );
-    let options = MbdOptions {
-        rank: l,
-        max_iterations: env_or("MBD_ITERS", 128),
-        tolerance: env_or("MBD_TOL", MbdOptions::default().tolerance),
-        ..MbdOptions::default()
+    let mut solver = SolverOptions {
+        max_iterations: cli.iterations,
+        ..SolverOptions::default()
     };
-    let mbd = Mbd {
-        basis_nodes: nodes,
-        options: options.clone(),
+    if let Some(tolerance) = cli.tolerance {
+        solver.tolerance = tolerance;
+    }
+    let hat = Mbd {
+        solver: solver.clone(),
+        ..Mbd::new(l, Basis::HatGrid { nodes })
     };
-    let (_, hat) = mbd.kernels(f).expect("kernels");
-    let hat_labels = kernel_labels(&hat, f).expect("labels");
+    let hat_kernels = HatGrid::new(nodes, prt_mbd::expert::basis_box(f)).expect("hat grid");
+    let hat_labels = kernel_labels(&hat_kernels, f).expect("labels");
     // Fitted once: the CPCA row and every clustered MBD (which starts from its clusters).
-    let (cpca, cpca_wall, cpca_cpu) = measure(|| {
+    let (cpca, cpca_cost) = Cost::measure(|| {
         ClusteredPca::new(l, count)
             .compress(f, &NoProgress)
             .expect("cpca")
@@ -252,7 +238,7 @@ fn main() {
         100.0 * boundary_share(f, &valid, &cluster_labels)
     );
     // BPCA is fitted up front: its blocks are the other boundaries of the projection seams.
-    let (bpca, bpca_wall, bpca_cpu) = measure(|| {
+    let (bpca, bpca_cost) = Cost::measure(|| {
         BlockPca {
             rank: l,
             blocks: nodes,
@@ -266,8 +252,7 @@ fn main() {
     let mut rows: Vec<Row> = Vec::new();
     let mut add = |name: String,
                    iterations: String,
-                   wall: f64,
-                   cpu: f64,
+                   cost: Cost,
                    model: &dyn FieldModel,
                    basis: LocalBasis<'_>| {
         let residuals = projection_residuals(&smoothed, &valid, &basis).expect("projection");
@@ -277,7 +262,7 @@ fn main() {
         let e = evaluate(model, f, &EvalOptions::default()).expect("evaluate");
         let recon = resample_to_grid(model, f.dims(), f.bounds()).expect("resample");
         let seam = |labels: &[u32]| {
-            seam_metric_with(
+            error_seams(
                 f,
                 &recon,
                 labels,
@@ -289,14 +274,14 @@ fn main() {
             .expect("seam")
         };
         eprintln!(
-            "{name}: {iterations} iterations, {wall:.1} s (CPU {cpu:.1} s), relative MSE {:.3e}",
-            e.relative_mse
+            "{name}: {iterations} iterations, {:.1} s (CPU {:.1} s), relative MSE {:.3e}",
+            cost.wall, cost.cpu, e.relative_mse
         );
         rows.push(Row {
             name,
             iterations,
-            wall,
-            cpu,
+            wall: cost.wall,
+            cpu: cost.cpu,
             relative_mse: e.relative_mse,
             seams: [seam(&cluster_labels), seam(&hat_labels)],
             projection,
@@ -311,18 +296,16 @@ fn main() {
         add(
             format!("CPCA (exact {exact:.3e})"),
             "–".into(),
-            cpca_wall,
-            cpca_cpu,
+            cpca_cost,
             &cpca,
             clustered_basis(&cpca),
         );
     }
     if enabled("CPCA-MAJORITY") {
-        let passes: usize = env_or("MBD_PASSES", 3);
         let mut labels = cluster_labels.clone();
-        for pass in 1..=passes {
+        for pass in 1..=cli.passes {
             labels = majority_filter(f, &valid, &labels);
-            let (model, wall, cpu) = measure(|| {
+            let (model, cost) = Cost::measure(|| {
                 ClusteredPca::with_labels(f, labels.clone(), l, &NoProgress).expect("cpca")
             });
             add(
@@ -331,29 +314,26 @@ fn main() {
                     100.0 * boundary_share(f, &valid, &labels)
                 ),
                 "–".into(),
-                wall,
-                cpu,
+                cost,
                 &model,
                 clustered_basis(&model),
             );
         }
     }
     if enabled("HAT") {
-        let ((model, report), wall, cpu) = measure(|| mbd.fit(f, &NoProgress).expect("mbd"));
+        let (fit, cost) = Cost::measure(|| hat.fit(f, &NoProgress).expect("mbd"));
         add(
             format!("MBD, {count} hat kernels"),
-            report.history.len().to_string(),
-            wall,
-            cpu,
-            &model,
-            moving(&model),
+            fit.solve.history.len().to_string(),
+            cost,
+            &fit.model,
+            moving(&fit.model),
         );
-        if let Some((polished, name, wall, cpu)) = polished(f, model) {
+        if let Some((polished, name, cost)) = polished(&cli, f, fit.model) {
             add(
                 format!("MBD, {count} hat kernels, {name}"),
                 "–".into(),
-                wall,
-                cpu,
+                cost,
                 &polished,
                 moving(&polished),
             );
@@ -363,26 +343,24 @@ fn main() {
         add(
             "BPCA".into(),
             "–".into(),
-            bpca_wall,
-            bpca_cpu,
+            bpca_cost,
             &bpca,
             clustered_basis(&bpca),
         );
     }
     if enabled("PCA") {
-        let (m, wall, cpu) =
-            measure(|| GlobalPca { rank: l }.compress(f, &NoProgress).expect("pca"));
+        let (m, cost) =
+            Cost::measure(|| GlobalPca { rank: l }.compress(f, &NoProgress).expect("pca"));
         add(
             "control: global PCA (no seams)".into(),
             "–".into(),
-            wall,
-            cpu,
+            cost,
             &m,
             clustered_basis(&m),
         );
     }
     if enabled("WBPCA") {
-        let (m, wall, cpu) = measure(|| {
+        let (m, cost) = Cost::measure(|| {
             BlockPca {
                 rank: l,
                 blocks: nodes,
@@ -391,127 +369,41 @@ fn main() {
             .compress(f, &NoProgress)
             .expect("wbpca")
         });
-        add(
-            "WBPCA".into(),
-            "–".into(),
-            wall,
-            cpu,
-            &m,
-            clustered_basis(&m),
-        );
+        add("WBPCA".into(), "–".into(), cost, &m, clustered_basis(&m));
     }
     if enabled("CMBD") {
-        let radii = std::env::var("MBD_RADII").unwrap_or_else(|_| "0,1,2".into());
-        let falloff: f32 = env_or("MBD_FALLOFF", 0.5);
-        let start = match std::env::var("MBD_START").as_deref() {
-            Ok("global") => ClusterStart::GlobalPca,
-            _ => ClusterStart::AlignedClusters,
-        };
-        for radius in radii
-            .split(',')
-            .filter_map(|r| r.trim().parse::<usize>().ok())
-        {
-            let clustered = ClusteredMbd {
-                clusters: count,
-                smoothing: LabelSmoothing { radius, falloff },
-                start,
-                options: options.clone(),
-                polish: None,
+        for &radius in &cli.radii {
+            let smoothing = LabelSmoothing {
+                radius,
+                falloff: cli.falloff,
             };
-            let (fit, wall, cpu) = measure(|| {
-                clustered
-                    .fit_clusters(f, &cpca, &NoProgress)
-                    .expect("clustered mbd")
+            let clustered = Mbd {
+                solver: solver.clone(),
+                ..Mbd::new(l, Basis::Clusters { count, smoothing })
+            };
+            let (fit, cost) = Cost::measure(|| {
+                fit_on_clusters(&clustered, f, &cpca, &NoProgress).expect("clustered mbd")
             });
-            let (model, report) = (fit.model, fit.solve);
             add(
                 format!(
-                    "MBD on CPCA's clusters, radius {radius}, falloff {falloff}, {start:?} start (≤ {} kernels at a point)",
-                    model.basis_kernels().max_support()
+                    "MBD on CPCA's clusters, radius {radius}, falloff {} (≤ {} kernels at a point)",
+                    cli.falloff,
+                    fit.model.basis_kernels().max_support()
                 ),
-                report.history.len().to_string(),
-                wall,
-                cpu,
-                &model,
-                moving(&model),
+                fit.solve.history.len().to_string(),
+                cost,
+                &fit.model,
+                moving(&fit.model),
             );
-            if let Some((polished, name, wall, cpu)) = polished(f, model) {
+            if let Some((polished, name, cost)) = polished(&cli, f, fit.model) {
                 add(
                     format!("MBD on CPCA's clusters, radius {radius}, {name}"),
                     "–".into(),
-                    wall,
-                    cpu,
+                    cost,
                     &polished,
                     moving(&polished),
                 );
             }
-        }
-    }
-    if enabled("CMBD-RELABEL") {
-        // Clustered MBD, then rounds of: every valid voxel relabelled to the kernel whose
-        // fitted basis captures most of its energy, kernels rebuilt, the solve restarted from
-        // the fitted bases.
-        let radius = env_or("MBD_RELABEL_RADIUS", 2usize);
-        let smoothing = LabelSmoothing {
-            radius,
-            falloff: env_or("MBD_FALLOFF", 0.5),
-        };
-        let rounds = env_or("MBD_RELABEL_ROUNDS", 2usize);
-        let clustered = ClusteredMbd {
-            clusters: count,
-            smoothing,
-            start: ClusterStart::AlignedClusters,
-            options: options.clone(),
-            polish: None,
-        };
-        let (fit, _, _) = measure(|| {
-            clustered
-                .fit_clusters(f, &cpca, &NoProgress)
-                .expect("clustered mbd")
-        });
-        let mut model = fit.model;
-        for round in 1..=rounds {
-            let ((next, report), wall, cpu) = measure(|| {
-                let labels = relabelled(f, &valid, &model);
-                let kernels = LabelKernels::new(
-                    f.dims(),
-                    f.bounds(),
-                    &labels,
-                    model.basis().dim().0,
-                    Some(&valid),
-                    &smoothing,
-                )
-                .expect("kernels");
-                let coefficients =
-                    prt_kernels::HatGrid::new(f.dims(), voxel_centre_box(f)).expect("hat");
-                solve_from_basis(
-                    f,
-                    coefficients,
-                    kernels,
-                    model.basis(),
-                    &options,
-                    &NoProgress,
-                )
-                .expect("relabelled solve")
-            });
-            let moved = next
-                .basis_kernels()
-                .labels()
-                .iter()
-                .zip(model.basis_kernels().labels())
-                .filter(|(a, b)| a != b)
-                .count();
-            add(
-                format!(
-                    "MBD on CPCA's clusters, radius {radius}, relabelled ×{round} ({moved} voxels moved)"
-                ),
-                report.history.len().to_string(),
-                wall,
-                cpu,
-                &next,
-                moving(&next),
-            );
-            model = next;
         }
     }
     let cpca_error = rows

@@ -115,3 +115,8 @@ pub mod expert {
 
 // Internal paths used across modules.
 pub(crate) use solver::{solve, solve_from_basis};
+
+/// The README's example, compiled and run as a doc test so that it stays true.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;
