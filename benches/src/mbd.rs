@@ -15,10 +15,10 @@ pub struct FieldArgs {
     /// `synthetic` (a smooth 324-D field on a curved manifold, n³ voxels), `cornell` (the
     /// built-in Cornell box) or `sponza` (../shared/scenes/sponza), the scenes traced at `prt
     /// bake`'s defaults (256 rays, 64 cache rays, seed 0) and cached in target/mbd_cache/.
-    #[arg(long, default_value = "synthetic")]
+    #[arg(long, default_value = "synthetic", global = true)]
     pub field: String,
     /// Voxels along the field's longest axis.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, global = true)]
     pub n: usize,
 }
 

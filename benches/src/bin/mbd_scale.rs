@@ -25,12 +25,7 @@ use prt_mbd::{Basis, EvalOptions, Mbd, SyntheticField, evaluate};
 #[command(about = "MBD solve time and memory at scale on the synthetic field")]
 struct Cli {
     /// Voxels along x, y, z.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        num_args = 3,
-        default_value = "512,512,128"
-    )]
+    #[arg(long, value_delimiter = ',', default_value = "512,512,128")]
     dims: Vec<usize>,
     /// Dimension of the field's vectors (12: linear SH in RGB; 324: a transfer volume).
     #[arg(long, default_value_t = 12)]
@@ -93,7 +88,11 @@ impl Progress for IterationLog {
 
 fn main() {
     let cli = Cli::parse();
-    let dims = [cli.dims[0], cli.dims[1], cli.dims[2]];
+    let [x, y, z] = cli.dims[..] else {
+        eprintln!("--dims takes three voxel counts, e.g. 512,512,128");
+        std::process::exit(2);
+    };
+    let dims = [x, y, z];
     let (dim, rank, iterations) = (cli.dim, cli.rank, cli.iterations);
     let nodes = match cli.nodes {
         Some(n) => [n; 3],
