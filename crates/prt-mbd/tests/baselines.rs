@@ -1,6 +1,7 @@
-//! The PCA-family baselines, the evaluation and the seam metric.
+//! The PCA-family baselines, the evaluation and the error seams.
 
 use prt_core::{Aabb, Compressor, CoreError, FieldModel, GridField, NoProgress, resample_to_grid};
+use prt_mbd::expert::{kernel_labels, nonzero_voxels};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -29,6 +30,18 @@ fn piecewise_subspace_field(
         }
     }
     field
+}
+
+/// The error seams with the default options.
+fn seams(field: &GridField, recon: &GridField, labels: &[u32]) -> Result<ErrorSeams, MbdError> {
+    error_seams(field, recon, labels, &SeamOptions::default())
+}
+
+/// Rank 2 on a 3³ hat grid, 16 iterations.
+fn short_mbd() -> Mbd {
+    let mut mbd = Mbd::new(2, Basis::HatGrid { nodes: [3, 3, 3] });
+    mbd.solver.max_iterations = 16;
+    mbd
 }
 
 fn rel(model: &dyn FieldModel, field: &GridField) -> f64 {
@@ -240,7 +253,7 @@ fn evaluation_reports_per_block_operator_errors_and_rejects_bad_blocks() {
 
 /// On a smooth field, BPCA's error jumps at block boundaries while MBD's changes smoothly.
 #[test]
-fn seam_metric_is_large_for_bpca_and_small_for_mbd() {
+fn error_seams_are_large_for_bpca_and_small_for_mbd() {
     let field = SyntheticField {
         dims: [16, 16, 16],
         dim: 16,
@@ -256,19 +269,11 @@ fn seam_metric_is_large_for_bpca_and_small_for_mbd() {
     }
     .compress(&field, &NoProgress)
     .unwrap();
-    let bpca_seam = seam_metric(&field, bpca.reconstruction(), bpca.labels()).unwrap();
-    let mbd = Mbd {
-        basis_nodes: [3, 3, 3],
-        options: MbdOptions {
-            rank: 2,
-            max_iterations: 16,
-            ..MbdOptions::default()
-        },
-    };
-    let (model, _) = mbd.fit(&field, &NoProgress).unwrap();
+    let bpca_seam = seams(&field, bpca.reconstruction(), bpca.labels()).unwrap();
+    let model = short_mbd().fit(&field, &NoProgress).unwrap().model;
     let recon = resample_to_grid(&model, field.dims(), field.bounds()).unwrap();
     let labels = kernel_labels(model.basis_kernels(), &field).unwrap();
-    let mbd_seam = seam_metric(&field, &recon, &labels).unwrap();
+    let mbd_seam = seams(&field, &recon, &labels).unwrap();
     assert!(
         mbd_seam.boundary < 0.25 * bpca_seam.boundary,
         "MBD {mbd_seam:?} vs BPCA {bpca_seam:?}"
@@ -282,7 +287,7 @@ fn seam_metric_is_large_for_bpca_and_small_for_mbd() {
 }
 
 #[test]
-fn seam_metric_extremes() {
+fn error_seams_extremes() {
     let field = SyntheticField {
         dims: [4, 4, 4],
         dim: 3,
@@ -292,13 +297,13 @@ fn seam_metric_extremes() {
     .build(Aabb::UNIT)
     .unwrap();
     // A perfect reconstruction has no jumps; a single cluster has no boundary.
-    let s = seam_metric(&field, &field, &[0; 64]).unwrap();
+    let s = seams(&field, &field, &[0; 64]).unwrap();
     assert_eq!((s.boundary, s.interior), (0.0, 0.0));
-    assert!(seam_metric(&field, &field, &[0; 63]).is_err());
+    assert!(seams(&field, &field, &[0; 63]).is_err());
     // A zero field with a non-zero reconstruction still shows its (unnormalised) jumps.
     let zero = GridField::new([4, 4, 4], Aabb::UNIT, 3).unwrap();
     let labels: Vec<u32> = (0..64).map(|v| (v % 4 >= 2) as u32).collect();
-    let s = seam_metric(&zero, &field, &labels).unwrap();
+    let s = seams(&zero, &field, &labels).unwrap();
     assert!(s.boundary > 0.0 && s.boundary.is_finite());
 }
 
@@ -335,24 +340,14 @@ fn denoised_seam_ratio_separates_bpca_from_mbd_on_a_noisy_field() {
     }
     .compress(&field, &NoProgress)
     .unwrap();
-    let (model, _) = Mbd {
-        basis_nodes: [3, 3, 3],
-        options: MbdOptions {
-            rank: 2,
-            max_iterations: 16,
-            ..MbdOptions::default()
-        },
-    }
-    .fit(&field, &NoProgress)
-    .unwrap();
+    let model = short_mbd().fit(&field, &NoProgress).unwrap().model;
     let recon = resample_to_grid(&model, field.dims(), field.bounds()).unwrap();
     let labels = kernel_labels(model.basis_kernels(), &field).unwrap();
     let denoised = SeamOptions::denoised();
-    let bpca_raw = seam_metric(&field, bpca.reconstruction(), bpca.labels()).unwrap();
-    let bpca_seam =
-        seam_metric_with(&field, bpca.reconstruction(), bpca.labels(), &denoised).unwrap();
-    let mbd_raw = seam_metric(&field, &recon, &labels).unwrap();
-    let mbd_seam = seam_metric_with(&field, &recon, &labels, &denoised).unwrap();
+    let bpca_raw = seams(&field, bpca.reconstruction(), bpca.labels()).unwrap();
+    let bpca_seam = error_seams(&field, bpca.reconstruction(), bpca.labels(), &denoised).unwrap();
+    let mbd_raw = seams(&field, &recon, &labels).unwrap();
+    let mbd_seam = error_seams(&field, &recon, &labels, &denoised).unwrap();
     // The noise sits in every error and pulls the raw ratios towards 1; the blur removes it, so
     // BPCA's steps stand out and MBD's boundaries look like its interior.
     assert!(
@@ -388,7 +383,7 @@ fn denoising_the_reference_neither_creates_nor_hides_a_boundary() {
     })
     .unwrap();
     for options in [SeamOptions::default(), denoised] {
-        let s = seam_metric_with(&field, &ramp, &labels, &options).unwrap();
+        let s = error_seams(&field, &ramp, &labels, &options).unwrap();
         assert!((s.ratio() - 1.0).abs() < 1e-4, "{s:?}");
     }
     // A step of the error at the boundary: no interior jump, the full step across it.
@@ -399,7 +394,7 @@ fn denoising_the_reference_neither_creates_nor_hides_a_boundary() {
     .unwrap();
     let step_height = 0.1 / 1.25f64.sqrt();
     for options in [SeamOptions::default(), denoised] {
-        let s = seam_metric_with(&field, &step, &labels, &options).unwrap();
+        let s = error_seams(&field, &step, &labels, &options).unwrap();
         assert_eq!(s.interior, 0.0);
         assert_eq!(s.ratio(), f64::INFINITY);
         assert!(
@@ -410,14 +405,14 @@ fn denoising_the_reference_neither_creates_nor_hides_a_boundary() {
     // With noise on the reference, the raw metric sees the noise everywhere; denoised, the step
     // stands out again.
     let noisy = with_noise(&field, 0.05, 7);
-    let raw = seam_metric(&noisy, &step, &labels).unwrap();
-    let clean = seam_metric_with(&noisy, &step, &labels, &denoised).unwrap();
+    let raw = seams(&noisy, &step, &labels).unwrap();
+    let clean = error_seams(&noisy, &step, &labels, &denoised).unwrap();
     assert!(raw.ratio() < 2.0, "{raw:?}");
     assert!(clean.ratio() > 3.0 * raw.ratio(), "{clean:?} vs {raw:?}");
 }
 
 #[test]
-fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
+fn error_seams_skip_excluded_voxels_and_reject_bad_options() {
     let field = SyntheticField {
         dims: [8, 8, 8],
         dim: 3,
@@ -440,8 +435,8 @@ fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
             denoise_sigma: sigma,
             valid: Some(&valid),
         };
-        let s = seam_metric_with(&field, &recon, &labels, &options).unwrap();
-        let g = seam_metric_with(&field_garbage, &recon_garbage, &labels, &options).unwrap();
+        let s = error_seams(&field, &recon, &labels, &options).unwrap();
+        let g = error_seams(&field_garbage, &recon_garbage, &labels, &options).unwrap();
         assert!(s.boundary > 0.0 && s.interior > 0.0, "{s:?}");
         assert!(
             (s.boundary - g.boundary).abs() <= 1e-9 * s.boundary,
@@ -458,7 +453,7 @@ fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
             valid: None,
         };
         assert!(matches!(
-            seam_metric_with(&field, &recon, &labels, &bad),
+            error_seams(&field, &recon, &labels, &bad),
             Err(MbdError::InvalidOption { .. })
         ));
     }
@@ -467,7 +462,7 @@ fn seam_metric_skips_excluded_voxels_and_rejects_bad_options() {
         denoise_sigma: 0.0,
         valid: Some(&short),
     };
-    assert!(seam_metric_with(&field, &recon, &labels, &bad).is_err());
+    assert!(error_seams(&field, &recon, &labels, &bad).is_err());
 }
 
 #[test]
@@ -500,17 +495,9 @@ fn blocks_of_zero_voxels_are_handled() {
         }
         let e = rel(&bpca, &field);
         assert!(e.is_finite() && e < 0.5, "D = {dim}: {e}");
-        let (mbd, _) = Mbd {
-            basis_nodes: [3, 3, 3],
-            options: MbdOptions {
-                rank: 2,
-                max_iterations: 4,
-                init: Init::LocalPca,
-                ..MbdOptions::default()
-            },
-        }
-        .fit(&field, &NoProgress)
-        .unwrap();
+        let mut mbd = Mbd::new(2, Basis::HatGrid { nodes: [3, 3, 3] });
+        mbd.solver.max_iterations = 4;
+        let mbd = mbd.fit(&field, &NoProgress).unwrap().model;
         assert!(rel(&mbd, &field).is_finite());
     }
 }

@@ -1,10 +1,11 @@
-//! `LabelKernels` and `ClusteredMbd`: MBD on clustered PCA's clusters.
+//! `LabelKernels` and `Basis::Clusters`: MBD on clustered PCA's clusters.
 
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{
     Aabb, Compressor, FieldModel, GridField, KernelWeights, NoProgress, SpatialKernels,
 };
+use prt_mbd::expert::{LabelKernels, fit_on_clusters};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -19,6 +20,17 @@ fn bounds() -> Aabb {
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     (0..n).map(|_| rng.random_range(0..len as u32)).collect()
+}
+
+/// [`Mbd`] of rank `rank` on `count` clusters with the default smoothing and solver.
+fn clustered(rank: usize, count: usize) -> Mbd {
+    Mbd::new(
+        rank,
+        Basis::Clusters {
+            count,
+            smoothing: LabelSmoothing::default(),
+        },
+    )
 }
 
 fn point(bounds: Aabb, u: [f32; 3]) -> Vec3 {
@@ -205,10 +217,10 @@ fn label_kernels_reject_bad_input() {
 
 /// Stripes four voxels wide alternate between two directions in R^12 (a smooth positive
 /// amplitude times `a` or `b`). At rank 1 a hat grid cannot alternate its basis every four
-/// voxels; clustered MBD puts `a` and `b` on the two clusters and errs only where the smoothed
+/// voxels; MBD on clusters puts `a` and `b` on the two clusters and errs only where the smoothed
 /// kernels blend across a stripe boundary (1.0e-2 against the hat grid's 0.19 when written).
 #[test]
-fn clustered_mbd_follows_stripes_the_hat_grid_cannot() {
+fn cluster_basis_follows_stripes_the_hat_grid_cannot() {
     let (dims, dim) = ([16, 6, 6], 12);
     let mut rng = Pcg64Mcg::seed_from_u64(11);
     let directions: Vec<Vec<f32>> = (0..2)
@@ -222,20 +234,20 @@ fn clustered_mbd_follows_stripes_the_hat_grid_cannot() {
         }
     })
     .unwrap();
-    let options = MbdOptions {
-        rank: 1,
-        max_iterations: 48,
-        ..MbdOptions::default()
-    };
     let eval = EvalOptions::default();
-    let clustered = ClusteredMbd {
-        clusters: 8,
-        smoothing: LabelSmoothing {
-            radius: 1,
-            falloff: 0.5,
+    let clustered = Mbd {
+        rank: 1,
+        basis: Basis::Clusters {
+            count: 8,
+            smoothing: LabelSmoothing {
+                radius: 1,
+                falloff: 0.5,
+            },
         },
-        start: ClusterStart::AlignedClusters,
-        options: options.clone(),
+        solver: SolverOptions {
+            max_iterations: 48,
+            ..SolverOptions::default()
+        },
         polish: None,
     };
     let fit = clustered.fit(&field, &NoProgress).unwrap();
@@ -244,10 +256,10 @@ fn clustered_mbd_follows_stripes_the_hat_grid_cannot() {
     assert!(report.history.iter().all(|r| r.loss_after <= r.loss_before));
     let clustered_error = evaluate(&model, &field, &eval).unwrap().relative_mse;
     let hat = Mbd {
-        basis_nodes: [2, 2, 2],
-        options,
+        basis: Basis::HatGrid { nodes: [2, 2, 2] },
+        ..clustered.clone()
     };
-    let hat_error = evaluate(&hat.fit(&field, &NoProgress).unwrap().0, &field, &eval)
+    let hat_error = evaluate(&hat.fit(&field, &NoProgress).unwrap().model, &field, &eval)
         .unwrap()
         .relative_mse;
     assert!(
@@ -263,8 +275,10 @@ fn clustered_mbd_follows_stripes_the_hat_grid_cannot() {
     );
 }
 
+/// Clusters of another rank, zero clusters and fitting on clusters with a hat-grid basis are
+/// typed errors.
 #[test]
-fn clustered_mbd_rejects_mismatched_clusters() {
+fn cluster_basis_rejects_mismatched_clusters() {
     let field = GridField::from_fn([4, 4, 4], Aabb::UNIT, 6, |x, out| {
         out.iter_mut()
             .enumerate()
@@ -274,23 +288,23 @@ fn clustered_mbd_rejects_mismatched_clusters() {
     let cpca = ClusteredPca::new(2, 3)
         .compress(&field, &NoProgress)
         .unwrap();
-    let rank3 = ClusteredMbd::new(3, 3);
     assert!(matches!(
-        rank3.fit_clusters(&field, &cpca, &NoProgress),
+        fit_on_clusters(&clustered(3, 3), &field, &cpca, &NoProgress),
         Err(MbdError::ShapeMismatch {
             what: "clusters",
             ..
         })
     ));
     assert!(matches!(
-        ClusteredMbd::new(2, 0).fit(&field, &NoProgress),
-        Err(MbdError::InvalidOption { .. })
+        clustered(2, 0).fit(&field, &NoProgress),
+        Err(MbdError::InvalidKernels { which: "basis", .. })
     ));
-    assert!(
-        ClusteredMbd::new(2, 3)
-            .fit_clusters(&field, &cpca, &NoProgress)
-            .is_ok()
-    );
+    let hat = Mbd::new(2, Basis::HatGrid { nodes: [2, 2, 2] });
+    assert!(matches!(
+        fit_on_clusters(&hat, &field, &cpca, &NoProgress),
+        Err(MbdError::InvalidOption { what: "basis", .. })
+    ));
+    assert!(fit_on_clusters(&clustered(2, 3), &field, &cpca, &NoProgress).is_ok());
 }
 
 /// The basis-projection seam ratio: a clustered basis that switches between two directions at a

@@ -6,27 +6,25 @@ use ndarray::{Array2, Array3};
 use proptest::prelude::*;
 use prt_core::{Aabb, GridField, NoProgress};
 use prt_kernels::HatGrid;
+use prt_mbd::expert::{
+    POLISH_MAX_BASIS_UNKNOWNS, PolishStep, exact_loss, polish, trilinear_energy,
+};
 use prt_mbd::*;
 
 mod common;
 use common::{
     check_exact_loss, check_polish_descends, check_polish_fits_exactly,
-    check_polish_is_deterministic, global_rank_field,
+    check_polish_is_deterministic, global_rank_field, hat_kernels, hat_mbd,
 };
 
-/// A model with random tensors on the hat grids of [`Mbd`] for `field`.
+/// A model with random tensors on the hat grids of [`Basis::HatGrid`] for `field`.
 fn random_model(
     field: &GridField,
     nodes: [usize; 3],
     rank: usize,
     seed: u64,
 ) -> MbdModel<HatGrid, HatGrid> {
-    let mbd = Mbd {
-        basis_nodes: nodes,
-        options: MbdOptions::default(),
-    };
-    let (_, basis_kernels) = mbd.kernels(field).unwrap();
-    common::random_model(field, basis_kernels, rank, seed)
+    common::random_model(field, hat_kernels(field, nodes).1, rank, seed)
 }
 
 /// The exact loss is the integral. The composite midpoint rule's error falls as h², so its
@@ -95,20 +93,16 @@ fn quick_fit(
     rank: usize,
     iterations: usize,
     seed: u64,
-) -> MbdModel<HatGrid, HatGrid> {
-    let options = MbdOptions {
-        rank,
+) -> MbdModel<HatGrid, BasisKernels> {
+    let options = SolverOptions {
         max_iterations: iterations,
         seed,
-        ..MbdOptions::default()
+        ..SolverOptions::default()
     };
-    Mbd {
-        basis_nodes: nodes,
-        options,
-    }
-    .fit(field, &NoProgress)
-    .unwrap()
-    .0
+    hat_mbd(rank, nodes, options)
+        .fit(field, &NoProgress)
+        .unwrap()
+        .model
 }
 
 proptest! {
@@ -117,12 +111,14 @@ proptest! {
     /// No half-step raises the exact loss, the report's last loss is the returned model's, and
     /// the polish lowers the loss of a short stochastic solve.
     #[test]
-    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY, acceleration in 0usize..3) {
+    fn polish_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, random in proptest::bool::ANY) {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
-        let model = if random { random_model(&field, [3, 2, 2], rank, seed) } else { quick_fit(&field, [3, 2, 2], rank, 8, seed) };
-        let acceleration = [PolishAcceleration::None, PolishAcceleration::Extrapolation, PolishAcceleration::ConjugateGradients][acceleration];
-        let options = PolishOptions { sweeps: 4, tolerance: 0.0, acceleration, ..PolishOptions::default() };
-        check_polish_descends(&field, model, &options)?;
+        let options = PolishOptions { iterations: 4, tolerance: 0.0, ..PolishOptions::default() };
+        if random {
+            check_polish_descends(&field, random_model(&field, [3, 2, 2], rank, seed), &options)?;
+        } else {
+            check_polish_descends(&field, quick_fit(&field, [3, 2, 2], rank, 8, seed), &options)?;
+        }
     }
 
     /// A field that is exactly a rank-L MBD (one global basis) is fitted to rounding.
@@ -130,21 +126,7 @@ proptest! {
     fn polish_is_exact_on_a_rank_l_field(seed in 0u64..1000, rank in 1usize..4) {
         let field = global_rank_field([5, 6, 4], 9, rank, seed);
         let model = quick_fit(&field, [2, 3, 2], rank, 4, seed);
-        let options = PolishOptions { sweeps: 6, lambda: 1e-7, ..PolishOptions::default() };
-        check_polish_fits_exactly(&field, model, &options)?;
-    }
-
-    /// The conjugate-gradient polish fits a rank-L field to rounding too.
-    #[test]
-    fn conjugate_polish_is_exact_on_a_rank_l_field(seed in 0u64..1000, rank in 1usize..4) {
-        let field = global_rank_field([5, 6, 4], 9, rank, seed);
-        let model = quick_fit(&field, [2, 3, 2], rank, 4, seed);
-        let options = PolishOptions {
-            sweeps: 8,
-            lambda: 1e-7,
-            acceleration: PolishAcceleration::ConjugateGradients,
-            ..PolishOptions::default()
-        };
+        let options = PolishOptions { iterations: 6, lambda: 1e-7, ..PolishOptions::default() };
         check_polish_fits_exactly(&field, model, &options)?;
     }
 }
@@ -161,18 +143,12 @@ fn polish_is_deterministic_across_thread_counts() {
     .build(Aabb::UNIT)
     .unwrap();
     let model = quick_fit(&field, [3, 3, 2], 3, 6, 1);
-    for acceleration in [
-        PolishAcceleration::Extrapolation,
-        PolishAcceleration::ConjugateGradients,
-    ] {
-        let options = PolishOptions {
-            sweeps: 3,
-            tolerance: 0.0,
-            acceleration,
-            ..PolishOptions::default()
-        };
-        check_polish_is_deterministic(&field, &model, &options);
-    }
+    let options = PolishOptions {
+        iterations: 3,
+        tolerance: 0.0,
+        ..PolishOptions::default()
+    };
+    check_polish_is_deterministic(&field, &model, &options);
 }
 
 /// Kernels other than those of `Mbd`, bad options and too large a basis are typed errors.
@@ -232,12 +208,7 @@ fn polish_refuses_what_it_cannot_do() {
         "max_cg_iterations",
     );
     // Coefficient kernels that are not one hat per voxel centre.
-    let (_, basis) = Mbd {
-        basis_nodes: [3, 2, 2],
-        options: MbdOptions::default(),
-    }
-    .kernels(&field)
-    .unwrap();
+    let (coefficients, basis) = hat_kernels(&field, [3, 2, 2]);
     let coarse = HatGrid::new([3, 5, 4], Aabb::UNIT).unwrap();
     let wrong = MbdModel::new(
         coarse,
@@ -254,12 +225,6 @@ fn polish_refuses_what_it_cannot_do() {
         })
     ));
     // A basis grid over another box.
-    let (coefficients, _) = Mbd {
-        basis_nodes: [3, 2, 2],
-        options: MbdOptions::default(),
-    }
-    .kernels(&field)
-    .unwrap();
     let shifted = HatGrid::new([3, 2, 2], Aabb::new(Vec3::ZERO, Vec3::splat(2.0))).unwrap();
     let wrong = MbdModel::new(
         coefficients.clone(),
@@ -285,12 +250,7 @@ fn polish_refuses_what_it_cannot_do() {
         Err(MbdError::ShapeMismatch { .. })
     ));
     // Too many basis unknowns for the dense basis step.
-    let big = Mbd {
-        basis_nodes: [6, 5, 4],
-        options: MbdOptions::default(),
-    }
-    .kernels(&field)
-    .unwrap();
+    let big = hat_kernels(&field, [6, 5, 4]);
     let rank = POLISH_MAX_BASIS_UNKNOWNS / 120 + 1;
     let huge = MbdModel::new(
         big.0,
@@ -323,12 +283,7 @@ fn polish_refuses_what_it_cannot_do() {
     }
     .build(Aabb::UNIT)
     .unwrap();
-    let kernels = Mbd {
-        basis_nodes: [3, 2, 2],
-        options: MbdOptions::default(),
-    }
-    .kernels(&flat)
-    .unwrap();
+    let kernels = hat_kernels(&flat, [3, 2, 2]);
     let thin = MbdModel::new(
         kernels.0,
         kernels.1,
@@ -347,8 +302,8 @@ fn polish_refuses_what_it_cannot_do() {
     assert!(cancelled.is_cancelled(), "{cancelled:?}");
 }
 
-/// The tolerance stops the polish once a sweep gains less than that fraction of the data term;
-/// tolerance 0 runs every sweep.
+/// The tolerance stops the polish once the mean gain of its last three iterations falls below
+/// that fraction of the data term; tolerance 0 runs every iteration.
 #[test]
 fn polish_stops_on_its_tolerance() {
     let field = SyntheticField {
@@ -360,46 +315,35 @@ fn polish_stops_on_its_tolerance() {
     .build(Aabb::UNIT)
     .unwrap();
     let model = quick_fit(&field, [3, 2, 2], 2, 8, 2);
-    for acceleration in [
-        PolishAcceleration::Extrapolation,
-        PolishAcceleration::ConjugateGradients,
-    ] {
-        let run = |tolerance: f64| {
-            let options = PolishOptions {
-                sweeps: 4,
-                tolerance,
-                acceleration,
-                ..PolishOptions::default()
-            };
-            polish(&field, model.clone(), &options, &NoProgress)
-                .unwrap()
-                .1
+    let run = |tolerance: f64| {
+        let options = PolishOptions {
+            iterations: 4,
+            tolerance,
+            ..PolishOptions::default()
         };
-        let sweeps = |report: &PolishReport| {
-            report
-                .history
-                .iter()
-                .filter(|r| r.step == PolishStep::Coefficients)
-                .count()
-        };
-        let stopped = run(10.0);
-        assert!(stopped.converged);
-        assert_eq!(stopped.history[0].step, PolishStep::Basis);
-        // The conjugate gradients judge the mean of their last three iterations.
-        let first_chance = if acceleration == PolishAcceleration::ConjugateGradients {
-            3
-        } else {
-            1
-        };
-        assert_eq!(sweeps(&stopped), first_chance, "{acceleration:?}");
-        assert_eq!(
-            stopped.history.last().unwrap().step,
-            PolishStep::Coefficients
-        );
-        let full = run(0.0);
-        assert!(!full.converged);
-        assert_eq!(sweeps(&full), 4, "{acceleration:?}");
-    }
+        polish(&field, model.clone(), &options, &NoProgress)
+            .unwrap()
+            .1
+    };
+    let iterations = |report: &PolishReport| {
+        report
+            .history
+            .iter()
+            .filter(|r| r.step == PolishStep::Coefficients)
+            .count()
+    };
+    let stopped = run(10.0);
+    assert!(stopped.converged);
+    assert_eq!(stopped.history[0].step, PolishStep::Basis);
+    // The first chance to stop is the third iteration.
+    assert_eq!(iterations(&stopped), 3);
+    assert_eq!(
+        stopped.history.last().unwrap().step,
+        PolishStep::Coefficients
+    );
+    let full = run(0.0);
+    assert!(!full.converged);
+    assert_eq!(iterations(&full), 4);
 }
 
 /// Extremes: a zero field stays exactly zero (no error, zero energy), a constant field is
@@ -418,7 +362,7 @@ fn polish_handles_zero_and_constant_fields() {
     .unwrap();
     let model = quick_fit(&constant, [2, 2, 3], 1, 4, 0);
     let options = PolishOptions {
-        sweeps: 4,
+        iterations: 4,
         ..PolishOptions::default()
     };
     let (_, report) = polish(&constant, model, &options, &NoProgress).unwrap();

@@ -1,10 +1,10 @@
-//! The exact polish with basis kernels stored at the voxel centres ([`LabelKernels`],
-//! [`WallAware`]): its loss is the continuous integral, it never increases, it fits an exactly
+//! The exact polish with basis kernels stored at the voxel centres ([`LabelKernels`]): its loss is the continuous integral, it never increases, it fits an exactly
 //! representable field, it is deterministic, and it refuses kernels of another grid.
 
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{Aabb, Compressor, GridField, NoProgress};
+use prt_mbd::expert::{LabelKernels, exact_loss, polish};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -12,7 +12,7 @@ use rand_pcg::Pcg64Mcg;
 mod common;
 use common::{
     check_exact_loss, check_polish_descends, check_polish_fits_exactly,
-    check_polish_is_deterministic, floor_and_column_scene, global_rank_field, random_model,
+    check_polish_is_deterministic, global_rank_field, polish_trace, random_model, solve_trace,
 };
 
 fn random_labels(n: usize, len: usize, seed: u64) -> Vec<u32> {
@@ -29,8 +29,8 @@ fn label_kernels(field: &GridField, len: usize, radius: usize, seed: u64) -> Lab
     LabelKernels::new(field.dims(), field.bounds(), &labels, len, None, &smoothing).unwrap()
 }
 
-/// The exact loss is the continuous integral for label kernels (sharp and smoothed) and for
-/// wall-aware hats, on a box that is not the unit cube.
+/// The exact loss is the continuous integral for label kernels (sharp and smoothed), on a box
+/// that is not the unit cube.
 #[test]
 fn exact_loss_with_voxel_kernels_is_the_continuous_integral() {
     let bounds = Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(2.0, 1.5, 5.0));
@@ -46,15 +46,6 @@ fn exact_loss_with_voxel_kernels_is_the_continuous_integral() {
         let model = random_model(&field, label_kernels(&field, 4, radius, 9), 2, 7);
         check_exact_loss(&field, &model);
     }
-    let (scene, valid) = floor_and_column_scene(
-        Vec3::new(-1.0, 0.0, 2.0),
-        Vec3::new(2.0, 1.5, 5.0),
-        4,
-        3.0,
-        5,
-    );
-    let walls = wall_aware_basis(&scene, &valid, [3, 3, 2], &WallOptions::default()).unwrap();
-    check_exact_loss(&scene, &random_model(&scene, walls, 2, 3));
 }
 
 proptest! {
@@ -65,15 +56,14 @@ proptest! {
     #[test]
     fn polish_with_label_kernels_never_increases_the_exact_loss(seed in 0u64..1000, rank in 1usize..4, radius in 0usize..3) {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
-        let clustered = ClusteredMbd {
-            clusters: 4,
-            smoothing: LabelSmoothing { radius, falloff: 0.5 },
-            start: ClusterStart::AlignedClusters,
-            options: MbdOptions { rank, max_iterations: 8, seed, ..MbdOptions::default() },
+        let clustered = Mbd {
+            rank,
+            basis: Basis::Clusters { count: 4, smoothing: LabelSmoothing { radius, falloff: 0.5 } },
+            solver: SolverOptions { max_iterations: 8, seed, ..SolverOptions::default() },
             polish: None,
         };
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
-        let options = PolishOptions { sweeps: 4, tolerance: 0.0, ..PolishOptions::default() };
+        let options = PolishOptions { iterations: 4, tolerance: 0.0, ..PolishOptions::default() };
         check_polish_descends(&field, model, &options)?;
     }
 
@@ -83,11 +73,11 @@ proptest! {
     #[test]
     fn polish_with_label_kernels_is_exact_on_a_rank_l_field(seed in 0u64..1000, rank in 1usize..4) {
         let field = global_rank_field([5, 6, 4], 9, rank, seed);
-        let mut clustered = ClusteredMbd::new(rank, 3);
-        clustered.options.max_iterations = 4;
-        clustered.options.seed = seed;
+        let mut clustered = Mbd::new(rank, Basis::Clusters { count: 3, smoothing: LabelSmoothing::default() });
+        clustered.solver.max_iterations = 4;
+        clustered.solver.seed = seed;
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
-        let options = PolishOptions { sweeps: 16, lambda: 1e-7, ..PolishOptions::default() };
+        let options = PolishOptions { iterations: 16, lambda: 1e-7, ..PolishOptions::default() };
         check_polish_fits_exactly(&field, model, &options)?;
     }
 }
@@ -105,7 +95,7 @@ fn polish_with_label_kernels_is_deterministic_across_thread_counts() {
     .unwrap();
     let model = random_model(&field, label_kernels(&field, 6, 2, 1), 3, 1);
     let options = PolishOptions {
-        sweeps: 2,
+        iterations: 2,
         tolerance: 0.0,
         ..PolishOptions::default()
     };
@@ -142,10 +132,10 @@ fn polish_refuses_voxel_kernels_of_another_grid() {
     }
 }
 
-/// `ClusteredMbd` with `polish` set is its solve followed by that polish, bit for bit, and bad
-/// polish options fail before the solve.
+/// [`Basis::Clusters`] with `polish` set is its solve followed by that polish, bit for bit, and
+/// bad polish options fail before the solve.
 #[test]
-fn clustered_mbd_chains_the_polish() {
+fn cluster_basis_chains_the_polish() {
     let field = SyntheticField {
         dims: [7, 6, 5],
         dim: 9,
@@ -155,34 +145,28 @@ fn clustered_mbd_chains_the_polish() {
     .build(Aabb::UNIT)
     .unwrap();
     let options = PolishOptions {
-        sweeps: 3,
+        iterations: 3,
         tolerance: 0.0,
         ..PolishOptions::default()
     };
-    let mut clustered = ClusteredMbd::new(2, 4);
-    clustered.options.max_iterations = 6;
+    let mut clustered = Mbd::new(
+        2,
+        Basis::Clusters {
+            count: 4,
+            smoothing: LabelSmoothing::default(),
+        },
+    );
+    clustered.solver.max_iterations = 6;
     let solved = clustered.fit(&field, &NoProgress).unwrap();
     assert!(solved.polish.is_none());
     let (expected, expected_report) =
         polish(&field, solved.model.clone(), &options, &NoProgress).unwrap();
     clustered.polish = Some(options);
     let chained = clustered.fit(&field, &NoProgress).unwrap();
-    let losses = |history: &[IterationRecord]| -> Vec<f64> {
-        history.iter().map(|r| r.loss_after).collect()
-    };
-    assert_eq!(
-        losses(&chained.solve.history),
-        losses(&solved.solve.history)
-    );
+    assert_eq!(solve_trace(&chained.solve), solve_trace(&solved.solve));
     let polished = chained.polish.expect("a polish report");
     assert_eq!(polished.initial, expected_report.initial);
-    assert_eq!(polished.history.len(), expected_report.history.len());
-    for (got, want) in polished.history.iter().zip(&expected_report.history) {
-        assert_eq!(
-            (got.step, got.loss, got.accepted),
-            (want.step, want.loss, want.accepted)
-        );
-    }
+    assert_eq!(polish_trace(&polished), polish_trace(&expected_report));
     assert_eq!(chained.model.coefficients(), expected.coefficients());
     assert_eq!(chained.model.basis(), expected.basis());
     let before = exact_loss(&field, &solved.model, 1e-8).unwrap().loss();

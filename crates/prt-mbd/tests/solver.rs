@@ -8,18 +8,18 @@ use prt_core::{
     SpatialKernels,
 };
 use prt_kernels::HatGrid;
+use prt_mbd::expert::{solve, solve_from_basis, voxel_centre_box};
 use prt_mbd::*;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 mod common;
-use common::global_rank_field;
+use common::{global_rank_field, hat_kernels, hat_mbd};
 
-fn quick(rank: usize) -> MbdOptions {
-    MbdOptions {
-        rank,
+fn quick() -> SolverOptions {
+    SolverOptions {
         max_iterations: 12,
-        ..MbdOptions::default()
+        ..SolverOptions::default()
     }
 }
 
@@ -30,9 +30,9 @@ proptest! {
     #[test]
     fn loss_never_increases_across_an_accepted_step(seed in 0u64..1000, rank in 1usize..4, pre in 0usize..2) {
         let field = SyntheticField { dims: [6, 5, 4], dim: 7, harmonics: 3, seed }.build(Aabb::UNIT).unwrap();
-        let preconditioner = if pre == 0 { Preconditioner::Diagonal } else { Preconditioner::Lumped };
-        let options = MbdOptions { rank, seed, preconditioner, ..quick(rank) };
-        let (_, report) = Mbd { basis_nodes: [3, 2, 2], options }.fit(&field, &NoProgress).unwrap();
+        let preconditioner = if pre == 0 { Preconditioner::Diagonal } else { Preconditioner::Block };
+        let options = SolverOptions { seed, preconditioner, ..quick() };
+        let report = hat_mbd(rank, [3, 2, 2], options).fit(&field, &NoProgress).unwrap().solve;
         prop_assert!(!report.history.is_empty());
         for r in &report.history {
             prop_assert!(r.loss_after <= r.loss_before, "{} > {}", r.loss_after, r.loss_before);
@@ -44,8 +44,7 @@ proptest! {
     #[test]
     fn exact_rank_l_field_is_recovered(seed in 0u64..1000, rank in 1usize..4) {
         let field = global_rank_field([6, 5, 4], 9, rank, seed);
-        let mbd = Mbd { basis_nodes: [2, 3, 2], options: quick(rank) };
-        let (model, _) = mbd.fit(&field, &NoProgress).unwrap();
+        let model = hat_mbd(rank, [2, 3, 2], quick()).fit(&field, &NoProgress).unwrap().model;
         let e = evaluate(&model, &field, &EvalOptions::default()).unwrap();
         prop_assert!(e.relative_mse <= 1e-5, "relative MSE {}", e.relative_mse);
     }
@@ -57,8 +56,8 @@ proptest! {
         let scale = 10f32.powi(scale_exp);
         let mut field = SyntheticField { dims: [5, 5, 5], dim: 6, harmonics: 2, seed }.build(Aabb::UNIT).unwrap();
         field.data_mut().mapv_inplace(|v| v * scale);
-        let options = MbdOptions { lambda: 1e-2, ..quick(2) };
-        let (model, report) = Mbd { basis_nodes: [2, 2, 2], options: options.clone() }.fit(&field, &NoProgress).unwrap();
+        let options = SolverOptions { lambda: 1e-2, ..quick() };
+        let MbdFit { model, solve: report, .. } = hat_mbd(2, [2, 2, 2], options.clone()).fit(&field, &NoProgress).unwrap();
         let c2: f64 = model.coefficients().iter().map(|&c| (c as f64) * (c as f64)).sum();
         let e0 = report.history[0].loss_before;
         prop_assert!(0.5 * options.lambda as f64 * c2 <= e0 * (1.0 + 1e-6), "{} > {}", 0.5 * options.lambda as f64 * c2, e0);
@@ -76,8 +75,8 @@ proptest! {
     fn a_larger_rank_ends_at_least_as_well(seed in 0u64..1000, rank in 6usize..=8) {
         let field = SyntheticField { dims: [8, 8, 8], dim: 48, harmonics: 4, seed }.build(Aabb::UNIT).unwrap();
         let fit = |rank: usize, max_iterations: usize| {
-            let options = MbdOptions { rank, max_iterations, tolerance: 0.0, seed, ..MbdOptions::default() };
-            let (model, _) = Mbd { basis_nodes: [3, 3, 3], options }.fit(&field, &NoProgress).unwrap();
+            let options = SolverOptions { max_iterations, tolerance: 0.0, seed, ..SolverOptions::default() };
+            let model = hat_mbd(rank, [3, 3, 3], options).fit(&field, &NoProgress).unwrap().model;
             evaluate(&model, &field, &EvalOptions::default()).unwrap().relative_mse
         };
         let small = fit(rank, 64);
@@ -90,12 +89,13 @@ proptest! {
 #[test]
 fn zero_and_constant_fields_are_handled_exactly() {
     let zero = GridField::new([4, 3, 5], Aabb::UNIT, 6).unwrap();
-    let (model, report) = Mbd {
-        basis_nodes: [2, 2, 2],
-        options: quick(2),
-    }
-    .fit(&zero, &NoProgress)
-    .unwrap();
+    let MbdFit {
+        model,
+        solve: report,
+        ..
+    } = hat_mbd(2, [2, 2, 2], quick())
+        .fit(&zero, &NoProgress)
+        .unwrap();
     assert!(model.coefficients().iter().all(|&c| c == 0.0));
     assert!(report.converged);
     assert_eq!(
@@ -111,12 +111,10 @@ fn zero_and_constant_fields_are_handled_exactly() {
             .for_each(|(i, o)| *o = i as f32 - 2.5)
     })
     .unwrap();
-    let (model, _) = Mbd {
-        basis_nodes: [3, 2, 2],
-        options: quick(1),
-    }
-    .fit(&constant, &NoProgress)
-    .unwrap();
+    let model = hat_mbd(1, [3, 2, 2], quick())
+        .fit(&constant, &NoProgress)
+        .unwrap()
+        .model;
     let e = evaluate(&model, &constant, &EvalOptions::default()).unwrap();
     assert!(e.relative_mse < 1e-8, "{}", e.relative_mse);
 }
@@ -126,15 +124,17 @@ fn mbd_beats_global_pca_on_a_curved_field() {
     let field = SyntheticField::new([10, 10, 10], 24)
         .build(Aabb::UNIT)
         .unwrap();
-    let (model, report) = Mbd {
-        basis_nodes: [3, 3, 3],
-        options: MbdOptions {
-            max_iterations: 24,
-            ..quick(3)
-        },
-    }
-    .fit(&field, &NoProgress)
-    .unwrap();
+    let solver = SolverOptions {
+        max_iterations: 24,
+        ..quick()
+    };
+    let MbdFit {
+        model,
+        solve: report,
+        ..
+    } = hat_mbd(3, [3, 3, 3], solver)
+        .fit(&field, &NoProgress)
+        .unwrap();
     let mbd = evaluate(&model, &field, &EvalOptions::default())
         .unwrap()
         .relative_mse;
@@ -166,28 +166,21 @@ fn default_solver_stops_near_its_long_run_error() {
     }
     .build(Aabb::UNIT)
     .unwrap();
-    let fit = |options: MbdOptions| {
-        let (model, report) = Mbd {
-            basis_nodes: [3, 3, 3],
-            options,
-        }
-        .fit(&field, &NoProgress)
-        .unwrap();
-        let e = evaluate(&model, &field, &EvalOptions::default()).unwrap();
-        (e.relative_mse, report)
+    let fit = |options: SolverOptions| {
+        let fit = hat_mbd(2, [3, 3, 3], options)
+            .fit(&field, &NoProgress)
+            .unwrap();
+        let e = evaluate(&fit.model, &field, &EvalOptions::default()).unwrap();
+        (e.relative_mse, fit.solve)
     };
-    let (stopped, report) = fit(MbdOptions {
-        rank: 2,
-        ..MbdOptions::default()
-    });
+    let (stopped, report) = fit(SolverOptions::default());
     let iterations = report.history.len();
     assert!(report.converged, "no stop within {iterations} iterations");
     assert!((16..128).contains(&iterations), "{iterations} iterations");
-    let (long, _) = fit(MbdOptions {
-        rank: 2,
+    let (long, _) = fit(SolverOptions {
         max_iterations: 4 * iterations,
         tolerance: 0.0,
-        ..MbdOptions::default()
+        ..SolverOptions::default()
     });
     assert!(
         stopped <= 1.1 * long,
@@ -208,19 +201,17 @@ fn momentum_keeps_accepted_steps_monotone() {
     .build(Aabb::UNIT)
     .unwrap();
     for (momentum_basis, momentum_coefficients) in [(0.0, 0.0), (0.9, 0.6), (0.99, 0.99)] {
-        let options = MbdOptions {
+        let options = SolverOptions {
             momentum_basis,
             momentum_coefficients,
             max_iterations: 24,
             tolerance: 0.0,
-            ..quick(3)
+            ..quick()
         };
-        let (_, report) = Mbd {
-            basis_nodes: [3, 3, 2],
-            options,
-        }
-        .fit(&field, &NoProgress)
-        .unwrap();
+        let report = hat_mbd(3, [3, 3, 2], options)
+            .fit(&field, &NoProgress)
+            .unwrap()
+            .solve;
         assert_eq!(report.history.len(), 24);
         for r in &report.history {
             assert!(
@@ -249,13 +240,10 @@ fn same_seed_gives_the_same_model_on_any_thread_count() {
             .build()
             .unwrap();
         pool.install(|| {
-            Mbd {
-                basis_nodes: [3, 3, 2],
-                options: quick(3),
-            }
-            .fit(&field, &NoProgress)
-            .unwrap()
-            .0
+            hat_mbd(3, [3, 3, 2], quick())
+                .fit(&field, &NoProgress)
+                .unwrap()
+                .model
         })
     };
     let (a, b) = (fit(1), fit(3));
@@ -274,12 +262,9 @@ fn cancellation_stops_the_solver() {
     .build(Aabb::UNIT)
     .unwrap();
     let progress = AtomicProgress::cancel_after(2);
-    let err = Mbd {
-        basis_nodes: [2, 2, 2],
-        options: quick(2),
-    }
-    .fit(&field, &progress)
-    .unwrap_err();
+    let err = hat_mbd(2, [2, 2, 2], quick())
+        .fit(&field, &progress)
+        .unwrap_err();
     assert!(err.is_cancelled(), "{err}");
     assert_eq!(progress.position(), 2);
 }
@@ -319,13 +304,8 @@ fn bad_input_gives_typed_errors() {
     }
     .build(Aabb::UNIT)
     .unwrap();
-    let fit = |rank: usize, nodes: [usize; 3]| {
-        Mbd {
-            basis_nodes: nodes,
-            options: quick(rank),
-        }
-        .fit(&field, &NoProgress)
-    };
+    let fit =
+        |rank: usize, nodes: [usize; 3]| hat_mbd(rank, nodes, quick()).fit(&field, &NoProgress);
     assert!(matches!(
         fit(0, [2, 2, 2]),
         Err(MbdError::InvalidRank { rank: 0, dim: 5 })
@@ -342,7 +322,7 @@ fn bad_input_gives_typed_errors() {
     let coef = HatGrid::new([4, 4, 4], voxel_centre_box(&field)).unwrap();
     let half = Aabb::new(glam::Vec3::ZERO, glam::Vec3::splat(0.5));
     let basis = Cropped(HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap(), half);
-    let err = solve(&field, coef.clone(), basis, &quick(2), &NoProgress).unwrap_err();
+    let err = solve(&field, coef.clone(), basis, 2, &quick(), &NoProgress).unwrap_err();
     assert!(
         matches!(err, MbdError::KernelsDoNotCover { which: "basis", .. }),
         "{err}"
@@ -354,7 +334,8 @@ fn bad_input_gives_typed_errors() {
         &nan,
         coef.clone(),
         HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap(),
-        &quick(2),
+        2,
+        &quick(),
         &NoProgress,
     )
     .unwrap_err();
@@ -366,14 +347,15 @@ fn bad_input_gives_typed_errors() {
         })
     );
 
-    let bad_lambda = MbdOptions {
+    let bad_lambda = SolverOptions {
         lambda: -1.0,
-        ..quick(2)
+        ..quick()
     };
     let err = solve(
         &field,
         coef,
         HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap(),
+        2,
         &bad_lambda,
         &NoProgress,
     )
@@ -463,225 +445,47 @@ fn model_eval_is_the_product_of_interpolants() {
     );
 }
 
-/// Alternating least squares: every iteration lowers the discrete loss, an exact rank-L field is
-/// recovered, and kernels that do not interpolate at the voxel centres are refused.
-#[test]
-fn als_decreases_the_loss_and_recovers_exact_fields() {
-    let field = SyntheticField {
-        dims: [8, 7, 6],
-        dim: 12,
-        harmonics: 3,
-        seed: 2,
-    }
-    .build(Aabb::UNIT)
-    .unwrap();
-    let mbd = Mbd {
-        basis_nodes: [3, 3, 2],
-        options: quick(3),
-    };
-    let (coef, basis) = mbd.kernels(&field).unwrap();
-    let (model, report) = solve_als(&field, coef, basis, &mbd.options, &NoProgress).unwrap();
-    assert!(
-        report
-            .history
-            .iter()
-            .all(|r| r.loss_after <= r.loss_before * (1.0 + 1e-6))
-    );
-    let first = report.history[0].loss_before;
-    assert!(report.history.last().unwrap().loss_after < 0.5 * first);
-    let als = evaluate(&model, &field, &EvalOptions::default())
-        .unwrap()
-        .relative_mse;
-    assert!(als < 0.05, "{als}");
-
-    let exact = global_rank_field([6, 5, 4], 9, 2, 3);
-    let mbd = Mbd {
-        basis_nodes: [2, 2, 2],
-        options: quick(2),
-    };
-    let (coef, basis) = mbd.kernels(&exact).unwrap();
-    let (model, _) = solve_als(&exact, coef, basis, &mbd.options, &NoProgress).unwrap();
-    assert!(
-        evaluate(&model, &exact, &EvalOptions::default())
-            .unwrap()
-            .relative_mse
-            < 1e-5
-    );
-
-    // Right after the global-PCA start every node holds the same basis, so the basis normal
-    // equations are rank deficient: the step must still succeed and lower the loss.
-    let wide = SyntheticField {
-        dims: [10, 10, 10],
-        dim: 40,
-        harmonics: 4,
-        seed: 1,
-    }
-    .build(Aabb::UNIT)
-    .unwrap();
-    let mbd = Mbd {
-        basis_nodes: [3, 3, 3],
-        options: MbdOptions {
-            max_iterations: 2,
-            ..quick(6)
-        },
-    };
-    let (coef, basis) = mbd.kernels(&wide).unwrap();
-    let (_, report) = solve_als(&wide, coef, basis, &mbd.options, &NoProgress).unwrap();
-    assert!(report.history[0].loss_after < report.history[0].loss_before);
-
-    let coarse = HatGrid::new([3, 3, 3], Aabb::UNIT).unwrap();
-    let err = solve_als(
-        &exact,
-        coarse,
-        HatGrid::new([2, 2, 2], Aabb::UNIT).unwrap(),
-        &quick(2),
-        &NoProgress,
-    )
-    .unwrap_err();
-    assert!(
-        matches!(
-            err,
-            MbdError::InvalidKernels {
-                which: "coefficient",
-                ..
-            }
-        ),
-        "{err}"
-    );
-}
-
-#[test]
-fn als_accepts_hat_weights_rounded_off_the_origin() {
-    // The traced Cornell box's grid: 32 × 31 × 32 voxels over bounds away from the origin, where
-    // the f32 hat weights at voxel centres miss 1 by a few 1e-6 (ALS refused this grid).
-    let bounds = Aabb::new(
-        glam::Vec3::new(-1.02, 0.0, -1.04),
-        glam::Vec3::new(1.0, 1.99, 0.99),
-    );
-    let field = SyntheticField {
-        dims: [32, 31, 32],
-        dim: 3,
-        harmonics: 1,
-        seed: 4,
-    }
-    .build(bounds)
-    .unwrap();
-    let mbd = Mbd {
-        basis_nodes: [2, 2, 2],
-        options: MbdOptions {
-            max_iterations: 1,
-            ..quick(1)
-        },
-    };
-    let (coef, basis) = mbd.kernels(&field).unwrap();
-    let (_, report) = solve_als(&field, coef, basis, &mbd.options, &NoProgress).unwrap();
-    assert!(report.history[0].loss_after <= report.history[0].loss_before);
-}
-
-#[test]
-fn als_stays_bounded_where_most_voxels_are_zero() {
-    // Like a traced volume with invalid (zero) voxels through it (60 % here), so some basis
-    // nodes see little. On the traced Sponza volume the undamped basis step grew the basis there
-    // (exact at the voxel centres, wrong between them) and ended 5.5x above its global-PCA
-    // start; this smaller field does not reproduce that blow-up (it passes undamped too), so it
-    // guards the property, not the Sponza case (measured in docs/results.md).
-    let mut field = SyntheticField {
-        dims: [20, 20, 20],
-        dim: 96,
-        harmonics: 3,
-        seed: 8,
-    }
-    .build(Aabb::UNIT)
-    .unwrap();
-    for v in 0..field.num_voxels() {
-        let [x, y, z] = field.coords(v);
-        if (x * 7 + y * 3 + z * 5) % 5 < 3 {
-            field.voxel_mut(v).fill(0.0);
-        }
-    }
-    let options = MbdOptions {
-        max_iterations: 2,
-        tolerance: 0.0,
-        ..quick(8)
-    };
-    let mbd = Mbd {
-        basis_nodes: [5, 5, 5],
-        options: options.clone(),
-    };
-    let start = {
-        let (coef, basis) = mbd.kernels(&field).unwrap();
-        let none = MbdOptions {
-            max_iterations: 0,
-            ..options.clone()
-        };
-        solve_als(&field, coef, basis, &none, &NoProgress)
-            .unwrap()
-            .0
-    };
-    let (coef, basis) = mbd.kernels(&field).unwrap();
-    let (model, _) = solve_als(&field, coef, basis, &options, &NoProgress).unwrap();
-    let error = |m: &dyn FieldModel| {
-        evaluate(m, &field, &EvalOptions::default())
-            .unwrap()
-            .relative_mse
-    };
-    let (before, after) = (error(&start), error(&model));
-    assert!(after < before, "ALS {after:.3e} vs its start {before:.3e}");
-}
-
-/// The solve starts from the given basis, not from `options.init`: from the field's exact
-/// subspace at every node one iteration ends at rounding error, from a random basis far from it;
-/// a basis of the wrong shape or with a NaN is a typed error.
+/// The solve starts from the given basis, not from the global principal subspace: from the
+/// field's exact subspace at every node one iteration ends at rounding error, from a random basis
+/// far from it; a basis of the wrong shape or with a NaN is a typed error.
 #[test]
 fn solve_from_basis_checks_and_uses_the_given_basis() {
     let field = global_rank_field([6, 5, 4], 10, 3, 5);
-    let mbd = Mbd {
-        basis_nodes: [2, 2, 2],
-        options: MbdOptions {
-            rank: 3,
-            max_iterations: 1,
-            ..MbdOptions::default()
-        },
+    let options = SolverOptions {
+        max_iterations: 1,
+        ..SolverOptions::default()
     };
-    let (c, b) = mbd.kernels(&field).unwrap();
+    let (c, b) = hat_kernels(&field, [2, 2, 2]);
     let global = GlobalPca { rank: 3 }.compress(&field, &NoProgress).unwrap();
     let exact = global.bases().broadcast((8, 3, 10)).unwrap().to_owned();
     let eval = EvalOptions::default();
     let error_from = |basis: &Array3<f32>| {
-        let (model, _) = solve_from_basis(
-            &field,
-            c.clone(),
-            b.clone(),
-            basis,
-            &mbd.options,
-            &NoProgress,
-        )
-        .unwrap();
+        let (model, _) =
+            solve_from_basis(&field, c.clone(), b.clone(), basis, &options, &NoProgress).unwrap();
         evaluate(&model, &field, &eval).unwrap().relative_mse
     };
     assert!(error_from(&exact) < 1e-8, "{:.3e}", error_from(&exact));
     let mut rng = Pcg64Mcg::seed_from_u64(3);
     let random = Array3::from_shape_fn((8, 3, 10), |_| rng.random::<f32>() - 0.5);
     assert!(error_from(&random) > 1e-3, "{:.3e}", error_from(&random));
-    let wrong = Array3::<f32>::zeros((8, 2, 10));
-    assert!(matches!(
-        solve_from_basis(
-            &field,
-            c.clone(),
-            b.clone(),
-            &wrong,
-            &mbd.options,
-            &NoProgress
-        ),
-        Err(MbdError::InvalidOption {
-            what: "initial_basis",
-            ..
-        })
-    ));
+    // The rank is the basis's; the node count, the vector dimension and a rank of 0 are checked.
+    for shape in [(7, 3, 10), (8, 3, 9), (8, 0, 10)] {
+        let wrong = Array3::<f32>::zeros(shape);
+        assert!(
+            matches!(
+                solve_from_basis(&field, c.clone(), b.clone(), &wrong, &options, &NoProgress),
+                Err(MbdError::InvalidOption {
+                    what: "initial_basis",
+                    ..
+                })
+            ),
+            "{shape:?}"
+        );
+    }
     let mut nan = exact;
     nan[[3, 1, 4]] = f32::NAN;
     assert!(matches!(
-        solve_from_basis(&field, c, b, &nan, &mbd.options, &NoProgress),
+        solve_from_basis(&field, c, b, &nan, &options, &NoProgress),
         Err(MbdError::InvalidOption {
             what: "initial_basis",
             ..

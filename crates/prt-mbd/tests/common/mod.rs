@@ -23,46 +23,6 @@ pub fn global_rank_field(dims: [usize; 3], dim: usize, rank: usize, seed: u64) -
     .unwrap()
 }
 
-/// A 12 × 8 × 6 scene over `[lo, hi]`: invalid (zero) below a floor slab, in a "column" and at
-/// about 10 % random voxels; valid voxels hold smooth `dim`-vectors, `bright` times stronger
-/// for x ≥ 6. Returns the field and its validity mask.
-#[allow(dead_code)] // not every test file uses every field
-pub fn floor_and_column_scene(
-    lo: Vec3,
-    hi: Vec3,
-    dim: usize,
-    bright: f32,
-    seed: u64,
-) -> (GridField, Vec<bool>) {
-    let dims = [12, 8, 6];
-    let mut rng = Pcg64Mcg::seed_from_u64(seed);
-    let valid: Vec<bool> = (0..dims.iter().product::<usize>())
-        .map(|v| {
-            let (x, y, z) = (v % 12, (v / 12) % 8, v / 96);
-            let floor = y < 2;
-            let column = (4..6).contains(&x) && (2..4).contains(&z);
-            !(floor || column || rng.random::<f32>() < 0.1)
-        })
-        .collect();
-    // `from_fn` visits the voxels in index order.
-    let mut next = 0usize;
-    let field = GridField::from_fn(dims, Aabb::new(lo, hi), dim, |_, out| {
-        let v = next;
-        next += 1;
-        if !valid[v] {
-            out.fill(0.0);
-            return;
-        }
-        let (x, y, z) = ((v % 12) as f32, ((v / 12) % 8) as f32, (v / 96) as f32);
-        let scale = if x >= 6.0 { bright } else { 1.0 };
-        for (d, o) in out.iter_mut().enumerate() {
-            *o = scale * (1.0 + (0.3 * x + 0.2 * d as f32 * y - 0.1 * z).sin());
-        }
-    })
-    .unwrap();
-    (field, valid)
-}
-
 /// The weights of `kernels` at `x` as a dense vector over the family.
 #[allow(dead_code)] // not every test file uses every helper
 pub fn dense<K: SpatialKernels>(kernels: &K, x: Vec3) -> Vec<f64> {
@@ -100,14 +60,14 @@ pub fn midpoint(field: &GridField, model: &dyn prt_core::FieldModel, s: usize) -
     (err / n, energy / n)
 }
 
-/// Checks [`prt_mbd::exact_loss`] against the Richardson extrapolation of the midpoint rule
+/// Checks [`prt_mbd::expert::exact_loss`] against the Richardson extrapolation of the midpoint rule
 /// (8³ and 16³ points per voxel; either alone is off by more than 5e-5), and the ridge.
 #[allow(dead_code)] // not every test file uses every helper
-pub fn check_exact_loss<B: prt_mbd::PolishBasis + Clone>(
+pub fn check_exact_loss<B: prt_mbd::expert::PolishBasis + Clone>(
     field: &GridField,
     model: &prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
 ) {
-    let exact = prt_mbd::exact_loss(field, model, 1e-4).unwrap();
+    let exact = prt_mbd::expert::exact_loss(field, model, 1e-4).unwrap();
     let (err8, energy8) = midpoint(field, model, 8);
     let (err16, energy16) = midpoint(field, model, 16);
     let richardson = |coarse: f64, fine: f64| (4.0 * fine - coarse) / 3.0;
@@ -141,14 +101,15 @@ pub fn check_exact_loss<B: prt_mbd::PolishBasis + Clone>(
 /// no half-step raises it, the report ends at the returned model's exact loss, and that is
 /// below the start.
 #[allow(dead_code)] // not every test file uses every helper
-pub fn check_polish_descends<B: prt_mbd::PolishBasis + Clone>(
+pub fn check_polish_descends<B: prt_mbd::expert::PolishBasis + Clone>(
     field: &GridField,
     model: prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
     options: &prt_mbd::PolishOptions,
 ) -> Result<(), proptest::test_runner::TestCaseError> {
     use proptest::prop_assert;
-    let start = prt_mbd::exact_loss(field, &model, options.lambda).unwrap();
-    let (polished, report) = prt_mbd::polish(field, model, options, &prt_core::NoProgress).unwrap();
+    let start = prt_mbd::expert::exact_loss(field, &model, options.lambda).unwrap();
+    let (polished, report) =
+        prt_mbd::expert::polish(field, model, options, &prt_core::NoProgress).unwrap();
     prop_assert!((report.initial.loss() - start.loss()).abs() <= 1e-9 * start.loss());
     let mut previous = report.initial.loss();
     for r in &report.history {
@@ -160,7 +121,7 @@ pub fn check_polish_descends<B: prt_mbd::PolishBasis + Clone>(
         );
         previous = r.loss.loss();
     }
-    let end = prt_mbd::exact_loss(field, &polished, options.lambda).unwrap();
+    let end = prt_mbd::expert::exact_loss(field, &polished, options.lambda).unwrap();
     prop_assert!(
         (end.loss() - report.last().loss()).abs() <= 1e-9 * end.loss(),
         "{end:?} vs {:?}",
@@ -178,13 +139,14 @@ pub fn check_polish_descends<B: prt_mbd::PolishBasis + Clone>(
 /// Polishes `model` of a field that is exactly representable and checks that the exact and the
 /// sampled relative MSE end below 1e-10.
 #[allow(dead_code)] // not every test file uses every helper
-pub fn check_polish_fits_exactly<B: prt_mbd::PolishBasis + Clone>(
+pub fn check_polish_fits_exactly<B: prt_mbd::expert::PolishBasis + Clone>(
     field: &GridField,
     model: prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
     options: &prt_mbd::PolishOptions,
 ) -> Result<(), proptest::test_runner::TestCaseError> {
     use proptest::prop_assert;
-    let (polished, report) = prt_mbd::polish(field, model, options, &prt_core::NoProgress).unwrap();
+    let (polished, report) =
+        prt_mbd::expert::polish(field, model, options, &prt_core::NoProgress).unwrap();
     let relative = report.last().relative_mse();
     prop_assert!(
         relative < 1e-10,
@@ -207,7 +169,7 @@ pub fn random_model<B: SpatialKernels>(
     seed: u64,
 ) -> prt_mbd::MbdModel<prt_kernels::HatGrid, B> {
     let coefficient_kernels =
-        prt_kernels::HatGrid::new(field.dims(), prt_mbd::voxel_centre_box(field)).unwrap();
+        prt_kernels::HatGrid::new(field.dims(), prt_mbd::expert::voxel_centre_box(field)).unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let coefficients =
         ndarray::Array2::from_shape_fn((field.num_voxels(), rank), |_| rng.random::<f32>() - 0.5);
@@ -221,7 +183,7 @@ pub fn random_model<B: SpatialKernels>(
 /// half-step's kind, exact loss, acceptance and CG iterations, and the initial loss) are the
 /// same bit for bit.
 #[allow(dead_code)] // not every test file uses every helper
-pub fn check_polish_is_deterministic<B: prt_mbd::PolishBasis + Clone + Send + Sync>(
+pub fn check_polish_is_deterministic<B: prt_mbd::expert::PolishBasis + Clone + Send + Sync>(
     field: &GridField,
     model: &prt_mbd::MbdModel<prt_kernels::HatGrid, B>,
     options: &prt_mbd::PolishOptions,
@@ -232,19 +194,73 @@ pub fn check_polish_is_deterministic<B: prt_mbd::PolishBasis + Clone + Send + Sy
             .build()
             .unwrap();
         pool.install(|| {
-            prt_mbd::polish(field, model.clone(), options, &prt_core::NoProgress).unwrap()
+            prt_mbd::expert::polish(field, model.clone(), options, &prt_core::NoProgress).unwrap()
         })
     };
     let (one, report_one) = run(1);
     let (two, report_two) = run(2);
     assert_eq!(one.coefficients(), two.coefficients());
     assert_eq!(one.basis(), two.basis());
-    let strip = |r: &prt_mbd::PolishReport| {
-        r.history
-            .iter()
-            .map(|h| (h.step, h.loss, h.accepted, h.cg_iterations))
-            .collect::<Vec<_>>()
-    };
-    assert_eq!(strip(&report_one), strip(&report_two));
+    assert_eq!(polish_trace(&report_one), polish_trace(&report_two));
     assert_eq!(report_one.initial, report_two.initial);
+}
+
+/// A polish report without its timings: every half-step's kind, exact loss, acceptance and CG
+/// iterations.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn polish_trace(
+    report: &prt_mbd::PolishReport,
+) -> Vec<(
+    prt_mbd::expert::PolishStep,
+    prt_mbd::expert::ExactLoss,
+    bool,
+    usize,
+)> {
+    report
+        .history
+        .iter()
+        .map(|h| (h.step, h.loss, h.accepted, h.cg_iterations))
+        .collect()
+}
+
+/// A solve report without its timings: every iteration's losses, held-out error and step.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn solve_trace(report: &prt_mbd::SolveReport) -> Vec<(f64, f64, f64, Option<f64>, f32)> {
+    report
+        .history
+        .iter()
+        .map(|r| {
+            (
+                r.loss_before,
+                r.data_before,
+                r.loss_after,
+                r.held_out,
+                r.step,
+            )
+        })
+        .collect()
+}
+
+/// The kernels [`prt_mbd::Basis::HatGrid`] puts on `field`: one coefficient hat per voxel
+/// centre, and `nodes` basis hats over [`prt_mbd::expert::basis_box`].
+#[allow(dead_code)] // not every test file uses every helper
+pub fn hat_kernels(
+    field: &GridField,
+    nodes: [usize; 3],
+) -> (prt_kernels::HatGrid, prt_kernels::HatGrid) {
+    let coefficients =
+        prt_kernels::HatGrid::new(field.dims(), prt_mbd::expert::voxel_centre_box(field)).unwrap();
+    let basis = prt_kernels::HatGrid::new(nodes, prt_mbd::expert::basis_box(field)).unwrap();
+    (coefficients, basis)
+}
+
+/// [`prt_mbd::Mbd`] of rank `rank` on a hat grid of `nodes`, with `solver`, no polish.
+#[allow(dead_code)] // not every test file uses every helper
+pub fn hat_mbd(rank: usize, nodes: [usize; 3], solver: prt_mbd::SolverOptions) -> prt_mbd::Mbd {
+    prt_mbd::Mbd {
+        rank,
+        basis: prt_mbd::Basis::HatGrid { nodes },
+        solver,
+        polish: None,
+    }
 }
