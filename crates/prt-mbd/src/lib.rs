@@ -86,20 +86,19 @@ pub use projection::{LocalBasis, projection_seam_ratio};
 pub use solver::{SolveReport, SolverOptions};
 pub use synthetic::SyntheticField;
 
-/// The entry points behind [`Mbd`], for callers who bring their own kernels or pipeline.
-///
-/// * [`solve`](expert::solve) / [`solve_from_basis`](expert::solve_from_basis): the stochastic
-///   solver over any coefficient and basis [`prt_core::SpatialKernels`], from the global
-///   principal subspace or from a given basis.
-/// * [`polish`](expert::polish) / [`exact_loss`](expert::exact_loss): the exact continuous loss
-///   of a model with [`Mbd`]'s coefficient hats and its minimisation;
-///   [`trilinear_energy`](expert::trilinear_energy) gives the same integral for a grid
-///   reconstruction, e.g. a baseline's.
-/// * [`fit_on_clusters`](expert::fit_on_clusters): [`Basis::Clusters`] on a clustering you
-///   already have (e.g. the clustered-PCA baseline's).
-/// * The kernels and boxes [`Mbd`] uses, and the per-voxel pieces of the seam measures for
-///   drawing them.
 pub mod expert {
+    //! The entry points behind [`Mbd`](crate::Mbd), for callers who bring their own kernels
+    //! or pipeline.
+    //!
+    //! * [`solve`] / [`solve_from_basis`]: the stochastic solver over any coefficient and basis
+    //!   [`prt_core::SpatialKernels`], from the global principal subspace or from a given basis.
+    //! * [`polish`] / [`exact_loss`]: the exact continuous loss of a model with
+    //!   [`Mbd`](crate::Mbd)'s coefficient hats, and its minimisation; [`trilinear_energy`]
+    //!   gives the same integral for a grid reconstruction, e.g. a baseline's.
+    //! * [`fit_on_clusters`]: [`Basis::Clusters`](crate::Basis::Clusters) on a clustering you
+    //!   already have (e.g. the clustered-PCA baseline's).
+    //! * The kernels and boxes [`Mbd`](crate::Mbd) uses, and the per-voxel pieces of the seam
+    //!   measures, for drawing them.
     pub use crate::baselines::voxel_centre_box;
     pub use crate::clustered::{LabelKernels, MAX_LABEL_RADIUS, fit_on_clusters};
     pub use crate::eval::{blur_valid, kernel_labels, nonzero_voxels};
