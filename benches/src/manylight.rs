@@ -1,13 +1,14 @@
-//! Helpers shared by the many-light sweeps: the budget list, the scene set-up (VPLs traced to a
-//! target count, G-buffer), the cached brute-force reference and image strips.
+//! Helpers shared by the many-light experiments: budgets and light settings, the scene set-up
+//! (VPLs traced to a target count, G-buffer), the cached brute-force reference and image strips.
 
 use std::path::{Path, PathBuf};
 
+use crate::{cache_dir, load_scene, save_png};
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
 use prt_trace::{
-    DirectionalLight, GBuffer, LoadOptions, PinholeView, RayTracer, Scene, SunSky, Vpl, VplOptions,
-    VplOracle, directional_lights, trace_vpls,
+    DirectionalLight, GBuffer, PinholeView, RayTracer, Scene, SunSky, Vpl, VplOptions, VplOracle,
+    directional_lights, trace_vpls,
 };
 use rayon::prelude::*;
 
@@ -71,60 +72,63 @@ impl VisibilityOracle for SceneOracle<'_> {
     }
 }
 
-/// The (rows, columns) budgets of the sweep, from 100/200 to 900/1800 (300/900 is the
-/// paper's; 432/864 and 400/1300 sit near 50x fewer elements at 256²).
-pub const BUDGETS: [(usize, usize); 6] = [
-    (100, 200),
-    (300, 900),
-    (432, 864),
-    (400, 1300),
-    (600, 1200),
-    (900, 1800),
-];
+/// A sampling budget, `rows/columns` on the command line (`300/900`): sampled rows (or slices)
+/// and columns (or clusters).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Budget {
+    /// Sampled rows, or LightSlice's slices.
+    pub rows: usize,
+    /// Sampled columns, or clusters.
+    pub columns: usize,
+}
 
-/// A sweep's positional arguments (after the program name), each read with a default.
-pub struct Args(Vec<String>);
-
-impl Args {
-    /// The arguments this process was started with.
-    pub fn from_env() -> Self {
-        Self(std::env::args().skip(1).collect())
-    }
-
-    /// Argument `index` as given, if it was.
-    pub fn text(&self, index: usize) -> Option<&str> {
-        self.0.get(index).map(String::as_str)
-    }
-
-    /// Argument `index` parsed, or `default` when it is absent or does not parse.
-    pub fn parsed<T: std::str::FromStr>(&self, index: usize, default: T) -> T {
-        self.text(index)
-            .and_then(|a| a.parse().ok())
-            .unwrap_or(default)
-    }
-
-    /// Argument `index` as one `rows/columns` budget, or `default`.
-    pub fn budget(&self, index: usize, default: (usize, usize)) -> (usize, usize) {
-        self.text(index)
-            .and_then(|b| b.split_once('/'))
-            .and_then(|(r, c)| Some((r.parse().ok()?, c.parse().ok()?)))
-            .unwrap_or(default)
+impl Budget {
+    /// `rows` / `columns`.
+    pub const fn new(rows: usize, columns: usize) -> Self {
+        Self { rows, columns }
     }
 }
 
-/// Parses a comma-separated `rows/columns` list (`300/900,432/864`; malformed entries are
-/// skipped); no list gives [`BUDGETS`].
-pub fn parse_budgets(list: Option<&str>) -> Vec<(usize, usize)> {
-    match list {
-        Some(list) => list
-            .split(',')
-            .filter_map(|b| {
-                let (r, c) = b.split_once('/')?;
-                Some((r.parse().ok()?, c.parse().ok()?))
-            })
-            .collect(),
-        None => BUDGETS.to_vec(),
+impl std::str::FromStr for Budget {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let (rows, columns) = text
+            .split_once('/')
+            .ok_or_else(|| format!("{text}: want rows/columns, e.g. 300/900"))?;
+        let count = |v: &str| {
+            v.trim()
+                .parse::<usize>()
+                .map_err(|e| format!("{text}: {e}"))
+        };
+        Ok(Self::new(count(rows)?, count(columns)?))
     }
+}
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.rows, self.columns)
+    }
+}
+
+/// Which lights a scene's matrix holds beside its VPLs (`--light`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Light {
+    /// The sun and 1024 sky directions as directional columns after the VPL ones (none for the
+    /// Cornell box, whose direct light is its emitter VPLs), every light sampled.
+    #[default]
+    Direct,
+    /// As `direct`, but the sun's column (the first directional light) is evaluated in full
+    /// (`pixels` elements, counted) and the methods sample the other lights.
+    ExactSun,
+    /// The VPL columns alone: a sun-and-sky scene then has no direct light.
+    Indirect,
+}
+
+/// Mean and maximum of per-seed errors (0 for none).
+pub fn mean_and_max(errors: &[f64]) -> (f64, f64) {
+    let mean = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
+    (mean, errors.iter().copied().fold(0.0, f64::max))
 }
 
 /// The brute-force image of the VPL oracle with `directional` columns after the VPL ones.
@@ -135,25 +139,6 @@ pub struct Reference {
     pub vpl_image: Vec<f32>,
     /// The first directional column (the sun); zeros without directional lights.
     pub sun: Vec<f32>,
-}
-
-/// The scene of a sweep by name: `cornell` (built in) or `sponza` (`../shared/scenes/sponza`,
-/// relative to the benches' `manifest` directory). `None`, with the reason on stderr, when it is
-/// unknown or cannot be loaded.
-fn load_scene(name: &str) -> Option<Scene> {
-    match name {
-        "cornell" => Some(Scene::cornell_box()),
-        "sponza" => {
-            let path = benches_dir().join("../../shared/scenes/sponza/Sponza.gltf");
-            Scene::load_gltf(&path, &LoadOptions::default())
-                .map_err(|e| eprintln!("skipping Sponza: {e}"))
-                .ok()
-        }
-        other => {
-            eprintln!("unknown scene {other} (cornell or sponza)");
-            None
-        }
-    }
 }
 
 /// What every many-light sweep sets up: the scene, its ray tracer, about `target` VPLs and the
@@ -176,15 +161,15 @@ impl SweepScene {
     /// stderr, when it cannot be used) with its tracer, VPLs and G-buffer. Panics on a setup
     /// error, as a sweep does.
     pub fn load(name: &str, width: usize, target: usize) -> Option<Self> {
-        let scene = load_scene(name)?;
+        let scene = load_scene(name)
+            .map_err(|e| eprintln!("skipping {name}: {e}"))
+            .ok()?;
         let tracer = RayTracer::new(scene.triangles());
         let vpls = trace_about(&scene, &tracer, target);
         let view = PinholeView::for_scene(&scene).expect("non-empty scene");
         let gbuffer = GBuffer::render(&scene, &tracer, &view, width, width).expect("valid size");
-        let cache_stem = benches_dir().join(format!(
-            "../target/manylight_cache/{name}_{width}_{}",
-            vpls.len()
-        ));
+        let cache_stem =
+            cache_dir("manylight_cache").join(format!("{name}_{width}_{}", vpls.len()));
         Some(Self {
             scene,
             tracer,
@@ -257,11 +242,6 @@ fn trace_about(scene: &Scene, tracer: &RayTracer, target: usize) -> Vec<Vpl> {
     trace_vpls(scene, tracer, &options(particles), &NoProgress).expect("lit scene")
 }
 
-/// The benches package's folder (the scenes and the cache are found relative to it).
-fn benches_dir() -> &'static Path {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-}
-
 /// Writes `reference | panels…` side by side (square RGB images of `width`), tone-mapped with
 /// one exposure (99th percentile of the reference at 0.8) and sRGB gamma; reports failure on
 /// stderr instead of stopping the sweep.
@@ -283,8 +263,28 @@ pub fn write_strip(path: &Path, width: usize, reference: &[f32], panels: &[Vec<f
             }
         }
     }
-    match out.save(path) {
+    match save_png(&out, path) {
         Ok(()) => println!("wrote {}", path.display()),
-        Err(e) => eprintln!("could not write {}: {e}", path.display()),
+        Err(e) => eprintln!("could not write {e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn budgets_parse_and_print_as_rows_slash_columns() {
+        let budget: Budget = "300/900".parse().expect("valid");
+        assert_eq!(budget, Budget::new(300, 900));
+        assert_eq!(budget.to_string(), "300/900");
+        assert!("300".parse::<Budget>().is_err());
+        assert!("300/x".parse::<Budget>().is_err());
+    }
+
+    #[test]
+    fn mean_and_max_of_seed_errors() {
+        assert_eq!(mean_and_max(&[0.25, 0.75]), (0.5, 0.75));
+        assert_eq!(mean_and_max(&[]), (0.0, 0.0));
     }
 }

@@ -1,12 +1,13 @@
 //! prt-linalg beside numpy / scikit-learn / scipy, measured in one run on the same data.
 //!
 //! ```text
-//! cargo run --release -p prt-benches --bin linalg_sweep                      # faer backend
+//! cargo run --release -p prt-benches --bin linalg_sweep -- --rows 32768,262144  # faer backend
 //! OPENBLAS_NUM_THREADS=1 cargo run --release -p prt-benches --features lapack --bin linalg_sweep
-//! cargo run --release -p prt-benches --bin linalg_sweep -- --rows 32768      # smaller run
+//! cargo run --release -p prt-benches --bin linalg_sweep -- --rows 32768 --only pca [--csv DIR]
 //! ```
 //!
-//! Times are the best of several runs (on both sides). Prints three markdown tables (PCA, k-means per Lloyd iteration, NNLS). Ours runs in rayon
+//! Times are the best of several runs (on both sides). Prints three markdown tables (PCA,
+//! k-means per Lloyd iteration, NNLS; `--only` picks one). Ours runs in rayon
 //! pools of 1 and 2 threads; the Python references (benches/scripts/linalg_ref.py) run with
 //! `OPENBLAS_NUM_THREADS=1` when python3 with numpy is available. PCA accuracy is the rank-16
 //! residual relative to the optimal one (thin SVD of the centred data in f64).
@@ -15,6 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
+use clap::Parser;
 use ndarray::{Array1, Array2, Axis, s};
 use prt_benches::{Table, cpu_seconds, fmt_duration};
 use prt_core::NoProgress;
@@ -33,23 +35,36 @@ const KMEANS_ITERS: usize = 20;
 
 type BoxResult<T> = Result<T, Box<dyn std::error::Error>>;
 
+/// One of the three tables.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Part {
+    /// PCA, rank 16.
+    Pca,
+    /// k-means, k = 125, per Lloyd iteration.
+    Kmeans,
+    /// NNLS, per problem.
+    Nnls,
+}
+
+#[derive(Debug, Parser)]
+#[command(about = "prt-linalg beside numpy / scikit-learn / scipy on the same data")]
+struct Cli {
+    /// Row counts of the PCA table, comma- or space-separated (324 columns each).
+    #[arg(long, value_delimiter = ',', num_args = 1.., default_value = "32768,262144")]
+    rows: Vec<usize>,
+    /// Run one table only (default: all three).
+    #[arg(long, value_enum)]
+    only: Option<Part>,
+    /// Folder for the tables as CSV (linalg_pca.csv, linalg_kmeans.csv, linalg_nnls.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
 fn main() -> BoxResult<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let rows: Vec<usize> = match args.iter().position(|a| a == "--rows") {
-        Some(i) => args[i + 1..]
-            .iter()
-            .take_while(|v| !v.starts_with("--"))
-            .map(|v| v.parse())
-            .collect::<Result<_, _>>()?,
-        None => vec![32768, 262144],
-    };
-    // `--only pca|kmeans|nnls` runs one of the three tables.
-    let only = args
-        .iter()
-        .position(|a| a == "--only")
-        .and_then(|i| args.get(i + 1))
-        .map(String::as_str);
-    let wanted = |table: &str| only.is_none_or(|o| o == table);
+    let cli = Cli::parse();
+    let rows = cli.rows;
+    let wanted = |part: Part| cli.only.is_none_or(|o| o == part);
+    let csv = cli.csv.as_deref();
     let max_rows = rows
         .iter()
         .copied()
@@ -67,28 +82,28 @@ fn main() -> BoxResult<()> {
     eprintln!("generating {max_rows} x {D} (rank 40, spectrum 0.8^i, noise 1e-3)...");
     let data = low_rank_matrix(max_rows, D, 40, 0.8, 1e-3, 0.0, 1)?;
 
-    if wanted("pca") {
+    if wanted(Part::Pca) {
         let pca_table = pca_sweep(&data, &rows, &dir, python)?;
         println!(
             "### PCA, rank {RANK}, {D} columns\n\n{}",
             pca_table.markdown()
         );
-        pca_table.write_csv_if_requested("linalg_pca")?;
+        pca_table.write_csv(csv, "linalg_pca")?;
     }
 
-    if wanted("kmeans") {
+    if wanted(Part::Kmeans) {
         let km_table = kmeans_sweep(&data, &dir, python)?;
         println!(
             "### k-means, k = {K}, {KMEANS_ROWS} x {D}, per Lloyd iteration\n\n{}",
             km_table.markdown()
         );
-        km_table.write_csv_if_requested("linalg_kmeans")?;
+        km_table.write_csv(csv, "linalg_kmeans")?;
     }
 
-    if wanted("nnls") {
+    if wanted(Part::Nnls) {
         let nnls_table = nnls_sweep(&dir, python)?;
         println!("### NNLS, per problem\n\n{}", nnls_table.markdown());
-        nnls_table.write_csv_if_requested("linalg_nnls")?;
+        nnls_table.write_csv(csv, "linalg_nnls")?;
     }
 
     std::fs::remove_dir_all(&dir)?;

@@ -2,16 +2,17 @@
 //! Cornell box animation: the camera pans across the open side over `FRAMES` frames, the VPLs
 //! stay. Relative RMS error over the whole sequence, elements and time.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_anim -- [WIDTH VPLS FRAMES CLAMP SEEDS IMAGE]`
-//! (defaults 64 pixels, 20000 VPLs, 30 frames, clamp 0.1, 2 seeds). The brute-force frames are
-//! cached in `target/manylight_cache/`. `IMAGE` (a PNG path) gets the middle frame: reference |
-//! per-frame row-column | tensor clustering, at the second budget.
-use std::path::{Path, PathBuf};
+//! `cargo run --release -p prt-benches --bin manylight_anim -- --width 64 --vpls 20000 --frames 30 --clamp 0.1 --seeds 2 [--image PATH]`
+//! (the defaults). The brute-force frames are cached in `target/manylight_cache/`. `--image`
+//! gets the middle frame: reference | per-frame row-column | tensor clustering, at the second
+//! budget (100/200).
+use std::path::PathBuf;
 use std::time::Instant;
 
+use clap::Parser;
 use glam::Vec3;
-use prt_benches::manylight::write_strip;
-use prt_benches::{Table, fmt_duration};
+use prt_benches::manylight::{mean_and_max, write_strip};
+use prt_benches::{Table, cache_dir, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, TensorConfig, row_column_sampling, tensor_clustering};
@@ -19,17 +20,33 @@ use prt_trace::{GBuffer, PinholeView, RayTracer, Scene, VplOptions, VplOracle, t
 
 const CONFIGS: [(usize, usize); 3] = [(50, 100), (100, 200), (200, 400)];
 
+#[derive(Debug, Parser)]
+#[command(about = "Tensor clustering against per-frame row-column sampling on a Cornell box pan")]
+struct Cli {
+    /// Frame side in pixels (frames are WIDTH × WIDTH).
+    #[arg(long, default_value_t = 64)]
+    width: usize,
+    /// About this many VPLs (particles with 2 bounces, seed 1), fixed over the animation.
+    #[arg(long, default_value_t = 20_000)]
+    vpls: usize,
+    /// Frames of the pan.
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..))]
+    frames: u64,
+    /// VPL clamp distance in scene units.
+    #[arg(long, default_value_t = 0.1)]
+    clamp: f32,
+    /// Seeds per configuration (7 .. 7 + SEEDS; mean and max of the error).
+    #[arg(long, default_value_t = 2)]
+    seeds: u64,
+    /// PNG path for the middle frame: reference | per-frame row-column | tensor clustering.
+    #[arg(long)]
+    image: Option<PathBuf>,
+}
+
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let arg = |k: usize, default: f64| -> f64 {
-        args.get(k).and_then(|a| a.parse().ok()).unwrap_or(default)
-    };
-    let width = arg(0, 64.0) as usize;
-    let target_vpls = arg(1, 20_000.0) as usize;
-    let frames = (arg(2, 30.0) as usize).max(1);
-    let clamp = arg(3, 0.1) as f32;
-    let seeds = arg(4, 2.0) as u64;
-    let image_path = args.get(5).map(PathBuf::from);
+    let cli = Cli::parse();
+    let (width, target_vpls, frames) = (cli.width, cli.vpls, cli.frames as usize);
+    let (clamp, seeds, image_path) = (cli.clamp, cli.seeds, cli.image);
 
     let scene = Scene::cornell_box();
     let tracer = RayTracer::new(scene.triangles());
@@ -68,7 +85,7 @@ fn main() {
     let frame_refs: Vec<&dyn MatrixOracle> =
         oracles.iter().map(|o| o as &dyn MatrixOracle).collect();
     let m = vpls.len();
-    let cache = Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/manylight_cache");
+    let cache = cache_dir("manylight_cache");
     std::fs::create_dir_all(&cache).expect("cache folder");
     let start = Instant::now();
     let reference: Vec<Vec<f32>> = oracles
@@ -132,8 +149,7 @@ fn main() {
                 }
             }
             let time = start.elapsed() / seeds.max(1) as u32;
-            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-            let max = errors.iter().copied().fold(0.0, f64::max);
+            let (mean, max) = mean_and_max(&errors);
             println!("{method} {rows}/{columns}: {:.2}%", 100.0 * mean);
             table.row(vec![
                 method.to_string(),

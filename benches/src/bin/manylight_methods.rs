@@ -1,53 +1,28 @@
-//! Row-column sampling, LightSlice and visibility clustering (divisive and k-means) at equal
-//! element (shadow-ray) budgets, on the Cornell box VPL oracle and on the synthetic VPL matrix:
-//! relative RMS error vs elements and vs time.
+//! Many-light matrix sampling against brute force at equal element (shadow-ray) budgets:
+//! row-column sampling, LightSlice (and its options) and visibility clustering (divisive and
+//! k-means) on the Cornell box or Sponza VPL oracle of prt-trace, or on the synthetic VPL
+//! matrix. Relative RMS error vs elements and time, per VPL clamp.
 //!
-//! `cargo run --release -p prt-benches --bin manylight_methods -- SCENE WIDTH VPLS CLAMP [SEEDS] [IMAGE] [METHODS] [LIGHT] [BUDGETS] [FIRST_SEED] [GROUP_DIVISOR] [NEIGHBOURS] [GLOBAL_PERCENT] [ADAPTIVE_PERCENT] [DEFENSIVE_PERCENT] [GUIDE_PERCENT] [PROBES] [UNSEEN_DRAWS]`
+//! ```text
+//! cargo run --release -p prt-benches --bin manylight_methods -- \
+//!     --scene cornell --width 128 --vpls 50000 --clamp 0.1 --seeds 2 --first-seed 7 \
+//!     --methods rowcol,slice,vis,kmeans --light direct \
+//!     --budgets 100/200,300/900,432/864,400/1300,600/1200,900/1800 [--image PATH] [--csv DIR]
+//! ```
 //!
-//! `SCENE` is `cornell` or `sponza` (prt-trace's VPL oracle, plus the sun and sky's direct light
-//! as directional columns for Sponza, as in `manylight_scene`; the brute-force image of the VPL
-//! columns is cached in `target/manylight_cache/` and shared with `manylight_scene`) or `synthetic`
-//! (`SyntheticVplOracle`, `CLAMP` unused). Visibility clustering also evaluates the unshadowed
-//! shading of every pixel against every light (no shadow rays), reported separately. `IMAGE`
-//! (a PNG path, `-` for none) gets reference | the first two methods | their 10× absolute
-//! errors at the first budget, for the first seed.
-//! * `METHODS`: comma-separated subset of `rowcol`, `rowcol-skip`, `rowcol-groups`, `slice`,
-//!   `slice-skip`, `slice-groups`, `slice-skip-local`, `slice-spread`, `slice-skip-spread`,
-//!   `slice-skip-spread-local`, `slice-skip-spread-guided`
-//!   (the `-skip` variants with `UnseenLights::Skip`, the `-groups` ones with
-//!   `UnseenLights::Groups(columns / GROUP_DIVISOR)`, `-local` with
-//!   `LightSliceConfig::local_importance`, `-spread` with `SliceSplit::Spread`, `-guided` with
-//!   `light_slice_guided` and `ShadingGuide::new(GUIDE_PERCENT, PROBES)`
-//!   `.with_unseen_draws(UNSEEN_DRAWS)`), `vis`, `kmeans`
-//!   (default `rowcol,slice,vis,kmeans`);
-//! * `LIGHT` (Cornell and Sponza): `direct` (default, every light sampled) or `exact-sun`: the sun
-//!   (the first directional light) is evaluated as one exact column (`pixels` elements, counted)
-//!   and the methods sample the other lights, as in `manylight_scene`;
-//! * `BUDGETS`: comma-separated `rows/columns` (default: the six of the paper's range);
-//! * `FIRST_SEED` (default 7): seeds `FIRST_SEED .. FIRST_SEED + SEEDS` (settings are chosen on
-//!   seeds 1..6 and reported on 7..12). Every seed's error is printed as it finishes;
-//! * `GROUP_DIVISOR` (default 16): the `-groups` methods cut the unseen lights into
-//!   `columns / GROUP_DIVISOR` groups (at least 1), out of the column budget;
-//! * `NEIGHBOURS` (default 8, `LightSliceConfig::neighbours`): the slices whose rows refine a
-//!   slice's clustering;
-//! * `GLOBAL_PERCENT` (default 50, `LightSliceConfig::new`'s): LightSlice's global clusters in
-//!   percent of its local clusters;
-//! * `ADAPTIVE_PERCENT` (default 0, `LightSliceConfig::adaptive_percent`): the percent of
-//!   LightSlice's representatives spread over the slices by brightness;
-//! * `DEFENSIVE_PERCENT` (default 0, `LightSliceConfig::defensive_percent`): the percent of
-//!   LightSlice's representative draws made uniformly within the cluster;
-//! * `GUIDE_PERCENT` (default 50), `PROBES` (default 8; `all` for every pixel of a slice) and
-//!   `UNSEEN_DRAWS` (default 0): the `-guided` methods' shading guide. Its shading evaluations
-//!   (no shadow rays) are reported beside the elements.
-//!
-//! Time is wall time per run, and process CPU time per run (all threads) in brackets.
+//! (the defaults; `--help` lists the LightSlice knobs). The brute-force image of the VPL
+//! columns is cached in `target/manylight_cache/` per (scene, width, VPLs, clamp); the
+//! directional columns (Sponza's sun and sky) are evaluated on every run. Every seed's error is
+//! printed as it finishes; the table at the end has one row per clamp, budget and method, time
+//! as wall [process CPU] per run. `--image` gets reference | the first two methods | their 10×
+//! absolute errors, for the first clamp, the first seed and `--image-budget`.
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
+use clap::Parser;
 use prt_benches::manylight::{
-    Args, Reference, SceneOracle, SweepScene, parse_budgets, write_strip,
+    Budget, Light, Reference, SceneOracle, SweepScene, mean_and_max, write_strip,
 };
-use prt_benches::{Table, cpu_seconds, fmt_duration};
+use prt_benches::{Stopwatch, Table, fmt_duration};
 use prt_core::NoProgress;
 use prt_core::metrics::relative_frobenius_error;
 use prt_manylight::{
@@ -56,157 +31,283 @@ use prt_manylight::{
     light_slice, light_slice_guided, row_column_sampling, visibility_clustering,
 };
 
-fn main() {
-    let args = Args::from_env();
-    let scene_name = args.text(0).unwrap_or("cornell");
-    let width: usize = args.parsed(1, 128);
-    let target_vpls: usize = args.parsed(2, 50_000);
-    let clamp: f32 = args.parsed(3, 0.1);
-    let seeds: u64 = args.parsed(4, 2);
-    let image_path = args.text(5).filter(|a| *a != "-").map(PathBuf::from);
-    let selected: Vec<&'static str> = {
-        let wanted = args.text(6).unwrap_or("rowcol,slice,vis,kmeans");
-        [
-            ("rowcol", "row-column"),
-            ("rowcol-skip", "row-column (skip unseen)"),
-            ("rowcol-groups", "row-column (grouped unseen)"),
-            ("slice", "LightSlice"),
-            ("slice-skip", "LightSlice (skip unseen)"),
-            ("slice-groups", "LightSlice (grouped unseen)"),
-            ("slice-spread", "LightSlice (spread slices)"),
-            (
-                "slice-skip-spread",
-                "LightSlice (skip unseen, spread slices)",
-            ),
-            (
-                "slice-skip-local",
-                "LightSlice (skip unseen, local importance)",
-            ),
-            (
-                "slice-skip-spread-local",
-                "LightSlice (skip unseen, spread slices, local importance)",
-            ),
-            (
-                "slice-skip-spread-guided",
-                "LightSlice (skip unseen, spread slices, shading guide)",
-            ),
-            ("vis", "visibility (split)"),
-            ("kmeans", "visibility (k-means)"),
-        ]
-        .into_iter()
-        .filter(|(key, _)| wanted.split(',').any(|w| w == *key))
-        .map(|(_, name)| name)
-        .collect()
-    };
-    let exact_sun = match args.text(7).unwrap_or("direct") {
-        "direct" => false,
-        "exact-sun" => true,
-        other => {
-            eprintln!("unknown LIGHT {other} (direct or exact-sun)");
-            return;
+/// The matrix to sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SceneName {
+    /// prt-trace's Cornell box (lit by its ceiling quad: no directional lights).
+    Cornell,
+    /// Sponza from ../shared/scenes, lit by the sun and sky.
+    Sponza,
+    /// prt-manylight's `SyntheticVplOracle` (a lit floor; `--clamp` and `--light` unused).
+    Synthetic,
+}
+
+/// A method and its options; listed in the order the table and the image use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, clap::ValueEnum)]
+enum Method {
+    /// Row-column sampling (unseen lights sampled: `UnseenLights::Sample`).
+    Rowcol,
+    /// Row-column sampling, unseen lights skipped (`UnseenLights::Skip`, the paper's estimator).
+    RowcolSkip,
+    /// Row-column sampling, unseen lights in `columns / --group-divisor` groups.
+    RowcolGroups,
+    /// LightSlice with the paper's settings.
+    Slice,
+    /// LightSlice, unseen lights skipped.
+    SliceSkip,
+    /// LightSlice, unseen lights in groups.
+    SliceGroups,
+    /// LightSlice, slices cut by spread (`SliceSplit::Spread`).
+    SliceSpread,
+    /// LightSlice, skip unseen, spread slices.
+    SliceSkipSpread,
+    /// LightSlice, skip unseen, `LightSliceConfig::local_importance`.
+    SliceSkipLocal,
+    /// LightSlice, skip unseen, spread slices, local importance.
+    SliceSkipSpreadLocal,
+    /// LightSlice, skip unseen, spread slices, shading guide (`light_slice_guided`).
+    SliceSkipSpreadGuided,
+    /// Visibility clustering, divisive.
+    Vis,
+    /// Visibility clustering, k-means (4 iterations from the divisive clustering).
+    Kmeans,
+}
+
+impl Method {
+    /// The name in the table.
+    fn label(self) -> &'static str {
+        match self {
+            Self::Rowcol => "row-column",
+            Self::RowcolSkip => "row-column (skip unseen)",
+            Self::RowcolGroups => "row-column (grouped unseen)",
+            Self::Slice => "LightSlice",
+            Self::SliceSkip => "LightSlice (skip unseen)",
+            Self::SliceGroups => "LightSlice (grouped unseen)",
+            Self::SliceSpread => "LightSlice (spread slices)",
+            Self::SliceSkipSpread => "LightSlice (skip unseen, spread slices)",
+            Self::SliceSkipLocal => "LightSlice (skip unseen, local importance)",
+            Self::SliceSkipSpreadLocal => {
+                "LightSlice (skip unseen, spread slices, local importance)"
+            }
+            Self::SliceSkipSpreadGuided => "LightSlice (skip unseen, spread slices, shading guide)",
+            Self::Vis => "visibility (split)",
+            Self::Kmeans => "visibility (k-means)",
         }
-    };
-    let budgets = parse_budgets(args.text(8));
-    let first_seed: u64 = args.parsed(9, 7);
-    let group_divisor: usize = args.parsed(10, 16);
-    let neighbours: usize = args.parsed(11, 8);
-    let global_percent: usize = args.parsed(12, 50);
-    let adaptive_percent: u32 = args.parsed(13, 0);
-    let defensive_percent: u32 = args.parsed(14, 0);
-    let guide_percent: u32 = args.parsed(15, 50);
-    let probes = match args.text(16) {
-        Some("all") => usize::MAX,
-        _ => args.parsed(16, 8),
-    };
-    let unseen_draws: usize = args.parsed(17, 0);
-    let run = Run {
-        unseen_draws,
-        guide_percent: guide_percent.min(99),
-        probes: probes.max(1),
-        defensive_percent: defensive_percent.min(99),
-        adaptive_percent: adaptive_percent.min(100),
-        global_percent: global_percent.clamp(1, 100),
-        neighbours: neighbours.max(1),
-        group_divisor: group_divisor.max(1),
-        width,
-        seeds: first_seed..first_seed + seeds,
-        image_path: image_path.as_deref(),
-        methods: &selected,
-        budgets: &budgets,
-    };
-    match scene_name {
-        "cornell" | "sponza" => {
-            let Some(setup) = SweepScene::load(scene_name, width, target_vpls) else {
+    }
+}
+
+/// `--probes`: a count, or `all` for every pixel of a slice.
+fn parse_probes(text: &str) -> Result<usize, String> {
+    match text {
+        "all" => Ok(usize::MAX),
+        n => n
+            .parse::<usize>()
+            .map(|p| p.max(1))
+            .map_err(|e| format!("{n}: {e} (a count or `all`)")),
+    }
+}
+
+#[derive(Debug, Parser)]
+#[command(about = "Many-light sampling methods against brute force at equal shadow rays")]
+struct Cli {
+    /// The matrix to sample.
+    #[arg(long, value_enum, default_value = "cornell")]
+    scene: SceneName,
+    /// Image side in pixels (the image is WIDTH × WIDTH).
+    #[arg(long, default_value_t = 128)]
+    width: usize,
+    /// About this many VPLs (particles with 2 bounces, seed 1); lights of the synthetic matrix.
+    #[arg(long, default_value_t = 50_000)]
+    vpls: usize,
+    /// VPL clamp distances in scene units, comma-separated (the 1/d² falloff is capped at
+    /// 1/clamp²; the LightSlice authors use 2.5% of the scene diagonal: 0.087 Cornell, 1.58
+    /// Sponza).
+    #[arg(long, value_delimiter = ',', default_value = "0.1")]
+    clamp: Vec<f32>,
+    /// Seeds per configuration (mean and max of the error).
+    #[arg(long, default_value_t = 2)]
+    seeds: u64,
+    /// The first seed: seeds FIRST_SEED .. FIRST_SEED + SEEDS (settings were chosen on 1..6
+    /// and reported on 7..).
+    #[arg(long, default_value_t = 7)]
+    first_seed: u64,
+    /// Methods to run, comma-separated (run and shown in the order of this list's help).
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "rowcol,slice,vis,kmeans"
+    )]
+    methods: Vec<Method>,
+    /// The lights beside the VPLs (Cornell and Sponza).
+    #[arg(long, value_enum, default_value = "direct")]
+    light: Light,
+    /// Budgets to run, comma-separated `rows/columns` (rows = LightSlice's slices, columns =
+    /// its local clusters; the same elements for every method).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "100/200,300/900,432/864,400/1300,600/1200,900/1800"
+    )]
+    budgets: Vec<Budget>,
+    /// PNG path: reference | the first two methods | their 10× absolute errors, at the first
+    /// clamp, first seed and `--image-budget`.
+    #[arg(long)]
+    image: Option<PathBuf>,
+    /// The budget of `--image` (default: the first of `--budgets`).
+    #[arg(long)]
+    image_budget: Option<Budget>,
+    /// The `-groups` methods cut the unseen lights into columns / GROUP_DIVISOR groups (at
+    /// least 1), out of the column budget.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u64).range(1..))]
+    group_divisor: u64,
+    /// LightSlice: the slices whose rows refine a slice's clustering
+    /// (`LightSliceConfig::neighbours`).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u64).range(1..))]
+    neighbours: u64,
+    /// LightSlice: global clusters in percent of the local clusters.
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u64).range(1..=100))]
+    global_percent: u64,
+    /// LightSlice: percent of the representatives spread over the slices by brightness
+    /// (`LightSliceConfig::adaptive_percent`).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=100))]
+    adaptive_percent: u32,
+    /// LightSlice: percent of each representative draw made uniformly within the cluster
+    /// (`LightSliceConfig::defensive_percent`).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=99))]
+    defensive_percent: u32,
+    /// The shading guide of `slice-skip-spread-guided`: percent of each draw by the probes'
+    /// unshadowed shading (`ShadingGuide::new`).
+    #[arg(long, default_value_t = 50, value_parser = clap::value_parser!(u32).range(0..=99))]
+    guide_percent: u32,
+    /// The shading guide's probe pixels per slice, or `all` for every pixel of the slice.
+    #[arg(long, default_value = "8", value_parser = parse_probes)]
+    probes: usize,
+    /// The shading guide's draws per slice among the unseen lights
+    /// (`ShadingGuide::with_unseen_draws`).
+    #[arg(long, default_value_t = 0)]
+    unseen_draws: usize,
+    /// Folder for the table as CSV (manylight_methods.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
+fn norm(v: &[f32]) -> f64 {
+    v.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt()
+}
+
+fn main() {
+    let mut cli = Cli::parse();
+    cli.methods.sort();
+    cli.methods.dedup();
+    let mut table = Table::new(&[
+        "clamp",
+        "method",
+        "rows / columns",
+        "elements (shadow rays)",
+        "fewer than brute force",
+        "time (mean) [CPU]",
+        "relative RMS error (mean of seeds)",
+        "max over seeds",
+        "unseen lights (mean)",
+        "error / ‖sampled lights' image‖ (mean)",
+    ]);
+    let (width, scene) = (cli.width, cli.scene);
+    match scene {
+        SceneName::Cornell | SceneName::Sponza => {
+            let name = if scene == SceneName::Cornell {
+                "cornell"
+            } else {
+                "sponza"
+            };
+            let Some(setup) = SweepScene::load(name, width, cli.vpls) else {
                 return;
             };
-            let directional = setup.sun_sky();
-            let SweepScene { vpls, gbuffer, .. } = &setup;
-            let start = Instant::now();
-            let Reference {
-                image: reference,
-                sun,
-                ..
-            } = setup.reference(&directional, clamp);
-            let (n, m) = (reference.len() / 3, vpls.len() + directional.len());
-            // The sun is the first directional light; with `exact-sun` its column is kept apart
-            // as the exact part of every estimate.
-            let exact = usize::from(exact_sun && !directional.is_empty());
-            let exact_image = if exact > 0 { sun } else { vec![0.0f32; 3 * n] };
-            println!(
-                "{scene_name}: {width} × {width} pixels, {} VPLs + {} directional lights ({exact} \
-                 exact), clamp {clamp}, {} threads; brute force {} ({:.3e} elements; VPL columns \
-                 cached)\n",
-                vpls.len(),
-                directional.len(),
-                rayon::current_num_threads(),
-                fmt_duration(start.elapsed()),
-                (n * m) as f64
-            );
-            let inner = setup.oracle(clamp, &directional[exact..]);
-            let oracle = SceneOracle { inner, gbuffer };
-            let exact = Exact {
-                image: exact_image,
-                elements: (exact * n) as u64,
-                columns: exact,
+            let directional = match cli.light {
+                Light::Indirect => Vec::new(),
+                Light::Direct | Light::ExactSun => setup.sun_sky(),
             };
-            compare(&oracle, &reference, &exact, &run);
+            // With `exact-sun` the sun (the first directional light) is kept apart as the
+            // exact part of every estimate.
+            let exact = usize::from(cli.light == Light::ExactSun && !directional.is_empty());
+            for (c, &clamp) in cli.clamp.iter().enumerate() {
+                let watch = Stopwatch::start();
+                let Reference {
+                    image: reference,
+                    vpl_image,
+                    sun,
+                } = setup.reference(&directional, clamp);
+                let n = reference.len() / 3;
+                let m = setup.vpls.len() + directional.len();
+                println!(
+                    "{name}: {width} × {width} pixels, {} VPLs + {} directional lights ({exact} \
+                     exact), clamp {clamp}, {} threads; brute force {} ({:.3e} elements; VPL \
+                     columns cached); ‖indirect (VPL columns)‖ / ‖reference‖ = {:.4}",
+                    setup.vpls.len(),
+                    directional.len(),
+                    rayon::current_num_threads(),
+                    fmt_duration(watch.wall()),
+                    (n * m) as f64,
+                    norm(&vpl_image) / norm(&reference),
+                );
+                let exact_image = if exact > 0 {
+                    let lit = sun.chunks(3).filter(|p| p.iter().any(|&v| v > 0.0)).count();
+                    println!(
+                        "exact column (the sun): {lit} of {n} pixels lit ({:.2}%), ‖column‖ / \
+                         ‖reference‖ = {:.3}",
+                        100.0 * lit as f64 / n as f64,
+                        norm(&sun) / norm(&reference)
+                    );
+                    sun
+                } else {
+                    vec![0.0f32; 3 * n]
+                };
+                let oracle = SceneOracle {
+                    inner: setup.oracle(clamp, &directional[exact..]),
+                    gbuffer: &setup.gbuffer,
+                };
+                let exact = Exact {
+                    image: exact_image,
+                    elements: (exact * n) as u64,
+                    columns: exact,
+                };
+                let image = cli.image.as_deref().filter(|_| c == 0);
+                compare(&oracle, &reference, &exact, &cli, clamp, image, &mut table);
+            }
         }
-        "synthetic" => {
-            let oracle = SyntheticVplOracle::new(width, width, target_vpls, 1);
-            let start = Instant::now();
+        SceneName::Synthetic => {
+            let oracle = SyntheticVplOracle::new(width, width, cli.vpls, 1);
+            let watch = Stopwatch::start();
             let reference = brute_force(&oracle, &NoProgress).expect("finite oracle");
             println!(
-                "Synthetic VPL matrix: {width} × {width} pixels, {target_vpls} lights, {} threads; \
-                 brute force {}\n",
+                "synthetic VPL matrix: {width} × {width} pixels, {} lights, {} threads; brute \
+                 force {} [{:.1} s CPU]\n",
+                cli.vpls,
                 rayon::current_num_threads(),
-                fmt_duration(start.elapsed()),
+                fmt_duration(watch.wall()),
+                watch.cpu(),
             );
             let exact = Exact {
                 image: vec![0.0; reference.len()],
                 elements: 0,
                 columns: 0,
             };
-            compare(&oracle, &reference, &exact, &run);
+            let image = cli.image.as_deref();
+            compare(
+                &oracle,
+                &reference,
+                &exact,
+                &cli,
+                f32::NAN,
+                image,
+                &mut table,
+            );
         }
-        other => eprintln!("unknown scene {other} (cornell, sponza or synthetic)"),
     }
-}
-
-/// The settings of a comparison run.
-struct Run<'a> {
-    width: usize,
-    group_divisor: usize,
-    neighbours: usize,
-    global_percent: usize,
-    adaptive_percent: u32,
-    defensive_percent: u32,
-    guide_percent: u32,
-    probes: usize,
-    unseen_draws: usize,
-    seeds: std::ops::Range<u64>,
-    image_path: Option<&'a Path>,
-    methods: &'a [&'static str],
-    budgets: &'a [(usize, usize)],
+    println!("\n{}", table.markdown());
+    if let Err(e) = table.write_csv(cli.csv.as_deref(), "manylight_methods") {
+        eprintln!("could not write the CSV: {e}");
+    }
 }
 
 /// The columns evaluated exactly (outside the methods' oracle): their image, elements and count.
@@ -216,125 +317,188 @@ struct Exact {
     columns: usize,
 }
 
+/// One run's image, elements, shading evaluations (no shadow rays) and unseen lights (row-column
+/// sampling only).
+struct Run {
+    image: Vec<f32>,
+    elements: u64,
+    shading: u64,
+    unseen: Option<usize>,
+}
+
+fn run_method<O: SliceOracle + VisibilityOracle>(
+    oracle: &O,
+    method: Method,
+    budget: Budget,
+    seed: u64,
+    cli: &Cli,
+) -> Run {
+    let Budget { rows, columns } = budget;
+    let unseen = match method {
+        Method::RowcolSkip
+        | Method::SliceSkip
+        | Method::SliceSkipSpread
+        | Method::SliceSkipLocal
+        | Method::SliceSkipSpreadLocal
+        | Method::SliceSkipSpreadGuided => UnseenLights::Skip,
+        Method::RowcolGroups | Method::SliceGroups => {
+            UnseenLights::Groups((columns / cli.group_divisor as usize).max(1))
+        }
+        _ => UnseenLights::Sample,
+    };
+    match method {
+        Method::Rowcol | Method::RowcolSkip | Method::RowcolGroups => {
+            let c = RowColumnConfig::new(rows, columns)
+                .with_seed(seed)
+                .with_unseen(unseen);
+            let r = row_column_sampling(oracle, &c, &NoProgress).expect("valid");
+            Run {
+                image: r.image,
+                elements: r.elements,
+                shading: 0,
+                unseen: Some(r.unseen_lights),
+            }
+        }
+        Method::Vis | Method::Kmeans => {
+            let mut c = VisibilityConfig::new(rows, columns).with_seed(seed);
+            if method == Method::Kmeans {
+                c = c.with_method(VisibilityClusterMethod::KMeans { iterations: 4 });
+            }
+            let r = visibility_clustering(oracle, &c, &NoProgress).expect("valid");
+            Run {
+                image: r.image,
+                elements: r.elements,
+                shading: r.shading_evaluations,
+                unseen: None,
+            }
+        }
+        _ => {
+            let spread = matches!(
+                method,
+                Method::SliceSpread
+                    | Method::SliceSkipSpread
+                    | Method::SliceSkipSpreadLocal
+                    | Method::SliceSkipSpreadGuided
+            );
+            let local = matches!(
+                method,
+                Method::SliceSkipLocal | Method::SliceSkipSpreadLocal
+            );
+            let c = LightSliceConfig {
+                neighbours: cli.neighbours as usize,
+                global_clusters: (columns * cli.global_percent as usize / 100).max(1),
+                ..LightSliceConfig::new(rows, columns)
+            }
+            .with_seed(seed)
+            .with_unseen(unseen)
+            .with_local_importance(local)
+            .with_adaptive_percent(cli.adaptive_percent)
+            .with_defensive_percent(cli.defensive_percent)
+            .with_split(if spread {
+                SliceSplit::Spread
+            } else {
+                SliceSplit::Largest
+            });
+            let r = if method == Method::SliceSkipSpreadGuided {
+                let guide = ShadingGuide::new(cli.guide_percent, cli.probes)
+                    .with_unseen_draws(cli.unseen_draws);
+                light_slice_guided(oracle, &c.with_guide(guide), &NoProgress).expect("valid")
+            } else {
+                light_slice(oracle, &c, &NoProgress).expect("valid")
+            };
+            Run {
+                image: r.image,
+                elements: r.elements,
+                shading: r.shading_evaluations,
+                unseen: None,
+            }
+        }
+    }
+}
+
+/// Runs every budget × method on `oracle` and appends their rows to `table`; writes the image
+/// strip when `image` is given.
 fn compare<O: SliceOracle + VisibilityOracle>(
     oracle: &O,
     reference: &[f32],
     exact: &Exact,
-    run: &Run<'_>,
+    cli: &Cli,
+    clamp: f32,
+    image: Option<&Path>,
+    table: &mut Table,
 ) {
     let brute = (oracle.rows() * (oracle.cols() + exact.columns)) as f64;
-    let mut table = Table::new(&[
-        "method",
-        "rows / columns",
-        "elements (shadow rays)",
-        "fewer than brute force",
-        "time (mean) [CPU]",
-        "relative RMS error (mean of seeds)",
-        "max over seeds",
-    ]);
-    let kmeans = VisibilityClusterMethod::KMeans { iterations: 4 };
-    let seeds = run.seeds.end.saturating_sub(run.seeds.start).max(1);
-    let unseen_for = |method: &str, columns: usize| {
-        if method.contains("skip") {
-            UnseenLights::Skip
-        } else if method.contains("grouped") {
-            UnseenLights::Groups((columns / run.group_divisor).max(1))
-        } else {
-            UnseenLights::Sample
-        }
+    // ‖reference‖ / ‖reference − exact columns‖: scales the error to the sampled lights' image.
+    let rest: Vec<f32> = reference
+        .iter()
+        .zip(&exact.image)
+        .map(|(r, e)| r - e)
+        .collect();
+    let sampled_scale = norm(reference) / norm(&rest);
+    let seeds = cli.first_seed..cli.first_seed + cli.seeds;
+    let runs = cli.seeds.max(1);
+    let image_budget = cli.image_budget.or(cli.budgets.first().copied());
+    let clamp_cell = if clamp.is_nan() {
+        "-".to_string()
+    } else {
+        clamp.to_string()
     };
-    for (b, &(rows, columns)) in run.budgets.iter().enumerate() {
-        if rows > oracle.rows() || columns > oracle.cols() {
+    for &budget in &cli.budgets {
+        if budget.rows > oracle.rows() || budget.columns > oracle.cols() {
             continue;
         }
         let mut images: Vec<Vec<f32>> = Vec::new();
-        for &method in run.methods {
-            let (mut errors, mut elements, mut extra) = (Vec::new(), 0u64, 0u64);
-            let (start, cpu_start) = (Instant::now(), cpu_seconds());
-            for seed in run.seeds.clone() {
-                let (mut image, e) = match method {
-                    m if m.starts_with("row-column") => {
-                        let c = RowColumnConfig::new(rows, columns)
-                            .with_seed(seed)
-                            .with_unseen(unseen_for(method, columns));
-                        let r = row_column_sampling(oracle, &c, &NoProgress).expect("valid");
-                        (r.image, r.elements)
-                    }
-                    m if m.starts_with("LightSlice") => {
-                        let c = LightSliceConfig {
-                            neighbours: run.neighbours,
-                            global_clusters: (columns * run.global_percent / 100).max(1),
-                            ..LightSliceConfig::new(rows, columns)
-                        }
-                        .with_seed(seed)
-                        .with_unseen(unseen_for(method, columns))
-                        .with_local_importance(method.contains("local"))
-                        .with_adaptive_percent(run.adaptive_percent)
-                        .with_defensive_percent(run.defensive_percent)
-                        .with_split(if method.contains("spread") {
-                            SliceSplit::Spread
-                        } else {
-                            SliceSplit::Largest
-                        });
-                        let r = if method.contains("shading guide") {
-                            let guide = ShadingGuide::new(run.guide_percent, run.probes)
-                                .with_unseen_draws(run.unseen_draws);
-                            let c = c.with_guide(guide);
-                            light_slice_guided(oracle, &c, &NoProgress).expect("valid")
-                        } else {
-                            light_slice(oracle, &c, &NoProgress).expect("valid")
-                        };
-                        extra = r.shading_evaluations;
-                        (r.image, r.elements)
-                    }
-                    _ => {
-                        let mut c = VisibilityConfig::new(rows, columns).with_seed(seed);
-                        if method.contains("k-means") {
-                            c = c.with_method(kmeans);
-                        }
-                        let r = visibility_clustering(oracle, &c, &NoProgress).expect("valid");
-                        extra = r.shading_evaluations;
-                        (r.image, r.elements)
-                    }
-                };
-                for (v, &e) in image.iter_mut().zip(&exact.image) {
+        for &method in &cli.methods {
+            let (mut errors, mut elements, mut shading, mut unseen) =
+                (Vec::new(), 0u64, 0u64, None);
+            let watch = Stopwatch::start();
+            for seed in seeds.clone() {
+                let mut run = run_method(oracle, method, budget, seed, cli);
+                for (v, &e) in run.image.iter_mut().zip(&exact.image) {
                     *v += e;
                 }
-                let e = e + exact.elements;
+                let e = run.elements + exact.elements;
                 elements += e;
-                let error = relative_frobenius_error(&image, reference).expect("same size");
+                shading = run.shading;
+                unseen = run.unseen.map(|u| u + unseen.unwrap_or(0));
+                let error = relative_frobenius_error(&run.image, reference).expect("same size");
                 println!(
-                    "  seed {seed}: {method} {rows}/{columns}: {e} elements, {:.2}%",
+                    "  seed {seed}: {} {budget}: {e} elements, {:.2}%",
+                    method.label(),
                     100.0 * error
                 );
                 errors.push(error);
-                if seed == run.seeds.start {
-                    images.push(image);
+                if seed == cli.first_seed {
+                    images.push(run.image);
                 }
             }
-            let time = start.elapsed() / seeds as u32;
-            let cpu = (cpu_seconds() - cpu_start) / seeds as f64;
-            let elements = elements / seeds;
-            let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-            let max = errors.iter().copied().fold(0.0, f64::max);
-            let elements_cell = if extra > 0 {
-                format!("{:.3e} (+{:.2e} shading)", elements as f64, extra as f64)
+            let time = watch.wall() / runs as u32;
+            let cpu = watch.cpu() / runs as f64;
+            let elements = elements / runs;
+            let (mean, max) = mean_and_max(&errors);
+            let elements_cell = if shading > 0 {
+                format!("{:.3e} (+{:.2e} shading)", elements as f64, shading as f64)
             } else {
                 format!("{:.3e}", elements as f64)
             };
             table.row(vec![
-                method.to_string(),
-                format!("{rows} / {columns}"),
+                clamp_cell.clone(),
+                method.label().to_string(),
+                format!("{} / {}", budget.rows, budget.columns),
                 elements_cell,
                 format!("{:.1}×", brute / elements as f64),
                 format!("{} [{cpu:.1} s]", fmt_duration(time)),
                 format!("{:.2}%", 100.0 * mean),
                 format!("{:.2}%", 100.0 * max),
+                unseen.map_or("-".into(), |u| format!("{:.0}", u as f64 / runs as f64)),
+                format!("{:.2}%", 100.0 * mean * sampled_scale),
             ]);
-            println!("{method} {rows}/{columns}: {:.2}%", 100.0 * mean);
+            println!("{} {budget}: {:.2}%", method.label(), 100.0 * mean);
         }
-        if let (Some(path), 0, 2..) = (run.image_path, b, images.len()) {
-            let errors: Vec<Vec<f32>> = images[..2]
+        if let (Some(path), true, false) = (image, Some(budget) == image_budget, images.is_empty())
+        {
+            images.truncate(2);
+            let errors: Vec<Vec<f32>> = images
                 .iter()
                 .map(|image| {
                     reference
@@ -344,12 +508,8 @@ fn compare<O: SliceOracle + VisibilityOracle>(
                         .collect()
                 })
                 .collect();
-            let panels = [images[0].clone(), images[1].clone()]
-                .into_iter()
-                .chain(errors)
-                .collect::<Vec<_>>();
-            write_strip(path, run.width, reference, &panels);
+            images.extend(errors);
+            write_strip(path, cli.width, reference, &images);
         }
     }
-    println!("\n{}", table.markdown());
 }

@@ -1,7 +1,7 @@
 //! Probulator's radiance RMSE table and sample-count sweep, reproduced with prt-sphere and
 //! prt-plsq (anchors in ../shared/design/anchors.md).
 //!
-//! Run: `cargo run --release -p prt-benches --bin plsq_probulator [-- --frame yup|zup]`
+//! Run: `cargo run --release -p prt-benches --bin plsq_probulator -- [--frame yup|zup] [--csv DIR]`
 //!
 //! Probulator's definitions, matched here: maps are 256×128 lat-long; SG fit input = Halton(2,3)
 //! indices 1..N mapped `z = 1 − 2u`, `φ = 2πv`, value of the nearest texel (SH and ambient dice
@@ -12,10 +12,11 @@
 //! turned by π about +Y in kayru/Probulator; Z-up in troughton's fork with `--frame zup`):
 //! samples, lobes and dice vertices live in that frame and are rotated into prt's lat-long
 //! frame only to address texels.
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
+use clap::Parser;
 use glam::Vec3;
-use prt_benches::Table;
+use prt_benches::{Table, envmap_names, load_envmap};
 use prt_core::{NoProgress, SphericalBasis};
 use prt_plsq::{
     Denominator, EncoderConfig, LatLongFrame, ProgressiveEncoder, Sweep, Update, radiance_rmse,
@@ -24,12 +25,12 @@ use prt_plsq::{
 use prt_sphere::sampling::halton_sphere;
 use prt_sphere::{AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis};
 
-fn load_map(path: &Path) -> Option<LatLongMap> {
-    let img = image::open(path).ok()?.into_rgb32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    let map = LatLongMap::new(w, h, img.into_raw()).ok()?;
+/// The map `name` of ../shared/envmaps at Probulator's 256×128, or why it cannot be read.
+fn load_map(name: &str) -> Result<LatLongMap, String> {
+    let map = load_envmap(name)?;
+    let (w, h) = (map.width(), map.height());
     if (w, h) == (256, 128) {
-        return Some(map);
+        return Ok(map);
     }
     // Box-filter down to 256×128 (Probulator uses stb_image_resize; no anchors depend on this).
     let (fx, fy) = (w / 256, h / 128);
@@ -45,7 +46,7 @@ fn load_map(path: &Path) -> Option<LatLongMap> {
             data.extend_from_slice(&(acc / (fx * fy) as f32).to_array());
         }
     }
-    LatLongMap::new(256, 128, data).ok()
+    LatLongMap::new(256, 128, data).map_err(|e| format!("{name}: {e}"))
 }
 
 struct Probe {
@@ -89,29 +90,38 @@ fn accel3() -> EncoderConfig {
     }
 }
 
-fn envmaps_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps")
+/// Probulator's lat-long frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Frame {
+    /// kayru/Probulator's frame (prt's turned by π about +Y).
+    Yup,
+    /// troughton's Z-up fork.
+    Zup,
+}
+
+#[derive(Debug, Parser)]
+#[command(about = "Probulator's radiance RMSE table and sample-count sweep, reproduced")]
+struct Cli {
+    /// The frame the samples, lobes and dice vertices live in.
+    #[arg(long, value_enum, default_value = "yup")]
+    frame: Frame,
+    /// Folder for the tables as CSV (plsq_probulator_table.csv, plsq_probulator_sweep.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
 }
 
 fn main() {
-    let frame = match std::env::args()
-        .skip_while(|a| a != "--frame")
-        .nth(1)
-        .as_deref()
-    {
-        Some("zup") => LatLongFrame::ProbulatorZUp,
-        _ => LatLongFrame::Probulator,
+    let cli = Cli::parse();
+    let frame = match cli.frame {
+        Frame::Zup => LatLongFrame::ProbulatorZUp,
+        Frame::Yup => LatLongFrame::Probulator,
     };
-    let dir = envmaps_dir();
-    let Some(uffizi) = load_map(&dir.join("probulator_uffizi.hdr")) else {
-        println!(
-            "skipping: ../shared/envmaps/probulator_uffizi.hdr not found (shared data absent)"
-        );
-        return;
-    };
-    let Some(wells) = load_map(&dir.join("probulator_wells.hdr")) else {
-        println!("skipping: ../shared/envmaps/probulator_wells.hdr not found");
-        return;
+    let (uffizi, wells) = match (load_map("probulator_uffizi"), load_map("probulator_wells")) {
+        (Ok(uffizi), Ok(wells)) => (uffizi, wells),
+        (Err(e), _) | (_, Err(e)) => {
+            println!("skipping: {e} (shared data absent)");
+            return;
+        }
     };
     let anchors: [(&str, f64, f64); 12] = [
         ("SH L1 (4)", 3.39398, 0.48756),
@@ -215,7 +225,9 @@ fn main() {
     }
     println!("Probulator radiance RMSE table (frame {frame:?}, N = {n} Halton samples)\n");
     println!("{}", t.markdown());
-    let _ = t.write_csv_if_requested("plsq_probulator_table");
+    if let Err(e) = t.write_csv(cli.csv.as_deref(), "plsq_probulator_table") {
+        eprintln!("could not write the CSV: {e}");
+    }
 
     // Sample-count sweep: 12 SG at λ = 8, first N Halton samples, LS vs progressive (acc. 3).
     let sg8 = SgBasis::new(
@@ -252,21 +264,9 @@ fn main() {
         .map(String::from)
         .to_vec(),
     );
-    let mut names: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .map(|rd| {
-            rd.filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.extension().is_some_and(|x| x == "hdr"))
-                .collect()
-        })
-        .unwrap_or_default();
-    names.sort();
-    for path in names {
-        let Some(map) = load_map(&path) else { continue };
+    for name in envmap_names() {
+        let Ok(map) = load_map(&name) else { continue };
         let probe = Probe { map, frame };
-        let name = path
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
         let (all_dirs, all_values) = probe.samples(*counts.last().unwrap_or(&512));
         let mut ls_row = vec![name.clone(), "LS".into()];
         let mut pr_row = vec![name, "progressive (acc. 3)".into()];
@@ -286,5 +286,7 @@ fn main() {
     }
     println!("Sample-count sweep (12 SG, λ = 8, first N Halton samples, radiance RMSE)\n");
     println!("{}", sweep.markdown());
-    let _ = sweep.write_csv_if_requested("plsq_probulator_sweep");
+    if let Err(e) = sweep.write_csv(cli.csv.as_deref(), "plsq_probulator_sweep") {
+        eprintln!("could not write the CSV: {e}");
+    }
 }

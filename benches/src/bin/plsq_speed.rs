@@ -1,7 +1,7 @@
 //! Speed of progressive least-squares encoding (prt-plsq) against its targets, and the
 //! speed/accuracy trade of LS, NNLS and progressive variants.
 //!
-//! Run: `cargo run --release -p prt-benches --bin plsq_speed [-- single|batch|curves|profile]`
+//! Run: `cargo run --release -p prt-benches --bin plsq_speed -- [--only single|batch|curves|profile] [--csv DIR]`
 //! (default: all three sections; `profile` loops the 12 SG × RGB fit for `perf`).
 //!
 //! 1. Progressive updates per second, 12 SG × RGB, one thread (target >= 20 M/s) and the whole
@@ -9,18 +9,21 @@
 //! 2. Batch encoder scaling from 1 to 2 threads (target >= 1.8x).
 //! 3. RMSE vs samples and vs time on wells (Probulator's error definition) for LS, NNLS and
 //!    progressive (Jacobi, Gauss-Seidel, acceleration 1..5).
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use clap::Parser;
 use glam::Vec3;
-use prt_benches::{Table, cpu_seconds, fmt_duration, median_time, thread_cpu_ns};
+use prt_benches::{
+    Table, cpu_seconds, fmt_duration, load_average, load_envmap, median_time, thread_cpu_ns,
+};
 use prt_core::NoProgress;
 use prt_plsq::{
     BatchEncoder, Denominator, EncoderConfig, LatLongFrame, ProgressiveEncoder, SgEncoder, Sweep,
     Update, radiance_rmse, reference, sample_nearest,
 };
+use prt_sphere::SgBasis;
 use prt_sphere::sampling::{halton_sphere, sobol_sphere};
-use prt_sphere::{LatLongMap, SgBasis};
 
 fn signal(d: Vec3) -> [f32; 3] {
     let sun = (8.0 * (d.dot(Vec3::new(0.6, 0.64, 0.48)) - 1.0)).exp();
@@ -59,14 +62,39 @@ fn cfg(accel: f32, sweep: Sweep) -> EncoderConfig {
     }
 }
 
+/// A section of the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Section {
+    /// 1. Single-thread progressive speed (run with RAYON_NUM_THREADS=1).
+    Single,
+    /// 2. Batch encoder scaling from 1 to 2 threads.
+    Batch,
+    /// 3. RMSE vs samples and time on wells.
+    Curves,
+    /// Loops the 12 SG × RGB fit 2000 times, for `perf` (not part of the default run).
+    Profile,
+}
+
+#[derive(Debug, Parser)]
+#[command(about = "Speed of progressive least-squares encoding and the speed/accuracy trade")]
+struct Cli {
+    /// Run one section only (default: single, batch and curves).
+    #[arg(long, value_enum)]
+    only: Option<Section>,
+    /// Folder for the tables as CSV (plsq_speed_single.csv, _batch.csv, _accuracy.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
 fn main() {
-    let section = std::env::args().nth(1).unwrap_or_default();
-    let run = |name: &str| section.is_empty() || section == name;
+    let cli = Cli::parse();
+    let run = |section: Section| cli.only.is_none_or(|o| o == section);
+    let csv = cli.csv.as_deref();
     let basis = SgBasis::spiral(12, 6.0).expect("valid lobes");
     let n = 20000;
     let dirs = halton_sphere(n);
     let values: Vec<f32> = dirs.iter().flat_map(|d| signal(*d)).collect();
-    if section == "profile" {
+    if cli.only == Some(Section::Profile) {
         let mut sum = 0.0;
         for _ in 0..2000 {
             let mut enc = SgEncoder::<3>::new(&basis, cfg(1.0, Sweep::GaussSeidel)).expect("ok");
@@ -77,18 +105,18 @@ fn main() {
         println!("{sum}");
         return;
     }
-    if run("single") {
-        single_thread(&basis, &dirs, &values);
+    if run(Section::Single) {
+        single_thread(&basis, &dirs, &values, csv);
     }
-    if run("batch") {
-        batch_scaling(&basis);
+    if run(Section::Batch) {
+        batch_scaling(&basis, csv);
     }
-    if run("curves") {
-        curves(&basis);
+    if run(Section::Curves) {
+        curves(&basis, csv);
     }
 }
 
-fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32]) {
+fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32], csv: Option<&Path>) {
     let n = dirs.len();
 
     // 1. Single-thread progressive speed: wall time and on-CPU time (the machine is shared).
@@ -160,17 +188,12 @@ fn single_thread(basis: &SgBasis, dirs: &[Vec3], values: &[f32]) {
         mean_cpu_time(nn),
     );
     println!("{}", t1.markdown());
-    let _ = t1.write_csv_if_requested("plsq_speed_single");
+    if let Err(e) = t1.write_csv(csv, "plsq_speed_single") {
+        eprintln!("could not write the CSV: {e}");
+    }
 }
 
-fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .ok()
-        .and_then(|s| s.split_whitespace().next().map(String::from))
-        .unwrap_or_default()
-}
-
-fn batch_scaling(basis: &SgBasis) {
+fn batch_scaling(basis: &SgBasis, csv: Option<&Path>) {
     // 2. Batch scaling, two workloads:
     //  - runs: a 128 × 128 lightmap, a pass of 64 samples per texel in one `add_sample_runs`
     //    call (each block of 16 texels takes its 64 samples while its state is in cache);
@@ -260,25 +283,29 @@ fn batch_scaling(basis: &SgBasis) {
                 cpu.map_or("–".into(), fmt_duration),
                 format!("{:.1} M", updates as f64 / secs / 1e6),
                 format!("{:.2}x", base / secs),
-                load_average(),
+                // The 1-minute figure.
+                load_average()
+                    .split_whitespace()
+                    .next()
+                    .unwrap_or_default()
+                    .to_string(),
             ]);
         }
     }
     println!("{}", t2.markdown());
-    let _ = t2.write_csv_if_requested("plsq_speed_batch");
+    if let Err(e) = t2.write_csv(csv, "plsq_speed_batch") {
+        eprintln!("could not write the CSV: {e}");
+    }
 }
 
-fn curves(basis: &SgBasis) {
+fn curves(basis: &SgBasis, csv: Option<&Path>) {
     // 3. Speed/accuracy curves on wells.
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps/probulator_wells.hdr");
-    let Some(map) = image::open(&path)
-        .ok()
-        .map(|i| i.into_rgb32f())
-        .and_then(|i| LatLongMap::new(i.width() as usize, i.height() as usize, i.into_raw()).ok())
-    else {
-        println!("skipping the accuracy curves: {} not found", path.display());
-        return;
+    let map = match load_envmap("probulator_wells") {
+        Ok(map) => map,
+        Err(e) => {
+            println!("skipping the accuracy curves: {e}");
+            return;
+        }
     };
     // Probulator's frame and error definition (prt_plsq::probulator).
     let frame = LatLongFrame::Probulator;
@@ -330,5 +357,7 @@ fn curves(basis: &SgBasis) {
         }
     }
     println!("{}", t3.markdown());
-    let _ = t3.write_csv_if_requested("plsq_speed_accuracy");
+    if let Err(e) = t3.write_csv(csv, "plsq_speed_accuracy") {
+        eprintln!("could not write the CSV: {e}");
+    }
 }

@@ -1,27 +1,58 @@
 //! Bakes the Cornell box (32³) and Sponza (64³) transfer volumes, prints timings, Mrays/s and
 //! peak RSS, and writes the horizontal-slice pictures of docs/images/trace_*.png.
 //!
-//! `cargo run --release -p prt-benches --bin trace_bake [cornell|sponza|sponza128|all] [rays] [cache rays] [fast|medium|slow|very-slow]`
+//! `cargo run --release -p prt-benches --bin trace_bake -- --scene cornell,sponza --rays-per-voxel 256 --cache-rays 64 --quality medium [--grid N] [--csv DIR]`
 //!
-//! The last argument is the BVH build quality (default `medium`, the baker's default); the
-//! pictures are written for the default quality only.
-use std::path::Path;
+//! (the defaults). Grids are 32³ for the Cornell box and 64³ for Sponza unless `--grid` gives
+//! one for every scene (`--scene sponza --grid 128` is the memory test). The pictures are
+//! written for grids up to 64³ at the default quality only.
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::{Table, cpu_seconds, fmt_duration};
+use clap::Parser;
+use prt_benches::{
+    BvhQuality, Stopwatch, Table, fmt_duration, load_scene, peak_resident_bytes, save_png,
+};
 use prt_core::NoProgress;
 use prt_trace::{
-    BakeOptions, BuildQuality, LoadOptions, RayTracer, Scene, TransferBaker, TransferVolume,
-    constant_sky,
+    BakeOptions, BuildQuality, RayTracer, TransferBaker, TransferVolume, constant_sky,
 };
 
-fn peak_rss_mib() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+/// A scene to bake.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum BakeScene {
+    /// The built-in Cornell box (32³ by default).
+    Cornell,
+    /// Sponza from ../shared/scenes (64³ by default).
+    Sponza,
+}
+
+#[derive(Debug, Parser)]
+#[command(about = "Bakes transfer volumes and reports time, Mrays/s and peak memory")]
+struct Cli {
+    /// Scenes to bake, comma-separated.
+    #[arg(
+        long,
+        value_enum,
+        value_delimiter = ',',
+        default_value = "cornell,sponza"
+    )]
+    scene: Vec<BakeScene>,
+    /// Voxels along each axis for every scene (default: 32 Cornell, 64 Sponza).
+    #[arg(long)]
+    grid: Option<usize>,
+    /// Directions traced per voxel (`BakeOptions::rays_per_voxel`).
+    #[arg(long, default_value_t = 256)]
+    rays_per_voxel: usize,
+    /// Rays per surface-cache point (`BakeOptions::cache_rays`).
+    #[arg(long, default_value_t = 64)]
+    cache_rays: usize,
+    /// BVH build quality.
+    #[arg(long, value_enum, default_value = "medium")]
+    quality: BvhQuality,
+    /// Folder for the table as CSV (trace_bake.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
 }
 
 /// Two panels side by side: sky visibility (grey) and mean indirect radiance under a unit
@@ -54,28 +85,15 @@ fn write_slice(volume: &TransferVolume, iy: usize, path: &Path) {
             }
         }
     }
-    if let Err(e) = img.save(path) {
-        eprintln!("cannot write {}: {e}", path.display());
+    if let Err(e) = save_png(&img, path) {
+        eprintln!("cannot write {e}");
     }
 }
 
 fn main() {
-    let which = std::env::args().nth(1).unwrap_or_else(|| "all".into());
-    let rays: usize = std::env::args()
-        .nth(2)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(256);
-    let cache_rays: usize = std::env::args()
-        .nth(3)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(64);
-    let quality = match std::env::args().nth(4).as_deref() {
-        Some("fast") => BuildQuality::Fast,
-        Some("slow") => BuildQuality::Slow,
-        Some("very-slow") => BuildQuality::VerySlow,
-        _ => BuildQuality::Medium,
-    };
-    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
+    let cli = Cli::parse();
+    let (rays, cache_rays) = (cli.rays_per_voxel, cli.cache_rays);
+    let quality = BuildQuality::from(cli.quality);
     let images = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/images");
     let mut table = Table::new(&[
         "scene",
@@ -91,28 +109,19 @@ fn main() {
         "invalid",
         "peak RSS",
     ]);
-    let mut jobs: Vec<(&str, usize, f32)> = Vec::new();
-    if which == "cornell" || which == "all" {
-        jobs.push(("cornell", 32, 0.0));
-    }
-    if which == "sponza" || which == "all" {
-        jobs.push(("sponza", 64, 0.0));
-    }
-    if which == "sponza128" {
-        jobs.push(("sponza", 128, 0.0));
-    }
-    for (name, res, margin) in jobs {
+    for which in cli.scene {
+        let (name, default_grid) = match which {
+            BakeScene::Cornell => ("cornell", 32),
+            BakeScene::Sponza => ("sponza", 64),
+        };
+        let res = cli.grid.unwrap_or(default_grid);
         let t_load = Instant::now();
-        let scene = match name {
-            "cornell" => Scene::cornell_box(),
-            _ => match Scene::load_gltf(scenes.join("sponza/Sponza.gltf"), &LoadOptions::default())
-            {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("skipping Sponza: {e}");
-                    continue;
-                }
-            },
+        let scene = match load_scene(name) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
         };
         eprintln!(
             "{name}: {} triangles loaded in {}",
@@ -121,15 +130,14 @@ fn main() {
         );
         let options = BakeOptions {
             resolution: [res; 3],
-            margin,
+            margin: 0.0,
             rays_per_voxel: rays,
             cache_rays,
             seed: 1,
             build_quality: quality,
             ..Default::default()
         };
-        let t = Instant::now();
-        let cpu0 = cpu_seconds();
+        let watch = Stopwatch::start();
         let volume = match TransferBaker::new(&scene, options).and_then(|b| b.bake(&NoProgress)) {
             Ok(v) => v,
             Err(e) => {
@@ -137,8 +145,7 @@ fn main() {
                 continue;
             }
         };
-        let total = t.elapsed();
-        let cpu = cpu_seconds() - cpu0;
+        let (total, cpu) = (watch.wall(), watch.cpu());
         let s = &volume.stats;
         table.row(vec![
             name.into(),
@@ -156,7 +163,7 @@ fn main() {
                 s.rays() as f64 / (cpu / rayon::current_num_threads() as f64) / 1e6
             ),
             s.invalid_voxels.to_string(),
-            format!("{:.0} MiB", peak_rss_mib()),
+            format!("{:.0} MiB", peak_resident_bytes() / (1024.0 * 1024.0)),
         ]);
         if res <= 64 && quality == BuildQuality::Medium {
             let iy = match name {
@@ -172,7 +179,7 @@ fn main() {
         RayTracer::new(&[]).instruction_set()
     );
     println!("{}", table.markdown());
-    if let Err(e) = table.write_csv_if_requested("trace_bake") {
+    if let Err(e) = table.write_csv(cli.csv.as_deref(), "trace_bake") {
         eprintln!("csv: {e}");
     }
 }

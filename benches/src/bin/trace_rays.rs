@@ -7,11 +7,13 @@
 //! ratio, on the build's baseline; single-ray and batched queries. Rays are generated before the
 //! timed loops.
 //!
-//! `cargo run --release -p prt-benches --bin trace_rays [rays] [fast|medium|slow|very-slow]`
+//! `cargo run --release -p prt-benches --bin trace_rays -- --rays 10000000 --quality medium [--csv DIR]`
+//! (the defaults).
 use std::hint::black_box;
-use std::path::Path;
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use clap::Parser;
 use glam::Vec3;
 use obvhs::BvhBuildParams;
 use obvhs::cwbvh::CwBvh;
@@ -19,8 +21,8 @@ use obvhs::cwbvh::builder::build_cwbvh_from_tris;
 use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
-use prt_benches::{Table, cpu_seconds, fmt_duration};
-use prt_trace::{BuildQuality, LoadOptions, RayTracer, Scene};
+use prt_benches::{BvhQuality, Table, cpu_seconds, fmt_duration, load_scene};
+use prt_trace::{BuildQuality, RayTracer, Scene};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
@@ -168,31 +170,29 @@ fn measure_batched(rays: &[(Vec3, Vec3)], tracer: &RayTracer) -> Throughput {
     )
 }
 
+#[derive(Debug, Parser)]
+#[command(about = "Raw ray throughput of prt-trace's CWBVH beside obvhs and the anchors")]
+struct Cli {
+    /// Random rays per scene (origins uniform in the scene box, directions on the sphere).
+    #[arg(long, default_value_t = 10_000_000)]
+    rays: usize,
+    /// BVH build quality (prt-trace and obvhs alike).
+    #[arg(long, value_enum, default_value = "medium")]
+    quality: BvhQuality,
+    /// Folder for the table as CSV (trace_rays.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
 fn main() {
-    let count: usize = std::env::args()
-        .nth(1)
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(10_000_000);
-    let quality = match std::env::args().nth(2).as_deref() {
-        Some("fast") => BuildQuality::Fast,
-        Some("slow") => BuildQuality::Slow,
-        Some("very-slow") => BuildQuality::VerySlow,
-        _ => BuildQuality::Medium,
-    };
-    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes");
-    // (name, loader, anchor obvhs closest/shadow, anchor Embree closest/shadow) in Mrays/s.
-    let anchors: [(&str, Option<&str>, [f64; 4]); 3] = [
-        ("Cornell", None, [17.3, 21.0, 16.3, 22.0]),
-        (
-            "Sponza",
-            Some("sponza/Sponza.gltf"),
-            [4.65, 7.45, 7.02, 12.5],
-        ),
-        (
-            "Gas station",
-            Some("gas_station/GasStation.gltf"),
-            [8.65, 8.23, 14.8, 13.6],
-        ),
+    let cli = Cli::parse();
+    let count = cli.rays;
+    let quality = BuildQuality::from(cli.quality);
+    // (name, scene, anchor obvhs closest/shadow, anchor Embree closest/shadow) in Mrays/s.
+    let anchors: [(&str, &str, [f64; 4]); 3] = [
+        ("Cornell", "cornell", [17.3, 21.0, 16.3, 22.0]),
+        ("Sponza", "sponza", [4.65, 7.45, 7.02, 12.5]),
+        ("Gas station", "gas_station", [8.65, 8.23, 14.8, 13.6]),
     ];
     let mut table = Table::new(&[
         "scene",
@@ -206,16 +206,13 @@ fn main() {
         "CPU-normalised vs obvhs anchor (closest / shadow)",
         "CPU-normalised vs Embree anchor (closest / shadow)",
     ]);
-    for (name, file, a) in anchors {
-        let scene = match file {
-            None => Scene::cornell_box(),
-            Some(f) => match Scene::load_gltf(scenes.join(f), &LoadOptions::default()) {
-                Ok(s) => s,
-                Err(e) => {
-                    eprintln!("skipping {name}: {e}");
-                    continue;
-                }
-            },
+    for (name, scene_name, a) in anchors {
+        let scene = match load_scene(scene_name) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
         };
         let rays = random_rays(&scene, count, 7);
         let t = Instant::now();
@@ -288,12 +285,6 @@ fn main() {
                     m.hits, base.hits
                 );
             }
-            if m.occluded != m.hits {
-                eprintln!(
-                    "{name}, {implementation}: {} closest hits but {} occluded shadow rays",
-                    m.hits, m.occluded
-                );
-            }
             table.row(vec![
                 name.into(),
                 scene.triangles().len().to_string(),
@@ -318,7 +309,7 @@ fn main() {
         RayTracer::new(&[]).instruction_set()
     );
     println!("{}", table.markdown());
-    if let Err(e) = table.write_csv_if_requested("trace_rays") {
+    if let Err(e) = table.write_csv(cli.csv.as_deref(), "trace_rays") {
         eprintln!("csv: {e}");
     }
 }

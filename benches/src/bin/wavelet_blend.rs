@@ -1,11 +1,11 @@
 //! Interpolation between two environment maps (a lighting cross-fade over 50 frames, then 50
 //! static): NWA vs BI vs PBI, area-weighted L1 lighting error.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_blend`
+//! `cargo run --release -p prt-benches --bin wavelet_blend` (no options: uffizi → grace and
+//! pisa → venice, 64 × 64 faces)
 
-use std::path::Path;
-
-use prt_benches::Table;
+use clap::Parser;
+use prt_benches::{Table, load_envmap};
 use prt_wavelet::analysis::LightingError;
 use prt_wavelet::sequence::Interpolation;
 use prt_wavelet::{
@@ -16,17 +16,19 @@ const SIZE: usize = 64;
 const BLEND: usize = 50;
 const FRAMES: usize = 100;
 
-fn load(name: &str) -> Option<Cubemap> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/envmaps")
-        .join(format!("{name}.hdr"));
-    let img = image::open(&path).ok()?.into_rgb32f();
-    let (w, h) = img.dimensions();
-    let map = prt_sphere::LatLongMap::new(w as usize, h as usize, img.into_raw()).ok()?;
-    Cubemap::from_lat_long(&map, SIZE, 0.0, Cubemap::default_samples(map.width(), SIZE)).ok()
+/// The map `name` of ../shared/envmaps on the experiment's cube faces, or why not.
+fn load(name: &str) -> Result<Cubemap, String> {
+    let map = load_envmap(name)?;
+    Cubemap::from_lat_long(&map, SIZE, 0.0, Cubemap::default_samples(map.width(), SIZE))
+        .map_err(|e| format!("{name}: {e}"))
 }
 
+#[derive(Debug, Parser)]
+#[command(about = "Interpolation between two environment maps: NWA vs BI vs PBI")]
+struct Cli {}
+
 fn main() {
+    Cli::parse();
     let layout = CubemapLayout::new(SIZE).expect("size");
     let methods: [(&str, usize, Policy); 7] = [
         ("NWA30", 30, Policy::NonIncremental),
@@ -49,9 +51,12 @@ fn main() {
         ("probulator_uffizi", "probulator_grace"),
         ("probulator_pisa", "venice_sunset_1k"),
     ] {
-        let (Some(from), Some(to)) = (load(a), load(b)) else {
-            eprintln!("skipping {a} -> {b}: ../shared/envmaps not readable");
-            continue;
+        let (from, to) = match (load(a), load(b)) {
+            (Ok(from), Ok(to)) => (from, to),
+            (Err(e), _) | (_, Err(e)) => {
+                eprintln!("skipping {a} -> {b}: {e}");
+                continue;
+            }
         };
         let blend = Interpolation::new(from, to, BLEND).expect("blend");
         let mut approx: Vec<Approximator> = methods

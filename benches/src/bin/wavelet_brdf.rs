@@ -2,7 +2,7 @@
 //! until the displayed curve is exact (relative RMS <= 1e-6) after each kind of edit, at 30 terms
 //! per frame, and the error per frame after the edit.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_brdf`
+//! `cargo run --release -p prt-benches --bin wavelet_brdf` (no options)
 
 use prt_benches::Table;
 use prt_core::metrics::relative_frobenius_error;
@@ -27,7 +27,12 @@ fn run(terms: usize, start: &[f32], edits: &[Vec<f32>], hold: usize) -> Vec<f64>
         .collect()
 }
 
+#[derive(Debug, clap::Parser)]
+#[command(about = "BRDF editing in Daubechies-4 with basic incremental updates")]
+struct Cli {}
+
 fn main() {
+    <Cli as clap::Parser>::parse();
     let mut rng = Pcg64::seed_from_u64(2006);
     let base = beckmann_curve(0.3, BINS).expect("curve");
     let mut scenarios: Vec<(String, Vec<Vec<f32>>)> = Vec::new();

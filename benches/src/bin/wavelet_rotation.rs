@@ -1,31 +1,31 @@
 //! Overbeck's rotating-map experiment: NWA vs BI vs PBI on a cube map rotating about +Y for
 //! `stop` frames, then static, measured by the per-frame area-weighted L1 lighting error.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_rotation [-- maps... ]`
-//! (default maps: every `.hdr` in ../shared/envmaps; speeds 0.5, 1 and 3 degrees per frame;
-//! 64 × 64 faces, RGB, area-weighted selection; lighting area-averaged onto the faces with
-//! `Cubemap::default_samples` sub-texel lookups). Each distinct rotation angle of a map is
+//! ```text
+//! cargo run --release -p prt-benches --bin wavelet_rotation -- [--maps a,b] --size 64 \
+//!     --speeds 0.5,1,3 --samples-x 1 --weight l1 [--no-curves] [--frame-cache DIR] [--csv DIR]
+//! ```
+//!
+//! (the defaults; default maps: every `.hdr` in ../shared/envmaps). RGB, lighting area-averaged
+//! onto the faces with `Cubemap::default_samples` sub-texel lookups (times `--samples-x` per
+//! side, to check that resampling noise does not drive the results). `--size 32` is the
+//! 6 × 32 × 32 lighting of the BRDF-factorisation and CPCA codes the thesis built on;
+//! `--weight support` selects by `|c|` × support solid angle instead of the basis function's
+//! L1 norm (see `selection_weights`); `--no-curves` skips the error-vs-terms sweep;
+//! `--frame-cache DIR` keeps every resampled frame there (raw little-endian f32, named by map,
+//! face side, lookups and angle) so that re-runs skip the resampling; `--csv DIR` writes the
+//! tables and the per-frame errors of every run. Each distinct rotation angle of a map is
 //! resampled once (the static frames repeat the stop angle, and 1°/frame's first 50 angles are
 //! 0.5°/frame's even ones), frames in parallel, then a map's speeds run in parallel (rayon;
-//! results do not depend on the thread count).
-//! Environment: `PRT_CSV_DIR` writes per-frame CSVs; `PRT_WAVELET_SIZE` sets the cube face side
-//! (default 64; 32 is the 6 × 32 × 32 lighting of the BRDF-factorisation and CPCA codes the
-//! thesis built on); `PRT_WAVELET_SPEEDS` the degrees per frame (comma-separated, default
-//! `0.5,1,3`); `PRT_WAVELET_SAMPLES_X` multiplies the sub-texel lookups per side (default 1; for
-//! checking that resampling noise does not drive the results); `PRT_WAVELET_CURVES=0` skips
-//! the error-vs-terms sweep; `PRT_WAVELET_WEIGHT=support` selects by `|c|` × support solid angle
-//! instead of the basis function's L1 norm (see `selection_weights`);
-//! `PRT_WAVELET_FRAME_CACHE=<dir>` keeps every resampled frame there (raw little-endian f32,
-//! named by map, face side, lookups and angle) so that re-runs skip the resampling. The figure 5.3 / 5.4
-//! analyses are printed for probulator_uffizi at 1°/frame when that run is in the sweep, else
-//! for the first run.
+//! results do not depend on the thread count). The figure 5.3 / 5.4 analyses are printed for
+//! probulator_uffizi at 1°/frame when that run is in the sweep, else for the first run.
 
 use std::collections::HashMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use prt_benches::{Table, cpu_seconds};
-use prt_sphere::LatLongMap;
+use clap::Parser;
+use prt_benches::{Stopwatch, Table, envmap_names, load_average, load_envmap};
 use prt_wavelet::analysis::{LightingError, band_energy};
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{
@@ -41,38 +41,6 @@ const BEST: &str = "PBI30 dealer level x face x quadrant";
 /// The thesis' PBI (exhaustive over wavelet-level bands), in brackets beside it.
 const THESIS: &str = "PBI30x";
 
-fn envmap_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/envmaps")
-}
-
-/// Every `.hdr` map of ../shared/envmaps, by name.
-fn all_maps() -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(envmap_dir())
-        .map(|dir| {
-            dir.filter_map(|e| {
-                let path = e.ok()?.path();
-                (path.extension()? == "hdr")
-                    .then(|| path.file_stem()?.to_str().map(String::from))?
-            })
-            .collect()
-        })
-        .unwrap_or_default();
-    names.sort();
-    names
-}
-
-/// The map, or why it cannot be used.
-fn load(name: &str) -> Result<LatLongMap, String> {
-    let path = envmap_dir().join(format!("{name}.hdr"));
-    let img = image::open(&path)
-        .map_err(|e| format!("{}: {e}", path.display()))?
-        .into_rgb32f();
-    let (w, h) = img.dimensions();
-    let map = LatLongMap::new(w as usize, h as usize, img.into_raw())
-        .map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok(map)
-}
-
 struct Method {
     name: String,
     approx: Approximator,
@@ -81,13 +49,22 @@ struct Method {
     seconds: f64,
 }
 
-/// Selection weights: `l1` (default) the L1 norm of each basis function on the sphere
-/// (`Weighting::Area`, which bounds the area-weighted L1 error), or `support` (environment
-/// `PRT_WAVELET_WEIGHT=support`) that times the support's side in texels, i.e. `|c|` times the
-/// support's solid angle for a normalised Haar coefficient — Ng et al.'s "area weighting" read
-/// literally, which favours coarse coefficients.
-fn selection_weights(layout: &CubemapLayout, size: usize) -> Vec<f32> {
-    let support = std::env::var("PRT_WAVELET_WEIGHT").is_ok_and(|w| w == "support");
+/// How coefficients are weighted for selection (`--weight`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SelectionWeight {
+    /// The L1 norm of each basis function on the sphere (`Weighting::Area`), which bounds the
+    /// area-weighted L1 error.
+    L1,
+    /// That times the support's side in texels: `|c|` times the support's solid angle for a
+    /// normalised Haar coefficient, Ng et al.'s "area weighting" read literally (favours coarse
+    /// coefficients).
+    Support,
+}
+
+/// The selection weight of every coefficient (see [`SelectionWeight`]).
+fn selection_weights(layout: &CubemapLayout, weight: SelectionWeight) -> Vec<f32> {
+    let support = weight == SelectionWeight::Support;
+    let size = layout.size();
     layout
         .area_weights()
         .iter()
@@ -102,11 +79,16 @@ fn selection_weights(layout: &CubemapLayout, size: usize) -> Vec<f32> {
         .collect()
 }
 
-fn method(layout: &CubemapLayout, name: &str, terms: usize, policy: Policy) -> Method {
-    let weights = selection_weights(layout, layout.size());
+fn method(
+    layout: &CubemapLayout,
+    weights: &[f32],
+    name: &str,
+    terms: usize,
+    policy: Policy,
+) -> Method {
     Method {
         name: name.to_string(),
-        approx: Approximator::new(layout.bands().to_vec(), weights, 3, terms, policy)
+        approx: Approximator::new(layout.bands().to_vec(), weights.to_vec(), 3, terms, policy)
             .expect("valid config"),
         errors: Vec::new(),
         band_terms: Vec::new(),
@@ -117,6 +99,7 @@ fn method(layout: &CubemapLayout, name: &str, terms: usize, policy: Policy) -> M
 /// PBI over level × face × tile bands (`tiles` per face side; 1 = level × face).
 fn fine_method(
     layout: &CubemapLayout,
+    weights: &[f32],
     tiles: usize,
     name: &str,
     terms: usize,
@@ -124,7 +107,7 @@ fn fine_method(
 ) -> Method {
     let approx = Approximator::new(
         layout.level_face_tile_bands(tiles).expect("tiles"),
-        selection_weights(layout, layout.size()),
+        weights.to_vec(),
         3,
         terms,
         policy,
@@ -276,27 +259,57 @@ struct Report {
     analysis: Option<String>,
 }
 
-fn evaluate(
-    name: &str,
+/// One map at one speed: every method over the frames, the tables' rows and (when `analyse`)
+/// the figure 5.3 / 5.4 analyses.
+struct Run<'a> {
+    name: &'a str,
     deg: f32,
-    frames: &[&Frame],
-    layout: &CubemapLayout,
+    frames: &'a [&'a Frame],
+    layout: &'a CubemapLayout,
+    weights: &'a [f32],
     curves_wanted: bool,
     analyse: bool,
-) -> Report {
+    csv: Option<&'a Path>,
+}
+
+fn evaluate(job: Run<'_>) -> Report {
+    let Run {
+        name,
+        deg,
+        frames,
+        layout,
+        weights,
+        curves_wanted,
+        analyse,
+        csv,
+    } = job;
     let size = layout.size();
     let mut report = Report::default();
     let mut methods = vec![
-        method(layout, "PBI30", 30, Policy::PerBand(BandStrategy::L1Test)),
         method(
             layout,
+            weights,
+            "PBI30",
+            30,
+            Policy::PerBand(BandStrategy::L1Test),
+        ),
+        method(
+            layout,
+            weights,
             THESIS,
             30,
             Policy::PerBand(BandStrategy::Exhaustive),
         ),
-        method(layout, "PBI30d", 30, Policy::PerBand(BandStrategy::Dealer)),
+        method(
+            layout,
+            weights,
+            "PBI30d",
+            30,
+            Policy::PerBand(BandStrategy::Dealer),
+        ),
         fine_method(
             layout,
+            weights,
             1,
             "PBI30 dealer level x face",
             30,
@@ -304,14 +317,23 @@ fn evaluate(
         ),
         fine_method(
             layout,
+            weights,
             1,
             "PBI30 L1 test level x face",
             30,
             Policy::PerBand(BandStrategy::L1Test),
         ),
-        fine_method(layout, 2, BEST, 30, Policy::PerBand(BandStrategy::Dealer)),
         fine_method(
             layout,
+            weights,
+            2,
+            BEST,
+            30,
+            Policy::PerBand(BandStrategy::Dealer),
+        ),
+        fine_method(
+            layout,
+            weights,
             1,
             "PBI30 exhaustive level x face",
             30,
@@ -319,16 +341,17 @@ fn evaluate(
         ),
         fine_method(
             layout,
+            weights,
             2,
             "PBI30 exhaustive level x face x quadrant",
             30,
             Policy::PerBand(BandStrategy::Exhaustive),
         ),
-        method(layout, "BI30", 30, Policy::Incremental),
-        method(layout, "NWA30", 30, Policy::NonIncremental),
-        method(layout, "NWA60", 60, Policy::NonIncremental),
-        method(layout, "NWA100", 100, Policy::NonIncremental),
-        method(layout, "NWA500", 500, Policy::NonIncremental),
+        method(layout, weights, "BI30", 30, Policy::Incremental),
+        method(layout, weights, "NWA30", 30, Policy::NonIncremental),
+        method(layout, weights, "NWA60", 60, Policy::NonIncremental),
+        method(layout, weights, "NWA100", 100, Policy::NonIncremental),
+        method(layout, weights, "NWA500", 500, Policy::NonIncremental),
     ];
     run(frames, size, &mut methods);
     let err = |n: &str| &methods.iter().find(|m| m.name == n).expect("method").errors;
@@ -455,7 +478,7 @@ fn evaluate(
         per_frame.row(row);
     }
     per_frame
-        .write_csv_if_requested(&format!("wavelet_rotation_{name}_{deg}deg_{size}"))
+        .write_csv(csv, &format!("wavelet_rotation_{name}_{deg}deg_{size}"))
         .expect("csv");
     if analyse {
         report.analysis = Some(analysis(name, deg, frames, layout, &methods[0]));
@@ -468,18 +491,32 @@ fn evaluate(
     };
     for &terms in budgets {
         let mut ms = vec![
-            method(layout, "NWA", terms, Policy::NonIncremental),
-            method(layout, "BI", terms, Policy::Incremental),
-            method(layout, "PBI", terms, Policy::PerBand(BandStrategy::L1Test)),
+            method(layout, weights, "NWA", terms, Policy::NonIncremental),
+            method(layout, weights, "BI", terms, Policy::Incremental),
             method(
                 layout,
+                weights,
+                "PBI",
+                terms,
+                Policy::PerBand(BandStrategy::L1Test),
+            ),
+            method(
+                layout,
+                weights,
                 "PBIx",
                 terms,
                 Policy::PerBand(BandStrategy::Exhaustive),
             ),
-            method(layout, "PBId", terms, Policy::PerBand(BandStrategy::Dealer)),
+            method(
+                layout,
+                weights,
+                "PBId",
+                terms,
+                Policy::PerBand(BandStrategy::Dealer),
+            ),
             fine_method(
                 layout,
+                weights,
                 1,
                 "PBIf",
                 terms,
@@ -487,6 +524,7 @@ fn evaluate(
             ),
             fine_method(
                 layout,
+                weights,
                 2,
                 "PBIq",
                 terms,
@@ -542,29 +580,53 @@ fn analysis(
     )
 }
 
-fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
+#[derive(Debug, Parser)]
+#[command(about = "Overbeck's rotating-map experiment: NWA vs BI vs PBI")]
+struct Cli {
+    /// Maps of ../shared/envmaps by name, comma-separated (default: every .hdr there).
+    #[arg(long, value_delimiter = ',')]
+    maps: Vec<String>,
+    /// Cube face side in texels.
+    #[arg(long, default_value_t = 64)]
+    size: usize,
+    /// Rotation speeds in degrees per frame, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "0.5,1,3")]
+    speeds: Vec<f32>,
+    /// Multiplies the sub-texel lookups per side of `Cubemap::default_samples`.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    samples_x: u64,
+    /// Coefficient weights of the selection.
+    #[arg(long, value_enum, default_value = "l1")]
+    weight: SelectionWeight,
+    /// Skip the error-vs-terms sweep (the slowest part).
+    #[arg(long)]
+    no_curves: bool,
+    /// Folder keeping every resampled frame, so that re-runs skip the resampling.
+    #[arg(long)]
+    frame_cache: Option<PathBuf>,
+    /// Folder for the tables and the per-frame errors of every run as CSV.
+    #[arg(long)]
+    csv: Option<PathBuf>,
 }
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let maps = if args.is_empty() { all_maps() } else { args };
-    let env = |key: &str| std::env::var(key).ok();
-    let size: usize = env("PRT_WAVELET_SIZE").map_or(64, |s| s.parse().expect("face side"));
-    let speeds: Vec<f32> = env("PRT_WAVELET_SPEEDS").map_or(vec![0.5, 1.0, 3.0], |s| {
-        s.split(',').map(|v| v.parse().expect("degrees")).collect()
-    });
-    let samples_x: usize =
-        env("PRT_WAVELET_SAMPLES_X").map_or(1, |s| s.parse().expect("sample multiplier"));
-    let curves_wanted = env("PRT_WAVELET_CURVES").is_none_or(|v| v != "0");
+    let cli = Cli::parse();
+    let maps = if cli.maps.is_empty() {
+        envmap_names()
+    } else {
+        cli.maps.clone()
+    };
+    let (size, speeds) = (cli.size, cli.speeds.clone());
+    let samples_x = cli.samples_x as usize;
+    let curves_wanted = !cli.no_curves;
+    let csv = cli.csv.as_deref();
     println!(
         "{size} x {size} faces, speeds {speeds:?} deg/frame, sub-texel lookups x{samples_x}, maps {maps:?}, load average {}",
         load_average()
     );
-    let (wall, cpu) = (Instant::now(), cpu_seconds());
+    let watch = Stopwatch::start();
     let layout = CubemapLayout::new(size).expect("size");
+    let weights = selection_weights(&layout, cli.weight);
     let analysed = if maps.iter().any(|m| m == "probulator_uffizi") && speeds.contains(&1.0) {
         ("probulator_uffizi".to_string(), 1.0)
     } else {
@@ -617,7 +679,7 @@ fn main() {
     ]);
     let mut skipped = Vec::new();
     for name in &maps {
-        let map = match load(name) {
+        let map = match load_envmap(name) {
             Ok(map) => map,
             Err(why) => {
                 eprintln!("skipping {name}: {why}");
@@ -635,9 +697,9 @@ fn main() {
                 rotation.with_samples(samples).expect("samples")
             })
             .collect();
-        let cache = env("PRT_WAVELET_FRAME_CACHE").map(|dir| {
-            std::fs::create_dir_all(&dir).expect("frame cache directory");
-            (PathBuf::from(dir), format!("{name}_{size}"))
+        let cache = cli.frame_cache.as_ref().map(|dir| {
+            std::fs::create_dir_all(dir).expect("frame cache directory");
+            (dir.clone(), format!("{name}_{size}"))
         });
         let (frames, order) = frames(&rotations, size, cache.as_ref());
         let resampled = map_start.elapsed();
@@ -647,7 +709,16 @@ fn main() {
             .map(|(&deg, order)| {
                 let frames: Vec<&Frame> = order.iter().map(|&i| &frames[i]).collect();
                 let analyse = (name, deg) == (&analysed.0, analysed.1);
-                evaluate(name, deg, &frames, &layout, curves_wanted, analyse)
+                evaluate(Run {
+                    name,
+                    deg,
+                    frames: &frames,
+                    layout: &layout,
+                    weights: &weights,
+                    curves_wanted,
+                    analyse,
+                    csv,
+                })
             })
             .collect();
         eprintln!(
@@ -696,17 +767,17 @@ fn main() {
     }
     println!(
         "\n{:.0} s wall, {:.0} s CPU (all threads), load average {}",
-        wall.elapsed().as_secs_f64(),
-        cpu_seconds() - cpu,
+        watch.wall().as_secs_f64(),
+        watch.cpu(),
         load_average()
     );
     summary
-        .write_csv_if_requested("wavelet_rotation_summary")
+        .write_csv(csv, "wavelet_rotation_summary")
         .expect("csv");
     targets
-        .write_csv_if_requested("wavelet_rotation_targets")
+        .write_csv(csv, "wavelet_rotation_targets")
         .expect("csv");
     curves
-        .write_csv_if_requested("wavelet_rotation_curves")
+        .write_csv(csv, "wavelet_rotation_curves")
         .expect("csv");
 }

@@ -3,12 +3,11 @@
 //! per frame by tolerance-driven band filling, against the non-incremental budget (the lowest
 //! whole bands that fit). Error: relative L2 of the SH lighting vector.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_sh`
+//! `cargo run --release -p prt-benches --bin wavelet_sh` (no options: uffizi and grace at 1
+//! and 3°/frame, budgets 30 and 50)
 
-use std::path::Path;
-
-use prt_benches::Table;
-use prt_sphere::LatLongMap;
+use clap::Parser;
+use prt_benches::{Table, load_envmap};
 use prt_sphere::envmap::cube_texel_direction;
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{ShApproximator, texel_solid_angles};
@@ -43,7 +42,12 @@ fn rel_l2(a: &[f32], b: &[f32]) -> f64 {
     (e / n).sqrt()
 }
 
+#[derive(Debug, Parser)]
+#[command(about = "PBI for spherical-harmonic lighting on a rotating map")]
+struct Cli {}
+
 fn main() {
+    Cli::parse();
     let omega = texel_solid_angles(SIZE);
     let basis: Vec<Vec<f32>> = (0..6 * SIZE * SIZE)
         .map(|i| {
@@ -67,16 +71,13 @@ fn main() {
         "PBI frames to exact after stop",
     ]);
     for name in ["probulator_uffizi", "probulator_grace"] {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../shared/envmaps")
-            .join(format!("{name}.hdr"));
-        let Ok(img) = image::open(&path) else {
-            eprintln!("skipping {name}: {} not readable", path.display());
-            continue;
+        let map = match load_envmap(name) {
+            Ok(map) => map,
+            Err(e) => {
+                eprintln!("skipping {name}: {e}");
+                continue;
+            }
         };
-        let img = img.into_rgb32f();
-        let (w, h) = img.dimensions();
-        let map = LatLongMap::new(w as usize, h as usize, img.into_raw()).expect("finite map");
         for deg in [1.0f32, 3.0] {
             let rotation =
                 Rotation::new(map.clone(), SIZE, deg.to_radians(), STOP).expect("rotation");

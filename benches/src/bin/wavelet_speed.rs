@@ -2,7 +2,8 @@
 //! python3 with pywt is available), and the relighting engine's cost per frame against the
 //! memory-bandwidth bound of what it touches.
 //!
-//! `cargo run --release -p prt-benches --bin wavelet_speed`
+//! `cargo run --release -p prt-benches --bin wavelet_speed` (no options; run it with
+//! `RAYON_NUM_THREADS=1` for the one-thread relighting figures)
 
 use std::path::Path;
 use std::process::Command;
@@ -114,7 +115,12 @@ fn process_cpu() -> Duration {
         .sum()
 }
 
+#[derive(Debug, clap::Parser)]
+#[command(about = "Wavelet transforms beside PyWavelets, and the relighting engine's cost")]
+struct Cli {}
+
 fn main() {
+    <Cli as clap::Parser>::parse();
     let reference = pywavelets();
     let py = |key: &str| {
         reference
