@@ -1,13 +1,14 @@
 //! Helpers shared by the MBD experiments (`mbd_sweep`, `mbd_clustered`, `mbd_scale`): the
-//! field a run works on (synthetic, or a traced scene cached on disk), the cost of a fit, basis
-//! node counts and the load average.
+//! field a run works on (synthetic, or a traced scene cached on disk), the cost of a fit and
+//! basis node counts.
 
 use std::path::PathBuf;
-use std::time::Instant;
 
 use glam::Vec3;
 use prt_core::{Aabb, GridField, NoProgress};
-use prt_trace::{BakeOptions, LoadOptions, Scene, TransferBaker};
+use prt_trace::{BakeOptions, TransferBaker};
+
+use crate::Stopwatch;
 
 /// The field an MBD experiment runs on.
 #[derive(Debug, Clone, clap::Args)]
@@ -79,11 +80,11 @@ pub struct Cost {
 impl Cost {
     /// Runs `fit` and returns its value with what it cost.
     pub fn measure<T>(fit: impl FnOnce() -> T) -> (T, Cost) {
-        let (start, cpu) = (Instant::now(), crate::cpu_seconds());
+        let watch = Stopwatch::start();
         let value = fit();
         let cost = Cost {
-            wall: start.elapsed().as_secs_f64(),
-            cpu: crate::cpu_seconds() - cpu,
+            wall: watch.wall().as_secs_f64(),
+            cpu: watch.cpu(),
         };
         (value, cost)
     }
@@ -121,16 +122,7 @@ pub fn traced_field(scene_name: &str, n: usize) -> GridField {
         eprintln!("{scene_name} {n}: read {}", path.display());
         return field;
     }
-    let scene = if scene_name == "sponza" {
-        let path = concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/scenes/sponza/Sponza.gltf"
-        );
-        Scene::load_gltf(path, &LoadOptions::default())
-            .unwrap_or_else(|e| panic!("cannot load Sponza from {path}: {e}"))
-    } else {
-        Scene::cornell_box()
-    };
+    let scene = crate::load_scene(scene_name).unwrap_or_else(|e| panic!("cannot load {e}"));
     let bounds = scene.bounds().expect("the scene has triangles");
     let size = bounds.size().to_array();
     let longest = size.iter().copied().fold(0.0f32, f32::max);
@@ -160,35 +152,10 @@ pub fn basis_nodes(field: &GridField, b: usize) -> [usize; 3] {
     [0, 1, 2].map(|k| b.min(dims[k].max(2)))
 }
 
-/// The 1, 5 and 15 minute load averages.
-pub fn load_average() -> String {
-    std::fs::read_to_string("/proc/loadavg")
-        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
-        .unwrap_or_else(|_| "unknown".into())
-}
-
-/// A `/proc/self/status` memory line (`VmRSS:`, `VmHWM:`) in GiB (NaN where unavailable).
-pub fn memory_gib(key: &str) -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .unwrap_or_default()
-        .lines()
-        .find_map(|l| l.strip_prefix(key))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / (1024.0 * 1024.0))
-}
-
-/// Folder for cached traced volumes: `$CARGO_TARGET_DIR` or the workspace's `target/`.
-pub fn cache_dir() -> PathBuf {
-    std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../target")))
-        .join("mbd_cache")
-}
-
 /// Path of the cached traced volume of `scene` at `n` voxels along its longest axis (`prt
 /// bake`'s defaults: 256 rays, 64 cache rays, seed 0).
 pub fn cached_volume_path(scene: &str, n: usize) -> PathBuf {
-    cache_dir().join(format!("{scene}_{n}_r256_c64_s0.f32"))
+    crate::cache_dir("mbd_cache").join(format!("{scene}_{n}_r256_c64_s0.f32"))
 }
 
 /// Cache layout, little endian: dims (3 × u64), bounds (6 × f32), dim (u64), data (f32).

@@ -26,7 +26,8 @@
 
 use clap::Parser;
 use prt_benches::Table;
-use prt_benches::mbd::{Cost, FieldArgs, basis_nodes, load_average, method_enabled};
+use prt_benches::load_average;
+use prt_benches::mbd::{Cost, FieldArgs, basis_nodes, method_enabled};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress, SpatialKernels, resample_to_grid};
 use prt_kernels::HatGrid;
 use prt_mbd::expert::{

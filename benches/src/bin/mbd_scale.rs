@@ -16,10 +16,12 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use clap::Parser;
-use prt_benches::cpu_seconds;
-use prt_benches::mbd::{load_average, memory_gib};
+use prt_benches::{cpu_seconds, load_average, peak_resident_bytes, resident_bytes};
 use prt_core::{Aabb, FieldModel, Progress};
 use prt_mbd::{Basis, EvalOptions, Mbd, SyntheticField, evaluate};
+
+/// Bytes per GiB.
+const GIB: f64 = (1u64 << 30) as f64;
 
 #[derive(Debug, Parser)]
 #[command(about = "MBD solve time and memory at scale on the synthetic field")]
@@ -71,7 +73,7 @@ impl Progress for IterationLog {
             "  iteration done at {:.1} s (CPU {:.1} s, RSS {:.2} GiB): {message}",
             self.start.elapsed().as_secs_f64(),
             cpu_seconds() - self.cpu0,
-            memory_gib("VmRSS:"),
+            resident_bytes() / GIB,
         );
     }
 
@@ -132,7 +134,7 @@ fn main() {
         build.0,
         build.1,
         field.data().len() as f64 * 4.0 / (1u64 << 30) as f64,
-        memory_gib("VmRSS:")
+        resident_bytes() / GIB
     );
 
     let mut mbd = Mbd::new(rank, Basis::HatGrid { nodes });
@@ -158,7 +160,7 @@ fn main() {
         iteration_seconds,
         iteration_seconds / report.history.len().max(1) as f64,
         report.converged,
-        memory_gib("VmHWM:")
+        peak_resident_bytes() / GIB
     );
     for (i, r) in report.history.iter().enumerate() {
         println!(
@@ -193,7 +195,7 @@ fn main() {
         "total {:.1} s (CPU {:.1} s), peak RSS {:.2} GiB, load average after {}",
         total.elapsed().as_secs_f64(),
         cpu_seconds() - cpu0,
-        memory_gib("VmHWM:"),
+        peak_resident_bytes() / GIB,
         load_average()
     );
 }

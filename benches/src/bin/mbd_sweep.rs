@@ -24,7 +24,8 @@
 use std::path::{Path, PathBuf};
 
 use clap::{Parser, Subcommand};
-use prt_benches::mbd::{Cost, FieldArgs, Input, basis_nodes, load_average, method_enabled};
+use prt_benches::load_average;
+use prt_benches::mbd::{Cost, FieldArgs, Input, basis_nodes, method_enabled};
 use prt_benches::{Table, fmt_duration};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress, resample_to_grid};
 use prt_mbd::expert::{PolishStep, kernel_labels, polish, trilinear_energy};
@@ -46,7 +47,7 @@ struct Cli {
     methods: Vec<String>,
     /// Also write each table as CSV into this folder.
     #[arg(long, global = true)]
-    csv_dir: Option<PathBuf>,
+    csv: Option<PathBuf>,
     /// Rank L (`floor`, `polish`).
     #[arg(long, default_value_t = 8, global = true)]
     rank: usize,
@@ -295,12 +296,8 @@ fn compare(
 fn finish(cli: &Cli, table: &Table, heading: String, csv: &str) {
     println!("### {heading}\n\n{}", table.markdown());
     println!("load average after: {}\n", load_average());
-    if let Some(dir) = &cli.csv_dir {
-        let path = dir.join(format!("{csv}.csv"));
-        match std::fs::create_dir_all(dir).and_then(|()| std::fs::write(&path, table.csv())) {
-            Ok(()) => eprintln!("wrote {}", path.display()),
-            Err(e) => eprintln!("cannot write {}: {e}", path.display()),
-        }
+    if let Err(e) = table.write_csv(cli.csv.as_deref(), csv) {
+        eprintln!("cannot write {csv}.csv: {e}");
     }
 }
 
