@@ -1,0 +1,163 @@
+//! The knobs of a bake.
+
+use std::path::PathBuf;
+
+use prt_texture::Encoding;
+
+use crate::BakeError;
+
+/// Dimension of the transfer vectors the tracer produces (four 9 × 9 operators).
+pub const TRANSFER_DIM: usize = 324;
+
+/// Every knob of a bake; `Default` gives the defaults of `prt bake`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeConfig {
+    /// Voxels along the longest axis of the scene box (the other axes in proportion, at least 2).
+    pub resolution: usize,
+    /// Directions traced per voxel (rounded up to a multiple of 12).
+    pub rays_per_voxel: usize,
+    /// Hemisphere rays per surface-cache point (the one-bounce indirect part).
+    pub cache_rays: usize,
+    /// Margin added around the scene bounds, in metres.
+    pub margin: f32,
+    /// MBD rank L: moving basis vectors per point.
+    pub rank: usize,
+    /// MBD basis-grid nodes per axis (at least 2; an axis with fewer voxels gets one per voxel).
+    pub basis_nodes: usize,
+    /// MBD iteration cap.
+    pub max_iterations: usize,
+    /// MBD ridge weight λ on the coefficients.
+    pub lambda: f32,
+    /// Storage encoding of the container's coefficient and basis volumes.
+    pub encoding: Encoding,
+    /// Whether to fit and score the blockwise and clustered PCA baselines.
+    pub baselines: bool,
+    /// Seed of every random choice (tracing, solver, evaluation, clustering).
+    pub seed: u64,
+    /// Folder to write the MBD container into, then score the model read back from it; `None`
+    /// writes nothing.
+    pub container: Option<PathBuf>,
+}
+
+impl Default for BakeConfig {
+    /// 32 voxels along the longest axis, 256 rays per voxel, 64 cache rays, no margin, rank 8
+    /// on 5 basis nodes per axis, 64 iterations, λ = 1e-4, f16 storage, baselines on, seed 0,
+    /// no container.
+    fn default() -> Self {
+        BakeConfig {
+            resolution: 32,
+            rays_per_voxel: 256,
+            cache_rays: 64,
+            margin: 0.0,
+            rank: 8,
+            basis_nodes: 5,
+            max_iterations: 64,
+            lambda: 1e-4,
+            encoding: Encoding::F16,
+            baselines: true,
+            seed: 0,
+            container: None,
+        }
+    }
+}
+
+impl BakeConfig {
+    /// Checks every knob; the error names the offending field.
+    pub fn validate(&self) -> Result<(), BakeError> {
+        let check = |ok: bool, field: &'static str, why: String| {
+            if ok {
+                Ok(())
+            } else {
+                Err(BakeError::InvalidConfig { field, why })
+            }
+        };
+        check(
+            self.resolution >= 2,
+            "resolution",
+            format!("must be at least 2 voxels (got {})", self.resolution),
+        )?;
+        check(
+            self.rays_per_voxel >= 1,
+            "rays_per_voxel",
+            "must be at least 1".into(),
+        )?;
+        check(
+            self.cache_rays >= 1,
+            "cache_rays",
+            "must be at least 1".into(),
+        )?;
+        check(
+            self.basis_nodes >= 2,
+            "basis_nodes",
+            format!("must be at least 2 (got {})", self.basis_nodes),
+        )?;
+        check(
+            (1..=TRANSFER_DIM).contains(&self.rank),
+            "rank",
+            format!(
+                "must be between 1 and the transfer dimension {TRANSFER_DIM} (got {})",
+                self.rank
+            ),
+        )?;
+        check(
+            self.max_iterations >= 1,
+            "max_iterations",
+            "must be at least 1".into(),
+        )?;
+        check(
+            self.lambda.is_finite() && self.lambda >= 0.0,
+            "lambda",
+            "must be finite and >= 0".into(),
+        )?;
+        check(
+            self.margin.is_finite() && self.margin >= 0.0,
+            "margin",
+            "must be finite and >= 0".into(),
+        )
+    }
+
+    /// Voxels per axis for a scene box of `size`: `resolution` along the longest side, the
+    /// others in proportion (at least 2).
+    pub fn grid_resolution(&self, size: [f32; 3]) -> [usize; 3] {
+        let res = self.resolution;
+        let longest = size.iter().copied().fold(0.0f32, f32::max);
+        size.map(|s| {
+            if longest > 0.0 {
+                ((s / longest * res as f32).round() as usize).clamp(2, res)
+            } else {
+                res
+            }
+        })
+    }
+
+    /// MBD basis nodes per axis on a grid of `dims` voxels: `basis_nodes`, or one per voxel on
+    /// an axis with fewer voxels.
+    pub fn basis_grid(&self, dims: [usize; 3]) -> [usize; 3] {
+        [0, 1, 2].map(|k| self.basis_nodes.min(dims[k].max(2)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_longest_axis_gets_the_resolution_and_the_others_scale() {
+        let config = BakeConfig::default();
+        assert_eq!(config.grid_resolution([2.0, 1.0, 0.01]), [32, 16, 2]);
+        assert_eq!(config.grid_resolution([0.0; 3]), [32; 3]);
+    }
+
+    #[test]
+    fn a_bad_knob_is_named() {
+        let bad = BakeConfig {
+            rank: 400,
+            ..BakeConfig::default()
+        };
+        match bad.validate() {
+            Err(BakeError::InvalidConfig { field, .. }) => assert_eq!(field, "rank"),
+            other => panic!("{other:?}"),
+        }
+        assert!(BakeConfig::default().validate().is_ok());
+    }
+}

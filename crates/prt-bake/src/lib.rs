@@ -1,0 +1,57 @@
+//! # prt-bake — the main job of prt as a library
+//!
+//! What `prt bake` does, callable from Rust: trace a scene's 324-D transfer volume, compress it
+//! with Moving Basis Decomposition (and, optionally, blockwise and clustered PCA at equal basis
+//! count), score every method, and write the MBD container an engine loads. The container's
+//! reader gives back a model that evaluates f̂(x).
+//!
+//! | item | what it is, when to use it |
+//! |---|---|
+//! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
+//! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
+//! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
+//! | [`Bake`] | the result: volume, [`MbdFit`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
+//! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
+//! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
+//! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
+//! | [`BakeError`], [`ContainerError`] | what can go wrong |
+//!
+//! ```no_run
+//! use prt_bake::{BakeConfig, SceneInput, bake, read_container};
+//! use prt_core::{FieldModel, NoProgress, glam::Vec3};
+//! use prt_texture::Limits;
+//!
+//! let out = std::env::temp_dir().join("cornell-mbd");
+//! let config = BakeConfig { container: Some(out.clone()), ..BakeConfig::default() };
+//! let baked = bake(&SceneInput::cornell_box(), &config, &NoProgress)?;
+//! for row in &baked.comparison {
+//!     println!("{}: relative MSE {:.3e}", row.method.name(), row.relative_mse);
+//! }
+//! let container = read_container(&out, &Limits::default())?;
+//! let mut transfer = vec![0.0; container.model.dim()];
+//! container.model.eval(Vec3::ZERO, &mut transfer)?;
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! The container's files and manifest are described in docs/formats.md; everything written goes
+//! through prt-texture's atomic writers. This crate never prints.
+#![deny(missing_docs)]
+
+mod config;
+mod container;
+mod error;
+mod methods;
+mod pipeline;
+mod scene;
+mod scores;
+mod seams;
+
+pub use config::{BakeConfig, TRANSFER_DIM};
+pub use container::{
+    ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
+};
+pub use error::{BakeError, ContainerError};
+pub use pipeline::{Bake, BakeProgress, Baseline, MbdFit, Stage, bake};
+pub use scene::SceneInput;
+pub use scores::{Method, MethodScores};
+pub use seams::{BLUR_SIGMA, SeamView};
