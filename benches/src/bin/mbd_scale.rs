@@ -184,9 +184,10 @@ fn main() {
     )
     .expect("evaluate");
     println!(
-        "relative MSE {:.4e} (1 jittered sample per voxel, {:.1} s); stored scalars {} ({:.1}% of \
-         the field)",
+        "relative MSE {:.4e} ({} jittered samples per voxel, {:.1} s); stored scalars {} ({:.1}% \
+         of the field)",
         e.relative_mse,
+        cli.eval_samples,
         t.elapsed().as_secs_f64(),
         model.stored_scalars(),
         100.0 * model.stored_scalars() as f64 / field.data().len() as f64
