@@ -177,7 +177,7 @@ pub fn run(args: &BakeArgs) -> Result<()> {
 
 fn check_writable(dir: &Path) -> Result<()> {
     let probe = dir.join(".prt-write-probe");
-    std::fs::write(&probe, b"")
+    prt_texture::write_atomic(&probe, b"")
         .with_context(|| format!("output folder {} is not writable", dir.display()))?;
     let _ = std::fs::remove_file(probe);
     Ok(())
