@@ -55,3 +55,8 @@ pub use pipeline::{Bake, BakeProgress, Baseline, MbdFit, Stage, bake};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
+
+/// The README's Rust snippet, compiled as a doc test so it stays true.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

@@ -3,6 +3,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use prt_bake::{MBD_MODEL, read_container};
+use prt_core::{FieldModel, SpatialKernels};
+use prt_kernels::HatGrid;
 use prt_texture::container::{MANIFEST_FILE, Manifest};
 use prt_texture::{Ktx2Texture, Limits};
 
@@ -126,5 +129,45 @@ fn inspect_manifest(path: &Path, limits: &Limits) -> Result<()> {
             a.name, a.dims, a.channels, a.encoding, a.layout, a.bytes, a.file
         );
     }
+    let is_mbd = manifest.attributes.get("model").and_then(|v| v.as_str()) == Some(MBD_MODEL);
+    if is_mbd {
+        let folder = path.parent().unwrap_or(Path::new("."));
+        inspect_model(folder, limits)?;
+    }
+    Ok(())
+}
+
+/// Reads an MBD container's model back and prints its shape.
+fn inspect_model(folder: &Path, limits: &Limits) -> Result<()> {
+    let container = read_container(folder, limits)
+        .with_context(|| format!("cannot read the MBD model in {}", folder.display()))?;
+    let model = &container.model;
+    let kernels = |k: &HatGrid| {
+        let [x, y, z] = k.nodes();
+        let domain = k.domain();
+        format!(
+            "hat grid {x} x {y} x {z} over {:?} .. {:?}",
+            domain.min.to_array(),
+            domain.max.to_array()
+        )
+    };
+    let valid = container.valid.iter().filter(|v| **v).count();
+    println!(
+        "  model: MBD rank {}, dimension {}, {} stored scalars, stored as {:?}",
+        model.rank(),
+        model.dim(),
+        model.stored_scalars(),
+        container.encoding
+    );
+    println!(
+        "  coefficient kernels: {}",
+        kernels(model.coefficient_kernels())
+    );
+    println!("  basis kernels: {}", kernels(model.basis_kernels()));
+    println!(
+        "  validity: {valid} valid voxels of {} ({:?})",
+        container.valid.len(),
+        container.grid
+    );
     Ok(())
 }

@@ -5,7 +5,8 @@
 //!   and clustered PCA at equal basis count, writes the MBD container (KTX2 volumes + JSON
 //!   manifest) and a report (`report.md`, images, loss plot) to an output folder.
 //! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
-//! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD manifest holds.
+//! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
+//!   container, also the model read back: rank, dimension, kernels, validity).
 //!
 //! Errors are one line on stderr and a non-zero exit code; Ctrl-C cancels the running stage and
 //! leaves no half-written file under a final name.
@@ -15,7 +16,6 @@ mod encode;
 mod inspect;
 mod progress;
 mod report;
-mod seams;
 
 use std::process::ExitCode;
 

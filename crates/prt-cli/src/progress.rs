@@ -1,9 +1,11 @@
-//! Progress bars (indicatif) behind prt-core's `Progress`, and Ctrl-C cancellation.
+//! Progress bars (indicatif) behind prt-core's `Progress` and prt-bake's `BakeProgress`, and
+//! Ctrl-C cancellation.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
+use prt_core::Progress;
 
 /// Set by the Ctrl-C handler; every stage's `Progress` reports it as cancellation.
 static CANCELLED: AtomicBool = AtomicBool::new(false);
@@ -50,12 +52,36 @@ impl Stage {
     pub fn finish(self) -> Duration {
         let elapsed = self.start.elapsed();
         self.bar.finish_and_clear();
-        eprintln!("{:>10} done in {:.2} s", self.name, elapsed.as_secs_f64());
+        print_done(self.name, elapsed);
         elapsed
     }
 }
 
-impl prt_core::Progress for Stage {
+impl Drop for Stage {
+    /// A stage dropped without [`Stage::finish`] (a bake stage, or an error) clears its bar.
+    fn drop(&mut self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+fn print_done(name: &str, elapsed: Duration) {
+    eprintln!("{name:>10} done in {:.2} s", elapsed.as_secs_f64());
+}
+
+/// One progress bar per stage of a bake, and a line when each stage is done.
+pub struct StageBars;
+
+impl prt_bake::BakeProgress for StageBars {
+    fn begin(&self, stage: prt_bake::Stage) -> Box<dyn Progress + '_> {
+        Box::new(Stage::start(stage.name()))
+    }
+
+    fn end(&self, stage: prt_bake::Stage, elapsed: Duration) {
+        print_done(stage.name(), elapsed);
+    }
+}
+
+impl Progress for Stage {
     fn set_len(&self, len: u64) {
         self.bar.set_length(len);
         self.bar.set_position(0);

@@ -125,7 +125,13 @@ fn small_cornell_bake_writes_a_consistent_report() {
     // The inspect command reads back what bake wrote.
     let inspect = prt(&["inspect", out_dir.join("mbd").to_str().expect("utf-8")]);
     assert!(inspect.status.success(), "{}", stderr(&inspect));
-    assert!(String::from_utf8_lossy(&inspect.stdout).contains("array coefficients"));
+    let printed = String::from_utf8_lossy(&inspect.stdout);
+    assert!(printed.contains("array coefficients"), "{printed}");
+    // A container folder is also read back as a model.
+    assert!(
+        printed.contains("model: MBD rank 4, dimension 324"),
+        "{printed}"
+    );
     let inspect = prt(&[
         "inspect",
         out_dir.join("mbd/basis.ktx2").to_str().expect("utf-8"),

@@ -4,13 +4,61 @@
 use half::f16;
 
 use crate::TextureError;
-use crate::quant::{rgb9e5_decode, rgb9e5_encode};
+
+/// Largest value RGB9E5 represents: `(2⁹-1)/2⁹ · 2¹⁶` = 65408.
+pub const RGB9E5_MAX: f32 = 65408.0;
+pub(crate) const RGB9E5_MANTISSA_BITS: i32 = 9;
+pub(crate) const RGB9E5_BIAS: i32 = 15;
+const RGB9E5_MAX_EXPONENT: i32 = 31;
+
+/// Packs an RGB triple into E5B9G9R9 (R in bits 0-8, G 9-17, B 18-26, exponent 27-31).
+///
+/// Follows the encoding of EXT_texture_shared_exponent: components are clamped to
+/// `[0, RGB9E5_MAX]` (NaN becomes 0), the shared exponent is chosen from the largest component,
+/// and mantissas are rounded to nearest.
+pub fn rgb9e5_encode(rgb: [f32; 3]) -> u32 {
+    let clamp = |v: f32| {
+        if v > 0.0 {
+            v.min(RGB9E5_MAX) as f64
+        } else {
+            0.0
+        }
+    };
+    let c = rgb.map(clamp);
+    let max = c[0].max(c[1]).max(c[2]);
+    // floor(log2(max)) from the f64 exponent field is exact, unlike log2().floor().
+    let floor_log2 = if max > 0.0 {
+        exponent_of(max)
+    } else {
+        i32::MIN / 2
+    };
+    let mut exp = floor_log2.max(-RGB9E5_BIAS - 1) + 1 + RGB9E5_BIAS;
+    let step = |e: i32| 2f64.powi(e - RGB9E5_BIAS - RGB9E5_MANTISSA_BITS);
+    if (max / step(exp) + 0.5).floor() as i64 == 1 << RGB9E5_MANTISSA_BITS {
+        exp += 1;
+    }
+    let exp = exp.clamp(0, RGB9E5_MAX_EXPONENT);
+    let m = c.map(|v| ((v / step(exp) + 0.5).floor() as u32).min(511));
+    m[0] | (m[1] << 9) | (m[2] << 18) | ((exp as u32) << 27)
+}
+
+/// Unpacks an E5B9G9R9 texel: `mantissa · 2^(exponent - 24)` per channel.
+pub fn rgb9e5_decode(packed: u32) -> [f32; 3] {
+    let exp = (packed >> 27) as i32;
+    let scale = 2f64.powi(exp - RGB9E5_BIAS - RGB9E5_MANTISSA_BITS);
+    [0, 9, 18].map(|shift| (f64::from((packed >> shift) & 511) * scale) as f32)
+}
+
+pub(crate) fn exponent_of(v: f64) -> i32 {
+    // v > 0 and finite here; f64 has no subnormals in RGB9E5's range.
+    ((v.to_bits() >> 52) & 0x7ff) as i32 - 1023
+}
 
 /// A pixel format of a KTX2 / DDS texture that this crate reads and writes.
 ///
 /// Names follow Vulkan's `VkFormat`. Normalised formats (`*_UNORM`, `*_SNORM`) map texel
 /// integers linearly onto `[0, 1]` / `[-1, 1]`; the per-channel scale and bias that map those onto
-/// physical values live in [`crate::quant`] and in the manifest, not in the texture.
+/// physical values live in the `quant` module and in the manifest, not in the texture.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub enum PixelFormat {
@@ -239,7 +287,7 @@ impl PixelFormat {
     /// Encodes `values` (channel-interleaved, `channels()` per texel) into texel bytes.
     ///
     /// Normalised formats take values already in `[0, 1]` (unorm) or `[-1, 1]` (snorm) and round
-    /// to nearest; RGB9E5 takes non-negative values up to [`crate::quant::RGB9E5_MAX`]; f16
+    /// to nearest; RGB9E5 takes non-negative values up to [`RGB9E5_MAX`]; f16
     /// rounds to nearest even. NaN/Inf and values outside a format's range are typed errors
     /// naming the index.
     pub fn encode(self, values: &[f32]) -> Result<Vec<u8>, TextureError> {
@@ -296,7 +344,7 @@ impl PixelFormat {
             (Numeric::SharedExponent, _) => {
                 for (t, rgb) in values.chunks_exact(3).enumerate() {
                     for (c, &v) in rgb.iter().enumerate() {
-                        if !(0.0..=crate::quant::RGB9E5_MAX).contains(&v) {
+                        if !(0.0..=RGB9E5_MAX).contains(&v) {
                             return Err(out_of_range(3 * t + c));
                         }
                     }

@@ -17,51 +17,8 @@ use half::f16;
 use serde::{Deserialize, Serialize};
 
 use crate::TextureError;
-use crate::format::PixelFormat;
-
-/// Largest value RGB9E5 represents: `(2⁹-1)/2⁹ · 2¹⁶` = 65408.
-pub const RGB9E5_MAX: f32 = 65408.0;
-const RGB9E5_MANTISSA_BITS: i32 = 9;
-const RGB9E5_BIAS: i32 = 15;
-const RGB9E5_MAX_EXPONENT: i32 = 31;
-
-/// Packs an RGB triple into E5B9G9R9 (R in bits 0-8, G 9-17, B 18-26, exponent 27-31).
-///
-/// Follows the encoding of EXT_texture_shared_exponent: components are clamped to
-/// `[0, RGB9E5_MAX]` (NaN becomes 0), the shared exponent is chosen from the largest component,
-/// and mantissas are rounded to nearest.
-pub fn rgb9e5_encode(rgb: [f32; 3]) -> u32 {
-    let clamp = |v: f32| {
-        if v > 0.0 {
-            v.min(RGB9E5_MAX) as f64
-        } else {
-            0.0
-        }
-    };
-    let c = rgb.map(clamp);
-    let max = c[0].max(c[1]).max(c[2]);
-    // floor(log2(max)) from the f64 exponent field is exact, unlike log2().floor().
-    let floor_log2 = if max > 0.0 {
-        exponent_of(max)
-    } else {
-        i32::MIN / 2
-    };
-    let mut exp = floor_log2.max(-RGB9E5_BIAS - 1) + 1 + RGB9E5_BIAS;
-    let step = |e: i32| 2f64.powi(e - RGB9E5_BIAS - RGB9E5_MANTISSA_BITS);
-    if (max / step(exp) + 0.5).floor() as i64 == 1 << RGB9E5_MANTISSA_BITS {
-        exp += 1;
-    }
-    let exp = exp.clamp(0, RGB9E5_MAX_EXPONENT);
-    let m = c.map(|v| ((v / step(exp) + 0.5).floor() as u32).min(511));
-    m[0] | (m[1] << 9) | (m[2] << 18) | ((exp as u32) << 27)
-}
-
-/// Unpacks an E5B9G9R9 texel: `mantissa · 2^(exponent - 24)` per channel.
-pub fn rgb9e5_decode(packed: u32) -> [f32; 3] {
-    let exp = (packed >> 27) as i32;
-    let scale = 2f64.powi(exp - RGB9E5_BIAS - RGB9E5_MANTISSA_BITS);
-    [0, 9, 18].map(|shift| (f64::from((packed >> shift) & 511) * scale) as f32)
-}
+use crate::format::{PixelFormat, RGB9E5_BIAS, RGB9E5_MANTISSA_BITS, exponent_of};
+pub use crate::format::{RGB9E5_MAX, rgb9e5_decode, rgb9e5_encode};
 
 /// Bound on `|x - decode(encode(x))|` for one channel `x` of an RGB9E5 triple whose largest
 /// component is `max` (both in `[0, RGB9E5_MAX]`): half a step of the shared exponent, which is
@@ -75,11 +32,6 @@ pub fn rgb9e5_error_bound(max: f32) -> f32 {
     };
     // step of exponent e+1 (a carry into the next exponent doubles the step)
     (2f64.powi(e + 2 - RGB9E5_MANTISSA_BITS) * 0.5) as f32
-}
-
-fn exponent_of(v: f64) -> i32 {
-    // v > 0 and finite here; f64 has no subnormals in RGB9E5's range.
-    ((v.to_bits() >> 52) & 0x7ff) as i32 - 1023
 }
 
 /// A texel encoding for quantised arrays.

@@ -15,6 +15,16 @@ pub enum TraceError {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// A cache file could not be written (it is written to a temporary file and renamed, so a
+    /// failure leaves no partial file under its name).
+    #[error("cannot write {path}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        #[source]
+        source: prt_texture::TextureError,
+    },
     /// The glTF document is malformed (JSON, GLB container, or a failed validation).
     #[error("malformed glTF {path}: {message}")]
     Gltf {

@@ -952,7 +952,7 @@ impl<'a> VplOracle<'a> {
     /// counted), else computed and written. The geometry is not fingerprinted: use one file per
     /// scene.
     ///
-    /// Errors: [`TraceError::Io`] when the file cannot be written, those of `reference_image`.
+    /// Errors: [`TraceError::Write`] when the file cannot be written, those of `reference_image`.
     pub fn reference_image_cached(
         &self,
         path: &std::path::Path,
@@ -986,7 +986,8 @@ impl<'a> VplOracle<'a> {
         image
             .iter()
             .for_each(|v| bytes.extend_from_slice(&v.to_le_bytes()));
-        std::fs::write(path, bytes).map_err(|source| TraceError::Io {
+        // Write-then-rename: an interrupted write never leaves a truncated cache behind.
+        prt_texture::write_atomic(path, &bytes).map_err(|source| TraceError::Write {
             path: path.to_owned(),
             source,
         })?;

@@ -429,7 +429,7 @@ fn the_reference_image_is_cached_on_disk_and_recomputed_when_the_input_changes()
     let unwritable = dir.join("missing-dir").join("x.ref");
     assert!(matches!(
         oracle.reference_image_cached(&unwritable, &NoProgress),
-        Err(TraceError::Io { .. })
+        Err(TraceError::Write { .. })
     ));
     let _ = std::fs::remove_dir_all(&dir);
 }

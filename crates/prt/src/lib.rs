@@ -17,10 +17,13 @@
 //! | `wavelet` | `wavelet` | Haar and Daubechies-4 wavelets, NWA, BI and PBI incremental relighting |
 //! | `manylight` | `manylight` | many-light matrix sampling: row-column sampling and its successors |
 //! | `texture` | `texture` | KTX2, EXR, Radiance HDR, DDS; quantisation; the MBD container |
+//! | `bake` | `bake` | the main job: scene → transfer volume → MBD (+ baselines) → scores → container, and the container's reader |
 #![deny(missing_docs)]
 
 pub use prt_core as core;
 
+#[cfg(feature = "bake")]
+pub use prt_bake as bake;
 #[cfg(feature = "kernels")]
 pub use prt_kernels as kernels;
 #[cfg(feature = "linalg")]

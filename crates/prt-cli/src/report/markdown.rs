@@ -1,0 +1,186 @@
+//! The report's text: `report.md` (with the comparison table) and `report.json`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anyhow::Result;
+use prt_bake::{BLUR_SIGMA, Bake, MethodScores};
+use prt_texture::write_atomic;
+use serde_json::json;
+
+use crate::report::images::ImageSummary;
+use crate::report::plots::loss_plot_png;
+
+/// Everything the report shows.
+pub struct Report<'a> {
+    /// The scene's name.
+    pub scene: &'a str,
+    /// The bake.
+    pub bake: &'a Bake,
+    /// Wall time of every stage, in order (the CLI's own stages included).
+    pub stage_seconds: Vec<(String, f64)>,
+    /// Wall time of the whole command.
+    pub total_seconds: f64,
+}
+
+/// The comparison table as markdown.
+pub fn table_markdown(rows: &[MethodScores]) -> String {
+    let mut s = String::from(
+        "| method | relative MSE | operator Frobenius error (direct / R / G / B) | seam ratio (boundary / interior jump) | seam ratio, denoised | bytes per voxel | compression vs f32 | time |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let frob = r
+            .operator_frobenius
+            .iter()
+            .map(|e| format!("{e:.4}"))
+            .collect::<Vec<_>>()
+            .join(" / ");
+        let bytes = if r.bytes_per_voxel.is_some() {
+            format!("{:.2}", r.bytes_per_voxel_or_estimate())
+        } else {
+            format!("{:.2} (f16 est.)", r.bytes_per_voxel_or_estimate())
+        };
+        s += &format!(
+            "| {} | {:.3e} | {} | {:.2} | {} | {} | {:.1}:1 | {:.2} s |\n",
+            r.method.name(),
+            r.relative_mse,
+            frob,
+            r.seam_ratio(),
+            r.denoised_seam_ratio
+                .map_or_else(|| "–".to_string(), |x| format!("**{x:.2}**")),
+            bytes,
+            r.compression_ratio(),
+            r.time.as_secs_f64()
+        );
+    }
+    s
+}
+
+/// Writes `report.md`, `report.json` and `loss.png`.
+pub fn write_report(out_dir: &Path, report: &Report<'_>, images: &ImageSummary) -> Result<()> {
+    let baked = report.bake;
+    let solve = &baked.mbd.report;
+    write_atomic(&out_dir.join("loss.png"), &loss_plot_png(solve)?)?;
+    let [nx, ny, nz] = baked.volume.field.dims();
+    let basis_nodes = baked.mbd.basis_nodes;
+    let rank = baked.mbd.model.rank();
+    let stats = &baked.volume.stats;
+    let invalid_voxels = baked.volume.valid.iter().filter(|v| !**v).count();
+    let mut md = format!(
+        "# prt bake report: {}\n\nGrid {nx} × {ny} × {nz} voxels, 324-D transfer vectors \
+         (order-3 SH: direct 9×9 and one-bounce indirect 9×9 per colour). MBD rank {} on a \
+         {} × {} × {} basis grid; the baselines use the same number of basis vectors (one rank-{} \
+         basis per block or cluster).\n\n",
+        report.scene, rank, basis_nodes[0], basis_nodes[1], basis_nodes[2], rank
+    );
+    md += "## Compression\n\n";
+    md += &table_markdown(&baked.comparison);
+    md += "\n*Relative MSE*: Σ‖f̂ − f‖² / Σ‖f‖² over jittered samples (f = trilinear input). \
+           *Operator Frobenius error*: relative, per 9×9 operator over the volume. *Seam ratio*: \
+           RMS jump of the error between neighbouring voxels across cluster (or basis-cell) \
+           boundaries over the same inside clusters; about 1 means no seams, much larger means \
+           visible block edges. Against the traced reference it is diluted by the reference's \
+           Monte Carlo noise; *seam ratio, denoised* is the same ratio for each method's basis \
+           applied to the denoised reference (the seam view below), where only a jump of the \
+           basis can make it exceed 1. *Bytes per voxel*: files written (MBD) or stored scalars \
+           at 2 bytes (baselines). *Compression*: raw 324 × f32 per voxel over bytes per \
+           voxel.\n\n";
+    md += &format!(
+        "## Images\n\nMiddle horizontal slice (y = {slice_y}). Grey = invalid voxels.\n\n\
+         - **Top row**: irradiance on an upward-facing surface under a sky brighter overhead, for \
+         the reference and each method.\n\
+         - **Middle row, the seam view**: each method's own basis applied to the *denoised* \
+         reference (the traced volume blurred with a Gaussian of σ = {sigma} voxel over valid \
+         voxels), then, per voxel, the largest jump of what the basis cannot represent to a \
+         neighbour in the slice, relative to the field there (black = 0, white ≥ {jump:.1} %). \
+         BPCA and CPCA fit a separate basis per block or cluster, so their residual jumps at \
+         every block edge (a bright grid) and cluster edge (bright patches); MBD's basis moves \
+         continuously, so its map stays dark: **no seams**. [seam_profile.png](seam_profile.png) \
+         plots the residual itself along row z = {row}, with the block / cluster edges as \
+         vertical lines: BPCA and CPCA step at them, MBD does not.\n\
+         - **Bottom row**: error of the irradiance against the reference, in grey levels of the \
+         tone-mapped images above (white ≥ {error:.1} of 255). At this ray count it is mostly \
+         the reference's own Monte Carlo noise, which is why the seam view exists. It is \
+         measured on the displayed values because an absolute radiometric error is dominated \
+         by the brightest voxels (e.g. a ring of voxels under the open sky outside a \
+         building's walls).\n\n\
+         ![comparison](comparison.png)\n\n![seam profile](seam_profile.png)\n\n",
+        slice_y = baked.seam_slice,
+        sigma = BLUR_SIGMA,
+        jump = 100.0 * images.jump_top,
+        row = images.profile_row,
+        error = images.error_top,
+    );
+    md += &images
+        .files
+        .iter()
+        .map(|f| format!("- [{f}]({f})\n"))
+        .collect::<String>();
+    md += "\n## Solver\n\n![loss](loss.png)\n\n";
+    md += &format!(
+        "{} iterations{}.\n\n## Bake\n\n{} rays ({:.1} Mrays/s), {} rays per voxel, {} surface-cache \
+         points, {} invalid voxels of {}.\n\n## Stage times\n\n| stage | seconds |\n|---|---|\n",
+        solve.history.len(),
+        if solve.converged {
+            " (converged)"
+        } else {
+            " (iteration cap)"
+        },
+        stats.rays(),
+        stats.mrays_per_second(),
+        stats.rays_per_voxel,
+        stats.cache_points,
+        invalid_voxels,
+        stats.voxels
+    );
+    for (stage, s) in &report.stage_seconds {
+        md += &format!("| {stage} | {s:.2} |\n");
+    }
+    md += &format!("| total | {:.2} |\n", report.total_seconds);
+    write_atomic(&out_dir.join("report.md"), md.as_bytes())?;
+
+    let rows: Vec<_> = baked
+        .comparison
+        .iter()
+        .map(|r| {
+            json!({
+                "method": r.method.name(),
+                "relative_mse": r.relative_mse,
+                "operator_frobenius": r.operator_frobenius,
+                "seam_boundary": r.seam_boundary,
+                "seam_interior": r.seam_interior,
+                "seam_ratio": r.seam_ratio(),
+                "denoised_seam_ratio": r.denoised_seam_ratio,
+                "bytes_per_voxel": r.bytes_per_voxel_or_estimate(),
+                "bytes_measured": r.bytes_per_voxel.is_some(),
+                "compression_ratio": r.compression_ratio(),
+                "seconds": r.time.as_secs_f64(),
+            })
+        })
+        .collect();
+    let doc = json!({
+        "scene": report.scene,
+        "resolution": [nx, ny, nz],
+        "rank": rank,
+        "basis_nodes": basis_nodes,
+        "methods": rows,
+        "mbd": {
+            "iterations": solve.history.len(),
+            "converged": solve.converged,
+            "loss": solve.history.iter().map(|r| r.loss_after).collect::<Vec<_>>(),
+        },
+        "bake": {
+            "rays": stats.rays(),
+            "mrays_per_second": stats.mrays_per_second(),
+            "invalid_voxels": invalid_voxels,
+            "voxels": stats.voxels,
+        },
+        "stage_seconds": report.stage_seconds.iter().cloned().collect::<BTreeMap<_, _>>(),
+        "total_seconds": report.total_seconds,
+    });
+    write_atomic(
+        &out_dir.join("report.json"),
+        serde_json::to_string_pretty(&doc)?.as_bytes(),
+    )?;
+    Ok(())
+}
