@@ -10,7 +10,7 @@
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
-//! | [`Bake`] | the result: volume, [`MbdFit`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
+//! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
@@ -51,7 +51,7 @@ pub use container::{
     ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
 };
 pub use error::{BakeError, ContainerError};
-pub use pipeline::{Bake, BakeProgress, Baseline, MbdFit, Stage, bake};
+pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};

@@ -4,7 +4,8 @@
 use prt_core::{Compressor, GridField, Progress};
 use prt_kernels::HatGrid;
 use prt_mbd::{
-    BlockPca, ClusterModel, ClusteredPca, Mbd, MbdError, MbdModel, MbdOptions, SolveReport,
+    Basis, BasisKernels, BlockPca, ClusteredPca, Mbd, MbdError, MbdModel, PiecewisePcaModel,
+    SolveReport, SolverOptions,
 };
 
 use crate::BakeConfig;
@@ -17,21 +18,27 @@ pub(crate) fn fit_mbd(
     progress: &dyn Progress,
 ) -> Result<(MbdModel<HatGrid, HatGrid>, SolveReport), MbdError> {
     let mbd = Mbd {
-        basis_nodes,
-        options: MbdOptions {
-            rank: config.rank,
+        solver: SolverOptions {
             lambda: config.lambda,
             max_iterations: config.max_iterations,
             seed: config.seed ^ 0x4D42_4400,
-            ..MbdOptions::default()
+            ..SolverOptions::default()
         },
+        ..Mbd::new(config.rank, Basis::HatGrid { nodes: basis_nodes })
     };
-    mbd.fit(field, progress)
+    let fit = mbd.fit(field, progress)?;
+    // A hat-grid basis is what the container stores; unwrap it from the basis enum.
+    let (coefficient_kernels, basis_kernels, coefficients, basis) = fit.model.into_parts();
+    let BasisKernels::HatGrid(basis_kernels) = basis_kernels else {
+        unreachable!("Basis::HatGrid fits hat-grid kernels")
+    };
+    let model = MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)?;
+    Ok((model, fit.solve))
 }
 
 /// The basis cell of every voxel: MBD's "clusters" for the seam measure.
 pub(crate) fn basis_cells(kernels: &HatGrid, field: &GridField) -> Result<Vec<u32>, MbdError> {
-    prt_mbd::kernel_labels(kernels, field)
+    prt_mbd::expert::kernel_labels(kernels, field)
 }
 
 /// Blockwise PCA with one rank-L basis per basis node of MBD (`blocks` per axis).
@@ -40,7 +47,7 @@ pub(crate) fn fit_bpca(
     config: &BakeConfig,
     blocks: [usize; 3],
     progress: &dyn Progress,
-) -> Result<ClusterModel, MbdError> {
+) -> Result<PiecewisePcaModel, MbdError> {
     BlockPca {
         rank: config.rank,
         blocks,
@@ -55,7 +62,7 @@ pub(crate) fn fit_cpca(
     config: &BakeConfig,
     clusters: usize,
     progress: &dyn Progress,
-) -> Result<ClusterModel, MbdError> {
+) -> Result<PiecewisePcaModel, MbdError> {
     ClusteredPca {
         seed: config.seed,
         ..ClusteredPca::new(config.rank, clusters)

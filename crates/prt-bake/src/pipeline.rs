@@ -4,7 +4,7 @@ use std::time::{Duration, Instant};
 
 use prt_core::{GridField, Progress, resample_to_grid};
 use prt_kernels::HatGrid;
-use prt_mbd::{ClusterModel, LocalBasis, MbdModel, SolveReport};
+use prt_mbd::{LocalBasis, MbdModel, PiecewisePcaModel, SolveReport};
 use prt_texture::Limits;
 use prt_texture::container::WriteReport;
 use prt_trace::{BakeOptions, TransferBaker, TransferVolume};
@@ -91,7 +91,7 @@ impl<P: Progress + ?Sized> Progress for Forward<'_, P> {
 
 /// The fitted MBD model and what the report draws of it.
 #[derive(Debug, Clone)]
-pub struct MbdFit {
+pub struct BakedMbd {
     /// The model; its kernels are [`MbdModel::coefficient_kernels`] (one per voxel) and
     /// [`MbdModel::basis_kernels`] (the basis grid).
     pub model: MbdModel<HatGrid, HatGrid>,
@@ -111,7 +111,7 @@ pub struct Baseline {
     /// [`Method::Bpca`] or [`Method::Cpca`].
     pub method: Method,
     /// The model (labels, bases and reconstruction on the grid).
-    pub model: ClusterModel,
+    pub model: PiecewisePcaModel,
 }
 
 /// Everything a bake produced.
@@ -120,7 +120,7 @@ pub struct Bake {
     /// The traced transfer volume (field, validity, tracer statistics).
     pub volume: TransferVolume,
     /// The MBD fit.
-    pub mbd: MbdFit,
+    pub mbd: BakedMbd,
     /// The baselines, BPCA then CPCA (empty when `config.baselines` is off).
     pub baselines: Vec<Baseline>,
     /// The comparison: MBD, MBD as written (when a container was written), then the baselines.
@@ -325,7 +325,7 @@ pub fn bake(
 
     Ok(Bake {
         volume,
-        mbd: MbdFit {
+        mbd: BakedMbd {
             model,
             report,
             basis_nodes,

@@ -117,7 +117,12 @@ pub(crate) fn score(
     time: Duration,
 ) -> Result<MethodScores, MbdError> {
     let evaluation = prt_mbd::evaluate(model, field, eval_options)?;
-    let seams = prt_mbd::seam_metric(field, reconstruction, labels)?;
+    let seams = prt_mbd::error_seams(
+        field,
+        reconstruction,
+        labels,
+        &prt_mbd::SeamOptions::default(),
+    )?;
     Ok(MethodScores {
         method,
         relative_mse: evaluation.relative_mse,

@@ -25,7 +25,7 @@ pub const BLUR_SIGMA: f64 = 1.0;
 /// The field blurred with a separable Gaussian of [`BLUR_SIGMA`] voxels over valid voxels only
 /// (normalised convolution; invalid voxels are zero): prt-mbd's denoised seam reference.
 pub(crate) fn smooth(field: &GridField, valid: &[bool]) -> Result<GridField, MbdError> {
-    prt_mbd::blur_valid(field, valid, BLUR_SIGMA)
+    prt_mbd::expert::blur_valid(field, valid, BLUR_SIGMA)
 }
 
 /// The seam view of one method: its basis applied to the denoised reference.
@@ -63,8 +63,8 @@ pub(crate) fn seam_view(
     basis: &LocalBasis<'_>,
     y: usize,
 ) -> Result<SeamView, MbdError> {
-    let e = prt_mbd::projection_residuals(smoothed, valid, basis)?;
-    let seam_ratio = prt_mbd::residual_seam_ratio(smoothed, valid, labels, &e)?;
+    let e = prt_mbd::expert::projection_residuals(smoothed, valid, basis)?;
+    let seam_ratio = prt_mbd::expert::residual_seam_ratio(smoothed, valid, labels, &e)?;
     let d = smoothed.dim();
     let err = |v: usize| &e[v * d..(v + 1) * d];
     let dims = smoothed.dims();
