@@ -27,13 +27,11 @@
 
 use glam::Vec3;
 use ndarray::{Array2, Array3, Axis};
-use prt_core::{Aabb, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
+use prt_core::{Aabb, CoreError, KernelWeights, SpatialKernels};
 use rayon::prelude::*;
 
-use crate::fit::{BasisKernels, coefficient_kernels};
-use crate::subspace::principal_subspace;
+use crate::MbdError;
 use crate::voxel_weights::VoxelWeights;
-use crate::{Basis, Mbd, MbdError, MbdFit, PiecewisePcaModel, solve_from_basis};
 
 /// How [`LabelKernels`] smooth the voxel labels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -227,74 +225,4 @@ pub(crate) fn align_to(bases: &mut Array3<f32>, reference: &Array2<f32>) -> Resu
         block.assign(&rotation.dot(&b).mapv(|x| x as f32));
     }
     Ok(())
-}
-
-/// MBD with [`crate::Basis::Clusters`] on the clusters of a clustered-PCA model of `field` at
-/// `mbd.rank` (e.g. one already fitted as a baseline; the basis's `count` is not used).
-/// Clusters without voxels are dropped (a kernel that is zero everywhere has no curvature for
-/// the solver). Then the polish, if `mbd` asks for one.
-///
-/// # Errors
-/// [`MbdError::InvalidOption`] when `mbd.basis` is not [`crate::Basis::Clusters`];
-/// [`MbdError::ShapeMismatch`] when `clusters` is not of `field`'s voxels or `mbd.rank`; those
-/// of [`LabelKernels::new`], [`crate::expert::solve_from_basis`] and [`crate::expert::polish`]
-/// (bad polish options fail before the solve).
-pub fn fit_on_clusters(
-    mbd: &Mbd,
-    field: &GridField,
-    clusters: &PiecewisePcaModel,
-    progress: &dyn Progress,
-) -> Result<MbdFit, MbdError> {
-    let Basis::Clusters { smoothing, .. } = mbd.basis else {
-        return Err(MbdError::InvalidOption {
-            what: "basis",
-            why: "fitting on clusters needs Basis::Clusters".into(),
-        });
-    };
-    let (count, rank, dim) = clusters.bases().dim();
-    if clusters.labels().len() != field.num_voxels() || rank != mbd.rank || dim != field.dim() {
-        return Err(MbdError::ShapeMismatch {
-            what: "clusters",
-            expected: vec![field.num_voxels(), mbd.rank, field.dim()],
-            got: vec![clusters.labels().len(), rank, dim],
-        });
-    }
-    mbd.check_polish(count)?;
-    let mut index = vec![u32::MAX; count];
-    let mut kept = Vec::new();
-    let labels: Vec<u32> = clusters
-        .labels()
-        .iter()
-        .map(|&k| {
-            let k = k as usize;
-            if index[k] == u32::MAX {
-                index[k] = kept.len() as u32;
-                kept.push(k);
-            }
-            index[k]
-        })
-        .collect();
-    // CPCA puts the zero voxels inside geometry all in one cluster, which must not spread
-    // into the open space beside every wall.
-    let valid = crate::eval::nonzero_voxels(field);
-    let kernels = LabelKernels::new(
-        field.dims(),
-        field.bounds(),
-        &labels,
-        kept.len(),
-        Some(&valid),
-        &smoothing,
-    )?;
-    let mut basis = clusters.bases().select(Axis(0), &kept);
-    let global = principal_subspace(field.data().view(), mbd.rank)?;
-    align_to(&mut basis, &global)?;
-    let (model, solve_report) = solve_from_basis(
-        field,
-        coefficient_kernels(field)?,
-        BasisKernels::Clusters(kernels),
-        &basis,
-        &mbd.solver,
-        progress,
-    )?;
-    mbd.finish(field, model, solve_report, progress)
 }

@@ -5,9 +5,13 @@ use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, 
 use prt_kernels::HatGrid;
 
 use crate::baselines::voxel_centre_box;
-use crate::clustered::{LabelKernels, LabelSmoothing, fit_on_clusters};
+use crate::clustered::{LabelKernels, LabelSmoothing, align_to};
 use crate::polish::{self, BasisLayout, PolishBasis, PolishOptions, PolishReport};
-use crate::{ClusteredPca, MbdError, MbdModel, SolveReport, SolverOptions, solve};
+use crate::subspace::principal_subspace;
+use crate::{
+    ClusteredPca, MbdError, MbdModel, PiecewisePcaModel, SolveReport, SolverOptions, solve,
+    solve_from_basis,
+};
 
 /// Rank-L Moving Basis Decomposition (Silvennoinen & Sloan 2021): one trilinear coefficient hat
 /// per voxel centre, a moving basis on [`Mbd::basis`] kernels, fitted by the paper's stochastic
@@ -264,3 +268,73 @@ impl polish::sealed::Sealed for BasisKernels {
 }
 
 impl PolishBasis for BasisKernels {}
+
+/// MBD with [`crate::Basis::Clusters`] on the clusters of a clustered-PCA model of `field` at
+/// `mbd.rank` (e.g. one already fitted as a baseline; the basis's `count` is not used).
+/// Clusters without voxels are dropped (a kernel that is zero everywhere has no curvature for
+/// the solver). Then the polish, if `mbd` asks for one.
+///
+/// # Errors
+/// [`MbdError::InvalidOption`] when `mbd.basis` is not [`crate::Basis::Clusters`];
+/// [`MbdError::ShapeMismatch`] when `clusters` is not of `field`'s voxels or `mbd.rank`; those
+/// of [`LabelKernels::new`], [`crate::expert::solve_from_basis`] and [`crate::expert::polish`]
+/// (bad polish options fail before the solve).
+pub fn fit_on_clusters(
+    mbd: &Mbd,
+    field: &GridField,
+    clusters: &PiecewisePcaModel,
+    progress: &dyn Progress,
+) -> Result<MbdFit, MbdError> {
+    let Basis::Clusters { smoothing, .. } = mbd.basis else {
+        return Err(MbdError::InvalidOption {
+            what: "basis",
+            why: "fitting on clusters needs Basis::Clusters".into(),
+        });
+    };
+    let (count, rank, dim) = clusters.bases().dim();
+    if clusters.labels().len() != field.num_voxels() || rank != mbd.rank || dim != field.dim() {
+        return Err(MbdError::ShapeMismatch {
+            what: "clusters",
+            expected: vec![field.num_voxels(), mbd.rank, field.dim()],
+            got: vec![clusters.labels().len(), rank, dim],
+        });
+    }
+    mbd.check_polish(count)?;
+    let mut index = vec![u32::MAX; count];
+    let mut kept = Vec::new();
+    let labels: Vec<u32> = clusters
+        .labels()
+        .iter()
+        .map(|&k| {
+            let k = k as usize;
+            if index[k] == u32::MAX {
+                index[k] = kept.len() as u32;
+                kept.push(k);
+            }
+            index[k]
+        })
+        .collect();
+    // CPCA puts the zero voxels inside geometry all in one cluster, which must not spread
+    // into the open space beside every wall.
+    let valid = crate::eval::nonzero_voxels(field);
+    let kernels = LabelKernels::new(
+        field.dims(),
+        field.bounds(),
+        &labels,
+        kept.len(),
+        Some(&valid),
+        &smoothing,
+    )?;
+    let mut basis = clusters.bases().select(ndarray::Axis(0), &kept);
+    let global = principal_subspace(field.data().view(), mbd.rank)?;
+    align_to(&mut basis, &global)?;
+    let (model, solve_report) = solve_from_basis(
+        field,
+        coefficient_kernels(field)?,
+        BasisKernels::Clusters(kernels),
+        &basis,
+        &mbd.solver,
+        progress,
+    )?;
+    mbd.finish(field, model, solve_report, progress)
+}

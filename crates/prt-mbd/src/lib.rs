@@ -100,9 +100,10 @@ pub mod expert {
     //! * The kernels and boxes [`Mbd`](crate::Mbd) uses, and the per-voxel pieces of the seam
     //!   measures, for drawing them.
     pub use crate::baselines::voxel_centre_box;
-    pub use crate::clustered::{LabelKernels, MAX_LABEL_RADIUS, fit_on_clusters};
+    pub use crate::clustered::{LabelKernels, MAX_LABEL_RADIUS};
     pub use crate::eval::{blur_valid, kernel_labels, nonzero_voxels};
     pub use crate::fit::basis_box;
+    pub use crate::fit::fit_on_clusters;
     pub use crate::model::EvalScratch;
     pub use crate::polish::{
         ExactLoss, POLISH_MAX_BASIS_UNKNOWNS, PolishBasis, PolishRecord, PolishStep, exact_loss,
