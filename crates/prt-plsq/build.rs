@@ -6,13 +6,15 @@
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_avx2_fma)");
     println!("cargo::rerun-if-changed=build.rs");
-    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CPU");
     // The build machine's CPU says nothing about a cross-compiled target's.
     let native = std::env::var("HOST").ok() == std::env::var("TARGET").ok();
-    let present = native && host_has_avx2_fma();
-    let required = std::env::var_os("PRT_REQUIRE_CPU").is_some_and(|v| v == "1");
-    if !present && !required {
-        println!("cargo::rustc-cfg=prt_skip_avx2_fma");
+    if !(native && host_has_avx2_fma()) {
+        // Watched only here: each rerun rebuilds the crate, and with the features present the
+        // variable changes nothing.
+        println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CPU");
+        if std::env::var_os("PRT_REQUIRE_CPU").is_none_or(|v| v != "1") {
+            println!("cargo::rustc-cfg=prt_skip_avx2_fma");
+        }
     }
 }
 

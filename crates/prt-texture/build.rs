@@ -7,14 +7,17 @@ use std::path::PathBuf;
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_shared_envmaps)");
     println!("cargo::rerun-if-changed=build.rs");
-    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SHARED");
     let dir = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("set by cargo"))
         .join("../../../shared/envmaps");
+    // Each rerun rebuilds the crate, so only what can change the outcome is watched: a present
+    // folder (cargo would rerun on every build for a missing path), or the variable when the
+    // folder is absent (rerunning then also notices data added since).
     if dir.is_dir() {
-        // Only a present folder is watched: cargo reruns a script whose watched path is
-        // missing, and rebuilds the crate after it, on every build.
         println!("cargo::rerun-if-changed={}", dir.display());
-    } else if std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1") {
-        println!("cargo::rustc-cfg=prt_skip_shared_envmaps");
+    } else {
+        println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SHARED");
+        if std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1") {
+            println!("cargo::rustc-cfg=prt_skip_shared_envmaps");
+        }
     }
 }

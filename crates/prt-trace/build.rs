@@ -6,33 +6,35 @@
 //!   `PRT_REQUIRE_CPU=1` is not set.
 //!
 //! With a `PRT_REQUIRE_*=1` variable the tests always run, and fail if what they need is missing.
+//! Each rerun of this script rebuilds the crate, so only what can change the outcome is watched:
+//! a present folder (cargo would rerun on every build for a missing path), or the variable when
+//! the thing is absent (rerunning then also notices data added since).
 
 use std::path::PathBuf;
 
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_shared_scenes, prt_skip_x86_64_v3)");
     println!("cargo::rerun-if-changed=build.rs");
-    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SHARED");
-    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CPU");
     let dir = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("set by cargo"))
         .join("../../../shared/scenes");
     if dir.is_dir() {
-        // Only a present folder is watched: cargo reruns a script whose watched path is
-        // missing, and rebuilds the crate after it, on every build.
         println!("cargo::rerun-if-changed={}", dir.display());
-    } else if !required("PRT_REQUIRE_SHARED") {
-        println!("cargo::rustc-cfg=prt_skip_shared_scenes");
+    } else {
+        skip_unless_required("prt_skip_shared_scenes", "PRT_REQUIRE_SHARED");
     }
     // The build machine's CPU says nothing about a cross-compiled target's.
     let native = std::env::var("HOST").ok() == std::env::var("TARGET").ok();
-    let present = native && host_has_x86_64_v3();
-    if !present && !required("PRT_REQUIRE_CPU") {
-        println!("cargo::rustc-cfg=prt_skip_x86_64_v3");
+    if !(native && host_has_x86_64_v3()) {
+        skip_unless_required("prt_skip_x86_64_v3", "PRT_REQUIRE_CPU");
     }
 }
 
-fn required(var: &str) -> bool {
-    std::env::var_os(var).is_some_and(|v| v == "1")
+/// Sets `cfg` unless `var` is `1`, and reruns when `var` changes.
+fn skip_unless_required(cfg: &str, var: &str) {
+    println!("cargo::rerun-if-env-changed={var}");
+    if std::env::var_os(var).is_none_or(|v| v != "1") {
+        println!("cargo::rustc-cfg={cfg}");
+    }
 }
 
 /// The features `bvh::x86_v3` is compiled with.
