@@ -927,7 +927,8 @@ mod tests {
         // features, so a run never compares the portable path with itself.
         assert!(
             wide_cpu,
-            "this CPU lacks AVX2 or FMA, which the building CPU had or PRT_REQUIRE_CPU=1 requires"
+            "this CPU lacks AVX2 or FMA (the test runs because PRT_REQUIRE_CPU=1 or because the \
+             CPU that built it had them)"
         );
         let dirs = prt_sphere::sampling::halton_sphere(999);
         let values: Vec<f32> = dirs

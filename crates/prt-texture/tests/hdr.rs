@@ -15,7 +15,8 @@ fn envmaps() -> Vec<std::path::PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/envmaps");
     let entries = std::fs::read_dir(&dir).unwrap_or_else(|e| {
         panic!(
-            "{} is unreadable ({e}); it was there at build time or PRT_REQUIRE_SHARED=1 requires it",
+            "cannot read {} ({e}); the test runs because PRT_REQUIRE_SHARED=1 or because it \
+             was there when it was built",
             dir.display()
         )
     });

@@ -672,8 +672,8 @@ mod tests {
 
     /// Why a test of the x86-64-v3 path fails: build.rs ignores these tests (`prt_skip_x86_64_v3`)
     /// when the building CPU lacks the features, so a test that runs never skips.
-    const LACKS_X86_64_V3: &str = "this CPU lacks x86-64-v3, which the building CPU had or \
-        PRT_REQUIRE_CPU=1 requires";
+    const LACKS_X86_64_V3: &str = "this CPU lacks x86-64-v3 (the test runs because \
+        PRT_REQUIRE_CPU=1 or because the CPU that built it had it)";
 
     /// The run-time-selected instruction set gives bit-identical results to the baseline, for
     /// the single-ray and the batched queries, with infinite and finite `tmax`.

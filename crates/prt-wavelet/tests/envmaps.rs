@@ -17,8 +17,8 @@ fn load(name: &str) -> LatLongMap {
     let img = image::open(&path)
         .unwrap_or_else(|e| {
             panic!(
-                "cannot read {} ({e}); ../shared/envmaps was there at build time or \
-                 PRT_REQUIRE_SHARED=1 requires it",
+                "cannot read {} ({e}); the test runs because PRT_REQUIRE_SHARED=1 or because \
+                 ../shared/envmaps was there when it was built",
                 path.display()
             )
         })

@@ -12,7 +12,8 @@ pub fn shared_scene(rel: &str) -> PathBuf {
         .join(rel);
     assert!(
         p.exists(),
-        "{} is missing; ../shared/scenes was there at build time or PRT_REQUIRE_SHARED=1 requires it",
+        "{} is missing; the test runs because PRT_REQUIRE_SHARED=1 or because ../shared/scenes \
+         was there when it was built",
         p.display()
     );
     p
