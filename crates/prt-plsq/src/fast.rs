@@ -295,6 +295,8 @@ impl<const C: usize> SgEncoder<C> {
                 && std::is_x86_feature_detected!("fma")
                 && !portable_forced()
             {
+                #[cfg(test)]
+                tests::WIDE_BLOCKS.with(|n| n.set(n.get() + 1));
                 match self.config.update {
                     Update::Residual { acceleration } if self.px.len() == LANE => {
                         // SAFETY: the CPU supports AVX2 and FMA, checked above.
@@ -866,6 +868,8 @@ mod tests {
 
     thread_local! {
         static PORTABLE: Cell<bool> = const { Cell::new(false) };
+        /// Blocks this thread applied with the AVX2 + FMA functions.
+        pub(super) static WIDE_BLOCKS: Cell<usize> = const { Cell::new(0) };
     }
 
     /// Whether this thread's test asked for the baseline block function.
@@ -909,7 +913,23 @@ mod tests {
     /// the other updates use the same code in both builds and agree bit for bit (Rust never
     /// fuses `a * b + c` on its own).
     #[test]
+    #[cfg_attr(
+        prt_skip_avx2_fma,
+        ignore = "needs a CPU with AVX2 and FMA, absent at build time (PRT_REQUIRE_CPU=1 requires it)"
+    )]
     fn instruction_set_variants_agree_to_rounding() {
+        #[cfg(target_arch = "x86_64")]
+        let wide_cpu =
+            std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        let wide_cpu = false;
+        // build.rs ignores this test (`prt_skip_avx2_fma`) when the building CPU lacks the
+        // features, so a run never compares the portable path with itself.
+        assert!(
+            wide_cpu,
+            "this CPU lacks AVX2 or FMA (the test runs because PRT_REQUIRE_CPU=1 or because the \
+             CPU that built it had them)"
+        );
         let dirs = prt_sphere::sampling::halton_sphere(999);
         let values: Vec<f32> = dirs
             .iter()
@@ -956,13 +976,16 @@ mod tests {
             let basis = SgBasis::spiral(lobes, 6.0).unwrap();
             let fit = |portable: bool| {
                 PORTABLE.with(|p| p.set(portable));
+                WIDE_BLOCKS.with(|n| n.set(0));
                 let mut enc = SgEncoder::<3>::new(&basis, cfg).unwrap();
                 enc.add_samples(&dirs, &values, None, &NoProgress).unwrap();
                 enc.add_sample(Vec3::Z, [2.0, 0.0, 1.0], 0.5).unwrap();
                 PORTABLE.with(|p| p.set(false));
-                enc.coefficients()
+                (enc.coefficients(), WIDE_BLOCKS.with(Cell::get))
             };
-            let (wide, portable) = (fit(false), fit(true));
+            let ((wide, wide_blocks), (portable, portable_blocks)) = (fit(false), fit(true));
+            // The first fit applied its blocks with the AVX2 functions, the second never did.
+            assert!(wide_blocks > 0 && portable_blocks == 0, "{lobes} {cfg:?}");
             assert!(wide.iter().any(|&c| c != 0.0));
             if cfg.update == Update::RunningAverage {
                 assert_eq!(wide, portable, "{lobes} {cfg:?}");

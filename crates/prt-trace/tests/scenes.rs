@@ -184,10 +184,12 @@ fn built_in_scenes_have_the_documented_shape() {
 }
 
 #[test]
+#[cfg_attr(
+    prt_skip_shared_scenes,
+    ignore = "needs ../shared/scenes, absent at build time (PRT_REQUIRE_SHARED=1 requires it)"
+)]
 fn built_in_cornell_box_matches_the_shared_gltf() {
-    let Some(path) = common::shared_scene("cornell_box/CornellBox-Original.gltf") else {
-        return;
-    };
+    let path = common::shared_scene("cornell_box/CornellBox-Original.gltf");
     let file = Scene::load_gltf(path, &LoadOptions::default()).expect("loads");
     let builtin = Scene::cornell_box();
     assert_eq!(file.triangles().len(), builtin.triangles().len());
@@ -208,42 +210,49 @@ fn built_in_cornell_box_matches_the_shared_gltf() {
 }
 
 #[test]
-fn shared_sponza_and_gas_station_load_with_warnings() {
-    if let Some(path) = common::shared_scene("sponza/Sponza.gltf") {
-        let s = Scene::load_gltf(path, &LoadOptions::default()).expect("Sponza loads");
-        assert_eq!(s.triangles().len() + s.degenerate_dropped(), 262_087);
-        assert!(
-            s.warnings()
-                .iter()
-                .any(|w| w.contains("AMD_split_roughnessMetallic"))
-        );
-        // No textures are shipped: every material falls back to the 0.5 grey default.
-        assert!(s.materials().iter().all(|m| m.albedo == Vec3::splat(0.5)));
-        assert_eq!(s.cameras().len(), 4);
-        // Decoding textures that are missing is a typed error naming the URI.
-        let strict = LoadOptions {
-            decode_textures: true,
-            ..LoadOptions::default()
-        };
-        match Scene::load_gltf(
-            common::shared_scene("sponza/Sponza.gltf").expect("present"),
-            &strict,
-        ) {
-            Err(TraceError::Image { uri, .. }) => {
-                assert!(uri.ends_with(".png") || uri.ends_with(".dds"), "{uri}")
-            }
-            other => panic!(
-                "expected an Image error, got {:?}",
-                other.map(|s| s.triangles().len())
-            ),
+#[cfg_attr(
+    prt_skip_shared_scenes,
+    ignore = "needs ../shared/scenes, absent at build time (PRT_REQUIRE_SHARED=1 requires it)"
+)]
+fn shared_sponza_loads_with_warnings() {
+    let path = common::shared_scene("sponza/Sponza.gltf");
+    let s = Scene::load_gltf(&path, &LoadOptions::default()).expect("Sponza loads");
+    assert_eq!(s.triangles().len() + s.degenerate_dropped(), 262_087);
+    assert!(
+        s.warnings()
+            .iter()
+            .any(|w| w.contains("AMD_split_roughnessMetallic"))
+    );
+    // No textures are shipped: every material falls back to the 0.5 grey default.
+    assert!(s.materials().iter().all(|m| m.albedo == Vec3::splat(0.5)));
+    assert_eq!(s.cameras().len(), 4);
+    // Decoding textures that are missing is a typed error naming the URI.
+    let strict = LoadOptions {
+        decode_textures: true,
+        ..LoadOptions::default()
+    };
+    match Scene::load_gltf(path, &strict) {
+        Err(TraceError::Image { uri, .. }) => {
+            assert!(uri.ends_with(".png") || uri.ends_with(".dds"), "{uri}")
         }
+        other => panic!(
+            "expected an Image error, got {:?}",
+            other.map(|s| s.triangles().len())
+        ),
     }
-    if let Some(path) = common::shared_scene("gas_station/GasStation.gltf") {
-        let s = Scene::load_gltf(path, &LoadOptions::default()).expect("Gas station loads");
-        assert_eq!(s.triangles().len() + s.degenerate_dropped(), 99_002);
-        assert!(s.warnings().iter().any(|w| w.contains("MSFT_texture_dds")));
-        assert_eq!(s.cameras().len(), 2);
-    }
+}
+
+#[test]
+#[cfg_attr(
+    prt_skip_shared_scenes,
+    ignore = "needs ../shared/scenes, absent at build time (PRT_REQUIRE_SHARED=1 requires it)"
+)]
+fn shared_gas_station_loads_with_warnings() {
+    let path = common::shared_scene("gas_station/GasStation.gltf");
+    let s = Scene::load_gltf(path, &LoadOptions::default()).expect("Gas station loads");
+    assert_eq!(s.triangles().len() + s.degenerate_dropped(), 99_002);
+    assert!(s.warnings().iter().any(|w| w.contains("MSFT_texture_dds")));
+    assert_eq!(s.cameras().len(), 2);
 }
 
 #[test]

@@ -3,20 +3,20 @@
 
 use std::path::PathBuf;
 
-/// `../shared/scenes/<rel>` if it exists, else `None` after printing why the test is skipped.
-pub fn shared_scene(rel: &str) -> Option<PathBuf> {
+/// `../shared/scenes/<rel>`, which must exist. Tests that call this carry
+/// `#[cfg_attr(prt_skip_shared_scenes, ignore = "...")]`: build.rs sets that cfg when the
+/// folder is absent (unless `PRT_REQUIRE_SHARED=1`), so a test that runs never skips.
+pub fn shared_scene(rel: &str) -> PathBuf {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../../shared/scenes")
         .join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!(
-            "skipping: {} not found (shared scenes are not present)",
-            p.display()
-        );
-        None
-    }
+    assert!(
+        p.exists(),
+        "{} is missing; the test runs because PRT_REQUIRE_SHARED=1 or because ../shared/scenes \
+         was there when it was built",
+        p.display()
+    );
+    p
 }
 
 /// A fresh empty folder under the system temp dir.
