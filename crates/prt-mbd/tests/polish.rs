@@ -44,7 +44,7 @@ fn exact_loss_is_the_continuous_integral() {
     .build(bounds)
     .unwrap();
     // `Mbd`'s basis spans the voxel centres' box; a basis over the field's whole box (the
-    // layout before session 7) is integrated exactly too.
+    // old layout) is integrated exactly too.
     let centred = random_model(&field, [3, 4, 3], 2, 7);
     let whole_box = MbdModel::new(
         centred.coefficient_kernels().clone(),
