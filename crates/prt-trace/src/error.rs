@@ -53,17 +53,8 @@ pub enum TraceError {
         /// Why.
         message: String,
     },
-    /// A primitive uses a mode other than `TRIANGLES`.
-    #[error("mesh '{mesh}' primitive {primitive}: mode {mode} is not supported (only triangles)")]
-    UnsupportedMode {
-        /// Mesh name (or `#index`).
-        mesh: String,
-        /// Primitive index inside the mesh.
-        primitive: usize,
-        /// The mode found.
-        mode: String,
-    },
-    /// A primitive is unusable: no positions, or an index past the vertex count.
+    /// A primitive is unusable: no positions, an attribute naming a missing accessor, or morph
+    /// targets that do not match its vertices.
     #[error("mesh '{mesh}' primitive {primitive}: {why}")]
     BadPrimitive {
         /// Mesh name (or `#index`).
@@ -72,6 +63,43 @@ pub enum TraceError {
         primitive: usize,
         /// What is wrong.
         why: String,
+    },
+    /// An accessor cannot be read as what it is used for: wrong type or component type, count
+    /// 0, a stride below its element size, data past its buffer view or buffer, an index past
+    /// the vertex count.
+    #[error("glTF accessor {accessor} ({used_as}): {why}")]
+    BadAccessor {
+        /// Accessor index in the document.
+        accessor: usize,
+        /// What it was read as, e.g. "mesh 'box' primitive 0 POSITION".
+        used_as: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// The node hierarchy is not a set of disjoint trees (a cycle, or a node with two parents).
+    #[error("glTF node {node}: {why}")]
+    BadNode {
+        /// Node index in the document.
+        node: usize,
+        /// What is wrong.
+        why: String,
+    },
+    /// The document requires an extension that changes how geometry is stored or placed
+    /// (Draco or meshopt compression, GPU instancing), which the loader cannot read.
+    #[error(
+        "required glTF extension {name} is not supported (it changes the geometry); export without it"
+    )]
+    UnsupportedExtension {
+        /// The extension's name.
+        name: String,
+    },
+    /// Loading failed after gathering warnings, which may explain the failure.
+    #[error("{error} (warnings before it: {})", warnings.join("; "))]
+    WithWarnings {
+        /// The failure.
+        error: Box<TraceError>,
+        /// The warnings gathered before it.
+        warnings: Vec<String>,
     },
     /// A vertex position (after the node transform) is NaN or infinite.
     #[error("non-finite position in {what}, triangle {triangle}")]
@@ -108,6 +136,15 @@ pub enum TraceError {
 }
 
 impl TraceError {
+    /// The failure without the warnings [`TraceError::WithWarnings`] attaches, and those
+    /// warnings (empty for any other error).
+    pub fn without_warnings(&self) -> (&TraceError, &[String]) {
+        match self {
+            TraceError::WithWarnings { error, warnings } => (error, warnings),
+            other => (other, &[]),
+        }
+    }
+
     /// Whether the work was cancelled through its [`prt_core::Progress`] handle.
     pub fn is_cancelled(&self) -> bool {
         matches!(self, TraceError::Core(CoreError::Cancelled))

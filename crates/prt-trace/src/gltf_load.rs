@@ -3,14 +3,19 @@
 use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec3, Vec4};
+use gltf::json::accessor::{ComponentType, Type};
 use gltf::khr_lights_punctual::Kind;
 
 use crate::TraceError;
 use crate::scene::{Camera, LightKind, Material, PunctualLight, Scene};
 
-/// Extensions whose meaning the loader honours; any other *required* extension only warns,
-/// since the baker needs geometry and diffuse colour alone.
-const UNDERSTOOD_EXTENSIONS: &[&str] = &["KHR_lights_punctual", "KHR_materials_emissive_strength"];
+/// Extensions whose meaning the loader honours; any other *required* extension outside
+/// [`GEOMETRY_EXTENSIONS`] only warns, since the baker needs geometry and diffuse colour alone.
+const UNDERSTOOD_EXTENSIONS: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_mesh_quantization",
+];
 
 /// Options and limits for [`Scene::load_gltf`].
 #[derive(Debug, Clone, PartialEq)]
@@ -59,11 +64,16 @@ impl Scene {
     /// world-space triangles (each node's transform applied), materials become diffuse
     /// [`Material`]s, `KHR_lights_punctual` lights and perspective cameras are placed.
     ///
-    /// Required extensions that only concern materials or textures (for example
-    /// `AMD_split_roughnessMetallic`, `MSFT_texture_dds`) do not stop loading: they are listed in
-    /// [`Scene::warnings`], and the rest of the document is validated as usual. Errors: an
-    /// unreadable file, malformed JSON/GLB, a missing buffer (naming its URI), a primitive mode
-    /// other than triangles (naming mesh and primitive), non-finite positions, exceeded limits.
+    /// Everything read is checked first (the gltf crate's validation, then every accessor,
+    /// buffer view, buffer length, stride, count, component type, index and node reference), so
+    /// a malformed file is a typed error naming what is wrong, never a panic. Triangle strips and
+    /// fans are triangulated; points and lines are skipped with a warning; a mirroring node
+    /// transform flips the winding; morph targets are applied with their default weights;
+    /// `KHR_mesh_quantization` positions are dequantised. Required extensions that only concern
+    /// materials or textures (for example `AMD_split_roughnessMetallic`, `MSFT_texture_dds`)
+    /// only warn ([`Scene::warnings`]); those that change geometry (Draco, meshopt, instancing)
+    /// are [`TraceError::UnsupportedExtension`]. When warnings were gathered before a failure,
+    /// the error is [`TraceError::WithWarnings`].
     pub fn load_gltf(path: impl AsRef<Path>, options: &LoadOptions) -> Result<Scene, TraceError> {
         let path = path.as_ref();
         let io = |source| TraceError::Io {
@@ -79,188 +89,664 @@ impl Scene {
             });
         }
         let bytes = std::fs::read(path).map_err(io)?;
-        let gltf::Gltf { document, mut blob } =
-            gltf::Gltf::from_slice_without_validation(&bytes).map_err(|e| gltf_error(path, e))?;
-        drop(bytes);
-
-        let mut scene = Scene::empty();
-        // Validate everything except the required-extension list, which would reject files whose
-        // required extensions only concern materials.
-        let mut json = document.into_json();
-        for ext in std::mem::take(&mut json.extensions_required) {
-            if !UNDERSTOOD_EXTENSIONS.contains(&ext.as_str()) {
-                scene.warn(format!(
-                    "required extension {ext} is not supported; its data is ignored"
-                ));
-            }
-        }
-        let document =
-            gltf::Document::from_json(json).map_err(|e| gltf_error(path, format!("{e:?}")))?;
         let base = path
             .parent()
             .map(Path::to_owned)
             .unwrap_or_else(|| PathBuf::from("."));
+        load(&bytes, path, Some(&base), options)
+    }
 
-        let mut buffers = Vec::new();
-        for buffer in document.buffers() {
-            let uri = match buffer.source() {
-                gltf::buffer::Source::Bin => "<GLB BIN chunk>".to_owned(),
-                gltf::buffer::Source::Uri(uri) => uri.chars().take(120).collect(),
-            };
-            if buffer.length() as u64 > options.max_bytes {
-                return Err(TraceError::Limit {
-                    what: "glTF buffer bytes",
-                    limit: options.max_bytes,
-                    got: buffer.length() as u64,
-                });
-            }
-            let data =
-                gltf::buffer::Data::from_source_and_blob(buffer.source(), Some(&base), &mut blob)
-                    .map_err(|e| TraceError::Buffer {
-                    index: buffer.index(),
-                    uri: uri.clone(),
-                    message: e.to_string(),
-                })?;
-            if data.len() < buffer.length() {
-                return Err(TraceError::Buffer {
-                    index: buffer.index(),
-                    uri,
-                    message: format!(
-                        "{} bytes, the document declares {}",
-                        data.len(),
-                        buffer.length()
-                    ),
-                });
-            }
-            buffers.push(data);
+    /// Loads a glTF document (JSON or GLB) held in memory, with the checks of
+    /// [`Scene::load_gltf`]. External buffer and image URIs are resolved against `base`; with
+    /// `None` only the GLB binary chunk and `data:` URIs can be read.
+    pub fn load_gltf_slice(
+        bytes: &[u8],
+        base: Option<&Path>,
+        options: &LoadOptions,
+    ) -> Result<Scene, TraceError> {
+        if bytes.len() as u64 > options.max_bytes {
+            return Err(TraceError::Limit {
+                what: "glTF file bytes",
+                limit: options.max_bytes,
+                got: bytes.len() as u64,
+            });
         }
+        load(bytes, Path::new("<memory>"), base, options)
+    }
+}
 
-        let material_ids = load_materials(&document, &buffers, &base, options, &mut scene)?;
-        let mut default_material = None;
+/// Loads a document, attaching the warnings gathered so far to a failure.
+fn load(
+    bytes: &[u8],
+    path: &Path,
+    base: Option<&Path>,
+    options: &LoadOptions,
+) -> Result<Scene, TraceError> {
+    let mut scene = Scene::empty();
+    match load_into(&mut scene, bytes, path, base, options) {
+        Ok(()) => Ok(scene),
+        Err(error) if scene.warnings().is_empty() => Err(error),
+        Err(error) => Err(TraceError::WithWarnings {
+            error: Box::new(error),
+            warnings: scene.warnings().to_vec(),
+        }),
+    }
+}
 
-        let Some(root) = document
-            .default_scene()
-            .or_else(|| document.scenes().next())
-        else {
-            scene.warn("the document has no scene".to_owned());
-            return Ok(scene);
-        };
-        // Depth-first over the hierarchy with an explicit stack; the step budget guards against
-        // node cycles in a malformed file.
-        let mut stack: Vec<(gltf::Node<'_>, Mat4)> =
-            root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
-        let mut budget = 4 * document.nodes().len() + 16;
-        let mut triangle_count: u64 = 0;
-        while let Some((node, parent)) = stack.pop() {
-            budget = budget
-                .checked_sub(1)
-                .ok_or_else(|| gltf_error(path, "node hierarchy has a cycle"))?;
-            let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
-            if let Some(mesh) = node.mesh() {
-                let mesh_name = mesh
-                    .name()
-                    .map(str::to_owned)
-                    .unwrap_or_else(|| format!("#{}", mesh.index()));
-                for primitive in mesh.primitives() {
-                    let pi = primitive.index();
-                    if primitive.mode() != gltf::mesh::Mode::Triangles {
-                        return Err(TraceError::UnsupportedMode {
-                            mesh: mesh_name,
-                            primitive: pi,
-                            mode: format!("{:?}", primitive.mode()),
-                        });
-                    }
-                    let bad = |why: String| TraceError::BadPrimitive {
-                        mesh: mesh_name.clone(),
+/// The GLB header is checked here because the gltf crate subtracts its 12 bytes from the
+/// declared length without checking it first.
+fn check_glb_header(bytes: &[u8], path: &Path) -> Result<(), TraceError> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let Some(declared) = bytes.get(8..12) else {
+        return Err(gltf_error(path, "GLB header shorter than 12 bytes"));
+    };
+    let declared = u32::from_le_bytes([declared[0], declared[1], declared[2], declared[3]]);
+    if declared < 20 {
+        return Err(gltf_error(
+            path,
+            format!(
+                "GLB declares a length of {declared} bytes, less than its header and a chunk header"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Formats the gltf crate's error; validation failures become one line per JSON path.
+fn describe(e: gltf::Error) -> String {
+    match e {
+        gltf::Error::Validation(errors) => {
+            let lines: Vec<String> = errors
+                .iter()
+                .take(8)
+                .map(|(path, error)| format!("{path}: {error}"))
+                .collect();
+            let more = errors.len().saturating_sub(lines.len());
+            let mut message = format!("invalid document: {}", lines.join("; "));
+            if more > 0 {
+                message.push_str(&format!(" (and {more} more)"));
+            }
+            message
+        }
+        other => other.to_string(),
+    }
+}
+
+/// The gltf crate's validation indexes `accessors` with each primitive's POSITION index, so
+/// attribute references are checked before it runs.
+fn check_attribute_references(json: &gltf::json::Root) -> Result<(), TraceError> {
+    let n = json.accessors.len();
+    for (mi, mesh) in json.meshes.iter().enumerate() {
+        for (pi, primitive) in mesh.primitives.iter().enumerate() {
+            for (semantic, accessor) in &primitive.attributes {
+                if accessor.value() >= n {
+                    return Err(TraceError::BadPrimitive {
+                        mesh: mesh_label(mesh.name.as_deref(), mi),
                         primitive: pi,
-                        why,
-                    };
-                    let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-                    let positions: Vec<Vec3> = reader
-                        .read_positions()
-                        .ok_or_else(|| bad("no POSITION attribute".to_owned()))?
-                        .map(|p| world.transform_point3(Vec3::from_array(p)))
-                        .collect();
-                    let indices: Vec<u32> = match reader.read_indices() {
-                        Some(ix) => ix.into_u32().collect(),
-                        None => (0..positions.len() as u32).collect(),
-                    };
-                    if !indices.len().is_multiple_of(3) {
-                        scene.warn(format!(
-                            "mesh '{mesh_name}' primitive {pi}: {} indices is not a multiple of 3; the rest is ignored",
-                            indices.len()
-                        ));
-                    }
-                    triangle_count += (indices.len() / 3) as u64;
-                    if triangle_count > options.max_triangles {
-                        return Err(TraceError::Limit {
-                            what: "triangles",
-                            limit: options.max_triangles,
-                            got: triangle_count,
-                        });
-                    }
-                    let material = match primitive.material().index() {
-                        Some(i) => material_ids[i],
-                        None => *default_material.get_or_insert_with(|| {
-                            scene
-                                .push_material(Material::diffuse("default", options.default_albedo))
-                        }),
-                    };
-                    let what = format!("mesh '{mesh_name}' primitive {pi}");
-                    for (k, tri) in indices.chunks_exact(3).enumerate() {
-                        let mut t = [Vec3::ZERO; 3];
-                        for c in 0..3 {
-                            t[c] = *positions.get(tri[c] as usize).ok_or_else(|| {
-                                bad(format!(
-                                    "index {} past {} vertices",
-                                    tri[c],
-                                    positions.len()
-                                ))
-                            })?;
-                        }
-                        scene.push_triangle(t, material, &what, k)?;
-                    }
+                        why: format!(
+                            "attribute {} refers to accessor {}, the document has {n}",
+                            semantic_name(semantic),
+                            accessor.value()
+                        ),
+                    });
                 }
             }
-            if let Some(light) = node.light() {
-                let kind = match light.kind() {
-                    Kind::Directional => LightKind::Directional,
-                    Kind::Point => LightKind::Point,
-                    Kind::Spot {
-                        inner_cone_angle,
-                        outer_cone_angle,
-                    } => LightKind::Spot {
-                        inner_cone_angle,
-                        outer_cone_angle,
-                    },
-                };
-                scene.push_light(PunctualLight {
-                    name: light.name().map(str::to_owned),
-                    kind,
-                    color: Vec3::from_array(light.color()),
-                    intensity: light.intensity(),
-                    range: light.range(),
-                    position: world.transform_point3(Vec3::ZERO),
-                    direction: world.transform_vector3(Vec3::NEG_Z).normalize_or_zero(),
-                });
-            }
-            if let Some(camera) = node.camera() {
-                match camera.projection() {
-                    gltf::camera::Projection::Perspective(p) => scene.push_camera(Camera {
-                        name: camera.name().map(str::to_owned),
-                        to_world: world,
-                        yfov: p.yfov(),
-                        aspect_ratio: p.aspect_ratio(),
-                        znear: p.znear(),
-                    }),
-                    gltf::camera::Projection::Orthographic(_) => {
-                        scene.warn(format!("orthographic camera {} skipped", camera.index()))
-                    }
-                }
-            }
-            stack.extend(node.children().map(|c| (c, world)));
         }
-        Ok(scene)
+    }
+    Ok(())
+}
+
+fn semantic_name(semantic: &gltf::json::validation::Checked<gltf::Semantic>) -> String {
+    match semantic {
+        gltf::json::validation::Checked::Valid(s) => s.to_string(),
+        gltf::json::validation::Checked::Invalid => "<invalid>".to_owned(),
+    }
+}
+
+fn mesh_label(name: Option<&str>, index: usize) -> String {
+    name.map(str::to_owned)
+        .unwrap_or_else(|| format!("#{index}"))
+}
+
+fn load_into(
+    scene: &mut Scene,
+    bytes: &[u8],
+    path: &Path,
+    base: Option<&Path>,
+    options: &LoadOptions,
+) -> Result<(), TraceError> {
+    check_glb_header(bytes, path)?;
+    let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice_without_validation(bytes)
+        .map_err(|e| gltf_error(path, describe(e)))?;
+
+    // The gltf crate's validation rejects every required extension it does not know; ours
+    // refuses those that change geometry and only warns about the rest.
+    let mut json = document.into_json();
+    let quantized = json
+        .extensions_used
+        .iter()
+        .chain(&json.extensions_required)
+        .any(|e| e == "KHR_mesh_quantization");
+    for ext in std::mem::take(&mut json.extensions_required) {
+        if GEOMETRY_EXTENSIONS.contains(&ext.as_str()) {
+            return Err(TraceError::UnsupportedExtension { name: ext });
+        }
+        if !UNDERSTOOD_EXTENSIONS.contains(&ext.as_str()) {
+            scene.warn(format!(
+                "required extension {ext} is not supported; its data is ignored"
+            ));
+        }
+    }
+    check_attribute_references(&json)?;
+    let document = gltf::Document::from_json(json).map_err(|e| gltf_error(path, describe(e)))?;
+
+    let mut buffers = Vec::new();
+    for buffer in document.buffers() {
+        let uri = match buffer.source() {
+            gltf::buffer::Source::Bin => "<GLB BIN chunk>".to_owned(),
+            gltf::buffer::Source::Uri(uri) => uri.chars().take(120).collect(),
+        };
+        if buffer.length() as u64 > options.max_bytes {
+            return Err(TraceError::Limit {
+                what: "glTF buffer bytes",
+                limit: options.max_bytes,
+                got: buffer.length() as u64,
+            });
+        }
+        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
+            .map_err(|e| TraceError::Buffer {
+                index: buffer.index(),
+                uri: uri.clone(),
+                message: e.to_string(),
+            })?;
+        if data.len() < buffer.length() {
+            return Err(TraceError::Buffer {
+                index: buffer.index(),
+                uri,
+                message: format!(
+                    "{} bytes, the document declares {}",
+                    data.len(),
+                    buffer.length()
+                ),
+            });
+        }
+        buffers.push(data);
+    }
+
+    let material_ids = load_materials(&document, &buffers, base, options, scene)?;
+    let reader = AccessorReader {
+        json: document.as_json(),
+        buffers: &buffers,
+        max_bytes: options.max_bytes,
+    };
+    let mut default_material = None;
+
+    let Some(root) = document
+        .default_scene()
+        .or_else(|| document.scenes().next())
+    else {
+        scene.warn("the document has no scene".to_owned());
+        return Ok(());
+    };
+    // Depth-first over the hierarchy; glTF nodes form disjoint trees, so a node reached twice
+    // is a cycle or a node with two parents, both invalid.
+    let mut visited = vec![false; document.nodes().len()];
+    let mut stack: Vec<(gltf::Node<'_>, Mat4)> =
+        root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut triangle_count: u64 = 0;
+    let mut skipped_modes = Vec::new();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut visited[node.index()], true) {
+            return Err(TraceError::BadNode {
+                node: node.index(),
+                why: "reached twice: the hierarchy has a cycle or a node with two parents"
+                    .to_owned(),
+            });
+        }
+        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        if let Some(mesh) = node.mesh() {
+            let mesh_name = mesh_label(mesh.name(), mesh.index());
+            let weights = node.weights().or(mesh.weights()).unwrap_or(&[]);
+            // A mirroring transform turns counter-clockwise triangles clockwise (glTF 2.0,
+            // "Transformations"): swap two corners to keep the front face.
+            let mirrored = world.determinant() < 0.0;
+            for primitive in mesh.primitives() {
+                let pi = primitive.index();
+                let what = format!("mesh '{mesh_name}' primitive {pi}");
+                use gltf::mesh::Mode;
+                let mode = primitive.mode();
+                if !matches!(
+                    mode,
+                    Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+                ) {
+                    skipped_modes.push(format!("{what} ({mode:?})"));
+                    continue;
+                }
+                let bad = |why: String| TraceError::BadPrimitive {
+                    mesh: mesh_name.clone(),
+                    primitive: pi,
+                    why,
+                };
+                let position = primitive
+                    .get(&gltf::Semantic::Positions)
+                    .ok_or_else(|| bad("no POSITION attribute".to_owned()))?;
+                let mut positions =
+                    reader.positions(position.index(), quantized, &format!("{what} POSITION"))?;
+                for (k, target) in primitive.morph_targets().enumerate() {
+                    let (Some(offsets), Some(&w)) = (target.positions(), weights.get(k)) else {
+                        continue;
+                    };
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let offsets = reader.positions(
+                        offsets.index(),
+                        quantized,
+                        &format!("{what} morph target {k} POSITION"),
+                    )?;
+                    if offsets.len() != positions.len() {
+                        return Err(bad(format!(
+                            "morph target {k} has {} positions for {} vertices",
+                            offsets.len(),
+                            positions.len()
+                        )));
+                    }
+                    for (p, d) in positions.iter_mut().zip(offsets) {
+                        *p += w * d;
+                    }
+                }
+                let positions: Vec<Vec3> = positions
+                    .into_iter()
+                    .map(|p| world.transform_point3(p))
+                    .collect();
+                let indices: Vec<u32> = match primitive.indices() {
+                    Some(ix) => {
+                        reader.indices(ix.index(), positions.len(), &format!("{what} indices"))?
+                    }
+                    None => (0..positions.len() as u32).collect(),
+                };
+                let triangles = triangulate(mode, &indices);
+                if mode == Mode::Triangles && !indices.len().is_multiple_of(3) {
+                    scene.warn(format!(
+                        "{what}: {} indices is not a multiple of 3; the rest is ignored",
+                        indices.len()
+                    ));
+                }
+                triangle_count += triangles.len() as u64;
+                if triangle_count > options.max_triangles {
+                    return Err(TraceError::Limit {
+                        what: "triangles",
+                        limit: options.max_triangles,
+                        got: triangle_count,
+                    });
+                }
+                let material = match primitive.material().index() {
+                    Some(i) => material_ids[i],
+                    None => *default_material.get_or_insert_with(|| {
+                        scene.push_material(Material::diffuse("default", options.default_albedo))
+                    }),
+                };
+                for (k, tri) in triangles.into_iter().enumerate() {
+                    let [a, b, c] = tri.map(|i| positions[i as usize]);
+                    let t = if mirrored { [a, c, b] } else { [a, b, c] };
+                    scene.push_triangle(t, material, &what, k)?;
+                }
+            }
+        }
+        if let Some(light) = node.light() {
+            let kind = match light.kind() {
+                Kind::Directional => LightKind::Directional,
+                Kind::Point => LightKind::Point,
+                Kind::Spot {
+                    inner_cone_angle,
+                    outer_cone_angle,
+                } => LightKind::Spot {
+                    inner_cone_angle,
+                    outer_cone_angle,
+                },
+            };
+            scene.push_light(PunctualLight {
+                name: light.name().map(str::to_owned),
+                kind,
+                color: Vec3::from_array(light.color()),
+                intensity: light.intensity(),
+                range: light.range(),
+                position: world.transform_point3(Vec3::ZERO),
+                direction: world.transform_vector3(Vec3::NEG_Z).normalize_or_zero(),
+            });
+        }
+        if let Some(camera) = node.camera() {
+            match camera.projection() {
+                gltf::camera::Projection::Perspective(p) => scene.push_camera(Camera {
+                    name: camera.name().map(str::to_owned),
+                    to_world: world,
+                    yfov: p.yfov(),
+                    aspect_ratio: p.aspect_ratio(),
+                    znear: p.znear(),
+                }),
+                gltf::camera::Projection::Orthographic(_) => {
+                    scene.warn(format!("orthographic camera {} skipped", camera.index()))
+                }
+            }
+        }
+        stack.extend(node.children().map(|c| (c, world)));
+    }
+    if !skipped_modes.is_empty() {
+        scene.warn(format!(
+            "{} point or line primitive(s) skipped (only surfaces are traced): {}",
+            skipped_modes.len(),
+            skipped_modes.join(", ")
+        ));
+    }
+    Ok(())
+}
+
+/// Extensions that change how geometry is stored or placed: a file requiring one of them
+/// cannot be read correctly without it.
+const GEOMETRY_EXTENSIONS: &[&str] = &[
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "EXT_mesh_gpu_instancing",
+];
+
+/// Vertex index triples of a triangle list, strip or fan (glTF 2.0, "Meshes").
+fn triangulate(mode: gltf::mesh::Mode, indices: &[u32]) -> Vec<[u32; 3]> {
+    use gltf::mesh::Mode;
+    let n = indices.len();
+    match mode {
+        Mode::TriangleStrip => (0..n.saturating_sub(2))
+            .map(|i| {
+                // Every other triangle of a strip is wound the other way round.
+                let odd = i % 2;
+                [indices[i], indices[i + 1 + odd], indices[i + 2 - odd]]
+            })
+            .collect(),
+        Mode::TriangleFan => (0..n.saturating_sub(2))
+            .map(|i| [indices[i + 1], indices[i + 2], indices[0]])
+            .collect(),
+        _ => indices
+            .chunks_exact(3)
+            .map(|t| [t[0], t[1], t[2]])
+            .collect(),
+    }
+}
+
+/// Reads accessors with every offset, stride, count and length checked against the buffers
+/// actually loaded (the gltf crate's reader asserts or indexes out of bounds instead).
+struct AccessorReader<'a> {
+    json: &'a gltf::json::Root,
+    buffers: &'a [gltf::buffer::Data],
+    max_bytes: u64,
+}
+
+fn component_size(c: ComponentType) -> usize {
+    match c {
+        ComponentType::I8 | ComponentType::U8 => 1,
+        ComponentType::I16 | ComponentType::U16 => 2,
+        ComponentType::U32 | ComponentType::F32 => 4,
+    }
+}
+
+/// One little-endian component; `bytes` holds at least its size.
+fn component(bytes: &[u8], c: ComponentType) -> f64 {
+    match c {
+        ComponentType::I8 => bytes[0] as i8 as f64,
+        ComponentType::U8 => bytes[0] as f64,
+        ComponentType::I16 => i16::from_le_bytes([bytes[0], bytes[1]]) as f64,
+        ComponentType::U16 => u16::from_le_bytes([bytes[0], bytes[1]]) as f64,
+        ComponentType::U32 => u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as f64,
+        ComponentType::F32 => f32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as f64,
+    }
+}
+
+/// The glTF mapping of a normalised integer to [-1, 1] or [0, 1].
+fn normalize(v: f64, c: ComponentType) -> f64 {
+    match c {
+        ComponentType::I8 => (v / 127.0).max(-1.0),
+        ComponentType::U8 => v / 255.0,
+        ComponentType::I16 => (v / 32767.0).max(-1.0),
+        ComponentType::U16 => v / 65535.0,
+        ComponentType::U32 | ComponentType::F32 => v,
+    }
+}
+
+impl AccessorReader<'_> {
+    fn bad(&self, accessor: usize, used_as: &str, why: String) -> TraceError {
+        TraceError::BadAccessor {
+            accessor,
+            used_as: used_as.to_owned(),
+            why,
+        }
+    }
+
+    /// The bytes of a buffer view, checked against its buffer's declared and loaded lengths.
+    fn view(&self, view: usize, accessor: usize, used_as: &str) -> Result<&[u8], TraceError> {
+        let v = &self.json.buffer_views[view];
+        let buffer = v.buffer.value();
+        let declared = self.json.buffers[buffer].byte_length.0;
+        let offset = v.byte_offset.map_or(0, |o| o.0);
+        let end = offset
+            .checked_add(v.byte_length.0)
+            .filter(|&e| e <= declared);
+        let data = &self.buffers[buffer].0;
+        end.and_then(|end| data.get(offset as usize..end as usize))
+            .ok_or_else(|| {
+                self.bad(
+                    accessor,
+                    used_as,
+                    format!(
+                        "bufferView {view} (offset {offset}, length {}) runs past buffer {buffer} ({declared} bytes)",
+                        v.byte_length.0
+                    ),
+                )
+            })
+    }
+
+    /// Every component of accessor `index` (normalised if the accessor says so), after checking
+    /// its type is `dims` components of one of `allowed`.
+    fn read(
+        &self,
+        index: usize,
+        dims: usize,
+        allowed: &[ComponentType],
+        used_as: &str,
+    ) -> Result<(Vec<f64>, ComponentType), TraceError> {
+        use gltf::json::validation::Checked;
+        let a = &self.json.accessors[index];
+        let bad = |why: String| self.bad(index, used_as, why);
+        let (Checked::Valid(ty), Checked::Valid(ct)) = (a.type_, a.component_type) else {
+            return Err(bad("invalid type or componentType".to_owned()));
+        };
+        let ct = ct.0;
+        let vector = !matches!(ty, Type::Mat2 | Type::Mat3 | Type::Mat4);
+        if ty.multiplicity() != dims || !vector || !allowed.contains(&ct) {
+            return Err(bad(format!(
+                "{ty:?} of {ct:?}, expected {dims} component(s) of {allowed:?}"
+            )));
+        }
+        let count = a.count.0;
+        if count == 0 {
+            return Err(bad("count is 0".to_owned()));
+        }
+        let size = component_size(ct);
+        let elem = (dims * size) as u64;
+        let mut values = match a.buffer_view {
+            Some(view) => {
+                let bytes = self.view(view.value(), index, used_as)?;
+                let stride = self.json.buffer_views[view.value()]
+                    .byte_stride
+                    .map_or(elem, |s| s.0 as u64);
+                if stride < elem {
+                    return Err(bad(format!(
+                        "byteStride {stride} is smaller than its {elem}-byte elements"
+                    )));
+                }
+                let offset = a.byte_offset.map_or(0, |o| o.0);
+                let need = (count - 1)
+                    .checked_mul(stride)
+                    .and_then(|n| n.checked_add(offset))
+                    .and_then(|n| n.checked_add(elem));
+                if need.is_none_or(|n| n > bytes.len() as u64) {
+                    return Err(bad(format!(
+                        "count {count} at stride {stride} from offset {offset} runs past its bufferView ({} bytes)",
+                        bytes.len()
+                    )));
+                }
+                let mut values = Vec::with_capacity(count as usize * dims);
+                for i in 0..count {
+                    let at = (offset + i * stride) as usize;
+                    for c in 0..dims {
+                        values.push(component(&bytes[at + c * size..], ct));
+                    }
+                }
+                values
+            }
+            None => {
+                // A sparse accessor without a view starts from zeros; its size is bounded like
+                // a buffer's since no stored data bounds it.
+                if count.saturating_mul(elem) > self.max_bytes {
+                    return Err(TraceError::Limit {
+                        what: "glTF accessor bytes",
+                        limit: self.max_bytes,
+                        got: count.saturating_mul(elem),
+                    });
+                }
+                vec![0.0; count as usize * dims]
+            }
+        };
+        if let Some(sparse) = &a.sparse {
+            self.apply_sparse(sparse, &mut values, count, dims, ct, index, used_as)?;
+        } else if a.buffer_view.is_none() {
+            return Err(bad("neither bufferView nor sparse".to_owned()));
+        }
+        if a.normalized {
+            values.iter_mut().for_each(|v| *v = normalize(*v, ct));
+        }
+        Ok((values, ct))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn apply_sparse(
+        &self,
+        sparse: &gltf::json::accessor::sparse::Sparse,
+        values: &mut [f64],
+        count: u64,
+        dims: usize,
+        ct: ComponentType,
+        index: usize,
+        used_as: &str,
+    ) -> Result<(), TraceError> {
+        use gltf::json::validation::Checked;
+        let bad = |why: String| self.bad(index, used_as, why);
+        let n = sparse.count.0;
+        if n == 0 || n > count {
+            return Err(bad(format!("sparse count {n} for {count} elements")));
+        }
+        let Checked::Valid(ict) = sparse.indices.component_type else {
+            return Err(bad("invalid sparse index componentType".to_owned()));
+        };
+        let ict = ict.0;
+        if !matches!(
+            ict,
+            ComponentType::U8 | ComponentType::U16 | ComponentType::U32
+        ) {
+            return Err(bad(format!("sparse indices of {ict:?}")));
+        }
+        let isize = component_size(ict) as u64;
+        let elem = (dims * component_size(ct)) as u64;
+        let slice = |view: usize, offset: u64, each: u64| -> Result<&[u8], TraceError> {
+            let bytes = self.view(view, index, used_as)?;
+            let need = n.checked_mul(each).and_then(|x| x.checked_add(offset));
+            match need {
+                Some(end) if end <= bytes.len() as u64 => Ok(&bytes[offset as usize..end as usize]),
+                _ => Err(bad(format!(
+                    "sparse data ({n} × {each} bytes from offset {offset}) runs past bufferView {view}"
+                ))),
+            }
+        };
+        let ix = slice(
+            sparse.indices.buffer_view.value(),
+            sparse.indices.byte_offset.0,
+            isize,
+        )?;
+        let vals = slice(
+            sparse.values.buffer_view.value(),
+            sparse.values.byte_offset.0,
+            elem,
+        )?;
+        let size = component_size(ct);
+        for k in 0..n as usize {
+            let target = component(&ix[k * isize as usize..], ict) as u64;
+            if target >= count {
+                return Err(bad(format!("sparse index {target} past {count} elements")));
+            }
+            for c in 0..dims {
+                values[target as usize * dims + c] =
+                    component(&vals[k * elem as usize + c * size..], ct);
+            }
+        }
+        Ok(())
+    }
+
+    /// Vertex positions: VEC3 of FLOAT, or with `KHR_mesh_quantization` of (normalised) 8- or
+    /// 16-bit integers, dequantised.
+    fn positions(
+        &self,
+        index: usize,
+        quantized: bool,
+        used_as: &str,
+    ) -> Result<Vec<Vec3>, TraceError> {
+        let allowed: &[ComponentType] = if quantized {
+            &[
+                ComponentType::F32,
+                ComponentType::I8,
+                ComponentType::U8,
+                ComponentType::I16,
+                ComponentType::U16,
+            ]
+        } else {
+            &[ComponentType::F32]
+        };
+        let (values, _) = self.read(index, 3, allowed, used_as)?;
+        Ok(values
+            .chunks_exact(3)
+            .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+            .collect())
+    }
+
+    /// Triangle indices: SCALAR of unsigned 8-, 16- or 32-bit integers, each below `vertices`.
+    fn indices(
+        &self,
+        index: usize,
+        vertices: usize,
+        used_as: &str,
+    ) -> Result<Vec<u32>, TraceError> {
+        let (values, _) = self.read(
+            index,
+            1,
+            &[ComponentType::U8, ComponentType::U16, ComponentType::U32],
+            used_as,
+        )?;
+        if self.json.accessors[index].normalized {
+            return Err(self.bad(index, used_as, "indices are normalized".to_owned()));
+        }
+        values
+            .into_iter()
+            .map(|v| {
+                let v = v as u32;
+                if (v as usize) < vertices {
+                    Ok(v)
+                } else {
+                    Err(self.bad(
+                        index,
+                        used_as,
+                        format!("index {v} past {vertices} vertices"),
+                    ))
+                }
+            })
+            .collect()
     }
 }
 
@@ -268,7 +754,7 @@ impl Scene {
 fn load_materials(
     document: &gltf::Document,
     buffers: &[gltf::buffer::Data],
-    base: &Path,
+    base: Option<&Path>,
     options: &LoadOptions,
     scene: &mut Scene,
 ) -> Result<Vec<u32>, TraceError> {
@@ -323,7 +809,7 @@ fn load_materials(
 fn texture_mean(
     image: gltf::Image<'_>,
     buffers: &[gltf::buffer::Data],
-    base: &Path,
+    base: Option<&Path>,
 ) -> Result<Option<Vec3>, TraceError> {
     let index = image.index();
     let bytes = match image.source() {
@@ -331,18 +817,26 @@ fn texture_mean(
             if uri.starts_with("data:") {
                 return Ok(None);
             }
-            std::fs::read(base.join(uri)).map_err(|e| TraceError::Image {
+            let image_error = |message: String| TraceError::Image {
                 index,
                 uri: uri.to_owned(),
-                message: e.to_string(),
-            })?
+                message,
+            };
+            let base = base.ok_or_else(|| {
+                image_error("no directory to resolve it against (loaded from memory)".to_owned())
+            })?;
+            std::fs::read(base.join(uri)).map_err(|e| image_error(e.to_string()))?
         }
         gltf::image::Source::View { view, .. } => {
             let data = buffers
                 .get(view.buffer().index())
                 .map(|d| &d.0[..])
                 .unwrap_or(&[]);
-            match data.get(view.offset()..view.offset() + view.length()) {
+            let range = view
+                .offset()
+                .checked_add(view.length())
+                .map(|end| view.offset()..end);
+            match range.and_then(|r| data.get(r)) {
                 Some(s) => s.to_vec(),
                 None => return Ok(None),
             }

@@ -62,8 +62,8 @@
 //!   validity likewise. Invalid voxels cost only their probe rays; with explicit bounds, voxels
 //!   outside the scene bounds plus margin cost none. Both are zero and `valid = false`.
 //! * Degenerate (zero-area) triangles are dropped and counted; NaN/Inf positions are
-//!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; a primitive mode
-//!   other than triangles is [`TraceError::UnsupportedMode`].
+//!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; point and line
+//!   primitives are skipped with a warning.
 //! * Huge triangles get at most 128 cache subdivisions per edge, and the cache spacing grows until
 //!   it holds at most 4 million points, so memory stays bounded (a 128³ Sponza bake peaks at
 //!   2.9 GB, 2.7 GB of which is the field itself).
