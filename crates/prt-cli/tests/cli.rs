@@ -165,7 +165,7 @@ fn bad_input_gives_one_line_errors() {
     write_points_gltf(&dir.join("points.gltf"));
     assert_clean_failure(
         &prt(&["bake", &path("points.gltf"), "--out", &path("o3")]),
-        "cannot load",
+        "no triangles",
     );
 
     assert_clean_failure(&prt(&["bake", "--res", "0"]), "--res");
