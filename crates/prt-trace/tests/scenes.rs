@@ -339,3 +339,182 @@ mod malformed {
         }
     }
 }
+
+/// A one-mesh glTF over `data.bin`: `positions` as an accessor of `component` (VEC3), an
+/// optional second accessor for morph target 0 (same layout, right after), a primitive `mode`,
+/// the node's `node` JSON members, and `extra` top-level JSON members.
+fn mesh_gltf(
+    dir: &std::path::Path,
+    positions: &[u8],
+    count: usize,
+    component: u32,
+    mode: u32,
+    node: &str,
+    extra: &str,
+    target: Option<&[u8]>,
+) -> std::path::PathBuf {
+    let mut bin = positions.to_vec();
+    let (mut accessors, mut views) = (
+        format!(
+            r#"{{"bufferView": 0, "componentType": {component}, "normalized": {norm}, "count": {count}, "type": "VEC3", "min": [-9, -9, -9], "max": [9, 9, 9]}}"#,
+            norm = component != 5126
+        ),
+        format!(r#"{{"buffer": 0, "byteLength": {}}}"#, positions.len()),
+    );
+    let mut targets = String::new();
+    if let Some(t) = target {
+        accessors.push_str(&format!(
+            r#", {{"bufferView": 1, "componentType": 5126, "count": {count}, "type": "VEC3", "min": [-9, -9, -9], "max": [9, 9, 9]}}"#
+        ));
+        views.push_str(&format!(
+            r#", {{"buffer": 0, "byteOffset": {}, "byteLength": {}}}"#,
+            bin.len(),
+            t.len()
+        ));
+        bin.extend_from_slice(t);
+        targets = r#", "targets": [{"POSITION": 1}]"#.to_owned();
+    }
+    let json = format!(
+        r#"{{"asset": {{"version": "2.0"}}{extra},
+  "buffers": [{{"uri": "data.bin", "byteLength": {len}}}],
+  "bufferViews": [{views}],
+  "accessors": [{accessors}],
+  "meshes": [{{"name": "m", "primitives": [{{"attributes": {{"POSITION": 0}}, "mode": {mode}{targets}}}]}}],
+  "nodes": [{{"mesh": 0{node}}}],
+  "scenes": [{{"nodes": [0]}}], "scene": 0}}"#,
+        len = bin.len()
+    );
+    write_gltf(dir, &json, Some(&bin))
+}
+
+fn f32_bytes(values: &[[f32; 3]]) -> Vec<u8> {
+    values
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect()
+}
+
+fn normal(t: &[Vec3; 3]) -> Vec3 {
+    (t[1] - t[0]).cross(t[2] - t[0]).normalize()
+}
+
+#[test]
+fn mirroring_transforms_keep_the_front_face() {
+    let dir = common::temp_dir("mirror");
+    let tri = f32_bytes(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let load = |node: &str| {
+        let path = mesh_gltf(&dir, &tri, 3, 5126, 4, node, "", None);
+        Scene::load_gltf(path, &LoadOptions::default()).expect("loads")
+    };
+    let plain = load("");
+    let mirrored = load(r#", "scale": [-1, 1, 1]"#);
+    // The triangle faces +z; mirroring x maps +z to itself, so the front face stays +z.
+    assert!(normal(&plain.triangles()[0]).z > 0.99);
+    assert!(normal(&mirrored.triangles()[0]).z > 0.99);
+    assert_eq!(mirrored.triangles()[0][0], Vec3::ZERO);
+    // Two mirrors are a rotation: no flip.
+    let rotated = load(r#", "scale": [-1, -1, 1]"#);
+    assert!(normal(&rotated.triangles()[0]).z > 0.99);
+}
+
+#[test]
+fn strips_and_fans_are_triangulated_with_a_consistent_facing() {
+    let dir = common::temp_dir("strips");
+    // A unit square in z = 0 seen from +z, as a strip and as a fan.
+    let strip = f32_bytes(&[
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 1.0, 0.0],
+    ]);
+    let fan = f32_bytes(&[
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [0.0, 1.0, 0.0],
+    ]);
+    for (mode, bytes) in [(5, &strip), (6, &fan)] {
+        let path = mesh_gltf(&dir, bytes, 4, 5126, mode, "", "", None);
+        let scene = Scene::load_gltf(path, &LoadOptions::default()).expect("loads");
+        assert_eq!(scene.triangles().len(), 2, "mode {mode}");
+        let area: f32 = scene
+            .triangles()
+            .iter()
+            .map(|t| 0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length())
+            .sum();
+        assert!((area - 1.0).abs() < 1e-6, "mode {mode}: area {area}");
+        for t in scene.triangles() {
+            assert!(normal(t).z > 0.99, "mode {mode}: {t:?}");
+        }
+    }
+}
+
+#[test]
+fn quantized_positions_are_dequantized() {
+    let dir = common::temp_dir("quantized");
+    let q: Vec<u8> = [0i16, 0, 0, 0, 32767, 0, 0, 0, 0, 32767, 0, 0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    // Four i16 per vertex (VEC3 plus padding) with byteStride 8.
+    let extension = r#", "extensionsUsed": ["KHR_mesh_quantization"], "extensionsRequired": ["KHR_mesh_quantization"]"#;
+    let path = mesh_gltf(
+        &dir,
+        &q,
+        3,
+        5122,
+        4,
+        r#", "scale": [2, 2, 2]"#,
+        extension,
+        None,
+    );
+    let json = std::fs::read_to_string(&path).expect("read").replace(
+        r#""bufferViews": [{"buffer": 0, "byteLength": 24}]"#,
+        r#""bufferViews": [{"buffer": 0, "byteLength": 24, "byteStride": 8}]"#,
+    );
+    std::fs::write(&path, json).expect("write");
+    let scene = Scene::load_gltf(&path, &LoadOptions::default()).expect("loads");
+    assert_eq!(
+        scene.triangles()[0],
+        [
+            Vec3::ZERO,
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(0.0, 2.0, 0.0)
+        ]
+    );
+    assert!(scene.warnings().is_empty(), "{:?}", scene.warnings());
+    // Without the extension, integer positions are refused rather than misread.
+    let path = mesh_gltf(&dir, &q, 3, 5122, 4, "", "", None);
+    let json = std::fs::read_to_string(&path).expect("read").replace(
+        r#""byteLength": 24}]"#,
+        r#""byteLength": 24, "byteStride": 8}]"#,
+    );
+    std::fs::write(&path, json).expect("write");
+    assert!(matches!(
+        Scene::load_gltf(&path, &LoadOptions::default()),
+        Err(TraceError::BadAccessor { accessor: 0, .. })
+    ));
+}
+
+#[test]
+fn morph_targets_apply_their_default_weights() {
+    let dir = common::temp_dir("morph");
+    let tri = f32_bytes(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let up = f32_bytes(&[[0.0, 0.0, 2.0]; 3]);
+    let load = |node: &str| {
+        let path = mesh_gltf(&dir, &tri, 3, 5126, 4, node, "", Some(&up));
+        let json = std::fs::read_to_string(&path)
+            .expect("read")
+            .replace(r#""name": "m","#, r#""name": "m", "weights": [0.25],"#);
+        std::fs::write(&path, json).expect("write");
+        Scene::load_gltf(&path, &LoadOptions::default()).expect("loads")
+    };
+    // The mesh's default weight 0.25 lifts the triangle by 0.5; a node's weights override it.
+    assert!(load("").triangles()[0].iter().all(|v| v.z == 0.5));
+    assert!(
+        load(r#", "weights": [1.0]"#).triangles()[0]
+            .iter()
+            .all(|v| v.z == 2.0)
+    );
+}
