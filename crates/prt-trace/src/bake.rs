@@ -56,7 +56,8 @@ pub struct BakeOptions {
     /// Grid resolution `[nx, ny, nz]`.
     pub resolution: [usize; 3],
     /// World-space margin added on every side of the scene bounds to form the grid box (ignored
-    /// when `bounds` is given).
+    /// when `bounds` is given). An axis along which that box is still flat (a planar scene,
+    /// margin 0) gets a thickness of one voxel edge of the longest axis.
     pub margin: f32,
     /// Explicit grid box. Voxels whose centre lies outside the scene bounds grown by `margin`
     /// are then not traced: they are zero and invalid.
@@ -134,6 +135,20 @@ pub struct BakeStats {
 }
 
 impl BakeStats {
+    /// Voxels traced and valid.
+    pub fn valid_voxels(&self) -> usize {
+        self.voxels - self.invalid_voxels - self.skipped_voxels
+    }
+
+    /// The fraction of the grid's voxels that are valid (0 for an empty grid).
+    pub fn valid_fraction(&self) -> f64 {
+        if self.voxels == 0 {
+            0.0
+        } else {
+            self.valid_voxels() as f64 / self.voxels as f64
+        }
+    }
+
     /// All rays traced.
     pub fn rays(&self) -> u64 {
         self.cache_rays + self.voxel_rays
@@ -388,7 +403,10 @@ impl<'s> TransferBaker<'s> {
                 }
                 (b, sb.map(|s| s.expand(options.margin)))
             }
-            (None, Some(sb)) => (sb.expand(options.margin), None),
+            (None, Some(sb)) => (
+                thicken_flat_axes(sb.expand(options.margin), options.resolution),
+                None,
+            ),
             (None, None) => return Err(TraceError::EmptyScene),
         };
         let diag = scene_bounds.map_or(1.0, |b| b.size().length()).max(1e-6);
@@ -629,7 +647,9 @@ impl<'s> TransferBaker<'s> {
 
     /// Bakes the volume. Reports voxel directions traced to `progress` (its length is voxels x
     /// rays per voxel; surface-cache rays are traced along the way) and returns
-    /// [`TraceError::Core`]`(Cancelled)` if it is cancelled.
+    /// [`TraceError::Core`]`(Cancelled)` if it is cancelled, [`TraceError::NoValidVoxels`] if
+    /// every voxel is inside geometry or outside the scene bounds plus margin (the volume would
+    /// be all zero and all masked). [`BakeStats::valid_fraction`] tells how much is valid.
     pub fn bake(&self, progress: &dyn Progress) -> Result<TransferVolume, TraceError> {
         let field = GridField::new(self.options.resolution, self.grid, TRANSFER_DIM)?;
         let voxels = field.num_voxels();
@@ -703,12 +723,36 @@ impl<'s> TransferBaker<'s> {
             cache_time,
             voxel_time: t1.elapsed(),
         };
+        if stats.valid_voxels() == 0 {
+            return Err(TraceError::NoValidVoxels {
+                voxels,
+                invalid: stats.invalid_voxels,
+                skipped: stats.skipped_voxels,
+            });
+        }
         Ok(TransferVolume {
             field,
             valid,
             stats,
         })
     }
+}
+
+/// Gives a box derived from a flat scene (all triangles in one axis-aligned plane, no margin)
+/// a thickness of one voxel edge of its longest axis along every axis where it has none,
+/// centred on the plane, so that the grid and everything fitted over it have a real extent.
+fn thicken_flat_axes(b: Aabb, resolution: [usize; 3]) -> Aabb {
+    let size = b.size();
+    let longest = size.max_element();
+    let edge = longest / resolution.iter().copied().max().unwrap_or(1).max(1) as f32;
+    let half = Vec3::from_array(std::array::from_fn(|a| {
+        if size[a] > 1e-6 * longest {
+            0.0
+        } else {
+            0.5 * edge
+        }
+    }));
+    Aabb::new(b.min - half, b.max + half)
 }
 
 #[cfg(test)]

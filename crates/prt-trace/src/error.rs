@@ -122,6 +122,20 @@ pub enum TraceError {
     /// The scene has no triangles, so there is nothing to bound a bake by or trace against.
     #[error("the scene has no triangles (give explicit bounds to bake an empty scene)")]
     EmptyScene,
+    /// A bake in which no voxel is valid: each is inside geometry (its probe rays see back faces)
+    /// or outside the scene bounds plus margin.
+    #[error(
+        "no valid voxel: {invalid} of {voxels} are inside geometry and {skipped} outside the scene; \
+         grow the margin (--margin) or the grid bounds so that voxels lie in open space"
+    )]
+    NoValidVoxels {
+        /// Voxels in the grid.
+        voxels: usize,
+        /// Voxels inside geometry.
+        invalid: usize,
+        /// Voxels outside the scene bounds plus margin.
+        skipped: usize,
+    },
     /// A bake or scene option is out of range.
     #[error("invalid {what}: {why}")]
     InvalidOption {

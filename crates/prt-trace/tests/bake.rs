@@ -278,20 +278,42 @@ fn voxels_inside_geometry_are_invalid_and_outside_voxels_are_skipped() {
     let scene = Scene::cornell_box();
     // A tiny grid inside the tall box (x ∈ [-0.71, 0.04], z ∈ [-0.67, 0.09], y < 1.2).
     let inside = Aabb::new(Vec3::new(-0.4, 0.5, -0.35), Vec3::new(-0.3, 0.7, -0.25));
+    let inside_options = |resolution: [usize; 3]| BakeOptions {
+        resolution,
+        bounds: Some(inside),
+        rays_per_voxel: 96,
+        ..Default::default()
+    };
+    // A grid with no valid voxel at all is an error, not an all-zero volume.
+    match TransferBaker::new(&scene, inside_options([2, 2, 2])).and_then(|b| b.bake(&NoProgress)) {
+        Err(TraceError::NoValidVoxels {
+            voxels: 8,
+            invalid: 8,
+            skipped: 0,
+        }) => {}
+        other => panic!("expected NoValidVoxels, got {:?}", other.map(|v| v.stats)),
+    }
+    // Stretched into the open room above the box, some voxels are valid.
+    let tall = Aabb::new(inside.min, Vec3::new(-0.3, 1.9, -0.25));
     let v = bake(
         &scene,
         BakeOptions {
-            resolution: [2, 2, 2],
-            bounds: Some(inside),
-            rays_per_voxel: 96,
-            ..Default::default()
+            bounds: Some(tall),
+            ..inside_options([1, 8, 1])
         },
     );
-    assert!(v.valid.iter().all(|&x| !x));
-    assert_eq!(v.stats.invalid_voxels, 8);
-    // Invalid voxels stop after their probe rays.
-    assert_eq!(v.stats.voxel_rays, 8 * 48);
-    assert!(v.field.data().iter().all(|&x| x == 0.0));
+    let invalid = v.stats.invalid_voxels;
+    assert!((2..8).contains(&invalid), "{invalid} invalid");
+    assert_eq!(v.stats.valid_voxels(), 8 - invalid);
+    assert_eq!(v.stats.valid_fraction(), (8 - invalid) as f64 / 8.0);
+    // Invalid voxels stop after their probe rays and are zero.
+    assert_eq!(
+        v.stats.voxel_rays,
+        (invalid * 48 + (8 - invalid) * 96) as u64
+    );
+    for k in (0..8).filter(|&k| !v.valid[k]) {
+        assert!(v.field.voxel(k).iter().all(|&x| x == 0.0));
+    }
     // A grid twice the scene's size: voxels beyond bounds + margin are neither traced nor valid.
     let b = scene.bounds().expect("bounds");
     let big = Aabb::new(b.centre() - b.size(), b.centre() + b.size());
@@ -401,4 +423,33 @@ proptest! {
             prop_assert!(mean >= -1e-6 && mean <= max_albedo * occluded + 1e-5, "channel {}: {} > {} x {}", c, mean, max_albedo, occluded);
         }
     }
+}
+
+#[test]
+fn a_flat_scene_gets_a_grid_one_voxel_thick() {
+    // All triangles in the plane y = 0 and no margin: the box has no height.
+    let scene = Scene::ground_plane(1.0, Vec3::splat(0.5));
+    let options = BakeOptions {
+        resolution: [4, 2, 4],
+        rays_per_voxel: 24,
+        cache_rays: 8,
+        ..Default::default()
+    };
+    let baker = TransferBaker::new(&scene, options.clone()).expect("a flat scene is accepted");
+    let g = baker.grid_bounds();
+    // Longest axis 2 over 4 voxels: 0.5 thick, centred on the plane; x and z untouched.
+    assert_eq!(g.min, Vec3::new(-1.0, -0.25, -1.0));
+    assert_eq!(g.max, Vec3::new(1.0, 0.25, 1.0));
+    let v = baker.bake(&NoProgress).expect("bakes");
+    assert!(v.stats.valid_voxels() > 0);
+    // A margin already gives thickness: nothing is added.
+    let with_margin = TransferBaker::new(
+        &scene,
+        BakeOptions {
+            margin: 0.1,
+            ..options
+        },
+    )
+    .expect("accepted");
+    assert!((with_margin.grid_bounds().size().y - 0.2).abs() < 1e-6);
 }
