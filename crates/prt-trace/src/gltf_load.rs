@@ -255,6 +255,15 @@ fn load_into(
                 got: buffer.length() as u64,
             });
         }
+        if let gltf::buffer::Source::Uri(full) = buffer.source()
+            && !percent_decodes_to_utf8(full)
+        {
+            return Err(TraceError::Buffer {
+                index: buffer.index(),
+                uri,
+                message: "the URI's percent-encoding does not decode to UTF-8".to_owned(),
+            });
+        }
         let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
             .map_err(|e| TraceError::Buffer {
                 index: buffer.index(),
@@ -441,6 +450,34 @@ fn load_into(
         ));
     }
     Ok(())
+}
+
+/// Whether a relative URI's `%XX` escapes decode to UTF-8: the gltf crate unwraps that
+/// decoding. URIs with a scheme (`data:`, `file:`) are not decoded.
+fn percent_decodes_to_utf8(uri: &str) -> bool {
+    if uri.contains(':') {
+        return true;
+    }
+    let hex = |b: u8| (b as char).to_digit(16);
+    let bytes = uri.as_bytes();
+    let mut decoded = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let escape = (bytes[i] == b'%')
+            .then(|| Some(hex(*bytes.get(i + 1)?)? * 16 + hex(*bytes.get(i + 2)?)?))
+            .flatten();
+        match escape {
+            Some(b) => {
+                decoded.push(b as u8);
+                i += 3;
+            }
+            None => {
+                decoded.push(bytes[i]);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8(decoded).is_ok()
 }
 
 /// Extensions that change how geometry is stored or placed: a file requiring one of them

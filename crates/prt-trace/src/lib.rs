@@ -60,7 +60,15 @@
 //! * Inside a closed scene `D = 0` exactly; no sky light, so the indirect blocks are 0 too.
 //! * `rays_per_voxel` is rounded up to a multiple of 12 (at least 12); the probe that decides
 //!   validity likewise. Invalid voxels cost only their probe rays; with explicit bounds, voxels
-//!   outside the scene bounds plus margin cost none. Both are zero and `valid = false`.
+//!   outside the scene bounds plus margin cost none. Both are zero and `valid = false`. A bake
+//!   with no valid voxel at all is [`TraceError::NoValidVoxels`];
+//!   [`BakeStats::valid_fraction`] tells how much of a grid is valid.
+//! * A flat scene (all triangles in one axis-aligned plane, margin 0) gets a grid one voxel edge
+//!   of its longest axis thick along the flat axis.
+//! * Malformed glTF or GLB is a typed error naming the accessor, mesh and primitive, or node
+//!   ([`TraceError::BadAccessor`], [`TraceError::BadPrimitive`], [`TraceError::BadNode`],
+//!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; a required extension that
+//!   changes geometry is [`TraceError::UnsupportedExtension`].
 //! * Degenerate (zero-area) triangles are dropped and counted; NaN/Inf positions are
 //!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; point and line
 //!   primitives are skipped with a warning.
