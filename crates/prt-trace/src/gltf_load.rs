@@ -641,13 +641,14 @@ impl AccessorReader<'_> {
                 values
             }
             None => {
-                // A sparse accessor without a view starts from zeros; its size is bounded like
-                // a buffer's since no stored data bounds it.
-                if count.saturating_mul(elem) > self.max_bytes {
+                // A sparse accessor without a view starts from zeros: no stored data bounds its
+                // count, so the decoded size (8 bytes a component) is bounded like a buffer's.
+                let decoded = count.saturating_mul(dims as u64 * 8);
+                if decoded > self.max_bytes {
                     return Err(TraceError::Limit {
                         what: "glTF accessor bytes",
                         limit: self.max_bytes,
-                        got: count.saturating_mul(elem),
+                        got: decoded,
                     });
                 }
                 vec![0.0; count as usize * dims]

@@ -46,6 +46,7 @@ const CASES: &[(&str, &str)] = &[
     ("position_u16_without_quantization.gltf", "BadAccessor"),
     ("position_vec2.gltf", "BadAccessor"),
     ("sparse_index_past_count.gltf", "BadAccessor"),
+    ("sparse_only_huge_count.gltf", "Limit"),
     ("truncated_json.gltf", "Gltf"),
     ("view_past_buffer.gltf", "BadAccessor"),
 ];
