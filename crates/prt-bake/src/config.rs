@@ -61,7 +61,46 @@ impl Default for BakeConfig {
     }
 }
 
+/// A named trade of bake time for accuracy, chosen from the measured error and time of each
+/// knob (docs/results.md, "The main job's speed/accuracy trade"); see [`BakeConfig::preset`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Quality {
+    /// About a quarter of the default's CPU time for an error close to the default's: for
+    /// previews and iteration on a scene.
+    Draft,
+    /// `prt bake`'s defaults: [`BakeConfig::default`].
+    #[default]
+    Default,
+    /// The knobs that still lower the error for their cost (a finer grid, more rays): for the
+    /// bake an engine ships.
+    High,
+}
+
 impl BakeConfig {
+    /// The knobs of a [`Quality`]; every field not named here keeps its default.
+    ///
+    /// - `Draft`: 24 voxels along the longest axis, 32 cache rays, rank 4, 16 iterations.
+    /// - `Default`: [`BakeConfig::default`] exactly.
+    /// - `High`: 48 voxels along the longest axis, 512 rays per voxel.
+    pub fn preset(quality: Quality) -> BakeConfig {
+        let default = BakeConfig::default();
+        match quality {
+            Quality::Draft => BakeConfig {
+                resolution: 24,
+                cache_rays: 32,
+                rank: 4,
+                max_iterations: 16,
+                ..default
+            },
+            Quality::Default => default,
+            Quality::High => BakeConfig {
+                resolution: 48,
+                rays_per_voxel: 512,
+                ..default
+            },
+        }
+    }
+
     /// Checks every knob; the error names the offending field.
     pub fn validate(&self) -> Result<(), BakeError> {
         let check = |ok: bool, field: &'static str, why: String| {
@@ -146,6 +185,12 @@ mod tests {
         let config = BakeConfig::default();
         assert_eq!(config.grid_resolution([2.0, 1.0, 0.01]), [32, 16, 2]);
         assert_eq!(config.grid_resolution([0.0; 3]), [32; 3]);
+    }
+
+    #[test]
+    fn the_default_preset_is_the_default() {
+        assert_eq!(BakeConfig::preset(Quality::Default), BakeConfig::default());
+        assert_eq!(Quality::default(), Quality::Default);
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! |---|---|
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
+//! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
@@ -46,7 +47,7 @@ mod scene;
 mod scores;
 mod seams;
 
-pub use config::{BakeConfig, TRANSFER_DIM};
+pub use config::{BakeConfig, Quality, TRANSFER_DIM};
 pub use container::{
     ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
 };

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use prt_bake::{Bake, BakeConfig, BakeError, SceneInput};
+use prt_bake::{Bake, BakeConfig, BakeError, Quality, SceneInput};
 use prt_texture::Encoding;
 
 use crate::progress::{Stage, StageBars};
@@ -35,7 +35,42 @@ impl From<EncodingArg> for Encoding {
     }
 }
 
-/// Options of `prt bake`; every knob that trades speed for accuracy is here.
+/// A named preset of `prt bake` (`--quality`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum QualityArg {
+    /// The cheapest settings whose error stays close to the default's.
+    Draft,
+    /// `prt bake`'s defaults.
+    #[default]
+    Default,
+    /// More work where it still lowers the error.
+    High,
+}
+
+impl From<QualityArg> for Quality {
+    fn from(arg: QualityArg) -> Quality {
+        match arg {
+            QualityArg::Draft => Quality::Draft,
+            QualityArg::Default => Quality::Default,
+            QualityArg::High => Quality::High,
+        }
+    }
+}
+
+/// A knob's help: what it does, then its value in each preset (read from prt-bake, so the help
+/// cannot drift from the presets).
+fn knob_help(what: &str, value: fn(&BakeConfig) -> String) -> String {
+    let [draft, default, high] =
+        [Quality::Draft, Quality::Default, Quality::High].map(|q| value(&BakeConfig::preset(q)));
+    format!("{what} [default: {default}; draft {draft}, high {high}]")
+}
+
+fn encoding_name(config: &BakeConfig) -> String {
+    format!("{:?}", config.encoding).to_lowercase()
+}
+
+/// Options of `prt bake`; every knob that trades speed for accuracy is here. A knob left unset
+/// takes its value from `--quality`.
 #[derive(Debug, clap::Args)]
 pub struct BakeArgs {
     /// glTF 2.0 scene to bake; the built-in Cornell box when omitted.
@@ -43,33 +78,49 @@ pub struct BakeArgs {
     /// Output folder [default: ./prt-out/SCENE/, SCENE being the scene file's name].
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Voxels along the longest axis of the scene box (the other axes in proportion).
-    #[arg(long, default_value_t = 32)]
-    pub res: usize,
-    /// Directions traced per voxel (rounded up to a multiple of 12).
-    #[arg(long, default_value_t = 256)]
-    pub rays: usize,
-    /// Hemisphere rays per surface-cache point (the one-bounce indirect part).
-    #[arg(long, default_value_t = 64)]
-    pub cache_rays: usize,
-    /// Margin added around the scene bounds, in metres.
-    #[arg(long, default_value_t = 0.0)]
-    pub margin: f32,
-    /// MBD rank L: moving basis vectors per point.
-    #[arg(long, default_value_t = 8)]
-    pub rank: usize,
-    /// MBD basis-grid nodes per axis (at least 2).
-    #[arg(long, default_value_t = 5)]
-    pub basis_nodes: usize,
-    /// MBD iteration cap.
-    #[arg(long, default_value_t = 64)]
-    pub iterations: usize,
-    /// MBD ridge weight λ on the coefficients.
-    #[arg(long, default_value_t = 1e-4)]
-    pub lambda: f32,
-    /// Storage encoding of the written volumes.
-    #[arg(long, value_enum, default_value_t = EncodingArg::F16)]
-    pub encoding: EncodingArg,
+    /// Preset for every knob below; an explicit knob flag overrides it (measured trade in
+    /// docs/results.md, "The main job's speed/accuracy trade").
+    #[arg(long, value_enum, default_value_t = QualityArg::Default)]
+    pub quality: QualityArg,
+    #[arg(long, help = knob_help(
+        "Voxels along the longest axis of the scene box (the other axes in proportion)",
+        |c| c.resolution.to_string(),
+    ))]
+    pub res: Option<usize>,
+    #[arg(long, help = knob_help(
+        "Directions traced per voxel (rounded up to a multiple of 12)",
+        |c| c.rays_per_voxel.to_string(),
+    ))]
+    pub rays: Option<usize>,
+    #[arg(long, help = knob_help(
+        "Hemisphere rays per surface-cache point (the one-bounce indirect part)",
+        |c| c.cache_rays.to_string(),
+    ))]
+    pub cache_rays: Option<usize>,
+    #[arg(long, help = knob_help(
+        "Margin added around the scene bounds, in metres",
+        |c| c.margin.to_string(),
+    ))]
+    pub margin: Option<f32>,
+    #[arg(long, help = knob_help(
+        "MBD rank L: moving basis vectors per point",
+        |c| c.rank.to_string(),
+    ))]
+    pub rank: Option<usize>,
+    #[arg(long, help = knob_help(
+        "MBD basis-grid nodes per axis (at least 2)",
+        |c| c.basis_nodes.to_string(),
+    ))]
+    pub basis_nodes: Option<usize>,
+    #[arg(long, help = knob_help("MBD iteration cap", |c| c.max_iterations.to_string()))]
+    pub iterations: Option<usize>,
+    #[arg(long, help = knob_help(
+        "MBD ridge weight λ on the coefficients",
+        |c| c.lambda.to_string(),
+    ))]
+    pub lambda: Option<f32>,
+    #[arg(long, value_enum, help = knob_help("Storage encoding of the written volumes", encoding_name))]
+    pub encoding: Option<EncodingArg>,
     /// Skip the blockwise / clustered PCA baselines (faster; the report then has MBD only).
     #[arg(long)]
     pub no_baselines: bool,
@@ -79,18 +130,20 @@ pub struct BakeArgs {
 }
 
 impl BakeArgs {
-    /// The pipeline's configuration, writing the container into `container`.
+    /// The pipeline's configuration: the preset, each explicit knob over it, writing the
+    /// container into `container`.
     fn config(&self, container: Option<PathBuf>) -> BakeConfig {
+        let preset = BakeConfig::preset(self.quality.into());
         BakeConfig {
-            resolution: self.res,
-            rays_per_voxel: self.rays,
-            cache_rays: self.cache_rays,
-            margin: self.margin,
-            rank: self.rank,
-            basis_nodes: self.basis_nodes,
-            max_iterations: self.iterations,
-            lambda: self.lambda,
-            encoding: self.encoding.into(),
+            resolution: self.res.unwrap_or(preset.resolution),
+            rays_per_voxel: self.rays.unwrap_or(preset.rays_per_voxel),
+            cache_rays: self.cache_rays.unwrap_or(preset.cache_rays),
+            margin: self.margin.unwrap_or(preset.margin),
+            rank: self.rank.unwrap_or(preset.rank),
+            basis_nodes: self.basis_nodes.unwrap_or(preset.basis_nodes),
+            max_iterations: self.iterations.unwrap_or(preset.max_iterations),
+            lambda: self.lambda.unwrap_or(preset.lambda),
+            encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,
             container,
@@ -199,4 +252,57 @@ fn print_summary(report: &Report<'_>, out_dir: &Path, baked: &Bake) {
         report.total_seconds
     );
     println!("wrote {}", out_dir.join("report.md").display());
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::{CommandFactory, Parser};
+
+    use super::*;
+
+    #[derive(Debug, Parser)]
+    struct Bake {
+        #[command(flatten)]
+        args: BakeArgs,
+    }
+
+    fn config(flags: &[&str]) -> BakeConfig {
+        let argv = std::iter::once("bake").chain(flags.iter().copied());
+        Bake::try_parse_from(argv)
+            .expect("flags parse")
+            .args
+            .config(None)
+    }
+
+    #[test]
+    fn no_flags_bake_with_the_defaults() {
+        assert_eq!(config(&[]), BakeConfig::default());
+        assert_eq!(config(&["--quality", "default"]), BakeConfig::default());
+    }
+
+    #[test]
+    fn an_explicit_knob_overrides_the_preset() {
+        let draft = BakeConfig::preset(Quality::Draft);
+        assert_eq!(config(&["--quality", "draft"]), draft);
+        let tuned = config(&["--quality", "draft", "--rays", "300", "--encoding", "f32"]);
+        assert_eq!(
+            tuned,
+            BakeConfig {
+                rays_per_voxel: 300,
+                encoding: Encoding::F32,
+                ..draft
+            }
+        );
+        assert!(!config(&["--quality", "high", "--no-baselines"]).baselines);
+    }
+
+    #[test]
+    fn the_help_lists_every_presets_value() {
+        let help = Bake::command().render_help().to_string();
+        let high = BakeConfig::preset(Quality::High);
+        assert!(
+            help.contains(&format!("high {}]", high.resolution)),
+            "{help}"
+        );
+    }
 }
