@@ -34,6 +34,9 @@ pub struct BakeConfig {
     pub baselines: bool,
     /// Seed of every random choice (tracing, solver, evaluation, clustering).
     pub seed: u64,
+    /// Memory budget in bytes: the bake is refused before it starts when its
+    /// [`crate::MemoryEstimate`] is above it (`None`: no check).
+    pub max_memory: Option<u64>,
     /// Folder to write the MBD container into, then score the model read back from it; `None`
     /// writes nothing.
     pub container: Option<PathBuf>,
@@ -42,7 +45,7 @@ pub struct BakeConfig {
 impl Default for BakeConfig {
     /// 32 voxels along the longest axis, 256 rays per voxel, 64 cache rays, no margin, rank 8
     /// on 5 basis nodes per axis, 64 iterations, λ = 1e-4, f16 storage, baselines on, seed 0,
-    /// no container.
+    /// no memory budget, no container.
     fn default() -> Self {
         BakeConfig {
             resolution: 32,
@@ -56,6 +59,7 @@ impl Default for BakeConfig {
             encoding: Encoding::F16,
             baselines: true,
             seed: 0,
+            max_memory: None,
             container: None,
         }
     }

@@ -19,6 +19,24 @@ pub enum BakeError {
         /// What is wrong with it.
         why: String,
     },
+    /// The bake would need more memory than its budget ([`crate::BakeConfig::max_memory`]).
+    #[error(
+        "the bake needs about {} of memory, over the budget of {}; {}",
+        gib(*need),
+        gib(*budget),
+        match largest_resolution {
+            Some(res) => format!("the largest resolution that fits is {res} voxels along the longest axis (or raise the budget)"),
+            None => "not even 2 voxels fit (raise the budget)".to_string(),
+        }
+    )]
+    OverMemoryBudget {
+        /// Estimated peak bytes ([`crate::MemoryEstimate`]).
+        need: u64,
+        /// The budget in bytes.
+        budget: u64,
+        /// The largest resolution that fits the budget with the other knobs unchanged.
+        largest_resolution: Option<usize>,
+    },
     /// The scene file does not exist.
     #[error("scene file {} does not exist", .0.display())]
     MissingScene(PathBuf),
@@ -102,4 +120,9 @@ pub enum ContainerError {
     /// The arrays do not form a valid model (shapes, non-finite values).
     #[error("invalid MBD model")]
     Model(#[source] MbdError),
+}
+
+/// Bytes as GiB with two decimals, for messages.
+fn gib(bytes: u64) -> String {
+    format!("{:.2} GiB", bytes as f64 / f64::from(1u32 << 30))
 }

@@ -15,6 +15,7 @@
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
+//! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
 //!
 //! ```no_run
@@ -41,6 +42,7 @@
 mod config;
 mod container;
 mod error;
+mod memory;
 mod methods;
 mod pipeline;
 mod scene;
@@ -52,6 +54,7 @@ pub use container::{
     ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
 };
 pub use error::{BakeError, ContainerError};
+pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};

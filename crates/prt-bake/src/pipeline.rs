@@ -13,7 +13,7 @@ use crate::container::{ContainerContents, read_container, write_container};
 use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd};
 use crate::scores::{Method, MethodScores, eval_options, score};
 use crate::seams::{SeamView, seam_view, smooth};
-use crate::{BakeConfig, BakeError, SceneInput};
+use crate::{BakeConfig, BakeError, MemoryEstimate, SceneInput};
 
 /// A stage of the bake, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -171,6 +171,11 @@ pub fn bake(
     let bounds = scene.scene.bounds().ok_or_else(|| BakeError::EmptyScene {
         scene: scene.name.clone(),
     })?;
+    if let Some(budget) = config.max_memory {
+        let size = bounds.size().to_array();
+        let triangles = scene.scene.triangles().len();
+        MemoryEstimate::new(config, size, triangles).check(config, size, triangles, budget)?;
+    }
     let mut times = Vec::new();
     let options = BakeOptions {
         resolution: config.grid_resolution(bounds.size().to_array()),

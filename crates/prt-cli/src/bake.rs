@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use prt_bake::{Bake, BakeConfig, BakeError, Quality, SceneInput};
+use prt_bake::{Bake, BakeConfig, BakeError, MemoryEstimate, Quality, SceneInput};
 use prt_texture::Encoding;
 
 use crate::progress::{Stage, StageBars};
@@ -127,7 +127,57 @@ pub struct BakeArgs {
     /// Seed of every random choice (tracing, solver, evaluation).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Memory budget (bytes, or with a K, M, G or T suffix, e.g. 12G): a bake whose estimated
+    /// peak is above it is refused before it starts [default: 80 % of physical memory].
+    #[arg(long, value_parser = parse_bytes)]
+    pub max_memory: Option<u64>,
 }
+
+/// `12G`, `800M`, `64K`, `1T` or a plain number of bytes.
+fn parse_bytes(text: &str) -> Result<u64, String> {
+    let text = text.trim();
+    let (digits, unit) = match text.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => text.split_at(i),
+        None => (text, ""),
+    };
+    let shift = match unit
+        .to_ascii_uppercase()
+        .trim_end_matches("IB")
+        .trim_end_matches('B')
+    {
+        "" => 0,
+        "K" => 10,
+        "M" => 20,
+        "G" => 30,
+        "T" => 40,
+        other => return Err(format!("unknown unit {other:?} (K, M, G or T)")),
+    };
+    let value: f64 = digits
+        .trim()
+        .parse()
+        .map_err(|_| format!("{text:?} is not a size like 12G"))?;
+    if !(value.is_finite() && value > 0.0) {
+        return Err(format!("{text:?} is not a positive size"));
+    }
+    Ok((value * (1u64 << shift) as f64) as u64)
+}
+
+/// 80 % of the machine's physical memory (`MemTotal` in /proc/meminfo), or 8 GiB where it
+/// cannot be read.
+fn default_memory_budget() -> u64 {
+    let total_kib = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            text.lines()
+                .find_map(|l| l.strip_prefix("MemTotal:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+        });
+    total_kib.map_or(8 << 30, |kib| kib * 1024 / 5 * 4)
+}
+
+/// Trace rate assumed for the up-front estimate, per thread: about what the built-in Cornell
+/// box traces on this project's machine (larger scenes trace slower).
+const ASSUMED_RAYS_PER_SECOND_PER_THREAD: f64 = 6.0e6;
 
 impl BakeArgs {
     /// The pipeline's configuration: the preset, each explicit knob over it, writing the
@@ -146,6 +196,7 @@ impl BakeArgs {
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,
+            max_memory: Some(self.max_memory.unwrap_or_else(default_memory_budget)),
             container,
         }
     }
@@ -184,6 +235,7 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         None => SceneInput::cornell_box(),
     };
     let load = load.elapsed();
+    check_size(args, &scene)?;
     let out_dir = args
         .out
         .clone()
@@ -228,6 +280,46 @@ pub fn run(args: &BakeArgs) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a bake over the memory budget before anything is written, and says up front what a
+/// large bake will take.
+fn check_size(args: &BakeArgs, scene: &SceneInput) -> Result<()> {
+    let Some(bounds) = scene.scene.bounds() else {
+        return Ok(()); // the pipeline reports the empty scene
+    };
+    let config = args.config(Some(PathBuf::from("mbd")));
+    let (size, triangles) = (bounds.size().to_array(), scene.scene.triangles().len());
+    let estimate = MemoryEstimate::new(&config, size, triangles);
+    let budget = config.max_memory.unwrap_or(u64::MAX);
+    estimate
+        .check(&config, size, triangles, budget)
+        .map_err(cli_error)?;
+    let gib = |bytes: u64| bytes as f64 / f64::from(1u32 << 30);
+    if estimate.total() > 1 << 30 {
+        eprintln!(
+            "memory: about {:.1} GiB at the peak (budget {:.1} GiB)",
+            gib(estimate.total()),
+            gib(budget)
+        );
+    }
+    let rays = estimate.voxels as f64 * config.rays_per_voxel as f64;
+    let seconds = rays / (ASSUMED_RAYS_PER_SECOND_PER_THREAD * rayon_threads() as f64);
+    if seconds > 60.0 {
+        eprintln!(
+            "trace: {rays:.2e} voxel rays, about {:.0} min at {:.0} Mrays/s per thread on {} \
+             threads (the Cornell box's rate here; larger scenes trace slower)",
+            seconds / 60.0,
+            ASSUMED_RAYS_PER_SECOND_PER_THREAD / 1e6,
+            rayon_threads()
+        );
+    }
+    Ok(())
+}
+
+/// The threads the bake will run on.
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
 fn check_writable(dir: &Path) -> Result<()> {
     let probe = dir.join(".prt-write-probe");
     prt_texture::write_atomic(&probe, b"")
@@ -266,12 +358,18 @@ mod tests {
         args: BakeArgs,
     }
 
+    /// The configuration the flags give, without the memory budget (the machine's).
     fn config(flags: &[&str]) -> BakeConfig {
         let argv = std::iter::once("bake").chain(flags.iter().copied());
-        Bake::try_parse_from(argv)
+        let config = Bake::try_parse_from(argv)
             .expect("flags parse")
             .args
-            .config(None)
+            .config(None);
+        assert!(config.max_memory.is_some(), "prt bake always has a budget");
+        BakeConfig {
+            max_memory: None,
+            ..config
+        }
     }
 
     #[test]

@@ -286,3 +286,33 @@ fn encode_fits_a_constant_map_exactly_and_inspect_reads_it() {
     assert!(String::from_utf8_lossy(&inspect.stdout).contains("32 x 16 RGB"));
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A bake far over the memory budget is refused before anything is traced or written, with the
+/// need, the budget and the largest resolution that fits (bakes that fit run under the default
+/// budget in the other tests).
+#[test]
+fn an_oversized_bake_is_refused_before_it_starts() {
+    let out_dir = scratch("too-large");
+    let folder = out_dir.join("never");
+    let out = prt(&[
+        "bake",
+        "--res",
+        "1000",
+        "--out",
+        folder.to_str().expect("utf-8 temp path"),
+    ]);
+    assert_clean_failure(&out, "largest resolution that fits is");
+    let line = stderr(&out);
+    assert!(
+        line.contains("needs about") && line.contains("budget"),
+        "{line}"
+    );
+    assert!(
+        !folder.exists(),
+        "the refused bake created {}",
+        folder.display()
+    );
+    let out = prt(&["bake", "--res", "8", "--max-memory", "12Q"]);
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("unknown unit"), "{}", stderr(&out));
+}

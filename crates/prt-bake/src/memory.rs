@@ -1,0 +1,203 @@
+//! What a bake needs in memory, estimated before anything large is allocated.
+//!
+//! The largest allocations of a bake are copies of the 324-D volume, `F = voxels × 324 × 4`
+//! bytes each: the traced field, MBD's reconstruction on the grid (kept for the report), one
+//! reconstruction per baseline (kept), clustered PCA's working copy, the denoised reference of
+//! the seam view and one projection residual at a time, the error of the seam measure, and the
+//! model read back from the container with its reconstruction. [`MemoryEstimate`] counts them
+//! term by term, adds the scene's ray-tracing structures and a fixed allowance for the process
+//! itself, and is checked against a budget before the trace starts.
+
+use crate::{BakeConfig, BakeError, TRANSFER_DIM};
+
+/// Bytes of the process before any bake-sized allocation: code, thread stacks, fonts, the
+/// allocator's slack (measured: 110 MB at 32 voxels, which is mostly this).
+const PROCESS_BYTES: u64 = 192 << 20;
+/// Bytes per scene triangle held while tracing (triangles, BVH nodes, the tracer's copies).
+const TRIANGLE_BYTES: u64 = 256;
+
+/// What a bake needs at its peak, by term.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct MemoryEstimate {
+    /// Voxels of the grid.
+    pub voxels: u64,
+    /// One copy of the 324-D volume in f32.
+    pub field_bytes: u64,
+    /// Volume copies alive at the peak (see the module docs).
+    pub field_copies: u64,
+    /// The scene's triangles and ray-tracing structures.
+    pub scene_bytes: u64,
+    /// The process itself.
+    pub process_bytes: u64,
+}
+
+impl MemoryEstimate {
+    /// The estimate for `config` on a scene box of `size` with `triangles` triangles.
+    pub fn new(config: &BakeConfig, size: [f32; 3], triangles: usize) -> Self {
+        Self::for_grid(config, config.grid_resolution(size), triangles)
+    }
+
+    /// The estimate for a grid of `dims` voxels.
+    pub fn for_grid(config: &BakeConfig, dims: [usize; 3], triangles: usize) -> Self {
+        let voxels = dims.iter().fold(1u64, |n, &d| n.saturating_mul(d as u64));
+        let field_bytes = voxels.saturating_mul(TRANSFER_DIM as u64 * 4);
+        // Traced field, MBD's grid reconstruction, the seam view's denoised reference and one
+        // residual, the error of the seam measure: 5. The baselines keep one reconstruction
+        // each and clustered PCA works on a copy: +3. A container read back is scored on its
+        // own reconstruction: +1.
+        let field_copies =
+            5 + if config.baselines { 3 } else { 0 } + u64::from(config.container.is_some());
+        MemoryEstimate {
+            voxels,
+            field_bytes,
+            field_copies,
+            scene_bytes: (triangles as u64).saturating_mul(TRIANGLE_BYTES),
+            process_bytes: PROCESS_BYTES,
+        }
+    }
+
+    /// The total in bytes.
+    pub fn total(&self) -> u64 {
+        self.field_bytes
+            .saturating_mul(self.field_copies)
+            .saturating_add(self.scene_bytes)
+            .saturating_add(self.process_bytes)
+    }
+
+    /// Checks the total against `budget` bytes; the error gives the need, the budget and the
+    /// largest resolution (voxels along the longest axis) that fits, for a scene box of `size`.
+    pub fn check(
+        &self,
+        config: &BakeConfig,
+        size: [f32; 3],
+        triangles: usize,
+        budget: u64,
+    ) -> Result<(), BakeError> {
+        if self.total() <= budget {
+            return Ok(());
+        }
+        Err(BakeError::OverMemoryBudget {
+            need: self.total(),
+            budget,
+            largest_resolution: largest_resolution(config, size, triangles, budget),
+        })
+    }
+}
+
+/// The largest resolution (voxels along the longest axis, at least 2) whose bake fits `budget`
+/// bytes with `config`'s other knobs, or `None` if not even 2 does.
+pub fn largest_resolution(
+    config: &BakeConfig,
+    size: [f32; 3],
+    triangles: usize,
+    budget: u64,
+) -> Option<usize> {
+    let fits = |resolution: usize| {
+        let config = BakeConfig {
+            resolution,
+            ..config.clone()
+        };
+        MemoryEstimate::new(&config, size, triangles).total() <= budget
+    };
+    if !fits(2) {
+        return None;
+    }
+    // The need grows with the resolution: bisect between a fit and a miss.
+    let (mut lo, mut hi) = (2usize, config.resolution.max(3));
+    while fits(hi) {
+        lo = hi;
+        hi = hi.saturating_mul(2);
+    }
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if fits(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    Some(lo)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Measured peak RSS of `prt bake` on the Cornell box (release build, 2 threads): the
+    /// estimate must not be below it, nor far above it.
+    #[test]
+    fn the_estimate_covers_measured_peaks_without_wasting_the_budget() {
+        for (resolution, baselines, measured_kib) in [
+            (32usize, true, 420_524u64),
+            (48, true, 1_050_064),
+            (64, true, 2_518_948),
+            (64, false, 1_767_404),
+        ] {
+            // `prt bake` always writes the container.
+            let config = BakeConfig {
+                resolution,
+                baselines,
+                container: Some("mbd".into()),
+                ..BakeConfig::default()
+            };
+            let dims = [resolution, resolution - resolution / 64 - 1, resolution];
+            let estimate = MemoryEstimate::for_grid(&config, dims, 32).total();
+            let measured = measured_kib * 1024;
+            assert!(
+                estimate >= measured && estimate <= measured * 2,
+                "res {resolution}, baselines {baselines}: estimate {estimate} vs measured {measured}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_largest_resolution_fits_and_one_more_does_not() {
+        let config = BakeConfig {
+            resolution: 1000,
+            ..BakeConfig::default()
+        };
+        let size = [2.0f32, 1.0, 1.5];
+        for budget in [1u64 << 30, 8 << 30, 20 << 30] {
+            let best = largest_resolution(&config, size, 1000, budget).expect("some fit");
+            let at = |resolution| {
+                MemoryEstimate::new(
+                    &BakeConfig {
+                        resolution,
+                        ..config.clone()
+                    },
+                    size,
+                    1000,
+                )
+                .total()
+            };
+            assert!(
+                at(best) <= budget && at(best + 1) > budget,
+                "budget {budget}"
+            );
+        }
+        assert_eq!(largest_resolution(&config, size, 1000, 1 << 20), None);
+    }
+
+    #[test]
+    fn an_oversized_bake_is_refused_with_its_need_and_the_largest_resolution() {
+        let config = BakeConfig {
+            resolution: 1000,
+            ..BakeConfig::default()
+        };
+        let size = [1.0f32; 3];
+        let estimate = MemoryEstimate::new(&config, size, 32);
+        assert!(estimate.total() > 1 << 40, "{}", estimate.total());
+        match estimate.check(&config, size, 32, 16 << 30) {
+            Err(BakeError::OverMemoryBudget {
+                need,
+                budget,
+                largest_resolution: Some(res),
+            }) => {
+                assert_eq!((need, budget), (estimate.total(), 16 << 30));
+                assert!((100..200).contains(&res), "{res}");
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(estimate.check(&config, size, 32, u64::MAX).is_ok());
+    }
+}
