@@ -175,6 +175,10 @@ fn default_memory_budget() -> u64 {
     total_kib.map_or(8 << 30, |kib| kib * 1024 / 5 * 4)
 }
 
+/// Below this share of valid voxels (outside geometry) a bake warns: its scores then describe
+/// little of the volume.
+const LOW_VALID_FRACTION: f64 = 0.05;
+
 /// Trace rate assumed for the up-front estimate, per thread: about what the built-in Cornell
 /// box traces on this project's machine (larger scenes trace slower).
 const ASSUMED_RAYS_PER_SECOND_PER_THREAD: f64 = 6.0e6;
@@ -255,6 +259,14 @@ pub fn run(args: &BakeArgs) -> Result<()> {
 
     let config = args.config(Some(out_dir.join("mbd")));
     let baked = prt_bake::bake(&scene, &config, &StageBars).map_err(cli_error)?;
+    let valid = baked.volume.stats.valid_fraction();
+    if valid < LOW_VALID_FRACTION {
+        eprintln!(
+            "warning: only {:.1} % of the voxels are outside geometry; the scores cover those \
+             alone (a larger --margin or --res gives more)",
+            100.0 * valid
+        );
+    }
 
     let stage = Stage::start("report");
     let images = report::write_images(&out_dir, &baked)?;
