@@ -69,8 +69,8 @@ impl Default for BakeConfig {
 /// knob (docs/results.md, "The main job's speed/accuracy trade"); see [`BakeConfig::preset`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Quality {
-    /// About a quarter of the default's CPU time for an error close to the default's: for
-    /// previews and iteration on a scene.
+    /// The cheapest knobs whose error stays close to the default's: for previews and
+    /// iterating on a scene.
     Draft,
     /// `prt bake`'s defaults: [`BakeConfig::default`].
     #[default]
