@@ -30,7 +30,10 @@ pub(crate) fn fit_mbd(
     // A hat-grid basis is what the container stores; unwrap it from the basis enum.
     let (coefficient_kernels, basis_kernels, coefficients, basis) = fit.model.into_parts();
     let BasisKernels::HatGrid(basis_kernels) = basis_kernels else {
-        unreachable!("Basis::HatGrid fits hat-grid kernels")
+        return Err(MbdError::InvalidKernels {
+            which: "basis",
+            why: "the container stores a hat-grid basis only".into(),
+        });
     };
     let model = MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)?;
     Ok((model, fit.solve))
