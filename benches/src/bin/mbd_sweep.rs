@@ -180,6 +180,18 @@ type BaselineFit = Box<dyn Fn(&GridField) -> PiecewisePcaModel>;
 
 /// The baselines at rank `l` on `nodes` blocks / `nodes` clusters: (name, fit).
 fn baselines(l: usize, nodes: [usize; 3]) -> Vec<(&'static str, BaselineFit)> {
+    // BPCA (window 1) and WBPCA (window 2) differ only in their blending window.
+    let block = |window: f32| -> BaselineFit {
+        Box::new(move |f: &GridField| {
+            BlockPca {
+                rank: l,
+                blocks: nodes,
+                window,
+            }
+            .compress(f, &NoProgress)
+            .expect("blockwise PCA")
+        })
+    };
     let clusters = nodes.iter().product::<usize>();
     vec![
         (
@@ -188,30 +200,8 @@ fn baselines(l: usize, nodes: [usize; 3]) -> Vec<(&'static str, BaselineFit)> {
                 GlobalPca { rank: l }.compress(f, &NoProgress).expect("pca")
             }),
         ),
-        (
-            "BPCA",
-            Box::new(move |f: &GridField| {
-                BlockPca {
-                    rank: l,
-                    blocks: nodes,
-                    window: 1.0,
-                }
-                .compress(f, &NoProgress)
-                .expect("bpca")
-            }),
-        ),
-        (
-            "WBPCA",
-            Box::new(move |f: &GridField| {
-                BlockPca {
-                    rank: l,
-                    blocks: nodes,
-                    window: 2.0,
-                }
-                .compress(f, &NoProgress)
-                .expect("wbpca")
-            }),
-        ),
+        ("BPCA", block(1.0)),
+        ("WBPCA", block(2.0)),
         (
             "CPCA",
             Box::new(move |f: &GridField| {
