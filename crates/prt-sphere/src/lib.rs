@@ -13,7 +13,8 @@
 //!
 //! plus SH rotation of any order (Ivanic & Ruedenberg 1996) and zonal convolution with the
 //! clamped cosine (Ramamoorthi & Hanrahan 2001), sphere point sets ([`sampling`]) and
-//! lat-long / cube environment maps with exact texel solid angles ([`envmap`]).
+//! lat-long / cube environment maps with exact texel solid angles ([`envmap`]), and [`Sky`]:
+//! distant lighting as order-3 SH per colour channel, the input that relights a transfer volume.
 //!
 //! Conventions (prt's conventions.md): right-handed, +Y up; SH polar axis = +Y with the
 //! explicit polynomials listed in [`sh`]; SG `G(v) = μ exp(λ (p·v − 1))`; lat-long texel
@@ -42,6 +43,7 @@ mod error;
 pub mod sampling;
 pub mod sg;
 pub mod sh;
+mod sky;
 
 pub use ambient::{AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, quadrature_gram};
 pub use envmap::{CubeMap, LatLongMap};
@@ -50,3 +52,4 @@ pub use sg::{
     SgBasis, SgLobe, fibonacci_axes, icosahedral_axes, sg_inner_product, sg_integral, spiral_axes,
 };
 pub use sh::{ShBasis, ShRotation, eval_sh, eval_sh_f64, sh_index, sh_len};
+pub use sky::{SKY_SH, Sky};

@@ -187,6 +187,37 @@ pub fn constant_sky(radiance: f32) -> [f32; SH9] {
     s
 }
 
+/// Incident-radiance SH at a point (per channel R, G, B) from its 324-D transfer vector `t`
+/// (layout of [`TransferVolume::field`]) lit by `sky`: `l^c_i = Σ_j (D_ij + T^c_ij) s^c_j`,
+/// accumulated in f64. Linear in `t`, so it also relights any linear combination of transfer
+/// vectors (an MBD basis vector, a PCA mean).
+///
+/// # Panics
+/// If `t` does not hold [`TRANSFER_DIM`] values.
+pub fn incident_radiance(t: &[f32], sky: &prt_sphere::Sky) -> [[f32; SH9]; 3] {
+    assert_eq!(
+        t.len(),
+        TRANSFER_DIM,
+        "a transfer vector has {TRANSFER_DIM} values"
+    );
+    let direct = &t[block(0)];
+    let mut out = [[0.0f32; SH9]; 3];
+    for (c, l) in out.iter_mut().enumerate() {
+        let indirect = &t[block(c + 1)];
+        let s = &sky.sh[c];
+        for (i, li) in l.iter_mut().enumerate() {
+            let row = i * SH9..(i + 1) * SH9;
+            *li = direct[row.clone()]
+                .iter()
+                .zip(&indirect[row])
+                .zip(s)
+                .map(|((&d, &r), &sj)| (f64::from(d) + f64::from(r)) * f64::from(sj))
+                .sum::<f64>() as f32;
+        }
+    }
+    out
+}
+
 /// Irradiance `E(n) = ∫ L(ω) max(0, n·ω) dω` on a surface of unit normal `n` from radiance SH
 /// `l`, by zonal convolution with the clamped cosine (A0 = π, A1 = 2π/3, A2 = π/4).
 pub fn irradiance(l: &[f32; SH9], n: Vec3) -> f32 {

@@ -105,7 +105,7 @@ mod vpl;
 
 pub use bake::{
     BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
-    constant_sky, irradiance,
+    constant_sky, incident_radiance, irradiance,
 };
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use error::TraceError;

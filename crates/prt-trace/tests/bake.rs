@@ -2,9 +2,10 @@
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{Aabb, AtomicProgress, NoProgress};
+use prt_sphere::Sky;
 use prt_trace::{
     BakeOptions, IndirectMode, SH9, Scene, TRANSFER_DIM, TraceError, TransferBaker, TransferVolume,
-    block, constant_sky, sh9,
+    block, constant_sky, incident_radiance, sh9,
 };
 
 fn bake(scene: &Scene, options: BakeOptions) -> TransferVolume {
@@ -38,6 +39,17 @@ fn empty_scene_direct_is_identity_and_indirect_zero() {
             }
         }
         assert!(t[block(1).start..].iter().all(|&x| x == 0.0));
+        // With D = I and no bounce, the incident radiance is the sky itself.
+        let sky = Sky::default();
+        let l = incident_radiance(t, &sky);
+        for c in 0..3 {
+            for i in 0..SH9 {
+                assert!(
+                    (l[c][i] - sky.sh[c][i]).abs() < 1e-5,
+                    "voxel {v} l[{c}][{i}]"
+                );
+            }
+        }
     }
     // Without explicit bounds an empty scene cannot be baked.
     assert!(matches!(
@@ -98,6 +110,8 @@ fn ground_plane_errors(rays: usize, seed: u64, rho: f32) -> Vec<[f32; SH9]> {
         .map(|v| {
             assert!(volume.valid[v]);
             let [d, r, _, _] = volume.incident(v, &sky);
+            let lit = incident_radiance(volume.field.voxel(v), &Sky::constant([l; 3]));
+            assert!((0..SH9).all(|i| (lit[0][i] - d[i] - r[i]).abs() < 1e-5));
             std::array::from_fn(|i| d[i] + r[i] - exact[i])
         })
         .collect()

@@ -8,23 +8,11 @@ use anyhow::{Context, Result};
 use glam::Vec3;
 use prt_bake::{Bake, Method, SeamView};
 use prt_core::GridField;
+use prt_sphere::Sky;
 use prt_texture::write_atomic;
-use prt_trace::{SH9, irradiance};
+use prt_trace::{incident_radiance, irradiance};
 
 use crate::report::plots::{draw_text, seam_profile_png};
-
-/// The default sky of the report's images: RGB radiance `a + b·ω_y` (brighter overhead, bluish),
-/// in order-3 SH.
-fn default_sky() -> [[f32; SH9]; 3] {
-    let four_pi = 4.0 * std::f32::consts::PI;
-    let colour = [0.9f32, 1.0, 1.2];
-    colour.map(|c| {
-        let mut s = [0.0; SH9];
-        s[0] = c * four_pi.sqrt(); // ∫ c · Y_0^0 with Y_0^0 = 1/sqrt(4π)
-        s[2] = 0.6 * c * (four_pi / 3.0).sqrt(); // ∫ 0.6c·y · Y_1^0, Y_1^0 = sqrt(3/4π)·y
-        s
-    })
-}
 
 /// One compressed method as the images show it.
 struct ImageMethod<'a> {
@@ -70,31 +58,15 @@ fn image_methods(bake: &Bake) -> Vec<ImageMethod<'_>> {
     .collect()
 }
 
-/// Irradiance (RGB) on an upward-facing surface under the default sky, from one 324-D transfer
-/// vector.
-fn irradiance_rgb<T: Copy + Into<f64>>(t: &[T], sky: &[[f32; SH9]; 3]) -> [f32; 3] {
-    let mut rgb = [0.0f32; 3];
-    for (c, out) in rgb.iter_mut().enumerate() {
-        // Incident SH = (direct + indirect_c) · sky_c.
-        let mut l = [0.0f32; SH9];
-        for (i, li) in l.iter_mut().enumerate() {
-            let mut sum = 0.0f64;
-            for j in 0..SH9 {
-                let direct: f64 = t[i * SH9 + j].into();
-                let indirect: f64 = t[81 * (c + 1) + i * SH9 + j].into();
-                sum += (direct + indirect) * sky[c][j] as f64;
-            }
-            *li = sum as f32;
-        }
-        *out = irradiance(&l, Vec3::Y);
-    }
-    rgb
+/// Irradiance (RGB) on an upward-facing surface under `sky`, from one 324-D transfer vector.
+fn irradiance_rgb(t: &[f32], sky: &Sky) -> [f32; 3] {
+    incident_radiance(t, sky).map(|l| irradiance(&l, Vec3::Y))
 }
 
 /// Irradiance at every voxel of the horizontal slice `y` (x fastest); `None` for invalid voxels.
 fn irradiance_slice(field: &GridField, valid: &[bool], y: usize) -> Vec<Option<[f32; 3]>> {
     let [nx, _, nz] = field.dims();
-    let sky = default_sky();
+    let sky = Sky::default();
     (0..nx * nz)
         .map(|p| {
             let v = field.index(p % nx, y, p / nx);
