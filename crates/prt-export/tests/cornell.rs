@@ -30,7 +30,9 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     };
     let baked = bake(&SceneInput::cornell_box(), &config, &NoProgress).unwrap();
     let container = read_container(&dir.join("mbd"), &Limits::default()).unwrap();
-    let sky = Sky::sun_sky(&SunSky::default()).unwrap().rotated_about_y(20.0);
+    let sky = Sky::sun_sky(&SunSky::default())
+        .unwrap()
+        .rotated_about_y(20.0);
     let lit = light_container(&container, &sky, &NoProgress).unwrap();
     let reference =
         light_field(&baked.volume.field, &baked.volume.valid, &sky, &NoProgress).unwrap();
@@ -46,7 +48,10 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
         for c in 0..3 {
             for j in 0..9 {
                 let (a, b) = (lit.radiance[v][c][j], direct[c][j]);
-                assert!((a - b).abs() <= 1e-4 * (1.0 + b.abs()), "voxel {v}: {a} vs {b}");
+                assert!(
+                    (a - b).abs() <= 1e-4 * (1.0 + b.abs()),
+                    "voxel {v}: {a} vs {b}"
+                );
             }
         }
     }
@@ -65,7 +70,11 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     assert!(mbd_error < 0.2, "MBD error {mbd_error}");
 
     let lit = dilate(&lit, &DilateConfig::default()).unwrap().volume;
-    let dirs: Vec<Vec3> = SIDES.iter().copied().chain(random_directions(16, 5)).collect();
+    let dirs: Vec<Vec3> = SIDES
+        .iter()
+        .copied()
+        .chain(random_directions(16, 5))
+        .collect();
 
     // Bevy, RGB9E5: E/π within the axis-fit bound (0 on the axes) plus RGB9E5 rounding.
     let bevy_dir = dir.join("bevy");
@@ -82,9 +91,13 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
             let want = if k < 6 { exact.max(Vec3::ZERO) } else { exact };
             let got = bevy_sample(&texels, 3, [nx, 2 * ny, 3 * nz], unit_pos(lit.dims, v), d);
             let fit = if k < 6 { Vec3::ZERO } else { bound };
-            let storage = rgb9e5_error_bound(want.max_element().max(0.0) + fit.max_element()) + 1e-6;
+            let storage =
+                rgb9e5_error_bound(want.max_element().max(0.0) + fit.max_element()) + 1e-6;
             let err = (got - want).abs();
-            assert!(err.cmple(fit + Vec3::splat(storage)).all(), "voxel {v} {d}: {got} vs {want}");
+            assert!(
+                err.cmple(fit + Vec3::splat(storage)).all(),
+                "voxel {v} {d}: {got} vs {want}"
+            );
             if k < 6 {
                 worst_bevy = worst_bevy.max(err.max_element() / want.max_element().max(1e-3));
             }
@@ -95,8 +108,7 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     // three.js: the shader's L2 irradiance from the atlas within f16 rounding.
     let three_dir = dir.join("threejs");
     export_threejs(&lit, &ThreejsConfig::default(), &three_dir).unwrap();
-    let tex =
-        Ktx2Texture::read_file(&three_dir.join(THREEJS_TEXTURE), &Limits::default()).unwrap();
+    let tex = Ktx2Texture::read_file(&three_dir.join(THREEJS_TEXTURE), &Limits::default()).unwrap();
     let texels = tex.level_f32(0).unwrap();
     let centres = lit.centre_box();
     for v in 0..lit.voxels() {
@@ -113,7 +125,10 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
             );
             for c in 0..3 {
                 let bound = f16_irradiance_bound(&lit.radiance[v][c]) + 1e-4 * want[c].abs() + 1e-5;
-                assert!((got[c] - want[c]).abs() <= bound, "voxel {v} {d}: {got} vs {want}");
+                assert!(
+                    (got[c] - want[c]).abs() <= bound,
+                    "voxel {v} {d}: {got} vs {want}"
+                );
             }
         }
     }
@@ -126,15 +141,18 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
         .level_f32(0)
         .unwrap();
     for v in 0..lit.voxels() {
-        let l: [[f32; 9]; 3] = std::array::from_fn(|c| {
-            std::array::from_fn(|j| l2[4 * (v + j * lit.voxels()) + c])
-        });
+        let l: [[f32; 9]; 3] =
+            std::array::from_fn(|c| std::array::from_fn(|j| l2[4 * (v + j * lit.voxels()) + c]));
         for &d in &dirs {
             let want = lit.irradiance(v, d);
             for c in 0..3 {
                 let got = prt_trace::irradiance(&l[c], d);
                 let bound = f16_irradiance_bound(&lit.radiance[v][c]) + 1e-5;
-                assert!((got - want[c]).abs() <= bound, "voxel {v}: {got} vs {}", want[c]);
+                assert!(
+                    (got - want[c]).abs() <= bound,
+                    "voxel {v}: {got} vs {}",
+                    want[c]
+                );
             }
         }
     }
