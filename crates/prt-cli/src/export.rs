@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_export::{
     AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
-    dilate, export_bevy, export_sh, export_threejs, light_container,
+    dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
 };
 use prt_texture::Limits;
 
@@ -53,6 +53,10 @@ pub struct ExportArgs {
     /// The engine to export for.
     #[arg(long, value_enum)]
     pub target: Target,
+    /// What to light: `mbd` (the MBD container, BAKE_DIR/mbd/) or a volume `prt bake` kept in
+    /// BAKE_DIR/volumes/ (`reference`: the full traced volume; `bpca`, `cpca`: the baselines).
+    #[arg(long, default_value = "mbd", value_name = "mbd|reference|bpca|cpca")]
+    pub from: String,
     #[command(flatten)]
     pub sky: SkyArgs,
     /// Dilation of valid probes into invalid ones: `RADIUS[,PASSES]` (voxels; each pass fills
@@ -97,26 +101,52 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
 pub fn run(args: &ExportArgs) -> Result<()> {
     let dilation = parse_dilate(&args.dilate)?;
     let sky = args.sky.sky()?;
-    let container_dir = args.bake_dir.join("mbd");
-    if !container_dir.join("manifest.json").is_file() {
-        bail!(
-            "{} holds no MBD container (expected {}/manifest.json, written by `prt bake --out {}`)",
-            args.bake_dir.display(),
-            container_dir.display(),
-            args.bake_dir.display()
-        );
-    }
     let start = Instant::now();
-    let container =
-        prt_bake::read_container(&container_dir, &Limits::default()).with_context(|| {
-            format!(
-                "cannot read the MBD container in {}",
-                container_dir.display()
-            )
-        })?;
-    let stage = Stage::start("light");
-    let lit = light_container(&container, &sky, &stage)?;
-    stage.finish();
+    let lit = if args.from == "mbd" {
+        let container_dir = args.bake_dir.join("mbd");
+        if !container_dir.join("manifest.json").is_file() {
+            bail!(
+                "{} holds no MBD container (expected {}/manifest.json, written by `prt bake --out {}`)",
+                args.bake_dir.display(),
+                container_dir.display(),
+                args.bake_dir.display()
+            );
+        }
+        let container =
+            prt_bake::read_container(&container_dir, &Limits::default()).with_context(|| {
+                format!(
+                    "cannot read the MBD container in {}",
+                    container_dir.display()
+                )
+            })?;
+        let stage = Stage::start("light");
+        let lit = light_container(&container, &sky, &stage)?;
+        stage.finish();
+        lit
+    } else {
+        let folder = args.bake_dir.join("volumes");
+        if !folder.join("manifest.json").is_file() {
+            bail!(
+                "--from {}: {} holds no kept volumes (`prt bake --keep-volumes always` writes them)",
+                args.from,
+                folder.display()
+            );
+        }
+        let kept = prt_bake::read_volumes(&folder, &Limits::default())
+            .with_context(|| format!("cannot read the kept volumes in {}", folder.display()))?;
+        let Some(field) = kept.get(&args.from) else {
+            let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
+            bail!(
+                "--from {}: not among the kept volumes ({}) nor `mbd`",
+                args.from,
+                names.join(", ")
+            );
+        };
+        let stage = Stage::start("light");
+        let lit = light_field(field, &kept.valid, &sky, &stage)?;
+        stage.finish();
+        lit
+    };
     let dilated = dilate(&lit, &dilation)?;
     let [nx, ny, nz] = lit.dims;
     eprintln!(
