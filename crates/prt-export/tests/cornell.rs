@@ -69,6 +69,30 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     eprintln!("MBD container vs full traced volume: relative RMS irradiance error {mbd_error:.3e}");
     assert!(mbd_error < 0.2, "MBD error {mbd_error}");
 
+    // The two ambient-cube fits against E/π over valid voxels and random directions.
+    let probe_dirs = random_directions(64, 9);
+    for fit in [AmbientCubeFit::Axes, AmbientCubeFit::LeastSquares] {
+        let (mut num, mut den, mut axes) = (0.0f64, 0.0f64, 0.0f64);
+        for v in (0..lit.voxels()).filter(|&v| lit.valid[v]) {
+            let cube = ambient_cube(&lit.radiance[v], fit);
+            for &d in &probe_dirs {
+                let want = lit.irradiance(v, d) / std::f32::consts::PI;
+                num += f64::from((ambient_cube_blend(&cube, d) - want).length_squared());
+                den += f64::from(want.length_squared());
+            }
+            for (k, d) in SIDES.iter().enumerate() {
+                let want = lit.irradiance(v, *d) / std::f32::consts::PI;
+                axes = axes.max(f64::from(
+                    (Vec3::from(cube[k]) - want).abs().max_element() / want.max_element().max(1e-3),
+                ));
+            }
+        }
+        eprintln!(
+            "ambient cube {fit:?}: relative RMS error over the sphere {:.3e}, worst relative error on the axes {axes:.2e}",
+            (num / den).sqrt()
+        );
+    }
+
     let lit = dilate(&lit, &DilateConfig::default()).unwrap().volume;
     let dirs: Vec<Vec3> = SIDES
         .iter()
