@@ -17,6 +17,7 @@
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
+//! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
 //!
 //! ```no_run
 //! use prt_bake::{BakeConfig, SceneInput, bake, read_container};
@@ -45,6 +46,7 @@ mod error;
 mod memory;
 mod methods;
 mod pipeline;
+mod production;
 mod scene;
 mod scores;
 mod seams;
@@ -56,6 +58,11 @@ pub use container::{
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use production::{
+    IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
+    ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
+    production_kernels, read_production, texel_bytes, write_production,
+};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
