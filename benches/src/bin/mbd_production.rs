@@ -72,6 +72,12 @@ struct Cli {
     /// Rows to run (see the binary's documentation); empty: all.
     #[arg(long, value_delimiter = ',')]
     rows: Vec<String>,
+    /// Coefficient nodes x,y,z of the production row [default: `ProductionConfig::for_grid`].
+    #[arg(long, value_delimiter = ',')]
+    coefficients: Option<Vec<usize>>,
+    /// Basis nodes x,z of the production row [default: `ProductionConfig::for_grid`].
+    #[arg(long, value_delimiter = ',')]
+    basis: Option<Vec<usize>>,
     /// Solver iteration cap of every MBD row.
     #[arg(long, default_value_t = 128)]
     iterations: usize,
@@ -238,10 +244,16 @@ fn main() {
         max_iterations: cli.iterations,
         ..SolverOptions::default()
     };
-    let production = ProductionConfig {
+    let mut production = ProductionConfig {
         solver,
         ..ProductionConfig::for_grid(dims)
     };
+    if let Some(&[x, y, z]) = cli.coefficients.as_deref() {
+        production.coefficient_nodes = [x, y, z];
+    }
+    if let Some(&[x, z]) = cli.basis.as_deref() {
+        production.basis_nodes = [x, z];
+    }
     let out = cli
         .out
         .clone()
