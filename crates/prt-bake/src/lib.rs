@@ -15,6 +15,7 @@
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
+//! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
 //!
@@ -48,6 +49,7 @@ mod pipeline;
 mod scene;
 mod scores;
 mod seams;
+mod volumes;
 
 pub use config::{BakeConfig, Quality, TRANSFER_DIM};
 pub use container::{
@@ -59,6 +61,9 @@ pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
+pub use volumes::{
+    KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,
+};
 
 /// The README's Rust snippet, compiled as a doc test so it stays true.
 #[doc = include_str!("../README.md")]

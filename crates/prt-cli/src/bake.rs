@@ -35,6 +35,21 @@ impl From<EncodingArg> for Encoding {
     }
 }
 
+/// Whether `prt bake` keeps the traced volume and the baselines' reconstructions (`--keep-volumes`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum KeepVolumes {
+    /// Keep them when they take at most 512 MiB (f16).
+    #[default]
+    Auto,
+    /// Always keep them.
+    Always,
+    /// Never keep them.
+    Never,
+}
+
+/// Largest kept volumes `--keep-volumes auto` writes.
+const AUTO_KEEP_BYTES: u64 = 512 << 20;
+
 /// A named preset of `prt bake` (`--quality`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
 pub enum QualityArg {
@@ -131,6 +146,11 @@ pub struct BakeArgs {
     /// peak is above it is refused before it starts [default: 80 % of physical memory].
     #[arg(long, value_parser = parse_bytes)]
     pub max_memory: Option<u64>,
+    /// Write the traced transfer volume and the baselines' reconstructions (f16) into
+    /// OUT/volumes/, for `prt export --from reference`, `prt render --method reference|bpca|cpca`
+    /// and the viewer's comparisons.
+    #[arg(long, value_enum, default_value_t = KeepVolumes::Auto)]
+    pub keep_volumes: KeepVolumes,
 }
 
 /// `12G`, `800M`, `64K`, `1T` or a plain number of bytes.
@@ -268,6 +288,8 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         );
     }
 
+    keep_volumes(args.keep_volumes, &out_dir.join("volumes"), &baked)?;
+
     let stage = Stage::start("report");
     let images = report::write_images(&out_dir, &baked)?;
     let report_time = stage.finish();
@@ -323,6 +345,32 @@ fn check_size(args: &BakeArgs, scene: &SceneInput) -> Result<()> {
             ASSUMED_RAYS_PER_SECOND_PER_THREAD / 1e6,
             rayon_threads()
         );
+    }
+    Ok(())
+}
+
+/// Writes the kept volumes when `keep` says so, and says what it did.
+fn keep_volumes(keep: KeepVolumes, folder: &Path, baked: &Bake) -> Result<()> {
+    let bytes = prt_bake::kept_volume_bytes(baked, Encoding::F16);
+    let mib = bytes as f64 / f64::from(1u32 << 20);
+    let write = match keep {
+        KeepVolumes::Always => true,
+        KeepVolumes::Never => false,
+        KeepVolumes::Auto if bytes <= AUTO_KEEP_BYTES => true,
+        KeepVolumes::Auto => {
+            eprintln!(
+                "volumes: not kept ({mib:.0} MiB over the automatic limit of {} MiB; \
+                 --keep-volumes always keeps them)",
+                AUTO_KEEP_BYTES >> 20
+            );
+            false
+        }
+    };
+    if write {
+        let stage = Stage::start("volumes");
+        prt_bake::write_volumes(folder, baked, Encoding::F16)
+            .with_context(|| format!("cannot write the kept volumes to {}", folder.display()))?;
+        stage.finish();
     }
     Ok(())
 }

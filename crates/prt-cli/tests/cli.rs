@@ -68,6 +68,9 @@ fn small_cornell_bake_writes_a_consistent_report() {
         "mbd/manifest.json",
         "mbd/coefficients.ktx2",
         "mbd/basis.ktx2",
+        "volumes/manifest.json",
+        "volumes/reference.0.ktx2",
+        "volumes/cpca.8.ktx2",
     ] {
         assert!(out_dir.join(file).is_file(), "missing {file}");
     }
