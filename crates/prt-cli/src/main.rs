@@ -5,6 +5,8 @@
 //!   and clustered PCA at equal basis count, writes the MBD container (KTX2 volumes + JSON
 //!   manifest) and a report (`report.md`, images, loss plot) to an output folder.
 //! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
+//! * `prt render BAKE_DIR --out IMG` renders the scene of a bake folder lit by one of its volumes
+//!   (reference, MBD as written, BPCA, CPCA) under a sky, to PNG or EXR.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -15,6 +17,7 @@ mod bake;
 mod encode;
 mod inspect;
 mod progress;
+mod render;
 mod report;
 
 use std::process::ExitCode;
@@ -40,6 +43,8 @@ enum Command {
     Encode(encode::EncodeArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
+    /// Render a bake folder's scene lit by its reference, MBD, BPCA or CPCA volume (PNG / EXR).
+    Render(render::RenderArgs),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +54,7 @@ fn main() -> ExitCode {
         Command::Bake(args) => bake::run(&args),
         Command::Encode(args) => encode::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Render(args) => render::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
