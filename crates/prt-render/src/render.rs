@@ -3,9 +3,9 @@
 use std::f32::consts::PI;
 
 use glam::Vec3;
-use prt_core::Progress;
+use prt_core::{GridField, Progress};
 use prt_sphere::Sky;
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
+use prt_trace::{GBuffer, GatherPoint, PinholeView, RayTracer, Scene};
 use rayon::prelude::*;
 
 use crate::{RelitVolume, RenderError};
@@ -91,12 +91,7 @@ pub fn render(
     config: &RenderConfig,
     progress: &dyn Progress,
 ) -> Result<Rendered, RenderError> {
-    if !config.normal_offset.is_finite() {
-        return Err(RenderError::InvalidOption {
-            what: "normal offset",
-            why: format!("{} is not finite", config.normal_offset),
-        });
-    }
+    check_offset(config)?;
     let (width, height) = (config.width, config.height);
     let gbuffer = GBuffer::render(scene, tracer, view, width, height)?;
     progress.set_len(height as u64);
@@ -113,8 +108,7 @@ pub fn render(
                         false,
                     ),
                     Some(point) => {
-                        let lookup = point.position + point.normal * offset;
-                        let e = volume.irradiance(lookup, point.normal);
+                        let e = volume.irradiance(lookup_point(point, offset), point.normal);
                         let radiance = point.emission + point.albedo / PI * e.unwrap_or(Vec3::ZERO);
                         (radiance.to_array(), true, e.is_none())
                     }
@@ -137,4 +131,48 @@ pub fn render(
         out.unlit += usize::from(unlit);
     }
     Ok(out)
+}
+
+/// Where a surface point reads the volume: moved `offset` (per axis) along its normal.
+fn lookup_point(point: &GatherPoint, offset: Vec3) -> Vec3 {
+    point.position + point.normal * offset
+}
+
+fn check_offset(config: &RenderConfig) -> Result<(), RenderError> {
+    if !config.normal_offset.is_finite() {
+        return Err(RenderError::InvalidOption {
+            what: "normal offset",
+            why: format!("{} is not finite", config.normal_offset),
+        });
+    }
+    Ok(())
+}
+
+/// The voxels of a grid with `grid`'s dimensions and box that [`render`] reads for this view
+/// and configuration (every voxel with a non-zero interpolation weight at some pixel's lookup
+/// point), so that work per voxel can be limited to them (x fastest, one flag per voxel).
+///
+/// Errors: as [`render`].
+pub fn voxels_read(
+    scene: &Scene,
+    tracer: &RayTracer,
+    view: &PinholeView,
+    grid: &GridField,
+    config: &RenderConfig,
+) -> Result<Vec<bool>, RenderError> {
+    check_offset(config)?;
+    let gbuffer = GBuffer::render(scene, tracer, view, config.width, config.height)?;
+    let offset = config.normal_offset * grid.voxel_size();
+    let mut read = vec![false; grid.num_voxels()];
+    for point in gbuffer.points.iter().flatten() {
+        let Ok(tw) = grid.trilinear_weights(lookup_point(point, offset)) else {
+            continue;
+        };
+        for (&v, &w) in tw.indices.iter().zip(&tw.weights) {
+            if w > 0.0 {
+                read[v] = true;
+            }
+        }
+    }
+    Ok(read)
 }

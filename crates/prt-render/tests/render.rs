@@ -338,3 +338,23 @@ fn auto_exposure_maps_the_log_average_to_middle_grey() {
     assert_eq!(ToneMap { exposure: 1.0 }.display(0.0), 0.0);
     assert!(ToneMap { exposure: 1.0 }.display(1e9) <= 1.0);
 }
+
+#[test]
+fn the_voxels_read_are_those_around_the_lookup_points() {
+    // The plane y = 0 reads the volume half a voxel up, at y = 0.25: exactly the centres of the
+    // third layer of four, so only that layer has weight.
+    let scene = Scene::ground_plane(2.0, Vec3::ONE);
+    let bounds = Aabb::new(Vec3::new(-2.0, -1.0, -2.0), Vec3::new(2.0, 1.0, 2.0));
+    let grid = GridField::new([4, 4, 4], bounds, 1).expect("grid");
+    let tracer = RayTracer::new(scene.triangles());
+    let read = prt_render::voxels_read(&scene, &tracer, &looking_down(), &grid, &small(16, 16))
+        .expect("voxels");
+    assert!(read.iter().any(|&r| r));
+    for (v, &r) in read.iter().enumerate() {
+        let layer = grid.coords(v)[1];
+        assert!(!r || layer == 2, "voxel {v} in layer {layer} read");
+    }
+    // A voxel of that layer under the view (which sees x, z within about ±0.62) is read.
+    let centre = grid.index(1, 2, 1);
+    assert!(read[centre]);
+}

@@ -9,7 +9,7 @@ use prt_bake::{BLUR_SIGMA, Bake, read_container};
 use prt_core::{GridField, NoProgress};
 use prt_mbd::LocalBasis;
 use prt_mbd::expert::{blur_valid, projection_residuals};
-use prt_render::{RelitVolume, RenderConfig, Rendered, ToneMap, render, views};
+use prt_render::{RelitVolume, RenderConfig, Rendered, ToneMap, render, views, voxels_read};
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_trace::{RayTracer, Scene};
@@ -123,6 +123,9 @@ pub fn write_renders(
     // render of `s`. Only a jump of the basis makes this jump, so block and cluster edges show
     // without the reference's noise.
     let smoothed = blur_valid(field, valid, BLUR_SIGMA)?;
+    // The projection costs most per voxel: only the voxels the view reads need it.
+    let read = voxels_read(scene, &tracer, &view.view, field, &config)?;
+    let needed: Vec<bool> = valid.iter().zip(&read).map(|(&v, &r)| v && r).collect();
     let lit = |f: &GridField| -> Result<Rendered> {
         let volume = RelitVolume::from_transfer(f, valid, &sky)?;
         Ok(render(
@@ -156,7 +159,7 @@ pub fn write_renders(
     let mut seams = Vec::new();
     for basis in bases {
         let mut projected = smoothed.clone();
-        let residual = projection_residuals(&smoothed, valid, &basis)?;
+        let residual = projection_residuals(&smoothed, &needed, &basis)?;
         for (x, e) in projected.data_mut().iter_mut().zip(residual.iter()) {
             *x += e;
         }
