@@ -19,6 +19,7 @@
 //! | `texture` | `texture` | KTX2, EXR, Radiance HDR, DDS; quantisation; the MBD container |
 //! | `bake` | `bake` | the main job: scene → transfer volume → MBD (+ baselines) → scores → container, and the container's reader |
 //! | `render` | `render` | CPU renders of a scene lit by a transfer volume under a sky, and the scene mesh file |
+//! | `shaders` | `shaders` | WGSL and GLSL ES 3.00 sources that render from the MBD container as written |
 #![deny(missing_docs)]
 
 pub use prt_core as core;
@@ -37,6 +38,8 @@ pub use prt_mbd as mbd;
 pub use prt_plsq as plsq;
 #[cfg(feature = "render")]
 pub use prt_render as render;
+#[cfg(feature = "shaders")]
+pub use prt_shaders as shaders;
 #[cfg(feature = "sphere")]
 pub use prt_sphere as sphere;
 #[cfg(feature = "texture")]
