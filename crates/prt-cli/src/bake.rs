@@ -289,9 +289,13 @@ pub fn run(args: &BakeArgs) -> Result<()> {
     }
 
     keep_volumes(args.keep_volumes, &out_dir.join("volumes"), &baked)?;
+    let mesh = out_dir.join(crate::render::SCENE_MESH);
+    prt_render::write_mesh(&mesh, &scene.scene)
+        .with_context(|| format!("cannot write {}", mesh.display()))?;
 
     let stage = Stage::start("report");
     let images = report::write_images(&out_dir, &baked)?;
+    let renders = report::write_renders(&out_dir, &baked, &scene.scene, &out_dir.join("mbd"))?;
     let report_time = stage.finish();
     let stage_seconds = std::iter::once(("load".to_string(), load))
         .chain(
@@ -309,7 +313,7 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         stage_seconds,
         total_seconds: total.elapsed().as_secs_f64(),
     };
-    report::write_report(&out_dir, &report, &images)?;
+    report::write_report(&out_dir, &report, &images, renders.as_ref())?;
     print_summary(&report, &out_dir, &baked);
     Ok(())
 }

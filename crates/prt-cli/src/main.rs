@@ -7,6 +7,8 @@
 //! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
 //! * `prt export BAKE_DIR --target bevy|threejs|sh` lights a bake with a sky and writes probe
 //!   volumes that Bevy, three.js or a custom engine load unchanged.
+//! * `prt render BAKE_DIR --out IMG` renders the scene of a bake folder lit by one of its volumes
+//!   (reference, MBD as written, BPCA, CPCA) under a sky, to PNG or EXR.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -18,6 +20,7 @@ mod encode;
 mod export;
 mod inspect;
 mod progress;
+mod render;
 mod report;
 mod sky;
 
@@ -46,6 +49,8 @@ enum Command {
     Export(export::ExportArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
+    /// Render a bake folder's scene lit by its reference, MBD, BPCA or CPCA volume (PNG / EXR).
+    Render(render::RenderArgs),
 }
 
 fn main() -> ExitCode {
@@ -56,6 +61,7 @@ fn main() -> ExitCode {
         Command::Encode(args) => encode::run(&args),
         Command::Export(args) => export::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Render(args) => render::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,5 @@
 //! `--sky` and `--rotate`: the sky that lights a bake, for every command that lights one
-//! (`prt export`; later `render`, `view`).
+//! (`prt export`, `prt render`, `prt view`).
 
 use std::path::Path;
 

@@ -40,24 +40,7 @@ fn assert_clean_failure(out: &Output, needle: &str) {
 #[test]
 fn small_cornell_bake_writes_a_consistent_report() {
     let out_dir = scratch("bake");
-    let out = prt(&[
-        "bake",
-        "--res",
-        "12",
-        "--rays",
-        "96",
-        "--cache-rays",
-        "32",
-        "--rank",
-        "4",
-        "--basis-nodes",
-        "3",
-        "--iterations",
-        "24",
-        "--out",
-        out_dir.to_str().expect("utf-8 temp path"),
-    ]);
-    assert!(out.status.success(), "bake failed: {}", stderr(&out));
+    bake_small_cornell(&out_dir);
     for file in [
         "report.md",
         "report.json",
@@ -318,4 +301,172 @@ fn an_oversized_bake_is_refused_before_it_starts() {
     let out = prt(&["bake", "--res", "8", "--max-memory", "12Q"]);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("unknown unit"), "{}", stderr(&out));
+}
+
+/// `prt ARGS` with `RAYON_NUM_THREADS` set when `threads` is given.
+fn prt_on_threads(args: &[&str], threads: Option<&str>) -> Output {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_prt"));
+    command.args(args);
+    if let Some(n) = threads {
+        command.env("RAYON_NUM_THREADS", n);
+    }
+    command.output().expect("the prt binary runs")
+}
+
+fn stdout(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A small Cornell bake into `dir` (seconds in a debug build).
+fn bake_small_cornell(dir: &Path) {
+    let dir = dir.to_str().expect("utf-8 temp path");
+    let out = prt(&[
+        "bake",
+        "--res",
+        "12",
+        "--rays",
+        "96",
+        "--cache-rays",
+        "32",
+        "--rank",
+        "4",
+        "--basis-nodes",
+        "3",
+        "--iterations",
+        "24",
+        "--out",
+        dir,
+    ]);
+    assert!(out.status.success(), "bake failed: {}", stderr(&out));
+}
+
+fn prt_render(dir: &Path, extra: &[&str], out: &Path, threads: Option<&str>) -> Output {
+    let mut args = vec!["render", dir.to_str().expect("utf-8"), "--size", "40"];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--out", out.to_str().expect("utf-8")]);
+    prt_on_threads(&args, threads)
+}
+
+/// `prt render` on a small Cornell bake: every method renders, the images are deterministic on
+/// any thread count, and bad input gives one-line errors.
+#[test]
+fn every_method_of_a_cornell_bake_renders() {
+    let dir = scratch("render");
+    bake_small_cornell(&dir);
+    for file in [
+        "scene.mesh",
+        "rendered.png",
+        "render_mbd.png",
+        "render_seams_bpca.png",
+    ] {
+        assert!(dir.join(file).is_file(), "the bake did not write {file}");
+    }
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).expect("report.json"))
+            .expect("valid JSON");
+    for key in ["mbd", "bpca", "cpca"] {
+        let rmse = report["renders"]["rmse_vs_reference"][key].as_f64();
+        assert!(rmse.is_some_and(|r| r > 0.0 && r < 0.1), "{key}: {rmse:?}");
+    }
+
+    for method in ["reference", "mbd", "bpca", "cpca"] {
+        let png = dir.join(format!("{method}.png"));
+        let out = prt_render(&dir, &["--method", method], &png, None);
+        assert!(out.status.success(), "{method}: {}", stderr(&out));
+        let image = image::open(&png).expect("a PNG").to_rgb8();
+        assert_eq!(image.dimensions(), (40, 40));
+        // The box's interior is lit: its centre is neither black nor white.
+        let centre = image.get_pixel(20, 20).0;
+        assert!(
+            centre.iter().all(|&c| c > 20 && c < 250),
+            "{method}: {centre:?}"
+        );
+        if method != "reference" {
+            let text = stdout(&out);
+            let percent: f64 = text
+                .split("RMSE against the reference render: ")
+                .nth(1)
+                .and_then(|s| s.split(" (").nth(1))
+                .and_then(|s| s.split(' ').next())
+                .and_then(|s| s.parse().ok())
+                .unwrap_or_else(|| panic!("no RMSE in {text:?}"));
+            assert!(percent > 0.0 && percent < 15.0, "{method}: {percent} %");
+        }
+    }
+
+    // Linear radiance in EXR: finite, non-negative, above 1 only where the light (emission 1)
+    // or the sky (radiance about 1 to 1.6) shows.
+    let exr = dir.join("mbd.exr");
+    let out = prt_render(&dir, &["--rotate", "30"], &exr, None);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let layers = prt_texture::exr_io::read_exr(&exr, &prt_texture::Limits::default()).expect("EXR");
+    assert_eq!((layers[0].width, layers[0].height), (40, 40));
+    assert!(layers[0].data.iter().all(|v| v.is_finite() && *v >= 0.0));
+    assert!(
+        layers[0].data.iter().any(|&v| v >= 1.0),
+        "no emitter or sky pixel"
+    );
+    let mean = layers[0].data.iter().sum::<f32>() / layers[0].data.len() as f32;
+    assert!(mean > 0.05 && mean < 1.0, "mean radiance {mean}");
+
+    // The same image on one thread and on several. The default sky is symmetric about +Y, so a
+    // rotation about +Y leaves it unchanged; another exposure does not.
+    let one = dir.join("one.png");
+    let many = dir.join("many.png");
+    let rotated = dir.join("rotated.png");
+    let brighter = dir.join("brighter.png");
+    for (path, threads, rotate, exposure) in [
+        (&one, "1", "0", "1.5"),
+        (&many, "3", "0", "1.5"),
+        (&rotated, "3", "90", "1.5"),
+        (&brighter, "3", "0", "2"),
+    ] {
+        let flags = ["--rotate", rotate, "--exposure", exposure];
+        let out = prt_render(&dir, &flags, path, Some(threads));
+        assert!(out.status.success(), "{}", stderr(&out));
+    }
+    let bytes = |p: &Path| std::fs::read(p).expect("read");
+    assert!(
+        bytes(&one) == bytes(&many),
+        "the image depends on the thread count"
+    );
+    assert!(
+        bytes(&one) == bytes(&rotated),
+        "a symmetric sky's rotation changed the image"
+    );
+    assert!(
+        bytes(&one) != bytes(&brighter),
+        "the exposure changed nothing"
+    );
+
+    let spare = dir.join("x.png");
+    assert_clean_failure(
+        &prt_render(&dir, &["--camera", "9"], &spare, None),
+        "--camera 9",
+    );
+    assert_clean_failure(
+        &prt_render(&dir, &[], &dir.join("x.jpg"), None),
+        ".png or .exr",
+    );
+    assert_clean_failure(
+        &prt_render(&dir, &["--sky", "sunset"], &spare, None),
+        "--sky",
+    );
+    assert_clean_failure(&prt_render(&dir, &["--size", "0"], &spare, None), "--size");
+    assert_clean_failure(
+        &prt_render(&dir.join("nothing"), &[], &spare, None),
+        "scene.mesh",
+    );
+    std::fs::remove_dir_all(dir.join("volumes")).expect("remove the kept volumes");
+    assert_clean_failure(
+        &prt_render(&dir, &["--method", "bpca"], &spare, None),
+        "kept volumes",
+    );
+    // MBD needs only the container.
+    assert!(
+        prt_render(&dir, &["--method", "mbd"], &spare, None)
+            .status
+            .success()
+    );
+    let _ = std::fs::remove_dir_all(dir);
 }

@@ -360,6 +360,12 @@ impl Scene {
         &self.cameras
     }
 
+    /// The scene with `cameras` appended (for scenes rebuilt from triangles, e.g. a mesh file).
+    pub fn with_cameras(mut self, cameras: impl IntoIterator<Item = Camera>) -> Self {
+        self.cameras.extend(cameras);
+        self
+    }
+
     /// Number of degenerate triangles dropped while building the scene.
     pub fn degenerate_dropped(&self) -> usize {
         self.degenerate_dropped

@@ -576,6 +576,9 @@ pub struct GatherPoint {
     pub normal: Vec3,
     /// Diffuse albedo (zero on the back of a single-sided surface).
     pub albedo: Vec3,
+    /// Emitted radiance towards the camera (the material's emission on a visible side, else
+    /// zero): what a pixel shows of an emitter seen directly.
+    pub emission: Vec3,
 }
 
 /// Gather points per pixel, row-major from the top-left; `None` where the primary ray misses.
@@ -635,6 +638,11 @@ impl GBuffer {
                     },
                     albedo: if visible_side {
                         material.albedo
+                    } else {
+                        Vec3::ZERO
+                    },
+                    emission: if visible_side {
+                        material.emissive
                     } else {
                         Vec3::ZERO
                     },

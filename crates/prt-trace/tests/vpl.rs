@@ -251,6 +251,7 @@ fn a_vpl_behind_a_wall_contributes_nothing() {
             position: Vec3::new(-1.0, 0.0, 0.0),
             normal: Vec3::Y,
             albedo: Vec3::new(0.5, 0.25, 1.0),
+            emission: Vec3::ZERO,
         })],
     };
     let normal = Vec3::new(-1.0, -1.0, 0.0).normalize();
@@ -492,6 +493,7 @@ fn a_directional_column_is_cosine_weighted_direct_light_with_a_shadow_ray() {
             position: Vec3::new(x, 0.0, 0.0),
             normal: Vec3::Y,
             albedo: Vec3::new(0.5, 0.25, 1.0),
+            emission: Vec3::ZERO,
         })
     };
     let gbuffer = GBuffer {

@@ -105,7 +105,7 @@ fn heat(t: f32) -> [u8; 3] {
 
 /// The value below which 99 % of `values` lie (at least `floor`): the top of a heat scale that
 /// a handful of outliers cannot wash out.
-fn heat_scale<'a>(values: impl Iterator<Item = &'a Option<f32>>, floor: f32) -> f32 {
+pub fn heat_scale<'a>(values: impl Iterator<Item = &'a Option<f32>>, floor: f32) -> f32 {
     let mut v: Vec<f32> = values.flatten().copied().collect();
     if v.is_empty() {
         return floor;
@@ -115,7 +115,8 @@ fn heat_scale<'a>(values: impl Iterator<Item = &'a Option<f32>>, floor: f32) -> 
     top.max(floor)
 }
 
-fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
+/// Writes `img` as a PNG, atomically.
+pub fn save_png(path: &Path, img: &image::RgbImage) -> Result<()> {
     let mut bytes = Vec::new();
     img.write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)?;
     write_atomic(path, &bytes).with_context(|| format!("cannot write {}", path.display()))

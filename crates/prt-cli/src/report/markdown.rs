@@ -10,6 +10,7 @@ use serde_json::json;
 
 use crate::report::images::ImageSummary;
 use crate::report::plots::loss_plot_png;
+use crate::report::renders::RenderSummary;
 
 /// Everything the report shows.
 pub struct Report<'a> {
@@ -56,8 +57,53 @@ pub fn table_markdown(rows: &[MethodScores]) -> String {
     s
 }
 
+/// The rendered views' section of `report.md`.
+fn renders_markdown(renders: &RenderSummary) -> String {
+    let mut md = format!(
+        "## Rendered views\n\nThe scene from its `{view}` view ({size} × {size} pixels, one \
+         primary ray per pixel) under the default sky, each surface shaded with the diffuse \
+         irradiance of a volume (incident-radiance SH, trilinear over valid voxels): the traced \
+         reference, MBD as written and each baseline; one exposure ({exposure:.3}, the \
+         reference's), ACES filmic curve, sRGB.\n\n\
+         - **Middle row**: each render's difference from the reference render, in grey levels of \
+         the images (red = brighter, blue = darker, full colour at ±{top:.1} of 255, a gain of \
+         {gain:.0}×). At this ray count it is mostly the reference's own Monte Carlo noise.\n\
+         - **Bottom row, the seam view rendered**: each method's basis applied to the denoised \
+         reference (blurred with σ = {sigma} voxel over valid voxels), rendered, minus the \
+         render of the denoised reference, relative to it (full colour at ±{seam:.2} %). \
+         BPCA and CPCA change basis abruptly at block and cluster edges, which shows as \
+         straight steps between patches; MBD's basis moves continuously, so its map varies \
+         smoothly.\n\n\
+         `prt render` draws these images from the bake folder at any size.\n\n\
+         ![rendered](rendered.png)\n\n\
+         | method | RMSE of the render vs the reference render |\n|---|---|\n",
+        view = renders.view,
+        size = super::renders::RENDER_SIZE,
+        exposure = renders.exposure,
+        top = renders.difference_top,
+        gain = 255.0 / renders.difference_top,
+        sigma = BLUR_SIGMA,
+        seam = 100.0 * renders.seam_top,
+    );
+    for (key, rmse) in &renders.rmse {
+        md += &format!("| {} | {rmse:.4e} |\n", key.to_uppercase());
+    }
+    md += "\n";
+    md += &renders
+        .files
+        .iter()
+        .map(|f| format!("- [{f}]({f})\n"))
+        .collect::<String>();
+    md + "\n"
+}
+
 /// Writes `report.md`, `report.json` and `loss.png`.
-pub fn write_report(out_dir: &Path, report: &Report<'_>, images: &ImageSummary) -> Result<()> {
+pub fn write_report(
+    out_dir: &Path,
+    report: &Report<'_>,
+    images: &ImageSummary,
+    renders: Option<&RenderSummary>,
+) -> Result<()> {
     let baked = report.bake;
     let solve = &baked.mbd.report;
     write_atomic(&out_dir.join("loss.png"), &loss_plot_png(solve)?)?;
@@ -85,6 +131,9 @@ pub fn write_report(out_dir: &Path, report: &Report<'_>, images: &ImageSummary) 
            basis can make it exceed 1. *Bytes per voxel*: files written (MBD) or stored scalars \
            at 2 bytes (baselines). *Compression*: raw 324 × f32 per voxel over bytes per \
            voxel.\n\n";
+    if let Some(renders) = renders {
+        md += &renders_markdown(renders);
+    }
     md += &format!(
         "## Images\n\nMiddle horizontal slice (y = {slice_y}). Grey = invalid voxels.\n\n\
          - **Top row**: irradiance on an upward-facing surface under a sky brighter overhead, for \
@@ -175,6 +224,12 @@ pub fn write_report(out_dir: &Path, report: &Report<'_>, images: &ImageSummary) 
             "invalid_voxels": invalid_voxels,
             "voxels": stats.voxels,
         },
+        "renders": renders.map(|r| json!({
+            "view": r.view,
+            "size": super::renders::RENDER_SIZE,
+            "exposure": r.exposure,
+            "rmse_vs_reference": r.rmse.iter().cloned().collect::<BTreeMap<_, _>>(),
+        })),
         "stage_seconds": report.stage_seconds.iter().cloned().collect::<BTreeMap<_, _>>(),
         "total_seconds": report.total_seconds,
     });

@@ -1,9 +1,11 @@
 //! What `prt bake` writes besides the container: `report.md` and `report.json` (markdown),
-//! the slice images (images) and the plots (plots).
+//! the slice images (images), the rendered views (renders) and the plots (plots).
 
 mod images;
 mod markdown;
 mod plots;
+mod renders;
 
-pub use images::write_images;
+pub use images::{save_png, write_images};
 pub use markdown::{Report, table_markdown, write_report};
+pub use renders::write_renders;

@@ -1,0 +1,286 @@
+//! `prt render`: the lit scene of a bake folder, on the CPU, to PNG or EXR.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
+use prt_bake::{REFERENCE, read_container, read_volumes};
+use prt_core::{NoProgress, SpatialKernels};
+use prt_render::{
+    NamedView, RelitVolume, RenderConfig, Rendered, ToneMap, grid_bounds, read_mesh, render, views,
+};
+use prt_sphere::Sky;
+use prt_texture::Limits;
+use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
+use prt_trace::{RayTracer, Scene};
+
+use crate::progress::Stage;
+use crate::sky::SkyArgs;
+
+/// The scene mesh `prt bake` writes into its output folder.
+pub const SCENE_MESH: &str = "scene.mesh";
+
+/// Which volume lights the render.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// The traced transfer volume (from DIR/volumes/).
+    Reference,
+    /// The MBD container as written (DIR/mbd/), evaluated at the voxel centres.
+    Mbd,
+    /// Blockwise PCA's reconstruction (from DIR/volumes/).
+    Bpca,
+    /// Clustered PCA's reconstruction (from DIR/volumes/).
+    Cpca,
+}
+
+impl MethodArg {
+    fn key(self) -> &'static str {
+        match self {
+            MethodArg::Reference => REFERENCE,
+            MethodArg::Mbd => "mbd",
+            MethodArg::Bpca => "bpca",
+            MethodArg::Cpca => "cpca",
+        }
+    }
+}
+
+/// Options of `prt render`.
+#[derive(Debug, clap::Args)]
+#[command(
+    after_help = "Each pixel traces one primary ray through the scene mesh (BAKE_DIR/scene.mesh) \
+and shows emission + albedo/π · E, where E is the diffuse irradiance of the chosen volume relit \
+by the sky (incident-radiance SH9 per voxel, trilinear between voxel centres over the valid \
+voxels, looked up half a voxel off the surface along its normal); rays that miss show the sky. \
+PNG output is tone-mapped: exposure, the ACES filmic curve (Narkowicz's fit), sRGB. EXR output \
+holds the linear radiance. With --method other than reference, and the kept volumes present, \
+the RMSE against the reference render is printed."
+)]
+pub struct RenderArgs {
+    /// The folder `prt bake --out DIR` wrote (scene.mesh, mbd/, volumes/).
+    pub bake_dir: PathBuf,
+    /// View: the scene's glTF cameras in file order, then two automatic views of the scene box:
+    /// `front` (looking along -Z from +Z, the box's x-y extent filling a 40° field of view) and
+    /// `inside` (from inside the box near its +X or +Z end, whichever axis is longer, at 40 % of
+    /// the height, looking back along that axis 10° down, 60° field of view). 0 is the first.
+    #[arg(long, default_value_t = 0)]
+    pub camera: usize,
+    #[command(flatten)]
+    pub sky: SkyArgs,
+    /// Volume that lights the scene.
+    #[arg(long, value_enum, default_value_t = MethodArg::Mbd)]
+    pub method: MethodArg,
+    /// Width and height of the image, in pixels.
+    #[arg(long, default_value_t = 512)]
+    pub size: usize,
+    /// Exposure (a linear factor on the radiance before tone mapping) [default: the one that
+    /// maps the log-average luminance of the scene's pixels to 0.18].
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Output image: .png (tone-mapped sRGB) or .exr (linear radiance, f32).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Largest `--size`.
+const MAX_SIZE: usize = 8192;
+
+/// The output format of `--out`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Png,
+    Exr,
+}
+
+fn format_of(path: &Path) -> Result<Format> {
+    let extension = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    match extension.as_str() {
+        "png" => Ok(Format::Png),
+        "exr" => Ok(Format::Exr),
+        _ => bail!("--out {} must end in .png or .exr", path.display()),
+    }
+}
+
+/// The scene of a bake folder, from its scene mesh.
+pub fn load_scene(bake_dir: &Path) -> Result<Scene> {
+    let path = bake_dir.join(SCENE_MESH);
+    if !path.is_file() {
+        bail!(
+            "{} has no {SCENE_MESH}: is it a folder written by `prt bake --out`?",
+            bake_dir.display()
+        );
+    }
+    read_mesh(&path, &Limits::default()).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// The volume of `method` in a bake folder, relit by `sky`.
+fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<RelitVolume> {
+    let limits = Limits::default();
+    if method == MethodArg::Mbd {
+        let folder = bake_dir.join("mbd");
+        let container = read_container(&folder, &limits)
+            .with_context(|| format!("cannot read the MBD container {}", folder.display()))?;
+        let bounds = grid_bounds(
+            container.model.coefficient_kernels().domain(),
+            container.grid,
+        );
+        return RelitVolume::from_model(
+            &container.model,
+            container.grid,
+            bounds,
+            &container.valid,
+            sky,
+        )
+        .context("cannot relight the MBD container");
+    }
+    let folder = bake_dir.join("volumes");
+    if !folder.is_dir() {
+        bail!(
+            "--method {} needs the kept volumes ({}), which this bake did not write (bake with \
+             --keep-volumes always)",
+            method.key(),
+            folder.display()
+        );
+    }
+    let kept = read_volumes(&folder, &limits)
+        .with_context(|| format!("cannot read the kept volumes {}", folder.display()))?;
+    let field = kept.get(method.key()).with_context(|| {
+        format!(
+            "the kept volumes hold no {} volume (the bake ran without baselines?)",
+            method.key()
+        )
+    })?;
+    RelitVolume::from_transfer(field, &kept.valid, sky)
+        .with_context(|| format!("cannot relight the {} volume", method.key()))
+}
+
+/// The view `--camera` picks, with an error that lists them all.
+fn pick_view(scene: &Scene, camera: usize) -> Result<NamedView> {
+    let all = views(scene);
+    all.get(camera).cloned().with_context(|| {
+        let list: Vec<String> = all
+            .iter()
+            .enumerate()
+            .map(|(i, v)| format!("{i} = {}", v.name))
+            .collect();
+        format!(
+            "--camera {camera} does not exist; the scene has {} view(s): {}",
+            all.len(),
+            list.join(", ")
+        )
+    })
+}
+
+/// Writes a render: tone-mapped PNG or linear EXR.
+pub fn save_render(path: &Path, image: &Rendered, tone: &ToneMap) -> Result<()> {
+    let (w, h) = (image.width as u32, image.height as u32);
+    match format_of(path)? {
+        Format::Png => {
+            let img = image::RgbImage::from_raw(w, h, tone.apply(image))
+                .context("image buffer of the wrong size")?;
+            crate::report::save_png(path, &img)
+        }
+        Format::Exr => {
+            let layer = ExrLayer {
+                name: None,
+                width: w,
+                height: h,
+                channels: 3,
+                data: image.interleaved(),
+            };
+            write_exr(path, &[layer], ExrSample::F32)
+                .with_context(|| format!("cannot write {}", path.display()))
+        }
+    }
+}
+
+pub fn run(args: &RenderArgs) -> Result<()> {
+    format_of(&args.out)?;
+    if !(1..=MAX_SIZE).contains(&args.size) {
+        bail!("--size {} is not in 1..={MAX_SIZE}", args.size);
+    }
+    if let Some(e) = args.exposure
+        && !(e.is_finite() && e > 0.0)
+    {
+        bail!("--exposure {e} is not a positive number");
+    }
+    let sky = args.sky.sky()?;
+    let scene = load_scene(&args.bake_dir)?;
+    let view = pick_view(&scene, args.camera)?;
+    let volume = load_volume(&args.bake_dir, args.method, &sky)?;
+    let tracer = RayTracer::new(scene.triangles());
+    let config = RenderConfig {
+        width: args.size,
+        height: args.size,
+        ..RenderConfig::default()
+    };
+    let stage = Stage::start("render");
+    let start = Instant::now();
+    let image = render(&scene, &tracer, &view.view, &volume, &sky, &config, &stage)?;
+    let seconds = start.elapsed().as_secs_f64();
+    stage.finish();
+    let tone = args
+        .exposure
+        .map_or_else(|| ToneMap::auto(&image), |exposure| ToneMap { exposure });
+    save_render(&args.out, &image, &tone)?;
+    eprintln!(
+        "{} × {} pixels, camera {} ({}), {} volume, {:.3} s; exposure {:.4}{}",
+        image.width,
+        image.height,
+        args.camera,
+        view.name,
+        args.method.key(),
+        seconds,
+        tone.exposure,
+        if image.unlit > 0 {
+            format!(
+                "; {} pixels without a valid voxel nearby (emission only)",
+                image.unlit
+            )
+        } else {
+            String::new()
+        }
+    );
+    if args.method != MethodArg::Reference && args.bake_dir.join("volumes").is_dir() {
+        let reference = load_volume(&args.bake_dir, MethodArg::Reference, &sky)?;
+        let base = render(
+            &scene,
+            &tracer,
+            &view.view,
+            &reference,
+            &sky,
+            &config,
+            &NoProgress,
+        )?;
+        if let Some(rmse) = image.rmse(&base) {
+            let mean = base
+                .pixels
+                .iter()
+                .flatten()
+                .map(|&v| f64::from(v))
+                .sum::<f64>()
+                / (3 * base.pixels.len()).max(1) as f64;
+            println!(
+                "RMSE against the reference render: {rmse:.4e} ({:.2} % of its mean radiance {mean:.4e})",
+                100.0 * rmse / mean.max(f64::MIN_POSITIVE)
+            );
+        }
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_output_format_follows_the_extension() {
+        assert_eq!(format_of(Path::new("a.PNG")).expect("png"), Format::Png);
+        assert_eq!(format_of(Path::new("b/c.exr")).expect("exr"), Format::Exr);
+        assert!(format_of(Path::new("d.jpg")).is_err());
+    }
+}

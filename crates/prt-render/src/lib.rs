@@ -1,0 +1,69 @@
+//! # prt-render — the lit scene on the CPU, and the scene mesh that bakes export
+//!
+//! Renders what a baked transfer volume looks like on the scene's surfaces: one primary ray per
+//! pixel (prt-trace's [`GBuffer`](prt_trace::GBuffer) through a
+//! [`PinholeView`](prt_trace::PinholeView)), each hit shaded as a diffuse surface lit by the
+//! volume, `L = emission + albedo/π · E(n, p)`, where `E` is the irradiance of the volume's
+//! incident-radiance SH at the hit point. The volume is the 324-D transfer of a bake (the traced
+//! reference, an MBD container read back, or a baseline's reconstruction) relit by a sky
+//! ([`prt_sphere::Sky`]) once per voxel, so a render costs one trilinear lookup per pixel.
+//!
+//! | item | what it is, when to use it |
+//! |---|---|
+//! | [`RelitVolume`] | incident-radiance SH9 RGB per voxel of a transfer volume or model under a sky; trilinear over valid voxels |
+//! | [`render`], [`RenderConfig`], [`Rendered`] | the image: linear RGB radiance per pixel, sky where rays miss |
+//! | [`voxels_read`] | which voxels a render reads, to limit per-voxel work to them |
+//! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
+//! | [`views`], [`NamedView`] | the scene's glTF cameras, then the automatic `front` and `inside` views |
+//! | [`encode_mesh`], [`write_mesh`], [`decode_mesh`], [`read_mesh`] | the scene mesh file (`scene.mesh`, docs/formats.md): triangles, materials, cameras |
+//! | [`grid_bounds`] | a voxel grid's box from the box of its voxel centres (an MBD container's coefficient kernels) |
+//! | [`RenderError`], [`MeshError`] | what can go wrong |
+//!
+//! Renders are deterministic: every pixel is a pure function of the scene, view, volume and sky,
+//! computed in parallel over rows, so the image is the same on any thread count. This crate
+//! never prints; files are written through prt-texture's atomic writer.
+//!
+//! ```
+//! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
+//! use prt_render::{RelitVolume, RenderConfig, render};
+//! use prt_sphere::Sky;
+//! use prt_trace::{PinholeView, RayTracer, Scene, TRANSFER_DIM};
+//!
+//! // A volume that lets the whole sky through (direct transfer = identity) over a grey plane.
+//! let scene = Scene::ground_plane(1.0, Vec3::splat(0.5));
+//! let bounds = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
+//! let transfer = GridField::from_fn([2, 2, 2], bounds, TRANSFER_DIM, |_, t| {
+//!     for i in 0..9 {
+//!         t[i * 9 + i] = 1.0;
+//!     }
+//! })?;
+//! let sky = Sky::constant([1.0, 1.0, 1.0]);
+//! let volume = RelitVolume::from_transfer(&transfer, &[true; 8], &sky)?;
+//! let view = PinholeView { position: Vec3::Y, forward: Vec3::NEG_Y, up: Vec3::NEG_Z, yfov: 1.0 };
+//! let config = RenderConfig { width: 16, height: 16, ..RenderConfig::default() };
+//! let image = render(&scene, &RayTracer::new(scene.triangles()), &view, &volume, &sky, &config, &NoProgress)?;
+//! // Irradiance π·L on the plane, so its radiance is albedo · L = 0.5.
+//! let centre = image.pixels[8 * 16 + 8];
+//! assert!((centre[0] - 0.5).abs() < 1e-3);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+#![deny(missing_docs)]
+
+mod error;
+mod mesh;
+mod render;
+mod tonemap;
+mod views;
+mod volume;
+
+pub use error::{MeshError, RenderError};
+pub use mesh::{MESH_MAGIC, MESH_VERSION, decode_mesh, encode_mesh, read_mesh, write_mesh};
+pub use render::{RenderConfig, Rendered, render, voxels_read};
+pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};
+pub use views::{NamedView, views};
+pub use volume::{RELIT_DIM, RelitVolume, grid_bounds};
+
+/// The README's Rust snippet, compiled as a doc test so it stays true.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;
