@@ -16,6 +16,7 @@
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
+//! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
 //!
@@ -46,6 +47,7 @@ mod error;
 mod memory;
 mod methods;
 mod pipeline;
+mod relight;
 mod scene;
 mod scores;
 mod seams;
@@ -58,6 +60,7 @@ pub use container::{
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
