@@ -12,7 +12,7 @@ use prt_plsq::{
     EncoderConfig, LatLongFrame, ProgressiveEncoder, radiance_rmse, reference, sample_nearest,
 };
 use prt_sphere::{
-    AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, sampling,
+    AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, Sky, sampling,
 };
 use prt_texture::Limits;
 use serde_json::json;
@@ -123,6 +123,16 @@ fn parse_basis(spec: &str, lambda: f32) -> Result<(Box<dyn SphericalBasis>, bool
             "unknown basis {spec:?} (expected sh:N, sg:N, ambient-cube, ambient-dice or ambient-dice-bezier)"
         ),
     })
+}
+
+/// The sky a `--sky` / `--envmap` value names: `default` (prt's default sky) or a lat-long
+/// environment map (.hdr / .exr) projected to order-3 SH.
+pub fn sky_from_spec(spec: &str) -> Result<Sky> {
+    if spec == "default" {
+        return Ok(Sky::default());
+    }
+    let map = read_envmap(Path::new(spec))?;
+    Sky::from_latlong(&map).with_context(|| format!("cannot project {spec} to SH"))
 }
 
 fn read_envmap(path: &Path) -> Result<LatLongMap> {

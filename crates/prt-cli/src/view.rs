@@ -7,8 +7,9 @@
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::time::Duration;
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use prt_render::views;
@@ -58,6 +59,46 @@ struct Site {
     root: PathBuf,
     skies_json: String,
     views_json: String,
+    bench: Mutex<Bench>,
+}
+
+/// Wall-clock timing of the page's `?bench=N` capture, measured here: the page marks the end of
+/// each timed step with a synchronous request (its own clock stands still under a headless
+/// browser's virtual time), and the time since the previous mark is added to the step's label.
+#[derive(Default)]
+struct Bench {
+    last: Option<Instant>,
+    steps: BTreeMap<String, (u32, f64)>,
+}
+
+impl Bench {
+    /// Records mark `label`: `start` resets, `done` returns the summary, others add a step.
+    fn mark(&mut self, label: &str) -> Option<String> {
+        let now = Instant::now();
+        let since = self.last.map(|t| (now - t).as_secs_f64() * 1e3);
+        self.last = Some(now);
+        match label {
+            "start" => {
+                self.steps.clear();
+                None
+            }
+            "done" => Some(
+                self.steps
+                    .iter()
+                    .map(|(label, (n, ms))| {
+                        format!("bench: {label}: {:.1} ms per step over {n}", ms / f64::from(*n))
+                    })
+                    .collect::<Vec<_>>()
+                    .join("\n"),
+            ),
+            _ => {
+                let step = self.steps.entry(label.to_string()).or_default();
+                step.0 += 1;
+                step.1 += since.unwrap_or(0.0);
+                None
+            }
+        }
+    }
 }
 
 /// The skies the page offers, as JSON: name and `sh[c][j]` per sky.
@@ -112,6 +153,7 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         views_json: views_json(&root)?,
         skies_json: skies_json(&skies),
         root,
+        bench: Mutex::default(),
     });
     let listener = TcpListener::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, args.port)))
         .with_context(|| format!("cannot listen on 127.0.0.1:{}", args.port))?;
@@ -225,9 +267,11 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
         "/skies.json" => Response::ok("application/json", site.skies_json.clone()),
         "/views.json" => Response::ok("application/json", site.views_json.clone()),
         "/bench" => {
-            // The page's timing report (`?bench=N` capture), printed for the one who runs it.
-            println!("bench: {}", percent_decode(query));
-            let _ = std::io::stdout().flush();
+            let report = site.bench.lock().map(|mut b| b.mark(&percent_decode(query)));
+            if let Ok(Some(report)) = report {
+                println!("{report}");
+                let _ = std::io::stdout().flush();
+            }
             Response::ok("text/plain; charset=utf-8", "ok\n")
         }
         "/shaders/common.glsl" | "/shaders/reconstruct.glsl" | "/shaders/relight.glsl" => {
@@ -327,6 +371,7 @@ mod tests {
             root: root.canonicalize().expect("root"),
             skies_json: skies_json(&[("default".into(), Sky::default())]),
             views_json: "[]".into(),
+            bench: Mutex::default(),
         }
     }
 

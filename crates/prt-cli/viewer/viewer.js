@@ -736,7 +736,10 @@ async function main() {
   }
   state.diff = PARAMS.get('diff') === '1';
   if (state.diff && !methods.has('reference')) fail('diff=1 needs the reference volume (bake with --keep-volumes always)');
-  if (PARAMS.has('exposure')) state.exposure = Number(PARAMS.get('exposure'));
+  if (PARAMS.has('exposure')) {
+    state.exposure = Number(PARAMS.get('exposure'));
+    if (!(state.exposure > 0 && Number.isFinite(state.exposure))) fail(`exposure=${PARAMS.get('exposure')} is not a positive number`);
+  }
   state.view = { ...views[state.camera] };
 
   const fill = (select, items, current) => {
@@ -860,23 +863,35 @@ async function main() {
 
   if (CAPTURE) {
     frame();
-    // Optional: time more frames that each relight (a turning sky), for docs/results.md.
+    // Optional (?bench=N): time N steps of each kind at the server's wall clock, for
+    // docs/results.md: a frame whose sky turned (relight + draw), a frame with the sky still
+    // (draw only), and the relighting pass alone.
     const bench = intParam('bench', 0, 1000) ?? 0;
     if (bench > 0) {
-      let frameMs = 0;
-      let relightMs = 0;
+      const mark = (label) => {
+        const request = new XMLHttpRequest();
+        request.open('GET', `bench?${encodeURIComponent(label)}`, false);
+        request.send();
+      };
+      const rotate = state.rotate;
+      mark('start');
+      for (let i = 0; i < bench; i++) {
+        state.rotate = rotate + i + 1;
+        frame();
+        mark(`frame with the sky turning (${state.method}, ${canvas.width}²)`);
+      }
+      for (let i = 0; i < bench; i++) {
+        frame();
+        mark(`frame with the sky still (${state.method}, ${canvas.width}²)`);
+      }
       for (let i = 0; i < bench; i++) {
         state.relitFor.clear();
-        state.rotate += 1e-3;
-        frame();
-        frameMs += timing.frameMs;
-        relightMs += timing.relightMs;
+        ensureRelit(state.method, currentSky(), 'bench');
+        sync();
+        mark(`relighting pass (${state.method})`);
       }
-      const report = `frame_ms=${(frameMs / bench).toFixed(2)} relight_ms=${(relightMs / bench).toFixed(2)} ` +
-        `frames=${bench} size=${canvas.width} renderer=${JSON.stringify(gl.getParameter(gl.RENDERER))}`;
-      ui('timing').textContent = report;
-      await fetch(`bench?${encodeURIComponent(report)}`).catch(() => {});
-      state.rotate = Number(PARAMS.get('rotate') || 0);
+      mark('done');
+      state.rotate = rotate;
       state.relitFor.clear();
       frame();
     }
