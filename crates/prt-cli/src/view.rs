@@ -4,10 +4,10 @@
 //! and its script come from `viewer/` (compiled in), the GLSL from prt-shaders, the skies and
 //! views as JSON, and `/bake/...` from the bake folder, refusing any path that could leave it.
 
+use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
-use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -32,16 +32,21 @@ const MAX_SHADER_RANK: usize = 256;
 
 /// Options of `prt view`.
 #[derive(Debug, clap::Args)]
-#[command(after_help = "Open the printed URL in a browser with WebGL2. The page draws the scene \
+#[command(
+    after_help = "Open the printed URL in a browser with WebGL2. The page draws the scene \
 mesh (BAKE_DIR/scene.mesh) lit by the MBD container (BAKE_DIR/mbd/), decoded on the GPU with \
 prt-shaders' GLSL: the raw basis is relit for the sky by a fragment pass whenever the sky turns, \
 then each voxel's incident radiance is Σ c_l(x) b̃_l(x) (valid voxels only, as `prt render` \
 does) and each pixel shows emission + albedo/π · E(n). With BAKE_DIR/volumes/ (prt bake \
 --keep-volumes) the reference, BPCA and CPCA volumes and a difference view are offered too.\n\n\
 URL parameters fix a frame for screenshots: ?camera=N&rotate=DEG&method=mbd|reference|bpca|cpca\
-&size=PX[&sky=K][&diff=1]; the canvas then fills the page and the title becomes `ready` once \
-that frame is drawn. `prt render BAKE_DIR --camera N --rotate DEG --method M --size PX` renders \
-the same frame on the CPU. Ctrl-C stops the server.")]
+&size=PX, optionally &sky=K (0 = default, then the --envmap skies in order), &exposure=E (else \
+automatic, as prt render), &diff=1&diffScale=S (|method − reference| · S); the canvas then fills \
+the page and the title becomes `ready` once that frame is drawn. &bench=N then also times N \
+frames with the sky turning, N with it still and N relighting passes, and this server prints \
+the means (wall clock). `prt render BAKE_DIR --camera N --rotate DEG --method M --size PX` \
+renders the same frame on the CPU. Ctrl-C stops the server."
+)]
 pub struct ViewArgs {
     /// The folder `prt bake --out DIR` wrote (scene.mesh, mbd/, volumes/).
     pub bake_dir: PathBuf,
@@ -86,7 +91,10 @@ impl Bench {
                 self.steps
                     .iter()
                     .map(|(label, (n, ms))| {
-                        format!("bench: {label}: {:.1} ms per step over {n}", ms / f64::from(*n))
+                        format!(
+                            "bench: {label}: {:.1} ms per step over {n}",
+                            ms / f64::from(*n)
+                        )
                     })
                     .collect::<Vec<_>>()
                     .join("\n"),
@@ -141,9 +149,10 @@ pub fn run(args: &ViewArgs) -> Result<()> {
     }
     let mut skies = vec![("default".to_string(), Sky::default())];
     for path in &args.envmap {
-        let name = path
-            .file_name()
-            .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into());
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into(),
+        );
         let spec = path
             .to_str()
             .with_context(|| format!("--envmap {} is not UTF-8", path.display()))?;
@@ -267,7 +276,10 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
         "/skies.json" => Response::ok("application/json", site.skies_json.clone()),
         "/views.json" => Response::ok("application/json", site.views_json.clone()),
         "/bench" => {
-            let report = site.bench.lock().map(|mut b| b.mark(&percent_decode(query)));
+            let report = site
+                .bench
+                .lock()
+                .map(|mut b| b.mark(&percent_decode(query)));
             if let Ok(Some(report)) = report {
                 println!("{report}");
                 let _ = std::io::stdout().flush();
@@ -290,7 +302,10 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
             };
             Response::ok("text/plain; charset=utf-8", source)
         }
-        _ => match path.strip_prefix("/bake/").and_then(|p| bake_file(&site.root, p)) {
+        _ => match path
+            .strip_prefix("/bake/")
+            .and_then(|p| bake_file(&site.root, p))
+        {
             Some(file) => match std::fs::read(&file) {
                 Ok(bytes) => Response::ok(content_type(&file), bytes),
                 Err(_) => Response::error("404 Not Found"),
@@ -375,8 +390,9 @@ mod tests {
         }
     }
 
-    fn scratch() -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("prt-view-test-{}", std::process::id()));
+    /// A bake-like folder (and a file beside it) of its own per test: tests run in parallel.
+    fn scratch(test: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("prt-view-{test}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(dir.join("bake/mbd")).expect("dirs");
         std::fs::write(dir.join("bake/mbd/manifest.json"), b"{}").expect("manifest");
@@ -386,7 +402,7 @@ mod tests {
 
     #[test]
     fn bake_paths_stay_inside_the_bake_folder() {
-        let dir = scratch();
+        let dir = scratch("paths");
         let site = site(&dir.join("bake"));
         let get = |target: &str| answer(&format!("GET {target} HTTP/1.1"), &site).1;
         let ok = get("/bake/mbd/manifest.json");
@@ -417,7 +433,7 @@ mod tests {
 
     #[test]
     fn bad_requests_get_errors_not_panics() {
-        let dir = scratch();
+        let dir = scratch("requests");
         let site = site(&dir.join("bake"));
         for (line, status) in [
             ("", "400 Bad Request"),
@@ -426,8 +442,14 @@ mod tests {
             ("GET / HTTP/1.1 extra", "400 Bad Request"),
             ("POST / HTTP/1.1", "405 Method Not Allowed"),
             ("GET /shaders/relight.glsl HTTP/1.1", "400 Bad Request"),
-            ("GET /shaders/relight.glsl?rank=0 HTTP/1.1", "400 Bad Request"),
-            ("GET /shaders/relight.glsl?rank=x HTTP/1.1", "400 Bad Request"),
+            (
+                "GET /shaders/relight.glsl?rank=0 HTTP/1.1",
+                "400 Bad Request",
+            ),
+            (
+                "GET /shaders/relight.glsl?rank=x HTTP/1.1",
+                "400 Bad Request",
+            ),
             ("GET /nope HTTP/1.1", "404 Not Found"),
             ("GET \u{1F600} HTTP/1.1", "404 Not Found"),
         ] {
@@ -446,7 +468,7 @@ mod tests {
 
     #[test]
     fn the_server_answers_over_tcp() {
-        let dir = scratch();
+        let dir = scratch("tcp");
         let site = Arc::new(site(&dir.join("bake")));
         let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).expect("bind");
         let addr = listener.local_addr().expect("addr");

@@ -53,7 +53,13 @@ struct Server {
 impl Server {
     fn start(bake: &Path, envmap: &Path) -> Server {
         let mut child = prt()
-            .args(["view", bake.to_str().expect("utf-8"), "--port", "0", "--envmap"])
+            .args([
+                "view",
+                bake.to_str().expect("utf-8"),
+                "--port",
+                "0",
+                "--envmap",
+            ])
             .arg(envmap)
             .stdout(Stdio::piped())
             .spawn()
@@ -118,7 +124,12 @@ fn screenshot(server: &Server, query: &str, out: &Path) -> image::RgbImage {
 /// `prt render` of the same frame.
 fn render(bake: &Path, args: &[&str], out: &Path) -> image::RgbImage {
     run(prt()
-        .args(["render", bake.to_str().expect("utf-8"), "--size", &SIZE.to_string()])
+        .args([
+            "render",
+            bake.to_str().expect("utf-8"),
+            "--size",
+            &SIZE.to_string(),
+        ])
         .args(args)
         .arg("--out")
         .arg(out));
@@ -167,7 +178,11 @@ fn write_lobe_sky(path: &Path) {
         for col in 0..w {
             let theta = std::f32::consts::PI * (row as f32 + 0.5) / h as f32;
             let phi = 2.0 * std::f32::consts::PI * (col as f32 + 0.5) / w as f32;
-            let d = [theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin()];
+            let d = [
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            ];
             let lobe = 6.0 * (d[0] * 0.8 + d[1] * 0.2).max(0.0).powi(4);
             data.extend_from_slice(&[0.2 + lobe, 0.25 + 0.7 * lobe, 0.35 + 0.3 * lobe]);
         }
@@ -190,8 +205,25 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
     let bake = dir.join("bake");
     // A small Cornell bake (the default 32³ one takes minutes in a debug build).
     run(prt()
-        .args(["bake", "--res", "16", "--rays", "96", "--cache-rays", "32", "--rank", "4"])
-        .args(["--basis-nodes", "3", "--iterations", "24", "--keep-volumes", "always"])
+        .args([
+            "bake",
+            "--res",
+            "16",
+            "--rays",
+            "96",
+            "--cache-rays",
+            "32",
+            "--rank",
+            "4",
+        ])
+        .args([
+            "--basis-nodes",
+            "3",
+            "--iterations",
+            "24",
+            "--keep-volumes",
+            "always",
+        ])
         .arg("--out")
         .arg(&bake));
     let sky = dir.join("lobe.hdr");
@@ -202,10 +234,57 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
     // (query, render flags, name): the default sky with MBD, the lobe sky with the reference
     // volume, and MBD under the lobe sky at two rotations.
     let cases: [(&str, Vec<&str>, &str); 4] = [
-        ("camera=0&rotate=0&method=mbd", vec!["--camera", "0", "--rotate", "0", "--method", "mbd"], "mbd"),
-        ("camera=0&rotate=0&method=reference&sky=1", vec!["--camera", "0", "--rotate", "0", "--method", "reference", "--sky", sky_arg], "reference-lobe"),
-        ("camera=0&rotate=0&method=mbd&sky=1&exposure=1", vec!["--camera", "0", "--rotate", "0", "--method", "mbd", "--sky", sky_arg, "--exposure", "1"], "mbd-lobe-0"),
-        ("camera=0&rotate=120&method=mbd&sky=1&exposure=1", vec!["--camera", "0", "--rotate", "120", "--method", "mbd", "--sky", sky_arg, "--exposure", "1"], "mbd-lobe-120"),
+        (
+            "camera=0&rotate=0&method=mbd",
+            vec!["--camera", "0", "--rotate", "0", "--method", "mbd"],
+            "mbd",
+        ),
+        (
+            "camera=0&rotate=0&method=reference&sky=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "0",
+                "--method",
+                "reference",
+                "--sky",
+                sky_arg,
+            ],
+            "reference-lobe",
+        ),
+        (
+            "camera=0&rotate=0&method=mbd&sky=1&exposure=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "0",
+                "--method",
+                "mbd",
+                "--sky",
+                sky_arg,
+                "--exposure",
+                "1",
+            ],
+            "mbd-lobe-0",
+        ),
+        (
+            "camera=0&rotate=120&method=mbd&sky=1&exposure=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "120",
+                "--method",
+                "mbd",
+                "--sky",
+                sky_arg,
+                "--exposure",
+                "1",
+            ],
+            "mbd-lobe-120",
+        ),
     ];
     let mut pairs = Vec::new();
     for (query, flags, name) in &cases {
@@ -213,7 +292,11 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
         let cpu = render(&bake, flags, &dir.join(format!("{name}-render.png")));
         let db = psnr(&shot, &cpu);
         eprintln!("{name}: PSNR {db:.2} dB between the viewer and prt render");
-        assert!(db >= MIN_PSNR, "{name}: PSNR {db:.2} dB < {MIN_PSNR} dB (images in {})", dir.display());
+        assert!(
+            db >= MIN_PSNR,
+            "{name}: PSNR {db:.2} dB < {MIN_PSNR} dB (images in {})",
+            dir.display()
+        );
         pairs.push((shot, cpu));
     }
     // Turning the sky by 120° changes the image a lot, and the same way in both.
@@ -224,7 +307,13 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
     let rms = (moved_cpu.iter().map(|d| d * d).sum::<f64>() / moved_cpu.len() as f64).sqrt();
     let r = correlation(&moved_view, &moved_cpu);
     eprintln!("turning the sky by 120°: RMS change {rms:.1} (8-bit), correlation {r:.4}");
-    assert!(rms > 10.0, "turning the sky barely changed the CPU render (RMS {rms:.2})");
-    assert!(r > 0.95, "the viewer's change correlates {r:.4} with the CPU's");
+    assert!(
+        rms > 10.0,
+        "turning the sky barely changed the CPU render (RMS {rms:.2})"
+    );
+    assert!(
+        r > 0.95,
+        "the viewer's change correlates {r:.4} with the CPU's"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -735,6 +735,10 @@ async function main() {
     }
   }
   state.diff = PARAMS.get('diff') === '1';
+  if (PARAMS.has('diffScale')) {
+    state.diffScale = Number(PARAMS.get('diffScale'));
+    if (!(state.diffScale > 0 && Number.isFinite(state.diffScale))) fail(`diffScale=${PARAMS.get('diffScale')} is not a positive number`);
+  }
   if (state.diff && !methods.has('reference')) fail('diff=1 needs the reference volume (bake with --keep-volumes always)');
   if (PARAMS.has('exposure')) {
     state.exposure = Number(PARAMS.get('exposure'));
@@ -753,6 +757,7 @@ async function main() {
   ui('rotate').value = state.rotate;
   ui('rotateValue').textContent = state.rotate;
   ui('diff').checked = state.diff;
+  ui('diffScale').value = state.diffScale;
   ui('diff').disabled = !methods.has('reference');
 
   // ---- drawing
