@@ -295,44 +295,71 @@ function drawSlices(gl, prog, target, size, sliceUniform) {
   gl.deleteFramebuffer(fbo);
 }
 
-// The voxel pass: one texel of the 7-tile voxel atlas (tiles along x) per fragment.
+// The voxel pass: for one voxel per fragment, its 7 texels of the voxel atlas (tiles along z,
+// tile r = slices r·nz .. (r+1)·nz), written through 7 draw buffers at once.
 const VOXEL_MAIN = `
 uniform ivec3 u_voxels;
 uniform int u_voxel_slice;
 uniform highp sampler3D u_validity;
 uniform vec2 u_validity_range; // scale, bias
-out vec4 o_texel;
-vec4 voxel_value(ivec3 voxel, int r);
+layout(location = 0) out vec4 o_0;
+layout(location = 1) out vec4 o_1;
+layout(location = 2) out vec4 o_2;
+layout(location = 3) out vec4 o_3;
+layout(location = 4) out vec4 o_4;
+layout(location = 5) out vec4 o_5;
+layout(location = 6) out vec4 o_6;
+void voxel_values(ivec3 voxel, out vec4 v[${RELIT_GROUPS}]);
 void main() {
-  ivec3 t = ivec3(ivec2(gl_FragCoord.xy), u_voxel_slice);
-  int r = t.x / u_voxels.x;
-  ivec3 voxel = ivec3(t.x - r * u_voxels.x, t.y, t.z);
+  ivec3 voxel = ivec3(ivec2(gl_FragCoord.xy), u_voxel_slice);
   float stored = u_validity_range.y + u_validity_range.x * texelFetch(u_validity, voxel, 0).r;
-  float valid = stored > 0.5 ? 1.0 : 0.0;
-  vec4 v = valid > 0.0 ? voxel_value(voxel, r) : vec4(0.0);
-  // Slot 28 (always 0 in a relit texel) carries the validity, so filtering gives its weight.
-  if (r == ${RELIT_GROUPS - 1}) v.w = valid;
-  o_texel = v;
+  vec4 v[${RELIT_GROUPS}];
+  for (int r = 0; r < ${RELIT_GROUPS}; r++) v[r] = vec4(0.0);
+  if (stored > 0.5) {
+    voxel_values(voxel, v);
+    // Slot 28 (always 0 in a relit texel) carries the validity, so filtering gives its weight.
+    v[${RELIT_GROUPS - 1}].w = 1.0;
+  }
+  o_0 = v[0]; o_1 = v[1]; o_2 = v[2]; o_3 = v[3]; o_4 = v[4]; o_5 = v[5]; o_6 = v[6];
 }
 `;
 
 // MBD: Σ c_l b̃_l at the voxel centre (prt-shaders' reconstruction).
 const MBD_VOXEL = `
 uniform vec3 u_node_step;
-vec4 voxel_value(ivec3 voxel, int r) {
-  vec4 sh[MBD_RELIT_GROUPS];
-  mbd_incident_radiance(u_mbd_coefficients.domain_min.xyz + vec3(voxel) * u_node_step, sh);
-  return sh[r];
+void voxel_values(ivec3 voxel, out vec4 v[MBD_RELIT_GROUPS]) {
+  mbd_incident_radiance(u_mbd_coefficients.domain_min.xyz + vec3(voxel) * u_node_step, v);
 }
 `;
 
-// Kept volumes: the relit texel of the voxel.
+// Kept volumes: the voxel's relit texels.
 const KEPT_VOXEL = `
 uniform highp sampler3D u_relit_voxels;
-vec4 voxel_value(ivec3 voxel, int r) {
-  return texelFetch(u_relit_voxels, ivec3(voxel.x + r * u_voxels.x, voxel.y, voxel.z), 0);
+void voxel_values(ivec3 voxel, out vec4 v[MBD_RELIT_GROUPS]) {
+  for (int r = 0; r < MBD_RELIT_GROUPS; r++) {
+    v[r] = texelFetch(u_relit_voxels, ivec3(voxel.x + r * u_voxels.x, voxel.y, voxel.z), 0);
+  }
 }
 `;
+
+// Runs the voxel pass `prog` once per z slice of the voxel grid, into the 7 tiles of `atlas`.
+function drawVoxelSlices(gl, prog, atlas, voxels) {
+  const fbo = gl.createFramebuffer();
+  gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+  gl.viewport(0, 0, voxels[0], voxels[1]);
+  gl.disable(gl.DEPTH_TEST);
+  const buffers = [...Array(RELIT_GROUPS).keys()].map((r) => gl.COLOR_ATTACHMENT0 + r);
+  gl.drawBuffers(buffers);
+  for (let z = 0; z < voxels[2]; z++) {
+    for (let r = 0; r < RELIT_GROUPS; r++) {
+      gl.framebufferTextureLayer(gl.FRAMEBUFFER, buffers[r], atlas, 0, z + r * voxels[2]);
+    }
+    prog.int('u_voxel_slice', z);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+  }
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  gl.deleteFramebuffer(fbo);
+}
 
 const SCENE_VS = `#version 300 es
 uniform mat4 u_view_proj;
@@ -529,6 +556,7 @@ async function main() {
   const gl = canvas.getContext('webgl2', { antialias: false, preserveDrawingBuffer: true });
   if (!gl) fail('this browser has no WebGL2');
   if (!gl.getExtension('EXT_color_buffer_float')) fail('WebGL2 without EXT_color_buffer_float: cannot render to float textures');
+  if (gl.getParameter(gl.MAX_DRAW_BUFFERS) < RELIT_GROUPS) fail(`the voxel pass needs ${RELIT_GROUPS} draw buffers; this WebGL2 has ${gl.getParameter(gl.MAX_DRAW_BUFFERS)}`);
 
   const [mesh, views, skies, manifest] = await Promise.all([
     fetchBytes('bake/scene.mesh').then(parseMesh), fetchJson('views.json'), fetchJson('skies.json'),
@@ -586,8 +614,8 @@ async function main() {
       coefficients,
       coefficientGrid: grid(coefficientKernel.domain_min, coefficientKernel.domain_max, coefficientKernel.nodes, coefficients.tiles),
       step,
-      atlas: targetTexture(gl, [RELIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
-      atlasGrid: grid(coefficientKernel.domain_min, coefficientKernel.domain_max, voxels, [RELIT_GROUPS, 1, 1]),
+      atlas: targetTexture(gl, [voxels[0], voxels[1], RELIT_GROUPS * voxels[2]]),
+      atlasGrid: grid(coefficientKernel.domain_min, coefficientKernel.domain_max, voxels, [1, 1, RELIT_GROUPS]),
       offset: step.map((s) => 0.5 * s),
     });
   }
@@ -633,8 +661,8 @@ async function main() {
         basisGrid: grid(first, last, voxels, basisTiles),
         relitGrid: grid(first, last, voxels, [RELIT_GROUPS, 1, 1]),
         relit: targetTexture(gl, [RELIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
-        atlas: targetTexture(gl, [RELIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
-        atlasGrid: grid(first, last, voxels, [RELIT_GROUPS, 1, 1]),
+        atlas: targetTexture(gl, [voxels[0], voxels[1], RELIT_GROUPS * voxels[2]]),
+        atlasGrid: grid(first, last, voxels, [1, 1, RELIT_GROUPS]),
         offset: edge.map((e) => 0.5 * e),
       });
     }
@@ -666,7 +694,7 @@ async function main() {
     voxel.texture('u_validity', 2, gl.TEXTURE_3D, m.validity.texture);
     gl.uniform3iv(gl.getUniformLocation(voxel.p, 'u_voxels'), m.voxels);
     gl.uniform2f(gl.getUniformLocation(voxel.p, 'u_validity_range'), m.validity.scale[0], m.validity.bias[0]);
-    drawSlices(gl, voxel, m.atlas, [RELIT_GROUPS * m.voxels[0], m.voxels[1], m.voxels[2]], 'u_voxel_slice');
+    drawVoxelSlices(gl, voxel, m.atlas, m.voxels);
   }
 
   // Scene geometry.
