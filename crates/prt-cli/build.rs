@@ -10,7 +10,9 @@ fn main() {
     println!("cargo::rerun-if-changed=build.rs");
     println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CHROMIUM");
     println!("cargo::rerun-if-env-changed=PRT_CHROMIUM");
-    let named = std::env::var_os("PRT_CHROMIUM").map(PathBuf::from);
+    let named = std::env::var_os("PRT_CHROMIUM")
+        .map(PathBuf::from)
+        .filter(|p| p.is_file());
     let on_path = std::env::var_os("PATH").and_then(|path| {
         std::env::split_paths(&path)
             .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
