@@ -5,6 +5,8 @@
 //!   and clustered PCA at equal basis count, writes the MBD container (KTX2 volumes + JSON
 //!   manifest) and a report (`report.md`, images, loss plot) to an output folder.
 //! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
+//! * `prt view BAKE_DIR` serves a bake folder on 127.0.0.1 with a WebGL2 page that draws its
+//!   scene lit by the MBD container (decoded by prt-shaders' GLSL) and relights it as the sky turns.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -16,6 +18,7 @@ mod encode;
 mod inspect;
 mod progress;
 mod report;
+mod view;
 
 use std::process::ExitCode;
 
@@ -40,6 +43,8 @@ enum Command {
     Encode(encode::EncodeArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
+    /// Serve a bake folder and a WebGL2 viewer that relights it in real time, on 127.0.0.1.
+    View(view::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +54,7 @@ fn main() -> ExitCode {
         Command::Bake(args) => bake::run(&args),
         Command::Encode(args) => encode::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::View(args) => view::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

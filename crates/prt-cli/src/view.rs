@@ -12,17 +12,19 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use prt_render::views;
+use prt_render::{read_mesh, views};
 use prt_sphere::Sky;
+use prt_texture::Limits;
 use serde_json::json;
 
 use crate::encode::sky_from_spec;
-use crate::render::load_scene;
 
 /// The viewer page and its script, compiled into the binary (no build step, no network).
 const INDEX_HTML: &str = include_str!("../viewer/index.html");
 const VIEWER_JS: &str = include_str!("../viewer/viewer.js");
 
+/// The scene mesh `prt bake` writes into its output folder (`prt render` reads the same file).
+const SCENE_MESH: &str = "scene.mesh";
 /// Largest request head we read; browsers send well under 2 KiB.
 const MAX_REQUEST_BYTES: u64 = 8192;
 /// A client that sends nothing for this long is dropped.
@@ -120,7 +122,9 @@ fn skies_json(skies: &[(String, Sky)]) -> String {
 
 /// The scene's views in `prt render --camera` order, as JSON.
 fn views_json(bake_dir: &Path) -> Result<String> {
-    let scene = load_scene(bake_dir)?;
+    let path = bake_dir.join(SCENE_MESH);
+    let scene = read_mesh(&path, &Limits::default())
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let list: Vec<_> = views(&scene)
         .iter()
         .map(|v| {
