@@ -9,6 +9,8 @@
 //!   volumes that Bevy, three.js or a custom engine load unchanged.
 //! * `prt render BAKE_DIR --out IMG` renders the scene of a bake folder lit by one of its volumes
 //!   (reference, MBD as written, BPCA, CPCA) under a sky, to PNG or EXR.
+//! * `prt view BAKE_DIR` serves a bake folder on 127.0.0.1 with a WebGL2 page that draws its
+//!   scene lit by the MBD container (decoded by prt-shaders' GLSL) and relights it as the sky turns.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -23,6 +25,7 @@ mod progress;
 mod render;
 mod report;
 mod sky;
+mod view;
 
 use std::process::ExitCode;
 
@@ -51,6 +54,8 @@ enum Command {
     Inspect(inspect::InspectArgs),
     /// Render a bake folder's scene lit by its reference, MBD, BPCA or CPCA volume (PNG / EXR).
     Render(render::RenderArgs),
+    /// Serve a bake folder and a WebGL2 viewer that relights it in real time, on 127.0.0.1.
+    View(view::ViewArgs),
 }
 
 fn main() -> ExitCode {
@@ -62,6 +67,7 @@ fn main() -> ExitCode {
         Command::Export(args) => export::run(&args),
         Command::Inspect(args) => inspect::run(&args),
         Command::Render(args) => render::run(&args),
+        Command::View(args) => view::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

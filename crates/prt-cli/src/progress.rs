@@ -21,6 +21,11 @@ pub fn install_ctrlc_handler() {
     });
 }
 
+/// Whether Ctrl-C was pressed (for loops that are not a progress stage, e.g. `prt view`'s server).
+pub fn cancelled() -> bool {
+    CANCELLED.load(Ordering::Relaxed)
+}
+
 /// One stage of long work drawn as a progress bar with ETA on stderr (hidden when stderr is not
 /// a terminal).
 pub struct Stage {

@@ -1,0 +1,319 @@
+//! The viewer in a real headless browser: `prt view` serves a small Cornell bake, Debian's
+//! chromium (WebGL2 on SwiftShader) screenshots fixed frames of it, and `prt render` renders the
+//! same frames on the CPU. They must agree (PSNR ≥ 30 dB on the 8-bit images), and turning the
+//! sky must move the browser's image the way it moves the CPU's.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+/// The smallest PSNR (dB) between a screenshot and the CPU render of the same frame.
+const MIN_PSNR: f64 = 30.0;
+/// Image side in pixels.
+const SIZE: u32 = 256;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prt-viewer-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn prt() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_prt"))
+}
+
+fn run(command: &mut Command) -> String {
+    let out = command.output().expect("the command runs");
+    assert!(
+        out.status.success(),
+        "{command:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
+}
+
+fn chromium() -> PathBuf {
+    if let Some(path) = std::env::var_os("PRT_CHROMIUM") {
+        return path.into();
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path)
+        .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
+        .find(|candidate| candidate.is_file())
+        .expect("chromium on PATH (the test runs because PRT_REQUIRE_CHROMIUM=1 or because it was there when it was built)")
+}
+
+/// `prt view` on a free port, stopped when dropped.
+struct Server {
+    child: Child,
+    url: String,
+}
+
+impl Server {
+    fn start(bake: &Path, envmap: &Path) -> Server {
+        let mut child = prt()
+            .args([
+                "view",
+                bake.to_str().expect("utf-8"),
+                "--port",
+                "0",
+                "--envmap",
+            ])
+            .arg(envmap)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("prt view starts");
+        let stdout = child.stdout.take().expect("stdout");
+        let mut line = String::new();
+        BufReader::new(stdout)
+            .read_line(&mut line)
+            .expect("prt view prints its URL");
+        let url = line
+            .split_whitespace()
+            .find(|w| w.starts_with("http://127.0.0.1:"))
+            .unwrap_or_else(|| panic!("no URL in {line:?}"))
+            .to_string();
+        Server { child, url }
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Headless chromium with WebGL2 on SwiftShader, a fresh profile, no GPU.
+fn browser(profile: &Path, size: u32) -> Command {
+    let mut c = Command::new(chromium());
+    c.args([
+        "--headless",
+        "--no-sandbox",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        "--hide-scrollbars",
+        "--force-device-scale-factor=1",
+        "--virtual-time-budget=600000",
+        &format!("--window-size={size},{size}"),
+    ])
+    .arg(format!("--user-data-dir={}", profile.display()));
+    c
+}
+
+/// Screenshots the viewer at `query` (after checking, in the DOM, that the frame got drawn).
+fn screenshot(server: &Server, query: &str, out: &Path) -> image::RgbImage {
+    let url = format!("{}?{query}&size={SIZE}", server.url);
+    let profile = out.with_extension("profile");
+    let dom = run(browser(&profile, SIZE).arg("--dump-dom").arg(&url));
+    assert!(
+        dom.contains("<title>ready</title>"),
+        "the page did not get ready for {url}:\n{}",
+        dom.lines()
+            .filter(|l| l.contains("error") || l.contains("title"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    run(browser(&profile, SIZE)
+        .arg(format!("--screenshot={}", out.display()))
+        .arg(&url));
+    image::open(out).expect("screenshot").to_rgb8()
+}
+
+/// `prt render` of the same frame.
+fn render(bake: &Path, args: &[&str], out: &Path) -> image::RgbImage {
+    run(prt()
+        .args([
+            "render",
+            bake.to_str().expect("utf-8"),
+            "--size",
+            &SIZE.to_string(),
+        ])
+        .args(args)
+        .arg("--out")
+        .arg(out));
+    image::open(out).expect("render").to_rgb8()
+}
+
+fn psnr(a: &image::RgbImage, b: &image::RgbImage) -> f64 {
+    assert_eq!(a.dimensions(), b.dimensions());
+    let mse = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| (f64::from(x) - f64::from(y)).powi(2))
+        .sum::<f64>()
+        / a.as_raw().len() as f64;
+    10.0 * (255.0f64.powi(2) / mse.max(1e-12)).log10()
+}
+
+/// Per-value differences `b - a`.
+fn change(a: &image::RgbImage, b: &image::RgbImage) -> Vec<f64> {
+    a.as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(&x, &y)| f64::from(y) - f64::from(x))
+        .collect()
+}
+
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (ma, mb) = (mean(a), mean(b));
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        ab += (x - ma) * (y - mb);
+        aa += (x - ma).powi(2);
+        bb += (y - mb).powi(2);
+    }
+    ab / (aa * bb).sqrt().max(1e-12)
+}
+
+/// A lat-long sky that is not symmetric about +Y: a warm lobe low towards +X over a dim blue
+/// dome, so that turning it about +Y relights the box through its open side.
+fn write_lobe_sky(path: &Path) {
+    let (w, h) = (64usize, 32usize);
+    let mut data = Vec::with_capacity(3 * w * h);
+    for row in 0..h {
+        for col in 0..w {
+            let theta = std::f32::consts::PI * (row as f32 + 0.5) / h as f32;
+            let phi = 2.0 * std::f32::consts::PI * (col as f32 + 0.5) / w as f32;
+            let d = [
+                theta.sin() * phi.cos(),
+                theta.cos(),
+                theta.sin() * phi.sin(),
+            ];
+            let lobe = 6.0 * (d[0] * 0.8 + d[1] * 0.2).max(0.0).powi(4);
+            data.extend_from_slice(&[0.2 + lobe, 0.25 + 0.7 * lobe, 0.35 + 0.3 * lobe]);
+        }
+    }
+    let image = prt_texture::hdr::RgbImage {
+        width: w as u32,
+        height: h as u32,
+        data,
+    };
+    std::fs::write(path, prt_texture::hdr::encode_hdr(&image).expect("encode")).expect("write");
+}
+
+#[test]
+#[cfg_attr(
+    prt_skip_chromium,
+    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
+fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
+    let dir = scratch("cornell");
+    let bake = dir.join("bake");
+    // A small Cornell bake (the default 32³ one takes minutes in a debug build).
+    run(prt()
+        .args([
+            "bake",
+            "--res",
+            "16",
+            "--rays",
+            "96",
+            "--cache-rays",
+            "32",
+            "--rank",
+            "4",
+        ])
+        .args([
+            "--basis-nodes",
+            "3",
+            "--iterations",
+            "24",
+            "--keep-volumes",
+            "always",
+        ])
+        .arg("--out")
+        .arg(&bake));
+    let sky = dir.join("lobe.hdr");
+    write_lobe_sky(&sky);
+    let sky_arg = sky.to_str().expect("utf-8");
+    let server = Server::start(&bake, &sky);
+
+    // (query, render flags, name): the default sky with MBD, the lobe sky with the reference
+    // volume, and MBD under the lobe sky at two rotations.
+    let cases: [(&str, Vec<&str>, &str); 4] = [
+        (
+            "camera=0&rotate=0&method=mbd",
+            vec!["--camera", "0", "--rotate", "0", "--method", "mbd"],
+            "mbd",
+        ),
+        (
+            "camera=0&rotate=0&method=reference&sky=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "0",
+                "--method",
+                "reference",
+                "--sky",
+                sky_arg,
+            ],
+            "reference-lobe",
+        ),
+        (
+            "camera=0&rotate=0&method=mbd&sky=1&exposure=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "0",
+                "--method",
+                "mbd",
+                "--sky",
+                sky_arg,
+                "--exposure",
+                "1",
+            ],
+            "mbd-lobe-0",
+        ),
+        (
+            "camera=0&rotate=120&method=mbd&sky=1&exposure=1",
+            vec![
+                "--camera",
+                "0",
+                "--rotate",
+                "120",
+                "--method",
+                "mbd",
+                "--sky",
+                sky_arg,
+                "--exposure",
+                "1",
+            ],
+            "mbd-lobe-120",
+        ),
+    ];
+    let mut pairs = Vec::new();
+    for (query, flags, name) in &cases {
+        let shot = screenshot(&server, query, &dir.join(format!("{name}-view.png")));
+        let cpu = render(&bake, flags, &dir.join(format!("{name}-render.png")));
+        let db = psnr(&shot, &cpu);
+        eprintln!("{name}: PSNR {db:.2} dB between the viewer and prt render");
+        assert!(
+            db >= MIN_PSNR,
+            "{name}: PSNR {db:.2} dB < {MIN_PSNR} dB (images in {})",
+            dir.display()
+        );
+        pairs.push((shot, cpu));
+    }
+    // Turning the sky by 120° changes the image a lot, and the same way in both.
+    let (view_0, cpu_0) = &pairs[2];
+    let (view_120, cpu_120) = &pairs[3];
+    let moved_view = change(view_0, view_120);
+    let moved_cpu = change(cpu_0, cpu_120);
+    let rms = (moved_cpu.iter().map(|d| d * d).sum::<f64>() / moved_cpu.len() as f64).sqrt();
+    let r = correlation(&moved_view, &moved_cpu);
+    eprintln!("turning the sky by 120°: RMS change {rms:.1} (8-bit), correlation {r:.4}");
+    assert!(
+        rms > 10.0,
+        "turning the sky barely changed the CPU render (RMS {rms:.2})"
+    );
+    assert!(
+        r > 0.95,
+        "the viewer's change correlates {r:.4} with the CPU's"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
