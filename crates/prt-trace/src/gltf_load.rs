@@ -134,10 +134,15 @@ fn load(
 }
 
 /// The GLB header is checked here because the gltf crate subtracts its 12 bytes from the
-/// declared length without checking it first.
-fn check_glb_header(bytes: &[u8], path: &Path) -> Result<(), TraceError> {
+/// declared length without checking it first. Returns the bytes the header declares: bytes
+/// past them are ignored with a warning (the gltf crate would read them as a chunk).
+fn check_glb_header<'b>(
+    bytes: &'b [u8],
+    path: &Path,
+    scene: &mut Scene,
+) -> Result<&'b [u8], TraceError> {
     if !bytes.starts_with(b"glTF") {
-        return Ok(());
+        return Ok(bytes);
     }
     let Some(declared) = bytes.get(8..12) else {
         return Err(gltf_error(path, "GLB header shorter than 12 bytes"));
@@ -151,7 +156,83 @@ fn check_glb_header(bytes: &[u8], path: &Path) -> Result<(), TraceError> {
             ),
         ));
     }
-    Ok(())
+    match bytes.get(..declared as usize) {
+        Some(declared_bytes) if declared_bytes.len() < bytes.len() => {
+            scene.warn(format!(
+                "{} byte(s) after the GLB's declared length of {declared} are ignored",
+                bytes.len() - declared_bytes.len()
+            ));
+            Ok(declared_bytes)
+        }
+        _ => Ok(bytes),
+    }
+}
+
+/// The document's JSON and the GLB binary chunk, if any.
+///
+/// gltf-json requires some fields that glTF 2.0 makes optional, all in parts the baker never
+/// reads (an animation channel's target node, a scene's node list): a document it refuses is
+/// parsed again without animations and with empty node lists filled in, and refused with the
+/// first error only if that fails too.
+fn parse(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>), TraceError> {
+    use gltf::json::deserialize::{from_slice, from_value};
+    let (json, blob) = if bytes.starts_with(b"glTF") {
+        let glb = gltf::Glb::from_slice(bytes).map_err(|e| gltf_error(path, describe(e)))?;
+        (glb.json, glb.bin.map(std::borrow::Cow::into_owned))
+    } else {
+        (std::borrow::Cow::Borrowed(bytes), None)
+    };
+    let strict = match from_slice::<gltf::json::Root>(&json) {
+        Ok(root) => return Ok((root, blob)),
+        Err(e) => e,
+    };
+    let relaxed = from_slice::<gltf::json::Value>(&json)
+        .ok()
+        .and_then(|mut value| {
+            let root = value.as_object_mut()?;
+            root.remove("animations");
+            for scene in root
+                .get_mut("scenes")
+                .and_then(gltf::json::Value::as_array_mut)
+                .into_iter()
+                .flatten()
+            {
+                if let Some(scene) = scene.as_object_mut() {
+                    scene
+                        .entry("nodes")
+                        .or_insert_with(|| gltf::json::Value::Array(Vec::new()));
+                }
+            }
+            from_value::<gltf::json::Root>(value).ok()
+        });
+    match relaxed {
+        Some(root) => Ok((root, blob)),
+        None => Err(gltf_error(path, strict)),
+    }
+}
+
+/// The gltf crate's validation, except that an accessor with neither a buffer view nor sparse
+/// values is accepted: glTF 2.0 ("Accessors") defines it as all zeros.
+fn validate(json: &gltf::json::Root, path: &Path) -> Result<(), TraceError> {
+    use gltf::json::validation::{Error, Validate};
+    let mut errors = Vec::new();
+    json.validate(json, gltf::json::Path::new, &mut |at, error| {
+        errors.push((at(), error))
+    });
+    errors
+        .retain(|(at, error)| !(matches!(error, Error::Missing) && is_accessor_view(at.as_str())));
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(gltf_error(path, describe(gltf::Error::Validation(errors))))
+    }
+}
+
+/// Whether a JSON path is `accessors[N].bufferView`.
+fn is_accessor_view(at: &str) -> bool {
+    at.strip_prefix("accessors[")
+        .and_then(|rest| rest.strip_suffix("].bufferView"))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Formats the gltf crate's error; validation failures become one line per JSON path.
@@ -217,13 +298,11 @@ fn load_into(
     base: Option<&Path>,
     options: &LoadOptions,
 ) -> Result<(), TraceError> {
-    check_glb_header(bytes, path)?;
-    let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice_without_validation(bytes)
-        .map_err(|e| gltf_error(path, describe(e)))?;
+    let bytes = check_glb_header(bytes, path, scene)?;
+    let (mut json, mut blob) = parse(bytes, path)?;
 
     // The gltf crate's validation rejects every required extension it does not know; ours
     // refuses those that change geometry and only warns about the rest.
-    let mut json = document.into_json();
     let quantized = json
         .extensions_used
         .iter()
@@ -239,22 +318,39 @@ fn load_into(
             ));
         }
     }
+    // A geometry extension that is used but not required leaves a fallback without it: read
+    // that, unless its data is missing (accessors without any, or a buffer that cannot load).
+    let geometry_used = json
+        .extensions_used
+        .iter()
+        .find(|e| GEOMETRY_EXTENSIONS.contains(&e.as_str()))
+        .cloned();
+    if let Some(ext) = &geometry_used {
+        if json
+            .accessors
+            .iter()
+            .any(|a| a.buffer_view.is_none() && a.sparse.is_none())
+        {
+            return Err(TraceError::UnsupportedExtension { name: ext.clone() });
+        }
+        scene.warn(format!(
+            "extension {ext} is not supported; the document's fallback geometry without it is read"
+        ));
+    }
     check_attribute_references(&json)?;
-    let document = gltf::Document::from_json(json).map_err(|e| gltf_error(path, describe(e)))?;
+    validate(&json, path)?;
+    let document = gltf::Document::from_json_without_validation(json);
 
+    // Only buffers that a buffer view reads are loaded: an unused one may be a placeholder.
+    let used: std::collections::HashSet<usize> =
+        document.views().map(|view| view.buffer().index()).collect();
     let mut buffers = Vec::new();
     for buffer in document.buffers() {
         let uri = match buffer.source() {
             gltf::buffer::Source::Bin => "<GLB BIN chunk>".to_owned(),
             gltf::buffer::Source::Uri(uri) => uri.chars().take(120).collect(),
         };
-        if buffer.length() as u64 > options.max_bytes {
-            return Err(TraceError::Limit {
-                what: "glTF buffer bytes",
-                limit: options.max_bytes,
-                got: buffer.length() as u64,
-            });
-        }
+        // A URI that does not decode is malformed even if the buffer is never read.
         if let gltf::buffer::Source::Uri(full) = buffer.source()
             && !percent_decodes_to_utf8(full)
         {
@@ -264,11 +360,37 @@ fn load_into(
                 message: "the URI's percent-encoding does not decode to UTF-8".to_owned(),
             });
         }
-        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
-            .map_err(|e| TraceError::Buffer {
+        if !used.contains(&buffer.index()) {
+            buffers.push(gltf::buffer::Data(Vec::new()));
+            continue;
+        }
+        let unsupported = |error: TraceError| match &geometry_used {
+            Some(ext) => TraceError::UnsupportedExtension { name: ext.clone() },
+            None => error,
+        };
+        if buffer.length() as u64 > options.max_bytes {
+            return Err(TraceError::Limit {
+                what: "glTF buffer bytes",
+                limit: options.max_bytes,
+                got: buffer.length() as u64,
+            });
+        }
+        if matches!(buffer.source(), gltf::buffer::Source::Bin) && blob.is_none() {
+            return Err(unsupported(TraceError::Buffer {
                 index: buffer.index(),
-                uri: uri.clone(),
-                message: e.to_string(),
+                uri,
+                message: "it has no uri, and the document has no GLB binary chunk for it \
+                          (only a .glb file's first buffer may omit its uri)"
+                    .to_owned(),
+            }));
+        }
+        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
+            .map_err(|e| {
+                unsupported(TraceError::Buffer {
+                    index: buffer.index(),
+                    uri: uri.clone(),
+                    message: e.to_string(),
+                })
             })?;
         if data.len() < buffer.length() {
             return Err(TraceError::Buffer {
@@ -641,8 +763,9 @@ impl AccessorReader<'_> {
                 values
             }
             None => {
-                // A sparse accessor without a view starts from zeros: no stored data bounds its
-                // count, so the decoded size (8 bytes a component) is bounded like a buffer's.
+                // An accessor without a view is zeros (then the sparse values, if any): no stored
+                // data bounds its count, so the decoded size (8 bytes a component) is bounded
+                // like a buffer's.
                 let decoded = count.saturating_mul(dims as u64 * 8);
                 if decoded > self.max_bytes {
                     return Err(TraceError::Limit {
@@ -656,8 +779,6 @@ impl AccessorReader<'_> {
         };
         if let Some(sparse) = &a.sparse {
             self.apply_sparse(sparse, &mut values, count, dims, ct, index, used_as)?;
-        } else if a.buffer_view.is_none() {
-            return Err(bad("neither bufferView nor sparse".to_owned()));
         }
         if a.normalized {
             values.iter_mut().for_each(|v| *v = normalize(*v, ct));

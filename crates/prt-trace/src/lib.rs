@@ -67,8 +67,11 @@
 //!   of its longest axis thick along the flat axis.
 //! * Malformed glTF or GLB is a typed error naming the accessor, mesh and primitive, or node
 //!   ([`TraceError::BadAccessor`], [`TraceError::BadPrimitive`], [`TraceError::BadNode`],
-//!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; a required extension that
-//!   changes geometry is [`TraceError::UnsupportedExtension`].
+//!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; an extension that changes
+//!   geometry is [`TraceError::UnsupportedExtension`] when required or used without a fallback.
+//!   What glTF 2.0 allows and gltf-json refuses is read: an accessor without a buffer view is
+//!   zeros, a scene may omit `nodes`, an animation target its `node` (animations are ignored).
+//!   Buffers no buffer view reads are not loaded.
 //! * Degenerate (zero-area) triangles are dropped and counted; NaN/Inf positions are
 //!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; point and line
 //!   primitives are skipped with a warning.
