@@ -170,10 +170,10 @@ fn check_glb_header<'b>(
 
 /// The document's JSON and the GLB binary chunk, if any.
 ///
-/// gltf-json requires some fields that glTF 2.0 makes optional, all in parts the baker never
-/// reads (an animation channel's target node, a scene's node list): a document it refuses is
-/// parsed again without animations and with empty node lists filled in, and refused with the
-/// first error only if that fails too.
+/// gltf-json refuses some documents glTF 2.0 allows: an animation channel without a target
+/// node, a scene without a node list, an integer field written `1.0`. A document it refuses is
+/// parsed again without animations (never read), with empty node lists filled in and integral
+/// floats made integers, and refused with the first error only if that fails too.
 fn parse(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>), TraceError> {
     use gltf::json::deserialize::{from_slice, from_value};
     let (json, blob) = if bytes.starts_with(b"glTF") {
@@ -189,6 +189,7 @@ fn parse(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>
     let relaxed = from_slice::<gltf::json::Value>(&json)
         .ok()
         .and_then(|mut value| {
+            integers_from_integral_floats(&mut value);
             let root = value.as_object_mut()?;
             root.remove("animations");
             for scene in root
@@ -211,21 +212,48 @@ fn parse(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>
     }
 }
 
-/// The gltf crate's validation, except that an accessor with neither a buffer view nor sparse
-/// values is accepted: glTF 2.0 ("Accessors") defines it as all zeros.
+/// Rewrites every number with an integral value written as a float (`1.0`) as an integer: JSON
+/// does not tell them apart, glTF-Validator accepts them for integer fields, serde does not
+/// (float fields take integers, so nothing else changes).
+fn integers_from_integral_floats(value: &mut gltf::json::Value) {
+    use gltf::json::Value;
+    match value {
+        Value::Number(n) => {
+            if let Some(f) = n.as_f64().filter(|f| n.is_f64() && f.fract() == 0.0)
+                && f.abs() < 9.0e15
+            {
+                *value = Value::from(f as i64);
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(integers_from_integral_floats),
+        Value::Object(fields) => fields.values_mut().for_each(integers_from_integral_floats),
+        _ => {}
+    }
+}
+
+/// The gltf crate's validation, except for what glTF 2.0 allows: an accessor with neither a
+/// buffer view nor sparse values (all zeros, "Accessors"), a primitive without POSITION.
 fn validate(json: &gltf::json::Root, path: &Path) -> Result<(), TraceError> {
     use gltf::json::validation::{Error, Validate};
     let mut errors = Vec::new();
     json.validate(json, gltf::json::Path::new, &mut |at, error| {
         errors.push((at(), error))
     });
-    errors
-        .retain(|(at, error)| !(matches!(error, Error::Missing) && is_accessor_view(at.as_str())));
+    errors.retain(|(at, error)| {
+        !(matches!(error, Error::Missing)
+            && (is_accessor_view(at.as_str()) || is_position(at.as_str())))
+    });
     if errors.is_empty() {
         Ok(())
     } else {
         Err(gltf_error(path, describe(gltf::Error::Validation(errors))))
     }
+}
+
+/// Whether a JSON path is a primitive's POSITION attribute: glTF 2.0 lets a primitive omit it
+/// (it is then not rendered, and skipped here).
+fn is_position(at: &str) -> bool {
+    at.starts_with("meshes[") && at.ends_with(".attributes[\"POSITION\"]")
 }
 
 /// Whether a JSON path is `accessors[N].bufferView`.
@@ -341,9 +369,7 @@ fn load_into(
     validate(&json, path)?;
     let document = gltf::Document::from_json_without_validation(json);
 
-    // Only buffers that a buffer view reads are loaded: an unused one may be a placeholder.
-    let used: std::collections::HashSet<usize> =
-        document.views().map(|view| view.buffer().index()).collect();
+    let used = needed_buffers(&document, options.decode_textures);
     let mut buffers = Vec::new();
     for buffer in document.buffers() {
         let uri = match buffer.source() {
@@ -428,6 +454,7 @@ fn load_into(
         root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
     let mut triangle_count: u64 = 0;
     let mut skipped_modes = Vec::new();
+    let mut positionless = Vec::new();
     while let Some((node, parent)) = stack.pop() {
         if std::mem::replace(&mut visited[node.index()], true) {
             return Err(TraceError::BadNode {
@@ -460,9 +487,10 @@ fn load_into(
                     primitive: pi,
                     why,
                 };
-                let position = primitive
-                    .get(&gltf::Semantic::Positions)
-                    .ok_or_else(|| bad("no POSITION attribute".to_owned()))?;
+                let Some(position) = primitive.get(&gltf::Semantic::Positions) else {
+                    positionless.push(what);
+                    continue;
+                };
                 let mut positions =
                     reader.positions(position.index(), quantized, &format!("{what} POSITION"))?;
                 for (k, target) in primitive.morph_targets().enumerate() {
@@ -564,6 +592,13 @@ fn load_into(
         }
         stack.extend(node.children().map(|c| (c, world)));
     }
+    if !positionless.is_empty() {
+        scene.warn(format!(
+            "{} primitive(s) without POSITION skipped (glTF does not render them): {}",
+            positionless.len(),
+            positionless.join(", ")
+        ));
+    }
     if !skipped_modes.is_empty() {
         scene.warn(format!(
             "{} point or line primitive(s) skipped (only surfaces are traced): {}",
@@ -572,6 +607,37 @@ fn load_into(
         ));
     }
     Ok(())
+}
+
+/// The buffers the loader reads: those holding the positions, indices and morph-target
+/// positions of any primitive (and the images, when textures are decoded). Others (animations,
+/// skins, other attributes, placeholders) are never loaded, so they cannot fail a load.
+fn needed_buffers(
+    document: &gltf::Document,
+    decode_textures: bool,
+) -> std::collections::HashSet<usize> {
+    let mut accessors = Vec::new();
+    for primitive in document.meshes().flat_map(|m| m.primitives()) {
+        accessors.extend(primitive.get(&gltf::Semantic::Positions));
+        accessors.extend(primitive.indices());
+        accessors.extend(primitive.morph_targets().filter_map(|t| t.positions()));
+    }
+    let mut buffers = std::collections::HashSet::new();
+    for accessor in accessors {
+        buffers.extend(accessor.view().map(|v| v.buffer().index()));
+        if let Some(sparse) = accessor.sparse() {
+            buffers.insert(sparse.indices().view().buffer().index());
+            buffers.insert(sparse.values().view().buffer().index());
+        }
+    }
+    if decode_textures {
+        for image in document.images() {
+            if let gltf::image::Source::View { view, .. } = image.source() {
+                buffers.insert(view.buffer().index());
+            }
+        }
+    }
+    buffers
 }
 
 /// Whether a relative URI's `%XX` escapes decode to UTF-8: the gltf crate unwraps that

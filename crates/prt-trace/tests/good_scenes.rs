@@ -18,15 +18,24 @@ const CASES: &[(&str, usize, &str)] = &[
         1,
         "after the GLB's declared length",
     ),
+    // "count": 3.0 — JSON does not tell integers from integral floats; gltf-json does.
+    ("integer_written_as_float.gltf", 1, ""),
     // An accessor with neither bufferView nor sparse values is zeros (glTF 2.0, "Accessors"):
     // here a morph target that moves nothing.
     ("morph_target_without_buffer_view.gltf", 1, ""),
     // A scene without "nodes" and an animation channel without a target node (both optional
     // in glTF 2.0; gltf-json requires them).
     ("optional_fields_omitted.gltf", 1, ""),
+    // glTF 2.0 lets a primitive omit POSITION (it is not rendered).
+    (
+        "primitive_without_position.gltf",
+        1,
+        "1 primitive(s) without POSITION skipped",
+    ),
     ("triangle.glb", 1, ""),
     ("triangle.gltf", 1, ""),
-    // A buffer no buffer view reads is not loaded, so a missing one does not matter.
+    // A buffer the loader does not read (no positions, indices or morph targets in it) is not
+    // loaded, so a missing one does not matter.
     ("unused_buffer_missing.gltf", 1, ""),
 ];
 
