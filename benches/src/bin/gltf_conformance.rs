@@ -358,6 +358,7 @@ fn main() {
     ]);
     let (mut loaded, mut refused, mut panicked, mut hung, mut wrong) = (0, 0, 0, 0, 0);
     let mut refusals = std::collections::BTreeMap::<String, usize>::new();
+    let prefix = format!("{}/", args.dir.display());
     for (i, path) in files.iter().enumerate() {
         let name = path
             .strip_prefix(&args.dir)
@@ -417,7 +418,8 @@ fn main() {
                     "-".to_owned(),
                     "-".to_owned(),
                     validator,
-                    cell(&e.to_string()),
+                    // Paths are relative to the folder, as in the first column.
+                    cell(&e.to_string().replace(&prefix, "")),
                     ms,
                 ]
             }
