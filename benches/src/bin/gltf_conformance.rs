@@ -231,7 +231,17 @@ fn expected(path: &Path) -> Expected {
                     continue;
                 }
                 let position = p.get("attributes").and_then(|a| a.get("POSITION"));
+                // An accessor without data is zeros: the loader skips such a primitive, as it
+                // has no area (unless morph targets move it).
+                let zeros = |a: &Value| {
+                    a.as_u64()
+                        .and_then(|i| accessors.get(i as usize))
+                        .is_some_and(|a| a.get("bufferView").is_none() && a.get("sparse").is_none())
+                };
+                let no_area = p.get("indices").is_some_and(zeros)
+                    || position.is_some_and(zeros) && p.get("targets").is_none();
                 let n = match p.get("indices") {
+                    _ if no_area => Some(0),
                     Some(ix) => count_of(ix),
                     None => position.and_then(count_of),
                 };

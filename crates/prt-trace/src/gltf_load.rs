@@ -455,6 +455,7 @@ fn load_into(
     let mut triangle_count: u64 = 0;
     let mut skipped_modes = Vec::new();
     let mut positionless = Vec::new();
+    let mut without_data = Vec::new();
     while let Some((node, parent)) = stack.pop() {
         if std::mem::replace(&mut visited[node.index()], true) {
             return Err(TraceError::BadNode {
@@ -491,13 +492,26 @@ fn load_into(
                     positionless.push(what);
                     continue;
                 };
+                // An accessor without data is all zeros: zero positions that no weighted morph
+                // target moves, or zero indices, make only degenerate triangles. They are
+                // skipped unread, so a large count in a tiny file allocates nothing.
+                let moved = primitive.morph_targets().enumerate().any(|(k, target)| {
+                    target.positions().is_some_and(|a| has_data(&a))
+                        && weights.get(k).is_some_and(|&w| w != 0.0)
+                });
+                if (!has_data(&position) && !moved)
+                    || primitive.indices().is_some_and(|ix| !has_data(&ix))
+                {
+                    without_data.push(what);
+                    continue;
+                }
                 let mut positions =
                     reader.positions(position.index(), quantized, &format!("{what} POSITION"))?;
                 for (k, target) in primitive.morph_targets().enumerate() {
                     let (Some(offsets), Some(&w)) = (target.positions(), weights.get(k)) else {
                         continue;
                     };
-                    if w == 0.0 {
+                    if w == 0.0 || !has_data(&offsets) {
                         continue;
                     }
                     let offsets = reader.positions(
@@ -592,6 +606,14 @@ fn load_into(
         }
         stack.extend(node.children().map(|c| (c, world)));
     }
+    if !without_data.is_empty() {
+        scene.warn(format!(
+            "{} primitive(s) skipped whose positions or indices have no data (all zeros: no \
+             area): {}",
+            without_data.len(),
+            without_data.join(", ")
+        ));
+    }
     if !positionless.is_empty() {
         scene.warn(format!(
             "{} primitive(s) without POSITION skipped (glTF does not render them): {}",
@@ -607,6 +629,11 @@ fn load_into(
         ));
     }
     Ok(())
+}
+
+/// Whether an accessor has a buffer view or sparse values; one with neither is all zeros.
+fn has_data(accessor: &gltf::Accessor<'_>) -> bool {
+    accessor.view().is_some() || accessor.sparse().is_some()
 }
 
 /// The buffers the loader reads: those holding the positions, indices and morph-target

@@ -70,7 +70,8 @@
 //!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; an extension that changes
 //!   geometry is [`TraceError::UnsupportedExtension`] when required or used without a fallback.
 //!   What glTF 2.0 allows and gltf-json refuses is read: an accessor without a buffer view is
-//!   zeros, a primitive without POSITION is skipped with a warning, a scene may omit `nodes`, an
+//!   zeros (a primitive whose positions or indices are such zeros has no area and is skipped
+//!   unread, with a warning), a primitive without POSITION is skipped with a warning, a scene may omit `nodes`, an
 //!   animation target its `node` (animations are ignored), an integer may be written `1.0`.
 //!   Only the buffers holding positions, indices and morph targets (and images, when decoded)
 //!   are loaded.

@@ -18,6 +18,12 @@ const CASES: &[(&str, usize, &str)] = &[
         1,
         "after the GLB's declared length",
     ),
+    // 80 million zero positions (no buffer view): no area, skipped without allocating them.
+    (
+        "huge_position_accessor_without_data.gltf",
+        1,
+        "1 primitive(s) skipped whose positions or indices have no data",
+    ),
     // "count": 3.0 — JSON does not tell integers from integral floats; gltf-json does.
     ("integer_written_as_float.gltf", 1, ""),
     // An accessor with neither bufferView nor sparse values is zeros (glTF 2.0, "Accessors"):
