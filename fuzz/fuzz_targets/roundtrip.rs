@@ -73,7 +73,7 @@ fuzz_target!(|data: &[u8]| {
             let n = dims.iter().product::<u32>() as usize * channels;
             let values = unit_values(rest, n).iter().map(|v| v * 200.0 - 100.0).collect();
             let array = GridArray::new(dims, channels, values).unwrap();
-            let layout = if head[6] % 2 == 0 { ArrayLayout::Volume } else { ArrayLayout::Rows };
+            let layout = [ArrayLayout::Volume, ArrayLayout::Atlas, ArrayLayout::Rows][usize::from(head[6]) % 3];
             let mut c = Container::default();
             c.arrays.push(("a".into(), array.clone(), encoding, layout));
             let (manifest, files) = c.encode().unwrap();

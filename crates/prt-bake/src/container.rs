@@ -1,4 +1,5 @@
-//! The MBD container: writing a fitted model and reading it back as a model that evaluates f̂.
+//! The MBD container: writing a fitted model in the filterable layout and reading it back as a
+//! model that evaluates f̂.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -74,9 +75,13 @@ fn kernel_description(kernels: &HatGrid) -> KernelDescription {
     }
 }
 
-/// Writes the container into `folder` (created if missing): `coefficients.ktx2` (the coefficient
-/// volume), `basis.ktx2` (the basis grid), `validity.ktx2` and `manifest.json`, each atomically
-/// and the manifest last. Returns what was written (bytes included).
+/// Writes the container into `folder` (created if missing), each file atomically and the
+/// manifest last, in the filterable layout (docs/formats.md): `coefficients.ktx2` (the L
+/// coefficients per node in ⌈L/4⌉ RGBA tiles stacked along z, [`ArrayLayout::Volume`]),
+/// `basis.ktx2` (the 324·L basis values per basis node in 81·L RGBA tiles,
+/// [`ArrayLayout::Atlas`]), `validity.ktx2` and `manifest.json`. Node `i` of a hat grid is
+/// texel `i` of its tile, so hardware trilinear filtering at texel centres computes the hat
+/// sums. Returns what was written (bytes included).
 pub fn write_container(
     folder: &Path,
     contents: &ContainerContents<'_>,
@@ -118,6 +123,10 @@ pub fn write_container(
         "basis_channel_order".into(),
         json!("channel = l * dimension + d (rank-major)"),
     );
+    attributes.insert(
+        "texture_coordinates".into(),
+        json!("hat node i = texel centre i of its tile: uvw = (tile * nodes + clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1) + 0.5) / texture_size"),
+    );
     attributes.insert("lambda".into(), json!(contents.lambda));
     attributes.insert(
         "validity".into(),
@@ -140,7 +149,7 @@ pub fn write_container(
                 encoding,
                 ArrayLayout::Volume,
             ),
-            (MBD_BASIS.to_string(), basis, encoding, ArrayLayout::Rows),
+            (MBD_BASIS.to_string(), basis, encoding, ArrayLayout::Atlas),
             (
                 VALIDITY.to_string(),
                 validity,
@@ -152,8 +161,9 @@ pub fn write_container(
     Ok(container.write(folder)?)
 }
 
-/// Reads a container written by [`write_container`], checking every file against `limits`
-/// and the arrays against each other, the kernels and the attributes.
+/// Reads a container written by [`write_container`] (or an older one with the basis in
+/// [`ArrayLayout::Rows`]), decoding every texture through its layout, checking every file
+/// against `limits` and the arrays against each other, the kernels and the attributes.
 pub fn read_container(folder: &Path, limits: &Limits) -> Result<MbdContainer, ContainerError> {
     let loaded = LoadedContainer::read(folder, limits)?;
     from_loaded(loaded)

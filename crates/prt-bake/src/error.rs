@@ -85,6 +85,14 @@ pub enum BakeError {
     /// The container could not be written or read back.
     #[error("cannot write the MBD container")]
     Container(#[source] ContainerError),
+    /// A model to relight does not hold transfer vectors.
+    #[error("relighting needs {expected}-D transfer vectors, the model's are {got}-D")]
+    NotTransfer {
+        /// The transfer dimension, 324.
+        expected: usize,
+        /// The model's dimension.
+        got: usize,
+    },
     /// The work was cancelled between stages.
     #[error("cancelled")]
     Cancelled(#[source] CoreError),

@@ -15,9 +15,11 @@
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
+//! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
+//! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
 //!
 //! ```no_run
 //! use prt_bake::{BakeConfig, SceneInput, bake, read_container};
@@ -46,6 +48,8 @@ mod error;
 mod memory;
 mod methods;
 mod pipeline;
+mod production;
+mod relight;
 mod scene;
 mod scores;
 mod seams;
@@ -58,6 +62,12 @@ pub use container::{
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use production::{
+    IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
+    ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
+    production_kernels, read_production, texel_bytes, write_production,
+};
+pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};

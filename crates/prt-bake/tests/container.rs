@@ -362,3 +362,60 @@ fn garbage_files_never_panic() {
         assert!(matches!(error, ContainerError::Texture(_)), "{error:?}");
     }
 }
+
+#[test]
+fn the_basis_is_written_as_a_filterable_atlas_and_a_rows_basis_still_reads() {
+    use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer};
+    let values: Vec<f32> = (0..97).map(|i| (i as f32 * 0.37).sin()).collect();
+    let original = model(3, 324, &values);
+    let folder = scratch();
+    write(&folder, &original, Encoding::F32);
+    let back = read(&folder).expect("read");
+    let layout = |name: &str| {
+        let entry = back.manifest.arrays.iter().find(|a| a.name == name);
+        entry.map(|a| (a.layout, a.tiles))
+    };
+    let (basis_layout, tiles) = layout("basis").expect("basis");
+    assert_eq!(basis_layout, ArrayLayout::Atlas);
+    let [tx, ty, tz] = tiles.expect("an atlas names its tiles");
+    assert!(tx * ty * tz >= 3 * 81);
+    assert_eq!(layout("coefficients"), Some((ArrayLayout::Volume, None)));
+    assert_eq!(back.model, original);
+
+    // The same arrays re-stored with the basis as rows (the layout before the atlas) read
+    // back to the same model.
+    let loaded = LoadedContainer::read(&folder, &Limits::small()).expect("load");
+    let mut rows = Container {
+        attributes: loaded.manifest.attributes.clone(),
+        kernels: loaded.manifest.kernels.clone(),
+        arrays: Vec::new(),
+    };
+    for (entry, (name, array)) in loaded.manifest.arrays.iter().zip(&loaded.arrays) {
+        let layout = if name == "basis" {
+            ArrayLayout::Rows
+        } else {
+            entry.layout
+        };
+        let array = GridArray::new(array.dims, array.channels, array.data.clone()).expect("array");
+        rows.arrays
+            .push((name.clone(), array, entry.encoding, layout));
+    }
+    let other = scratch();
+    rows.write(&other).expect("write rows");
+    assert_eq!(read(&other).expect("read rows").model, original);
+
+    // An atlas whose tiles do not hold every group is refused.
+    edit_manifest(&folder, |m| {
+        for a in &mut m.arrays {
+            if a.name == "basis" {
+                a.tiles = Some([1, 1, 1]);
+            }
+        }
+    });
+    assert!(matches!(
+        read(&folder),
+        Err(ContainerError::Texture(TextureError::Malformed { .. }))
+    ));
+    let _ = std::fs::remove_dir_all(folder);
+    let _ = std::fs::remove_dir_all(other);
+}

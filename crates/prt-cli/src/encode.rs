@@ -14,7 +14,6 @@ use prt_plsq::{
 use prt_sphere::{
     AmbientCube, AmbientDiceBezier, AmbientDiceSrbf, LatLongMap, SgBasis, ShBasis, sampling,
 };
-use prt_texture::Limits;
 use serde_json::json;
 
 /// How the coefficients are fitted.
@@ -70,7 +69,7 @@ pub struct EncodeArgs {
 
 pub fn run(args: &EncodeArgs) -> Result<()> {
     ensure!(args.samples >= 1, "--samples must be at least 1");
-    let map = read_envmap(&args.envmap)?;
+    let map = crate::sky::read_envmap(&args.envmap)?;
     let (basis, clamp): (Box<dyn SphericalBasis>, bool) = parse_basis(&args.basis, args.lambda)?;
     let frame = match args.frame {
         Frame::Conventions => LatLongFrame::Conventions,
@@ -123,40 +122,6 @@ fn parse_basis(spec: &str, lambda: f32) -> Result<(Box<dyn SphericalBasis>, bool
             "unknown basis {spec:?} (expected sh:N, sg:N, ambient-cube, ambient-dice or ambient-dice-bezier)"
         ),
     })
-}
-
-fn read_envmap(path: &Path) -> Result<LatLongMap> {
-    if !path.exists() {
-        bail!("environment map {} does not exist", path.display());
-    }
-    let limits = Limits::default();
-    let extension = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_lowercase())
-        .unwrap_or_default();
-    let (w, h, rgb) = match extension.as_str() {
-        "hdr" | "pic" => {
-            let img = prt_texture::hdr::read_hdr(path, &limits)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            (img.width as usize, img.height as usize, img.data)
-        }
-        "exr" => {
-            let layers = prt_texture::exr_io::read_exr(path, &limits)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            let layer = layers
-                .into_iter()
-                .next()
-                .context("the EXR file has no RGB layer")?;
-            let rgb = layer
-                .data
-                .chunks_exact(layer.channels)
-                .flat_map(|p| [p[0], p[1], p[2]])
-                .collect();
-            (layer.width as usize, layer.height as usize, rgb)
-        }
-        _ => bail!("{}: expected a .hdr or .exr lat-long map", path.display()),
-    };
-    Ok(LatLongMap::new(w, h, rgb)?)
 }
 
 fn fit(

@@ -124,8 +124,12 @@ fn inspect_manifest(path: &Path, limits: &Limits) -> Result<()> {
         );
     }
     for a in &manifest.arrays {
+        let tiles = a
+            .tiles
+            .map(|[x, y, z]| format!(" ({x} x {y} x {z} tiles)"))
+            .unwrap_or_default();
         println!(
-            "  array {}: {:?} nodes x {} channels, {:?}, {:?} layout, {} bytes in {}",
+            "  array {}: {:?} nodes x {} channels, {:?}, {:?} layout{tiles}, {} bytes in {}",
             a.name, a.dims, a.channels, a.encoding, a.layout, a.bytes, a.file
         );
     }

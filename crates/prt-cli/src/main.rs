@@ -5,6 +5,8 @@
 //!   and clustered PCA at equal basis count, writes the MBD container (KTX2 volumes + JSON
 //!   manifest) and a report (`report.md`, images, loss plot) to an output folder.
 //! * `prt encode ENVMAP` fits an environment map into a sphere basis and prints the coefficients.
+//! * `prt export BAKE_DIR --target bevy|threejs|sh` lights a bake with a sky and writes probe
+//!   volumes that Bevy, three.js or a custom engine load unchanged.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -13,9 +15,11 @@
 
 mod bake;
 mod encode;
+mod export;
 mod inspect;
 mod progress;
 mod report;
+mod sky;
 
 use std::process::ExitCode;
 
@@ -25,7 +29,7 @@ use clap::{Parser, Subcommand};
 #[command(
     name = "prt",
     version,
-    about = "Precomputed light transport: bake, compress, encode, inspect"
+    about = "Precomputed light transport: bake, compress, export, encode, inspect"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -38,6 +42,8 @@ enum Command {
     Bake(bake::BakeArgs),
     /// Fit an environment map (.hdr / .exr) into a sphere basis.
     Encode(encode::EncodeArgs),
+    /// Light a bake with a sky and write probe volumes for Bevy, three.js or custom engines.
+    Export(export::ExportArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
 }
@@ -48,6 +54,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bake(args) => bake::run(&args),
         Command::Encode(args) => encode::run(&args),
+        Command::Export(args) => export::run(&args),
         Command::Inspect(args) => inspect::run(&args),
     };
     match result {

@@ -52,4 +52,4 @@ pub use sg::{
     SgBasis, SgLobe, fibonacci_axes, icosahedral_axes, sg_inner_product, sg_integral, spiral_axes,
 };
 pub use sh::{ShBasis, ShRotation, eval_sh, eval_sh_f64, sh_index, sh_len};
-pub use sky::{SKY_SH, Sky};
+pub use sky::{SKY_SH, Sky, SunSky};

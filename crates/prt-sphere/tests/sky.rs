@@ -85,3 +85,82 @@ fn non_finite_coefficients_and_non_rotations_are_refused() {
             .is_err()
     );
 }
+
+/// Without a sun, the closed-form SH of `Sky::sun_sky` equals the numerical projection of the
+/// documented sky gradient and lit ground.
+#[test]
+fn sun_sky_matches_the_projection_of_its_formula() {
+    use prt_sphere::SunSky;
+    let params = SunSky {
+        sun: [0.0; 3],
+        ground_albedo: 0.3,
+        ..SunSky::default()
+    };
+    let (zenith, horizon) = (Vec3::from(params.zenith), Vec3::from(params.horizon));
+    let ground_irradiance =
+        std::f32::consts::PI * horizon + 2.0 * std::f32::consts::FRAC_PI_3 * (zenith - horizon);
+    let ground = params.ground_albedo * ground_irradiance / std::f32::consts::PI;
+    let map = LatLongMap::from_fn(1024, 512, |d| {
+        if d.y > 0.0 {
+            horizon + (zenith - horizon) * d.y
+        } else {
+            ground
+        }
+    })
+    .unwrap();
+    let numeric = Sky::from_latlong(&map).unwrap();
+    let closed = Sky::sun_sky(&params).unwrap();
+    for c in 0..3 {
+        for j in 0..9 {
+            let (a, b) = (closed.sh[c][j], numeric.sh[c][j]);
+            assert!(
+                (a - b).abs() < 2e-3,
+                "channel {c} coefficient {j}: {a} vs {b}"
+            );
+        }
+    }
+}
+
+/// The sun term is the exact projection of a directional light: `E · Y_j(s)` added to the sky.
+#[test]
+fn sun_sky_adds_the_sun_as_a_delta_and_refuses_bad_parameters() {
+    use prt_sphere::{SunSky, eval_sh};
+    let base = SunSky::default();
+    let dark = Sky::sun_sky(&SunSky {
+        sun: [0.0; 3],
+        ground_albedo: 0.0,
+        ..base
+    })
+    .unwrap();
+    let lit = Sky::sun_sky(&SunSky {
+        ground_albedo: 0.0,
+        ..base
+    })
+    .unwrap();
+    let s = base.sun_direction();
+    assert!((s - Vec3::new(0.0, 0.5f32.sqrt(), 0.5f32.sqrt())).length() < 1e-6);
+    let mut y = [0.0f32; 9];
+    eval_sh(3, s, &mut y);
+    for c in 0..3 {
+        for j in 0..9 {
+            let want = dark.sh[c][j] + base.sun[c] * y[j];
+            assert!((lit.sh[c][j] - want).abs() < 1e-5);
+        }
+    }
+    let nan = SunSky {
+        elevation_deg: f32::NAN,
+        ..base
+    };
+    assert!(matches!(
+        Sky::sun_sky(&nan),
+        Err(SphereError::NonFinite { index: 0, .. })
+    ));
+    let bright_ground = SunSky {
+        ground_albedo: 1.5,
+        ..base
+    };
+    assert!(matches!(
+        Sky::sun_sky(&bright_ground),
+        Err(SphereError::Invalid { .. })
+    ));
+}

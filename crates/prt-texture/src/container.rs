@@ -9,10 +9,17 @@
 //! | array | dims | channels | layout |
 //! |---|---|---|---|
 //! | [`MBD_COEFFICIENTS`] | coefficient-kernel nodes | L (rank) | [`ArrayLayout::Volume`]: L channels packed in RGBA 3D textures |
-//! | [`MBD_BASIS`] | basis-kernel nodes | D x L (basis matrix per node, row-major) | [`ArrayLayout::Rows`] |
+//! | [`MBD_BASIS`] | basis-kernel nodes | D x L (basis matrix per node, row-major) | [`ArrayLayout::Atlas`] (filterable) or [`ArrayLayout::Rows`] |
 //!
 //! with two [`KernelDescription`]s (kind, node counts, domain) under the same names. The byte
 //! layout of the manifest and of the textures is in docs/formats.md.
+//!
+//! **Filterable layouts.** [`ArrayLayout::Volume`] and [`ArrayLayout::Atlas`] put each group of
+//! four channels in its own tile, a 3D block of the array's node dims, with node `i` at texel
+//! `i` of its tile. A hat grid whose node `i` maps to texel centre `i` is then evaluated by
+//! hardware trilinear filtering, provided the sampling coordinate is clamped to the tile's
+//! outer texel centres (so no filter footprint reaches a neighbouring tile); see [`atlas_tiles`]
+//! and [`ArrayEntry::tile_of`].
 //!
 //! Writing quantises, writes every texture atomically and the manifest last (so a reader never
 //! sees a manifest naming missing files), and reports the bytes actually written.
@@ -30,8 +37,9 @@ use crate::{Limits, TextureError};
 /// Value of [`Manifest::format`].
 pub const CONTAINER_FORMAT: &str = "prt-container";
 /// The manifest version this crate writes; it reads every version from 1 up to this one
-/// (version 2 stopped storing identity ranges for the float encodings).
-pub const CONTAINER_VERSION: u32 = 2;
+/// (version 2 stopped storing identity ranges for the float encodings, version 3 added
+/// [`ArrayLayout::Atlas`]).
+pub const CONTAINER_VERSION: u32 = 3;
 /// File name of the manifest inside a container folder.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the MBD coefficient grid array and its kernel.
@@ -99,14 +107,38 @@ impl GridArray {
 }
 
 /// How the channel groups of an array are laid out in its texture.
+///
+/// A *group* is four consecutive channels (three for RGB9E5), one texel per node; the last
+/// group is padded with zeros.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ArrayLayout {
     /// A 3D texture of `(dims[0], dims[1], dims[2]·groups)`: channel group `g` occupies slices
-    /// `g·dims[2] .. (g+1)·dims[2]`, so each group is a hardware-filterable volume.
+    /// `g·dims[2] .. (g+1)·dims[2]`, so each group is a hardware-filterable volume (an atlas
+    /// with tiles `[1, 1, groups]`).
     Volume,
-    /// A 2D texture of `(groups, nodes)`: row `n` holds node `n`'s channel groups.
+    /// A 3D texture of tiles: group `g` is the block of `dims` texels at tile
+    /// [`ArrayEntry::tile_of`]`(g)` of a `tiles[0] × tiles[1] × tiles[2]` arrangement
+    /// ([`ArrayEntry::tiles`], chosen by [`atlas_tiles`] when writing). For arrays with many
+    /// groups (an MBD basis has 81·L), where stacking them along z would exceed texture limits.
+    Atlas,
+    /// A 2D texture of `(groups, nodes)`: row `n` holds node `n`'s channel groups (not
+    /// filterable; for tools).
     Rows,
+}
+
+/// The tile arrangement [`Container::encode`] gives an [`ArrayLayout::Atlas`] of `groups` tiles
+/// of `dims` texels: close to a cube in texels (so no side grows much beyond the others),
+/// filled x first, then y, then z, with no empty layer of tiles along z.
+pub fn atlas_tiles(dims: [u32; 3], groups: usize) -> [u32; 3] {
+    let groups = groups.max(1) as f64;
+    let texels: f64 = dims.iter().map(|&d| f64::from(d)).product();
+    let side = (groups * texels).cbrt();
+    let fit = |d: u32, most: f64| (side / f64::from(d)).round().clamp(1.0, most.max(1.0));
+    let tx = fit(dims[0], groups);
+    let ty = fit(dims[1], (groups / tx).ceil());
+    let tz = (groups / (tx * ty)).ceil();
+    [tx as u32, ty as u32, tz as u32]
 }
 
 /// A spatial kernel family, described for a reader that rebuilds it.
@@ -137,6 +169,9 @@ pub struct ArrayEntry {
     pub encoding: Encoding,
     /// Texture layout of the channel groups.
     pub layout: ArrayLayout,
+    /// Tiles along x, y, z of an [`ArrayLayout::Atlas`] (absent for the other layouts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tiles: Option<[u32; 3]>,
     /// Per-channel decode map of the normalised encodings, `value = bias + scale · texel`.
     /// Empty for the float encodings and RGB9E5, which decode directly (container version 1
     /// wrote identity maps there; they are still accepted). Use [`ArrayEntry::range`] to read it.
@@ -166,13 +201,40 @@ impl ArrayEntry {
         self.channels.div_ceil(self.group_size())
     }
 
+    /// The tile arrangement of a filterable layout (`[1, 1, groups]` for
+    /// [`ArrayLayout::Volume`]); `None` for [`ArrayLayout::Rows`] or an atlas without tiles.
+    pub fn tile_grid(&self) -> Option<[u32; 3]> {
+        match self.layout {
+            ArrayLayout::Volume => Some([1, 1, u32::try_from(self.groups()).ok()?]),
+            ArrayLayout::Atlas => self.tiles,
+            ArrayLayout::Rows => None,
+        }
+    }
+
+    /// The tile `(tx, ty, tz)` holding channel group `g` in a filterable layout: group `g` is
+    /// tile `g mod tiles[0]`, `(g / tiles[0]) mod tiles[1]`, `g / (tiles[0]·tiles[1])`; its texel
+    /// for node `(i, j, k)` is `(tx·dims[0] + i, ty·dims[1] + j, tz·dims[2] + k)`.
+    pub fn tile_of(&self, g: usize) -> Option<[u32; 3]> {
+        let [tx, ty, _] = self.tile_grid()?.map(|t| t as usize);
+        if g >= self.groups() {
+            return None;
+        }
+        Some([g % tx, g / tx % ty, g / (tx * ty)].map(|t| t as u32))
+    }
+
     fn texture_shape(&self) -> Result<Shape, TextureError> {
         let groups = self.groups() as u64;
         let nodes = checked_product("array nodes", &self.dims.map(u64::from))?;
         let [x, y, z] = self.dims.map(u64::from);
-        let (w, h, d) = match self.layout {
-            ArrayLayout::Volume => (x, y, z * groups),
-            ArrayLayout::Rows => (groups, nodes, 0),
+        let (w, h, d) = match (self.layout, self.tile_grid()) {
+            (ArrayLayout::Rows, _) => (groups, nodes, 0),
+            (_, Some([tx, ty, tz])) => (x * u64::from(tx), y * u64::from(ty), z * u64::from(tz)),
+            (_, None) => {
+                return Err(TextureError::malformed(
+                    "manifest",
+                    format!("array {:?} has no tiles", self.name),
+                ));
+            }
         };
         let fits = |v: u64| {
             u32::try_from(v).map_err(|_| TextureError::TooLarge {
@@ -215,6 +277,31 @@ impl ArrayEntry {
             ));
         }
         check_at_most("array channels", self.channels as u64, limits.max_bytes)?;
+        // An atlas names its tiles (enough for every group, no empty layer of tiles along z);
+        // the other layouts name none.
+        let tiles_ok = match (self.layout, self.tiles) {
+            (ArrayLayout::Atlas, Some(t)) => {
+                // u128: the products of three u32 cannot overflow.
+                let [tx, ty, tz] = t.map(u128::from);
+                let layer = tx * ty;
+                let groups = self.groups() as u128;
+                !t.contains(&0) && layer * tz >= groups && layer * (tz - 1) < groups
+            }
+            (ArrayLayout::Atlas, None) => false,
+            (_, tiles) => tiles.is_none(),
+        };
+        if !tiles_ok {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!(
+                    "array {:?}: tiles {:?} for a {:?} layout of {} groups",
+                    self.name,
+                    self.tiles,
+                    self.layout,
+                    self.groups()
+                ),
+            ));
+        }
         // Normalised encodings need one range per channel; the others store none (or, as
         // version 1 wrote them, identity maps).
         let ranges_ok = if self.encoding.is_normalized() {
@@ -363,6 +450,12 @@ impl Container {
                 channels: array.channels,
                 encoding: *encoding,
                 layout: *layout,
+                tiles: (*layout == ArrayLayout::Atlas).then(|| {
+                    atlas_tiles(
+                        array.dims,
+                        array.channels.div_ceil(encoding.rgba_format().channels()),
+                    )
+                }),
                 ranges: Vec::new(),
                 bytes: 0,
             };
@@ -485,26 +578,27 @@ fn encode_array(
         quantize(&padded, padded_channels, entry.encoding)?
     };
     let texel_bytes = entry.encoding.rgba_format().bytes_per_texel();
-    let bytes = match entry.layout {
-        ArrayLayout::Rows => q.bytes,
-        ArrayLayout::Volume => {
-            // node-major [node][group] → group-major [group][node]
+    let shape = entry.texture_shape()?;
+    let bytes = match TileMap::new(entry, &shape) {
+        None => q.bytes,
+        Some(map) => {
+            // node-major [node][group] → each group's texels in its tile (unused tiles stay 0)
             let groups = entry.groups();
-            let mut out = vec![0u8; q.bytes.len()];
-            for (node, texels) in q.bytes.chunks_exact(groups * texel_bytes).enumerate() {
-                for (g, texel) in texels.chunks_exact(texel_bytes).enumerate() {
-                    let at = (g * nodes + node) * texel_bytes;
+            let texels = checked_product(
+                "atlas texels",
+                &[shape.width, shape.height, shape.depth].map(u64::from),
+            )?;
+            let mut out = vec![0u8; texels as usize * texel_bytes];
+            for (node, node_texels) in q.bytes.chunks_exact(groups * texel_bytes).enumerate() {
+                for (g, texel) in node_texels.chunks_exact(texel_bytes).enumerate() {
+                    let at = map.texel(node, g) * texel_bytes;
                     out[at..at + texel_bytes].copy_from_slice(texel);
                 }
             }
             out
         }
     };
-    let texture = Ktx2Texture::new(
-        entry.encoding.rgba_format(),
-        entry.texture_shape()?,
-        vec![bytes],
-    )?;
+    let texture = Ktx2Texture::new(entry.encoding.rgba_format(), shape, vec![bytes])?;
     let ranges = if entry.encoding.is_normalized() {
         q.ranges[..array.channels].to_vec()
     } else {
@@ -546,14 +640,20 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
     let group = entry.group_size();
     let texel_bytes = format.bytes_per_texel();
     let nodes = entry.dims.iter().map(|&d| d as usize).product::<usize>();
-    let node_major = match entry.layout {
-        ArrayLayout::Rows => level.clone(),
-        ArrayLayout::Volume => {
-            let mut out = vec![0u8; level.len()];
-            for (i, texel) in level.chunks_exact(texel_bytes).enumerate() {
-                let (g, node) = (i / nodes, i % nodes);
-                let at = (node * groups + g) * texel_bytes;
-                out[at..at + texel_bytes].copy_from_slice(texel);
+    let node_major = match TileMap::new(entry, &texture.shape()) {
+        None => level.clone(),
+        Some(map) => {
+            let mut out = vec![0u8; nodes * groups * texel_bytes];
+            for (i, texel) in out.chunks_exact_mut(texel_bytes).enumerate() {
+                let at = map.texel(i / groups, i % groups) * texel_bytes;
+                // Inside when the level matches its shape, which the KTX2 reader checks.
+                let src = level.get(at..at + texel_bytes).ok_or_else(|| {
+                    TextureError::malformed(
+                        "container texture",
+                        format!("{} is shorter than its shape", entry.file),
+                    )
+                })?;
+                texel.copy_from_slice(src);
             }
             out
         }
@@ -582,4 +682,33 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
         data.extend_from_slice(&node[..entry.channels]);
     }
     GridArray::new(entry.dims, entry.channels, data)
+}
+
+/// Where node `n`'s group `g` lives in a tiled (filterable) texture.
+struct TileMap {
+    dims: [usize; 3],
+    tiles: [usize; 2],
+    texture: [usize; 2],
+}
+
+impl TileMap {
+    /// The map of a filterable layout; `None` for [`ArrayLayout::Rows`].
+    fn new(entry: &ArrayEntry, shape: &Shape) -> Option<TileMap> {
+        let [tx, ty, _] = entry.tile_grid()?.map(|t| t as usize);
+        Some(TileMap {
+            dims: entry.dims.map(|d| d as usize),
+            tiles: [tx, ty],
+            texture: [shape.width as usize, shape.height as usize],
+        })
+    }
+
+    /// Flat texel index (x fastest) of node `node`'s channel group `g`.
+    fn texel(&self, node: usize, g: usize) -> usize {
+        let [nx, ny, nz] = self.dims;
+        let (i, j, k) = (node % nx, node / nx % ny, node / (nx * ny));
+        let [tx, ty] = self.tiles;
+        let (gx, gy, gz) = (g % tx, g / tx % ty, g / (tx * ty));
+        let (x, y, z) = (gx * nx + i, gy * ny + j, gz * nz + k);
+        x + self.texture[0] * (y + self.texture[1] * z)
+    }
 }

@@ -1,9 +1,12 @@
 //! Probe-volume layouts that engines load directly.
 //!
-//! * [`bevy_irradiance_volume`]: Bevy's irradiance volume (bevy_pbr's `irradiance_volume`
-//!   module docs): an ambient-cube volume of resolution (Rx, Ry, Rz) as one RGB9E5 3D texture of
-//!   (Rx, 2Ry, 3Rz). The side S of voxel (x, y, z) sits at texel
-//!   `s = x`, `t = y + (S positive ? Ry : 0)`, `p = z + {X: 0, Y: Rz, Z: 2Rz}`.
+//! * [`bevy_irradiance_volume`]: Bevy's irradiance volume (bevy_pbr's `irradiance_volume`): an
+//!   ambient-cube volume of resolution (Rx, Ry, Rz) as one RGB9E5 (or RGBA16F,
+//!   [`bevy_irradiance_volume_as`]) 3D texture of (Rx, 2Ry, 3Rz). The side S of voxel
+//!   (x, y, z) sits at texel `s = x`, `t = y + (S negative ? Ry : 0)`,
+//!   `p = z + {X: 0, Y: Rz, Z: 2Rz}`: where Bevy's shader reads it (it adds half the texture
+//!   height for a negative normal component; the module's prose formula has the halves the
+//!   other way round, which its shader does not follow).
 //! * [`sh_l1_volume`]: L1 spherical-harmonics probe volumes (L0 + L1 per colour channel) as
 //!   the three or four RGBA half-float 3D textures engines sample with hardware filtering.
 //!
@@ -42,6 +45,26 @@ fn voxel_count(dims: [u32; 3]) -> Result<usize, TextureError> {
 /// Values must be finite, non-negative and at most [`crate::quant::RGB9E5_MAX`] (typed errors
 /// otherwise); each channel is then stored within [`crate::quant::rgb9e5_error_bound`].
 pub fn bevy_irradiance_volume(volume: &AmbientCubeVolume) -> Result<Ktx2Texture, TextureError> {
+    bevy_irradiance_volume_as(volume, PixelFormat::E5B9G9R9UfloatPack32)
+}
+
+/// Bevy's irradiance-volume texture in `format`: `E5B9G9R9UfloatPack32` (as
+/// [`bevy_irradiance_volume`]) or `R16G16B16A16Sfloat` (alpha 1; values must be finite and
+/// within ±65504).
+pub fn bevy_irradiance_volume_as(
+    volume: &AmbientCubeVolume,
+    format: PixelFormat,
+) -> Result<Ktx2Texture, TextureError> {
+    let channels = match format {
+        PixelFormat::E5B9G9R9UfloatPack32 => 3,
+        PixelFormat::R16G16B16A16Sfloat => 4,
+        other => {
+            return Err(TextureError::invalid(
+                "Bevy volume format",
+                format!("{other:?} (must be RGB9E5 or RGBA16F)"),
+            ));
+        }
+    };
     let [rx, ry, rz] = volume.dims;
     let voxels = voxel_count(volume.dims)?;
     if volume.data.len() != 18 * voxels {
@@ -55,27 +78,24 @@ pub fn bevy_irradiance_volume(volume: &AmbientCubeVolume) -> Result<Ktx2Texture,
         crate::limits::check_at_most("Bevy volume texture dimension", d, u64::from(u32::MAX))?;
     }
     let (w, h) = (rx as usize, 2 * ry as usize);
-    let mut texels = vec![0f32; 3 * voxels * 6];
+    let mut texels = vec![1f32; channels * voxels * 6];
     for z in 0..rz as usize {
         for y in 0..ry as usize {
             for x in 0..rx as usize {
                 let voxel = x + rx as usize * (y + ry as usize * z);
                 for side in 0..6 {
-                    let (axis, positive) = (side / 2, side % 2 == 0);
-                    let t = y + if positive { ry as usize } else { 0 };
+                    let (axis, negative) = (side / 2, side % 2 == 1);
+                    let t = y + if negative { ry as usize } else { 0 };
                     let p = z + axis * rz as usize;
                     let texel = x + w * (t + h * p);
                     let src = 18 * voxel + 3 * side;
-                    texels[3 * texel..3 * texel + 3].copy_from_slice(&volume.data[src..src + 3]);
+                    texels[channels * texel..channels * texel + 3]
+                        .copy_from_slice(&volume.data[src..src + 3]);
                 }
             }
         }
     }
-    Ktx2Texture::from_f32(
-        PixelFormat::E5B9G9R9UfloatPack32,
-        Shape::d3(rx, 2 * ry, 3 * rz),
-        &[texels],
-    )
+    Ktx2Texture::from_f32(format, Shape::d3(rx, 2 * ry, 3 * rz), &[texels])
 }
 
 /// Reads an ambient-cube volume back from a Bevy irradiance-volume texture.
@@ -109,7 +129,7 @@ pub fn bevy_irradiance_volume_decode(
     for voxel in 0..voxels {
         let (x, y, z) = (voxel % rx, voxel / rx % ry, voxel / (rx * ry));
         for side in 0..6 {
-            let t = y + if side % 2 == 0 { ry } else { 0 };
+            let t = y + if side % 2 == 1 { ry } else { 0 };
             let p = z + side / 2 * rz;
             let texel = x + rx * (t + 2 * ry * p);
             for c in 0..3 {

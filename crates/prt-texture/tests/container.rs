@@ -345,13 +345,13 @@ proptest! {
         dims in prop::array::uniform3(1u32..5),
         channels in 1usize..11,
         which in 0usize..6,
-        rows in any::<bool>(),
+        layout in 0usize..3,
         seed in any::<u64>(),
     ) {
         let enc = [Encoding::F32, Encoding::F16, Encoding::Unorm8, Encoding::Snorm8, Encoding::Unorm16, Encoding::Snorm16][which];
         let a = random_array(dims, channels, seed, 50.0);
         let mut c = Container::default();
-        let layout = if rows { ArrayLayout::Rows } else { ArrayLayout::Volume };
+        let layout = [ArrayLayout::Volume, ArrayLayout::Atlas, ArrayLayout::Rows][layout];
         c.arrays.push(("x".into(), a.clone(), enc, layout));
         let (manifest, files) = c.encode().unwrap();
         let loaded = LoadedContainer::decode(&manifest.to_json().unwrap(), &Limits::small(), |_| Ok(files[0].1.clone())).unwrap();
@@ -366,4 +366,73 @@ proptest! {
             prop_assert!((x - y).abs() <= bound, "{:?} {:?} [{}]: {} vs {}", enc, layout, i, x, y);
         }
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// The atlas holds every group, has no empty layer of tiles and stays near a cube.
+    #[test]
+    fn atlas_tiles_hold_every_group_compactly(
+        dims in prop::array::uniform3(1u32..40),
+        groups in 1usize..3000,
+    ) {
+        let [tx, ty, tz] = prt_texture::container::atlas_tiles(dims, groups).map(|t| t as usize);
+        prop_assert!(tx >= 1 && ty >= 1 && tz >= 1);
+        prop_assert!(tx * ty * tz >= groups && tx * ty * (tz - 1) < groups);
+        let sides = [tx * dims[0] as usize, ty * dims[1] as usize, tz * dims[2] as usize];
+        let texels = (groups * dims.iter().map(|&d| d as usize).product::<usize>()) as f64;
+        let longest = *sides.iter().max().unwrap() as f64;
+        // Within a tile's side (plus a tile or two) of the cube root.
+        let tile = *dims.iter().max().unwrap() as f64;
+        prop_assert!(longest <= 2.0 * texels.cbrt() + 2.0 * tile, "{sides:?} for {groups} tiles of {dims:?}");
+    }
+}
+
+/// Group `g` of node `(i, j, k)` is texel `(tx·nx + i, ty·ny + j, tz·nz + k)` of its tile.
+#[test]
+fn atlas_texels_sit_in_their_tiles() {
+    let (dims, channels) = ([3u32, 2, 4], 4 * 7);
+    let nodes = 24;
+    // Value = group · 1000 + node, one value per group (the other three channels 0).
+    let data: Vec<f32> = (0..nodes)
+        .flat_map(|n| {
+            (0..channels).map(move |c| {
+                if c % 4 == 0 {
+                    (c / 4 * 1000 + n) as f32
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect();
+    let mut c = Container::default();
+    c.arrays.push((
+        "x".into(),
+        GridArray::new(dims, channels, data).unwrap(),
+        Encoding::F32,
+        ArrayLayout::Atlas,
+    ));
+    let (manifest, files) = c.encode().unwrap();
+    let entry = &manifest.arrays[0];
+    let tiles = entry.tiles.unwrap();
+    let texture = prt_texture::Ktx2Texture::from_bytes(&files[0].1, &Limits::small()).unwrap();
+    let shape = texture.shape();
+    assert_eq!(
+        [shape.width, shape.height, shape.depth],
+        [0, 1, 2].map(|a| dims[a] * tiles[a])
+    );
+    let texels = texture.level_f32(0).unwrap();
+    for g in 0..7 {
+        let [tx, ty, tz] = entry.tile_of(g).unwrap();
+        for n in 0..nodes {
+            let (i, j, k) = (n % 3, n / 3 % 2, n / 6);
+            let x = tx as usize * 3 + i;
+            let y = ty as usize * 2 + j;
+            let z = tz as usize * 4 + k;
+            let at = x + shape.width as usize * (y + shape.height as usize * z);
+            assert_eq!(texels[4 * at], (g * 1000 + n) as f32, "group {g} node {n}");
+        }
+    }
+    assert_eq!(entry.tile_of(7), None);
 }

@@ -1,5 +1,5 @@
 //! Engine layouts: Bevy's irradiance volume texel placement (checked texel by texel against
-//! bevy_pbr's documented formula) and L1 SH probe textures.
+//! bevy_pbr's shader) and L1 SH probe textures.
 
 use proptest::prelude::*;
 use prt_texture::engine::{
@@ -20,7 +20,7 @@ fn colour(voxel: usize, side: usize) -> [f32; 3] {
 }
 
 #[test]
-fn bevy_texels_sit_where_bevy_pbr_documents_them() {
+fn bevy_texels_sit_where_bevy_pbr_reads_them() {
     let dims = [3u32, 4, 2];
     let voxels = 24;
     let mut data = Vec::with_capacity(18 * voxels);
@@ -36,7 +36,8 @@ fn bevy_texels_sit_where_bevy_pbr_documents_them() {
     assert_eq!((s.width, s.height, s.depth), (3, 8, 6));
     let texels = texture.level_f32(0).unwrap();
     let (rx, ry, rz) = (3usize, 4usize, 2usize);
-    // bevy_pbr: s = x; t = y + (Ry if S in {+X,+Y,+Z}); p = z + {0: ±X, Rz: ±Y, 2Rz: ±Z}.
+    // bevy_pbr's shader: s = x; t = y + (Ry if S in {-X,-Y,-Z}: it adds half the height for a
+    // negative normal component); p = z + {0: ±X, Rz: ±Y, 2Rz: ±Z}.
     let sides = [
         ("+X", true, 0),
         ("-X", false, 0),
@@ -50,7 +51,7 @@ fn bevy_texels_sit_where_bevy_pbr_documents_them() {
             for x in 0..rx {
                 let v = x + rx * (y + ry * z);
                 for (side, (_, positive, axis)) in sides.iter().enumerate() {
-                    let t = y + if *positive { ry } else { 0 };
+                    let t = y + if *positive { 0 } else { ry };
                     let p = z + axis * rz;
                     let texel = x + rx * (t + 2 * ry * p);
                     assert_eq!(
@@ -163,4 +164,28 @@ fn sh_l1_texel_contents_follow_the_layout() {
     .unwrap();
     assert_eq!(per_coeff[2].level_f32(0).unwrap(), [20.0, 21.0, 22.0, 0.0]);
     assert!(sh_l1_volume(&volume, ShL1Layout::PerChannel, PixelFormat::R8Unorm).is_err());
+}
+
+#[test]
+fn bevy_volume_in_rgba16f_keeps_the_layout_and_decodes_to_f16_rounding() {
+    use prt_texture::engine::bevy_irradiance_volume_as;
+    let dims = [2u32, 3, 2];
+    let data: Vec<f32> = (0..18 * 12).map(|i| 0.1 + i as f32 * 0.37).collect();
+    let volume = AmbientCubeVolume { dims, data };
+    let texture = bevy_irradiance_volume_as(&volume, PixelFormat::R16G16B16A16Sfloat).unwrap();
+    let s = texture.shape();
+    assert_eq!((s.width, s.height, s.depth), (2, 6, 6));
+    let rgb9e5 = bevy_irradiance_volume(&volume).unwrap();
+    let (a, b) = (
+        bevy_irradiance_volume_decode(&texture).unwrap(),
+        bevy_irradiance_volume_decode(&rgb9e5).unwrap(),
+    );
+    for (i, z) in volume.data.iter().enumerate() {
+        let texel_max = volume.data[i / 3 * 3..i / 3 * 3 + 3]
+            .iter()
+            .fold(0f32, |m, &v| m.max(v));
+        assert!((a.data[i] - z).abs() <= z.abs() * 2f32.powi(-11) + 1e-7);
+        assert!((b.data[i] - z).abs() <= rgb9e5_error_bound(texel_max) + 1e-6);
+    }
+    assert!(bevy_irradiance_volume_as(&volume, PixelFormat::R8Unorm).is_err());
 }

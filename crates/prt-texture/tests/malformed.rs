@@ -248,6 +248,30 @@ fn malformed() -> Vec<(String, Vec<u8>)> {
         "json-manifest-unknown-field.json",
         manifest.replacen('{', "{\"extra\": 1,", 1).into_bytes(),
     );
+    push(
+        "malformed-manifest-atlas-without-tiles.json",
+        manifest
+            .replace("\"layout\": \"volume\"", "\"layout\": \"atlas\"")
+            .into_bytes(),
+    );
+    push(
+        "malformed-manifest-atlas-empty-tile-layer.json",
+        manifest
+            .replace(
+                "\"layout\": \"volume\"",
+                "\"layout\": \"atlas\", \"tiles\": [1, 1, 2]",
+            )
+            .into_bytes(),
+    );
+    push(
+        "malformed-manifest-volume-with-tiles.json",
+        manifest
+            .replace(
+                "\"layout\": \"volume\"",
+                "\"layout\": \"volume\", \"tiles\": [1, 1, 1]",
+            )
+            .into_bytes(),
+    );
 
     let exr = fixture("rgb-f16.exr");
     push(

@@ -6,7 +6,8 @@
 //!
 //! * **Scenes** ([`Scene`]): glTF 2.0 files flattened to world-space triangles with diffuse
 //!   materials, lights and cameras ([`Scene::load_gltf`]), or built-in scenes: the Cornell box,
-//!   a ground plane under open sky, a closed box, the empty scene.
+//!   a ground plane under open sky, a closed box, the empty scene, an outdoor town (terrain and
+//!   buildings, [`Scene::outdoor_town`]).
 //! * **Ray queries** ([`RayTracer`]): a compressed wide BVH (obvhs CWBVH, Ylitie et al. 2017)
 //!   with the triangles reordered into BVH order; closest hits and occlusion (stopping at the
 //!   first hit), single or batched over rayon. Where the CPU has x86-64-v3 (AVX2, FMA, BMI,
@@ -104,6 +105,7 @@ mod bake;
 mod bvh;
 mod error;
 mod gltf_load;
+mod outdoor;
 mod sampling;
 mod scene;
 mod sh;

@@ -287,33 +287,47 @@ impl Scene {
             double_sided: false,
             ..Material::diffuse("box", albedo)
         });
+        scene.push_box(Vec3::splat(-half), Vec3::splat(half), true, m, "box");
+        scene
+    }
+
+    /// Adds the 12 triangles of the axis-aligned box `min`–`max` (finite, `min < max`), their
+    /// winding normals pointing inwards or outwards.
+    pub(crate) fn push_box(
+        &mut self,
+        min: Vec3,
+        max: Vec3,
+        inward: bool,
+        material: u32,
+        what: &str,
+    ) {
+        let (centre, half) = ((min + max) * 0.5, (max - min) * 0.5);
         let mut k = 0;
         for axis in 0..3 {
             for sign in [-1.0f32, 1.0] {
-                // Face at coordinate `sign * half` on `axis`; its inward normal is -sign along axis.
-                let n =
-                    Vec3::from_array(std::array::from_fn(|i| if i == axis { -sign } else { 0.0 }));
-                let u = Vec3::from_array(std::array::from_fn(|i| {
-                    if i == (axis + 1) % 3 { half } else { 0.0 }
-                }));
-                let w = n.cross(u).normalize() * half;
-                let c = -n * half;
+                // The face at `centre + sign * half` along `axis`, spanned by the other two axes.
+                let unit = |i: usize| {
+                    Vec3::from_array(std::array::from_fn(|j| f32::from(u8::from(i == j))))
+                };
+                let outward = unit(axis) * sign;
+                let u = unit((axis + 1) % 3) * half[(axis + 1) % 3];
+                let w = unit((axis + 2) % 3) * half[(axis + 2) % 3];
+                let c = centre + outward * half[axis];
                 let q = [c - u - w, c + u - w, c + u + w, c - u + w];
+                let n = if inward { -outward } else { outward };
                 for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
-                    // Orient each triangle so that its winding normal points inwards.
                     let t = if (t[1] - t[0]).cross(t[2] - t[0]).dot(n) > 0.0 {
                         t
                     } else {
                         [t[0], t[2], t[1]]
                     };
-                    if scene.push_triangle(t, m, "box", k).is_err() {
-                        unreachable!("finite built-in box");
+                    if self.push_triangle(t, material, what, k).is_err() {
+                        unreachable!("a built-in box has finite corners");
                     }
                     k += 1;
                 }
             }
         }
-        scene
     }
 
     /// World-space triangles (degenerate ones already dropped).

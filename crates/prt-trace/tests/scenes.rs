@@ -518,3 +518,81 @@ fn morph_targets_apply_their_default_weights() {
             .all(|v| v.z == 2.0)
     );
 }
+
+#[test]
+fn outdoor_town_is_terrain_with_closed_buildings() {
+    let town = Scene::outdoor_town();
+    assert_eq!(town.triangles().len(), 64 * 64 * 2 + 6 * 12);
+    assert_eq!(town.materials().len(), 7);
+    let b = town.bounds().expect("non-empty");
+    assert_eq!(
+        (b.min.x, b.max.x, b.min.z, b.max.z),
+        (-64.0, 64.0, -64.0, 64.0)
+    );
+    assert!(b.min.y == -2.0 && (b.max.y - 14.94).abs() < 0.01, "{b:?}");
+    // Terrain faces up; every building face points away from its box's centre.
+    let terrain = town.material_ids().iter().filter(|&&m| m == 0).count();
+    assert_eq!(terrain, 64 * 64 * 2);
+    for (t, &m) in town.triangles().iter().zip(town.material_ids()) {
+        let n = (t[1] - t[0]).cross(t[2] - t[0]);
+        if m == 0 {
+            assert!(n.y > 0.0, "terrain faces up");
+        }
+    }
+    for m in 1..7u32 {
+        let tris: Vec<_> = town
+            .triangles()
+            .iter()
+            .zip(town.material_ids())
+            .filter(|(_, id)| **id == m)
+            .map(|(t, _)| *t)
+            .collect();
+        assert_eq!(tris.len(), 12);
+        let centre = tris.iter().flatten().copied().sum::<Vec3>() / 36.0;
+        for t in &tris {
+            let n = (t[1] - t[0]).cross(t[2] - t[0]);
+            let c = (t[0] + t[1] + t[2]) / 3.0;
+            assert!(n.dot(c - centre) > 0.0, "building faces point outwards");
+        }
+    }
+}
+
+#[test]
+fn outdoor_town_bakes_open_sky_above_and_invalid_voxels_below() {
+    use prt_core::{Aabb, NoProgress};
+    use prt_trace::{BakeOptions, TransferBaker};
+    let town = Scene::outdoor_town();
+    // A coarse column of voxels through a building (centre (35, 30)) and open terrain.
+    let options = BakeOptions {
+        resolution: [4, 16, 4],
+        bounds: Some(Aabb::new(
+            Vec3::new(30.0, -1.0, 25.0),
+            Vec3::new(50.0, 15.0, 45.0),
+        )),
+        margin: 16.0,
+        rays_per_voxel: 48,
+        cache_rays: 8,
+        ..BakeOptions::default()
+    };
+    let volume = TransferBaker::new(&town, options)
+        .and_then(|baker| baker.bake(&NoProgress))
+        .expect("bake");
+    let field = &volume.field;
+    // The top layer sees most of the sky; the bottom layer is under the terrain.
+    let top: Vec<usize> = (0..4)
+        .flat_map(|x| (0..4).map(move |z| (x, z)))
+        .map(|(x, z)| field.index(x, 15, z))
+        .collect();
+    assert!(
+        top.iter()
+            .all(|&v| volume.valid[v] && volume.sky_visibility(v) > 0.5)
+    );
+    let bottom = (0..4).flat_map(|x| (0..4).map(move |z| (x, z)));
+    assert!(
+        bottom
+            .map(|(x, z)| field.index(x, 0, z))
+            .all(|v| !volume.valid[v])
+    );
+    // Inside the building (x in 30..40, z in 25..35, mid-height) voxels are invalid.
+    assert!(!volume.valid[field.index(1, 9, 1)]);
+}

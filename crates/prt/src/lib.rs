@@ -18,6 +18,7 @@
 //! | `manylight` | `manylight` | many-light matrix sampling: row-column sampling and its successors |
 //! | `texture` | `texture` | KTX2, EXR, Radiance HDR, DDS; quantisation; the MBD container |
 //! | `bake` | `bake` | the main job: scene → transfer volume → MBD (+ baselines) → scores → container, and the container's reader |
+//! | `shaders` | `shaders` | WGSL and GLSL ES 3.00 sources that render from the MBD container as written |
 #![deny(missing_docs)]
 
 pub use prt_core as core;
@@ -34,6 +35,8 @@ pub use prt_manylight as manylight;
 pub use prt_mbd as mbd;
 #[cfg(feature = "plsq")]
 pub use prt_plsq as plsq;
+#[cfg(feature = "shaders")]
+pub use prt_shaders as shaders;
 #[cfg(feature = "sphere")]
 pub use prt_sphere as sphere;
 #[cfg(feature = "texture")]

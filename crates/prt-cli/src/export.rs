@@ -1,0 +1,200 @@
+//! `prt export BAKE_DIR --target bevy|threejs|sh`: light a bake with a sky and write probe
+//! volumes engines load unchanged (prt-export does the work; this module parses, draws progress
+//! and reports what was written).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use clap::ValueEnum;
+use prt_export::{
+    AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
+    dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
+};
+use prt_texture::Limits;
+
+use crate::progress::Stage;
+use crate::sky::SkyArgs;
+
+/// The engine an export is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Target {
+    /// Bevy's IrradianceVolume: ambient-cube KTX2 + irradiance_volume.json (Transform, intensity).
+    Bevy,
+    /// three.js LightProbeGrid: RGBA16F 3D atlas KTX2 + light_probe_grid.json (position, size).
+    Threejs,
+    /// L1 and L2 SH volumes (RGBA16F KTX2 3D textures and an EXR) + sh.json manifest.
+    Sh,
+}
+
+/// Texel format of the Bevy texture.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// E5B9G9R9_UFLOAT_PACK32 (4 bytes per texel).
+    Rgb9e5,
+    /// R16G16B16A16_SFLOAT (8 bytes per texel).
+    Rgba16f,
+}
+
+/// How Bevy's ambient cubes are fitted to the SH irradiance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Fit {
+    /// Each side is E(±axis)/π: exact on the six axes.
+    Axes,
+    /// Least squares of Bevy's blend over the sphere.
+    LeastSquares,
+}
+
+/// Options of `prt export`.
+#[derive(Debug, clap::Args)]
+pub struct ExportArgs {
+    /// The folder `prt bake --out` wrote (its MBD container is BAKE_DIR/mbd/).
+    pub bake_dir: PathBuf,
+    /// The engine to export for.
+    #[arg(long, value_enum)]
+    pub target: Target,
+    /// What to light: `mbd` (the MBD container, BAKE_DIR/mbd/) or a volume `prt bake` kept in
+    /// BAKE_DIR/volumes/ (`reference`: the full traced volume; `bpca`, `cpca`: the baselines).
+    #[arg(long, default_value = "mbd", value_name = "mbd|reference|bpca|cpca")]
+    pub from: String,
+    #[command(flatten)]
+    pub sky: SkyArgs,
+    /// Dilation of valid probes into invalid ones: `RADIUS[,PASSES]` (voxels; each pass fills
+    /// every invalid voxel with valid or filled neighbours within RADIUS by their 1/d²-weighted
+    /// mean), or `none`.
+    #[arg(long, default_value = "1,1", value_name = "RADIUS[,PASSES]")]
+    pub dilate: String,
+    /// Texel format of the Bevy texture.
+    #[arg(long, value_enum, default_value_t = Format::Rgb9e5)]
+    pub format: Format,
+    /// How the Bevy ambient cubes are fitted.
+    #[arg(long, value_enum, default_value_t = Fit::Axes)]
+    pub fit: Fit,
+    /// The Bevy IrradianceVolume intensity written into irradiance_volume.json (converts the
+    /// sky's units to cd/m²).
+    #[arg(long, default_value_t = 1.0)]
+    pub intensity: f32,
+    /// Output folder [default: BAKE_DIR/TARGET].
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+fn parse_dilate(spec: &str) -> Result<DilateConfig> {
+    if spec == "none" {
+        return Ok(DilateConfig {
+            radius: 0,
+            passes: 0,
+        });
+    }
+    let values = spec
+        .split(',')
+        .map(|v| v.trim().parse::<usize>())
+        .collect::<Result<Vec<_>, _>>()
+        .with_context(|| format!("--dilate {spec}: expected RADIUS[,PASSES] or none"))?;
+    match values[..] {
+        [radius] => Ok(DilateConfig { radius, passes: 1 }),
+        [radius, passes] => Ok(DilateConfig { radius, passes }),
+        _ => bail!("--dilate {spec}: expected RADIUS[,PASSES] or none"),
+    }
+}
+
+pub fn run(args: &ExportArgs) -> Result<()> {
+    let dilation = parse_dilate(&args.dilate)?;
+    let sky = args.sky.sky()?;
+    let start = Instant::now();
+    let lit = if args.from == "mbd" {
+        let container_dir = args.bake_dir.join("mbd");
+        if !container_dir.join("manifest.json").is_file() {
+            bail!(
+                "{} holds no MBD container (expected {}/manifest.json, written by `prt bake --out {}`)",
+                args.bake_dir.display(),
+                container_dir.display(),
+                args.bake_dir.display()
+            );
+        }
+        let container =
+            prt_bake::read_container(&container_dir, &Limits::default()).with_context(|| {
+                format!(
+                    "cannot read the MBD container in {}",
+                    container_dir.display()
+                )
+            })?;
+        let stage = Stage::start("light");
+        let lit = light_container(&container, &sky, &stage)?;
+        stage.finish();
+        lit
+    } else {
+        let folder = args.bake_dir.join("volumes");
+        if !folder.join("manifest.json").is_file() {
+            bail!(
+                "--from {}: {} holds no kept volumes (`prt bake --keep-volumes always` writes them)",
+                args.from,
+                folder.display()
+            );
+        }
+        let kept = prt_bake::read_volumes(&folder, &Limits::default())
+            .with_context(|| format!("cannot read the kept volumes in {}", folder.display()))?;
+        let Some(field) = kept.get(&args.from) else {
+            let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
+            bail!(
+                "--from {}: not among the kept volumes ({}) nor `mbd`",
+                args.from,
+                names.join(", ")
+            );
+        };
+        let stage = Stage::start("light");
+        let lit = light_field(field, &kept.valid, &sky, &stage)?;
+        stage.finish();
+        lit
+    };
+    let dilated = dilate(&lit, &dilation)?;
+    let [nx, ny, nz] = lit.dims;
+    eprintln!(
+        "{nx}x{ny}x{nz} voxels, {} valid; dilation filled {} invalid voxels, left {}",
+        lit.valid.iter().filter(|&&v| v).count(),
+        dilated.filled,
+        dilated.unfilled
+    );
+    let target = args
+        .target
+        .to_possible_value()
+        .map(|v| v.get_name().to_string());
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| args.bake_dir.join(target.unwrap_or_default()));
+    let files: Vec<WrittenFile> = match args.target {
+        Target::Bevy => {
+            let config = BevyConfig {
+                format: match args.format {
+                    Format::Rgb9e5 => BevyFormat::Rgb9e5,
+                    Format::Rgba16f => BevyFormat::Rgba16f,
+                },
+                fit: match args.fit {
+                    Fit::Axes => AmbientCubeFit::Axes,
+                    Fit::LeastSquares => AmbientCubeFit::LeastSquares,
+                },
+                intensity: args.intensity,
+            };
+            let written = export_bevy(&dilated.volume, &config, &out)?;
+            if written.clamped > 0 {
+                eprintln!(
+                    "{} ambient-cube values were negative (SH ringing) and stored as 0",
+                    written.clamped
+                );
+            }
+            written.files
+        }
+        Target::Threejs => export_threejs(&dilated.volume, &ThreejsConfig::default(), &out)?.files,
+        Target::Sh => export_sh(&dilated.volume, &ShConfig::default(), &out)?.files,
+    };
+    for file in &files {
+        println!("{:>10} bytes  {}", file.bytes, file.path.display());
+    }
+    eprintln!(
+        "exported in {:.2} s to {}",
+        start.elapsed().as_secs_f64(),
+        out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,181 @@
+//! `prt export` end to end: a small Cornell bake exported for every target and sky kind, and
+//! its one-line errors.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn prt(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_prt"))
+        .args(args)
+        .output()
+        .expect("the prt binary runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prt-export-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_clean_failure(out: &Output, needle: &str) {
+    assert!(!out.status.success(), "expected failure, got success");
+    let err = stderr(out);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .unwrap_or_else(|| panic!("no error line in {err:?}"));
+    assert!(
+        line.contains(needle),
+        "{line:?} does not mention {needle:?}"
+    );
+    assert!(!err.contains("panicked"), "panic in {err}");
+}
+
+#[test]
+fn a_small_bake_exports_for_every_target_and_sky() {
+    let dir = scratch("bake");
+    let bake = dir.join("bake");
+    let bake_s = bake.to_str().expect("utf-8");
+    let out = prt(&[
+        "bake",
+        "--res",
+        "8",
+        "--rays",
+        "48",
+        "--cache-rays",
+        "16",
+        "--rank",
+        "4",
+        "--basis-nodes",
+        "3",
+        "--iterations",
+        "8",
+        "--no-baselines",
+        "--out",
+        bake_s,
+    ]);
+    assert!(out.status.success(), "bake failed: {}", stderr(&out));
+    let sky_json = dir.join("sky.json");
+    std::fs::write(
+        &sky_json,
+        r#"{"sh": [[3,0,1,0,0,0,0,0,0],[3,0,1,0,0,0,0,0,0],[3,0,1,0,0,0,0,0,0]]}"#,
+    )
+    .expect("write sky");
+    let cases: [(&str, &str, &[&str]); 4] = [
+        (
+            "bevy",
+            "default",
+            &[
+                "irradiance_volume.ktx2",
+                "irradiance_volume.json",
+                "validity.ktx2",
+            ],
+        ),
+        (
+            "threejs",
+            "sun:30,45",
+            &[
+                "light_probe_grid.ktx2",
+                "light_probe_grid.json",
+                "validity.ktx2",
+            ],
+        ),
+        (
+            "sh",
+            sky_json.to_str().expect("utf-8"),
+            &["sh_l1_r.ktx2", "sh_l2.ktx2", "sh.exr", "sh.json"],
+        ),
+        ("bevy", "sun", &["irradiance_volume.ktx2"]),
+    ];
+    for (k, (target, sky, files)) in cases.iter().enumerate() {
+        let out_dir = dir.join(format!("out{k}"));
+        let out = prt(&[
+            "export",
+            bake_s,
+            "--target",
+            target,
+            "--sky",
+            sky,
+            "--rotate",
+            "-30",
+            "--format",
+            "rgba16f",
+            "--out",
+            out_dir.to_str().expect("utf-8"),
+        ]);
+        assert!(
+            out.status.success(),
+            "export {target} {sky} failed: {}",
+            stderr(&out)
+        );
+        for file in *files {
+            assert!(out_dir.join(file).is_file(), "{target}: {file} missing");
+        }
+        let listing = String::from_utf8_lossy(&out.stdout);
+        assert!(listing.contains("validity.ktx2"), "{listing}");
+    }
+    // The kept traced volume exports too; an unknown volume is a clean error.
+    let out = prt(&[
+        "export",
+        bake_s,
+        "--target",
+        "sh",
+        "--from",
+        "reference",
+        "--out",
+        dir.join("ref").to_str().expect("utf-8"),
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(dir.join("ref/sh.json").is_file());
+    assert_clean_failure(
+        &prt(&["export", bake_s, "--target", "sh", "--from", "nothing"]),
+        "nothing",
+    );
+    // The default output folder is BAKE_DIR/TARGET.
+    let out = prt(&["export", bake_s, "--target", "sh", "--dilate", "none"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(bake.join("sh/sh.json").is_file());
+
+    assert_clean_failure(
+        &prt(&["export", bake_s, "--target", "bevy", "--sky", "sun:1"]),
+        "sun:",
+    );
+    assert_clean_failure(
+        &prt(&["export", bake_s, "--target", "bevy", "--sky", "nowhere.hdr"]),
+        "nowhere.hdr",
+    );
+    assert_clean_failure(
+        &prt(&["export", bake_s, "--target", "bevy", "--sky", "sky.txt"]),
+        "--sky",
+    );
+    assert_clean_failure(
+        &prt(&["export", bake_s, "--target", "bevy", "--dilate", "x"]),
+        "--dilate",
+    );
+    let bad_json = dir.join("bad.json");
+    std::fs::write(
+        &bad_json,
+        r#"{"sh": [[1e39,0,0,0,0,0,0,0,0],[0,0,0,0,0,0,0,0,0],[0,0,0,0,0,0,0,0,0]]}"#,
+    )
+    .expect("write");
+    assert_clean_failure(
+        &prt(&[
+            "export",
+            bake_s,
+            "--target",
+            "bevy",
+            "--sky",
+            bad_json.to_str().expect("utf-8"),
+        ]),
+        "bad.json",
+    );
+    assert_clean_failure(
+        &prt(&["export", dir.to_str().expect("utf-8"), "--target", "sh"]),
+        "no MBD container",
+    );
+}

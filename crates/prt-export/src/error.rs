@@ -1,0 +1,43 @@
+use prt_bake::ContainerError;
+use prt_core::CoreError;
+use prt_sphere::SphereError;
+use prt_texture::TextureError;
+use thiserror::Error;
+
+/// What can go wrong while lighting a bake or writing an export.
+#[derive(Debug, Error)]
+#[non_exhaustive]
+pub enum ExportError {
+    /// Reading or writing a texture or file failed.
+    #[error(transparent)]
+    Texture(#[from] TextureError),
+    /// The MBD container is unreadable or inconsistent.
+    #[error(transparent)]
+    Container(#[from] ContainerError),
+    /// A sky was refused (non-finite coefficient, bad parameter).
+    #[error(transparent)]
+    Sphere(#[from] SphereError),
+    /// A field, kernel evaluation or cancellation error.
+    #[error(transparent)]
+    Core(#[from] CoreError),
+    /// An input that does not fit the export (shape, dimension, parameter).
+    #[error("invalid {what}: {why}")]
+    Invalid {
+        /// What was checked.
+        what: &'static str,
+        /// Why it was refused.
+        why: String,
+    },
+    /// A sky JSON document that is not one of the accepted shapes.
+    #[error("sky JSON: {0}")]
+    SkyJson(String),
+}
+
+impl ExportError {
+    pub(crate) fn invalid(what: &'static str, why: impl Into<String>) -> ExportError {
+        ExportError::Invalid {
+            what,
+            why: why.into(),
+        }
+    }
+}

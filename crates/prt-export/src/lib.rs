@@ -1,0 +1,77 @@
+//! # prt-export — bakes lit by a sky, written as probe volumes engines load unchanged
+//!
+//! A prt bake stores light *transport* (324 values per voxel); engines load baked
+//! *irradiance*. This crate lights a bake with a sky ([`prt_sphere::Sky`]) and writes what
+//! Bevy, three.js and custom engines sample with no code of ours:
+//!
+//! | item | what it is, when to use it |
+//! |---|---|
+//! | [`light_container`] | light an MBD container (each basis vector relit once) → [`LitVolume`] |
+//! | [`light_field`] | light a full 324-D transfer field (the traced volume) → [`LitVolume`] |
+//! | [`dilate`], [`DilateConfig`], [`Dilated`] | fill invalid voxels from valid neighbours before export |
+//! | [`export_bevy`], [`BevyConfig`], [`BevyExport`] | Bevy's `IrradianceVolume`: ambient-cube KTX2 (RGB9E5 / RGBA16F) + placement JSON |
+//! | [`export_threejs`], [`ThreejsConfig`], [`ThreejsExport`] | three.js `LightProbeGrid`: RGBA16F 3D atlas KTX2 + placement JSON |
+//! | [`export_sh`], [`ShConfig`], [`ShExport`] | L1 and L2 SH volumes (KTX2 + EXR) + manifest, for custom engines and importers |
+//! | [`ambient_cube`], [`AmbientCubeFit`], [`ambient_cube_blend`], [`ambient_cube_error_bound`] | ambient cubes from SH, Bevy's blend, its error bound |
+//! | [`sh_to_threejs`], [`threejs_atlas`], [`threejs_atlas_probe`] | three.js's SH basis and atlas packing |
+//! | [`sky_from_json`] | a sky from SH coefficients in JSON |
+//! | [`ExportError`] | what can go wrong |
+//!
+//! Every writer writes atomically through prt-texture and also writes the bake's validity mask
+//! (`validity.ktx2`, R8, 1 = valid). File layouts are documented in docs/formats.md. This
+//! crate never prints; long work reports through a [`prt_core::Progress`] handle.
+//!
+//! ```
+//! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
+//! use prt_export::{BevyConfig, DilateConfig, dilate, export_bevy, light_field};
+//! use prt_sphere::Sky;
+//!
+//! // A 4×4×4 transfer field that passes the sky straight through (direct block = identity).
+//! let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
+//! let field = GridField::from_fn([4, 4, 4], bounds, 324, |_, t| {
+//!     (0..9).for_each(|i| t[i * 9 + i] = 1.0)
+//! })?;
+//! let valid = vec![true; 64];
+//! let lit = light_field(&field, &valid, &Sky::constant([1.0; 3]), &NoProgress)?;
+//! // A constant sky of radiance 1 gives irradiance π in every direction.
+//! assert!((lit.irradiance(0, Vec3::Y).x - std::f32::consts::PI).abs() < 1e-4);
+//! let lit = dilate(&lit, &DilateConfig::default())?.volume;
+//! let out = std::env::temp_dir().join("prt-export-doc");
+//! let written = export_bevy(&lit, &BevyConfig::default(), &out)?;
+//! assert_eq!(written.files.len(), 3);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+#![deny(missing_docs)]
+
+mod ambient;
+mod bevy;
+mod dilate;
+mod error;
+mod lit;
+mod sh;
+mod skyjson;
+mod threejs;
+mod write;
+
+pub use ambient::{
+    AmbientCube, AmbientCubeFit, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
+};
+pub use bevy::{BEVY_PLACEMENT, BEVY_TEXTURE, BevyConfig, BevyExport, BevyFormat, export_bevy};
+pub use dilate::{DilateConfig, Dilated, dilate};
+pub use error::ExportError;
+pub use lit::{LitVolume, RadianceSh, light_container, light_field};
+pub use sh::{
+    SH_EXR_FILE, SH_L1_FILES, SH_L2_FILE, SH_LAYER_NAMES, SH_MANIFEST, ShConfig, ShExport,
+    export_sh, sh_l1, sh_l2_texture,
+};
+pub use skyjson::sky_from_json;
+pub use threejs::{
+    ATLAS_SUBVOLUMES, THREEJS_PLACEMENT, THREEJS_TEXTURE, ThreejsConfig, ThreejsExport,
+    export_threejs, sh_to_threejs, threejs_atlas, threejs_atlas_probe,
+};
+pub use write::{VALIDITY_FILE, WrittenFile};
+
+/// The README's Rust snippet, compiled as a doc test so it stays true.
+#[doc = include_str!("../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

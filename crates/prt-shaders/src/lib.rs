@@ -1,0 +1,109 @@
+//! # prt-shaders — render straight from prt's filterable MBD container
+//!
+//! WGSL (wgpu, Bevy) and GLSL ES 3.00 (WebGL2) sources that evaluate a Moving Basis
+//! Decomposition written by `prt bake` in the filterable layout (docs/formats.md), with no
+//! decompression step:
+//!
+//! * **the relighting pass**, run when the sky changes: every basis vector `B_{n,l}` (324-D
+//!   transfer) becomes incident radiance as SH9 RGB, `b̃_{n,l}[c·9+i] = Σ_j (D_ij + T^c_ij) s^c_j`,
+//!   written into a small tiled rgba16f volume over the basis grid (a WGSL compute shader; a
+//!   GLSL fragment pass drawn once per z slice, as WebGL2 has no compute);
+//! * **the per-pixel reconstruction** `f̃(x) = Σ_l c_l(x) b̃_l(x)`: ⌈L/4⌉ hardware-filtered
+//!   fetches of the coefficient volume and 7·L of the relit volume, the coefficients
+//!   dequantised with their per-channel scale and bias;
+//! * **irradiance** from SH9 for a normal (clamped-cosine convolution).
+//!
+//! Each hat grid is a tiled 3D texture whose node `i` is texel centre `i` of its tile, so
+//! trilinear filtering at `mbd_local` coordinates computes the hat sums; clamping to the grid's
+//! box keeps every footprint inside its tile.
+//!
+//! | item | what it is, when to use it |
+//! |---|---|
+//! | [`wgsl_reconstruct`], [`wgsl_relight`] | complete WGSL modules for a rank (reconstruction functions with their bindings; the relighting compute shader) |
+//! | [`glsl_reconstruct`], [`glsl_relight`] | GLSL ES 3.00 sources for a rank: the reconstruction functions (append your `main`), the relighting fragment shader |
+//! | [`wgsl`], [`glsl`] | the source files as strings, for a page or an engine that assembles them itself |
+//! | [`RELIT_GROUPS`], [`BASIS_GROUPS`], [`coefficient_groups`] | texels per relit basis vector, per raw basis vector, per coefficient node |
+//!
+//! The sources are validated by naga in this crate's tests, and a CPU emulation of exactly
+//! their math over the decoded texels is checked against the model they come from.
+#![deny(missing_docs)]
+
+/// Texels (RGBA) per relit basis vector: 27 values (SH9 RGB), the 28th is 0.
+pub const RELIT_GROUPS: usize = 7;
+/// Texels (RGBA) per raw basis vector: 324 values.
+pub const BASIS_GROUPS: usize = 81;
+
+/// Texels (RGBA) per coefficient node for rank `rank`: ⌈L/4⌉.
+pub fn coefficient_groups(rank: usize) -> usize {
+    rank.div_ceil(4)
+}
+
+/// The WGSL source files.
+pub mod wgsl {
+    /// `MbdGrid`, the tile addressing, SH9 and irradiance; needs `const RANK: u32` first.
+    pub const COMMON: &str = include_str!("../shaders/wgsl/common.wgsl");
+    /// `mbd_incident_radiance(x)` with its bindings (group 0, bindings 0–3); needs [`COMMON`].
+    pub const RECONSTRUCT: &str = include_str!("../shaders/wgsl/reconstruct.wgsl");
+    /// The relighting compute shader `mbd_relight_main` (group 0, bindings 0–3); needs [`COMMON`].
+    pub const RELIGHT: &str = include_str!("../shaders/wgsl/relight.wgsl");
+}
+
+/// The GLSL source files: a body common to GLSL ES 3.00 and 4.50, and the WebGL2 declarations.
+pub mod glsl {
+    /// `MbdGrid`, the tile addressing and irradiance; needs `#define RANK` first.
+    pub const COMMON: &str = include_str!("../shaders/glsl/common.glsl");
+    /// `mbd_incident_radiance(x, out sh[7])`; needs [`COMMON`] and [`RECONSTRUCT_ES`] (or other
+    /// declarations of the same names).
+    pub const RECONSTRUCT: &str = include_str!("../shaders/glsl/reconstruct.glsl");
+    /// WebGL2 uniforms and samplers of [`RECONSTRUCT`].
+    pub const RECONSTRUCT_ES: &str = include_str!("../shaders/glsl/reconstruct_es.glsl");
+    /// The relighting fragment shader (with `main`); needs [`COMMON`] and [`RELIGHT_ES`].
+    pub const RELIGHT: &str = include_str!("../shaders/glsl/relight.glsl");
+    /// WebGL2 uniforms, samplers and output of [`RELIGHT`].
+    pub const RELIGHT_ES: &str = include_str!("../shaders/glsl/relight_es.glsl");
+    /// The GLSL ES 3.00 header: version and precisions (must come first).
+    pub const ES_HEADER: &str = "#version 300 es\nprecision highp float;\nprecision highp int;\nprecision highp sampler3D;\nprecision highp sampler2D;\n";
+}
+
+fn wgsl_header(rank: usize) -> String {
+    format!("const RANK: u32 = {rank}u;\n")
+}
+
+fn glsl_header(rank: usize) -> String {
+    format!("{}#define RANK {rank}\n", glsl::ES_HEADER)
+}
+
+/// The WGSL reconstruction module for rank `rank`: `mbd_incident_radiance(x)` and
+/// `mbd_irradiance(sh, normal)` with the bindings of `reconstruct.wgsl`; add your entry points.
+pub fn wgsl_reconstruct(rank: usize) -> String {
+    [&wgsl_header(rank), wgsl::COMMON, wgsl::RECONSTRUCT].concat()
+}
+
+/// The WGSL relighting compute shader for rank `rank` (entry point `mbd_relight_main`,
+/// workgroup 4×4×4, one invocation per texel of the relit volume).
+pub fn wgsl_relight(rank: usize) -> String {
+    [&wgsl_header(rank), wgsl::COMMON, wgsl::RELIGHT].concat()
+}
+
+/// The GLSL ES 3.00 reconstruction functions for rank `rank` (header, declarations,
+/// `mbd_incident_radiance`, `mbd_irradiance`): append your fragment shader's `main`.
+pub fn glsl_reconstruct(rank: usize) -> String {
+    [
+        &glsl_header(rank),
+        glsl::COMMON,
+        glsl::RECONSTRUCT_ES,
+        glsl::RECONSTRUCT,
+    ]
+    .concat()
+}
+
+/// The GLSL ES 3.00 relighting fragment shader for rank `rank`, complete.
+pub fn glsl_relight(rank: usize) -> String {
+    [
+        &glsl_header(rank),
+        glsl::COMMON,
+        glsl::RELIGHT_ES,
+        glsl::RELIGHT,
+    ]
+    .concat()
+}

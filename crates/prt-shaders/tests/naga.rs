@@ -1,0 +1,223 @@
+//! Every shader parses and validates with naga: the WGSL modules as they are, the GLSL bodies
+//! (common to GLSL ES 3.00 and 4.50) under 4.50 declarations of the same names, since naga's
+//! GLSL front end reads Vulkan GLSL 4.40+ only.
+
+use naga::valid::{Capabilities, ValidationFlags, Validator};
+
+const RANKS: [usize; 4] = [1, 3, 4, 8];
+
+fn validate(module: &naga::Module, what: &str) {
+    Validator::new(ValidationFlags::all(), Capabilities::default())
+        .validate(module)
+        .unwrap_or_else(|e| panic!("{what} does not validate: {e:?}"));
+}
+
+fn parse_wgsl(source: &str, what: &str) -> naga::Module {
+    naga::front::wgsl::parse_str(source)
+        .unwrap_or_else(|e| panic!("{what} does not parse:\n{}", e.emit_to_string(source)))
+}
+
+fn parse_glsl(source: &str, stage: naga::ShaderStage, what: &str) -> naga::Module {
+    naga::front::glsl::Frontend::default()
+        .parse(&naga::front::glsl::Options::from(stage), source)
+        .unwrap_or_else(|e| panic!("{what} does not parse:\n{}", e.emit_to_string(source)))
+}
+
+/// A fragment entry point that uses the reconstruction and the irradiance.
+const WGSL_FRAGMENT: &str = "
+@fragment
+fn fs_main(@location(0) world: vec3<f32>, @location(1) normal: vec3<f32>) -> @location(0) vec4<f32> {
+    let sh = mbd_incident_radiance(world);
+    return vec4<f32>(mbd_irradiance(sh, normal), 1.0);
+}
+";
+
+#[test]
+fn the_wgsl_modules_validate() {
+    for rank in RANKS {
+        let reconstruct = prt_shaders::wgsl_reconstruct(rank) + WGSL_FRAGMENT;
+        let module = parse_wgsl(&reconstruct, &format!("reconstruct.wgsl rank {rank}"));
+        validate(&module, &format!("reconstruct.wgsl rank {rank}"));
+        assert!(module.entry_points.iter().any(|e| e.name == "fs_main"));
+
+        let relight = prt_shaders::wgsl_relight(rank);
+        let module = parse_wgsl(&relight, &format!("relight.wgsl rank {rank}"));
+        validate(&module, &format!("relight.wgsl rank {rank}"));
+        let entry = module
+            .entry_points
+            .iter()
+            .find(|e| e.name == "mbd_relight_main")
+            .expect("the relighting entry point");
+        assert_eq!(entry.stage, naga::ShaderStage::Compute);
+        assert_eq!(entry.workgroup_size, [4, 4, 4]);
+    }
+}
+
+/// Vulkan GLSL 4.50 declarations of the names reconstruct.glsl reads (the test's stand-in
+/// for reconstruct_es.glsl).
+const GLSL_RECONSTRUCT_450: &str = "
+layout(std140, set = 0, binding = 0) uniform MbdReconstruction {
+    MbdGrid u_mbd_coefficients;
+    MbdGrid u_mbd_relit;
+    vec4 u_mbd_coefficient_scale[MBD_COEFFICIENT_GROUPS];
+    vec4 u_mbd_coefficient_bias[MBD_COEFFICIENT_GROUPS];
+};
+layout(set = 0, binding = 1) uniform texture3D u_mbd_coefficient_texture;
+layout(set = 0, binding = 2) uniform texture3D u_mbd_relit_texture;
+layout(set = 0, binding = 3) uniform sampler u_mbd_linear_clamp;
+#define MBD_SAMPLE3D(t, uvw) textureLod(sampler3D(t, u_mbd_linear_clamp), uvw, 0.0)
+";
+
+const GLSL_FRAGMENT_450: &str = "
+layout(location = 0) in vec3 v_world;
+layout(location = 1) in vec3 v_normal;
+layout(location = 0) out vec4 o_color;
+void main() {
+    vec4 sh[7];
+    mbd_incident_radiance(v_world, sh);
+    o_color = vec4(mbd_irradiance(sh, v_normal), 1.0);
+}
+";
+
+/// The same for relight.glsl.
+const GLSL_RELIGHT_450: &str = "
+layout(std140, set = 0, binding = 0) uniform MbdRelight {
+    MbdGrid u_mbd_basis;
+    MbdGrid u_mbd_relit;
+    vec4 u_mbd_sky[7];
+    int u_mbd_slice;
+};
+layout(set = 0, binding = 1) uniform texture3D u_mbd_basis_texture;
+layout(set = 0, binding = 2) uniform texture2D u_mbd_basis_ranges;
+layout(set = 0, binding = 3) uniform sampler u_mbd_nearest;
+layout(location = 0) out vec4 mbd_relit;
+#define MBD_FETCH3D(t, p) texelFetch(sampler3D(t, u_mbd_nearest), p, 0)
+#define MBD_FETCH2D(t, p) texelFetch(sampler2D(t, u_mbd_nearest), p, 0)
+";
+
+fn glsl_450(rank: usize, parts: &[&str]) -> String {
+    let mut source = format!("#version 450 core\n#define RANK {rank}\n");
+    for part in parts {
+        source.push_str(part);
+        source.push('\n');
+    }
+    source
+}
+
+#[test]
+fn the_glsl_bodies_validate() {
+    use prt_shaders::glsl;
+    for rank in RANKS {
+        let reconstruct = glsl_450(
+            rank,
+            &[
+                glsl::COMMON,
+                GLSL_RECONSTRUCT_450,
+                glsl::RECONSTRUCT,
+                GLSL_FRAGMENT_450,
+            ],
+        );
+        let what = format!("reconstruct.glsl rank {rank}");
+        validate(
+            &parse_glsl(&reconstruct, naga::ShaderStage::Fragment, &what),
+            &what,
+        );
+        let relight = glsl_450(rank, &[glsl::COMMON, GLSL_RELIGHT_450, glsl::RELIGHT]);
+        let what = format!("relight.glsl rank {rank}");
+        validate(
+            &parse_glsl(&relight, naga::ShaderStage::Fragment, &what),
+            &what,
+        );
+    }
+}
+
+/// The GLSL ES sources start with their version line and define what the bodies read.
+#[test]
+fn the_glsl_es_sources_are_complete() {
+    let reconstruct = prt_shaders::glsl_reconstruct(8);
+    assert!(reconstruct.starts_with("#version 300 es\n"));
+    let relight = prt_shaders::glsl_relight(3);
+    assert!(relight.starts_with("#version 300 es\n"));
+    for name in [
+        "u_mbd_coefficients",
+        "u_mbd_relit",
+        "u_mbd_coefficient_scale",
+        "u_mbd_coefficient_bias",
+        "u_mbd_coefficient_texture",
+        "u_mbd_relit_texture",
+        "MBD_SAMPLE3D",
+    ] {
+        assert!(
+            prt_shaders::glsl::RECONSTRUCT_ES.contains(name),
+            "reconstruct_es.glsl declares {name}"
+        );
+        assert!(GLSL_RECONSTRUCT_450.contains(name));
+    }
+    for name in [
+        "u_mbd_basis",
+        "u_mbd_relit",
+        "u_mbd_sky",
+        "u_mbd_slice",
+        "u_mbd_basis_texture",
+        "u_mbd_basis_ranges",
+        "mbd_relit",
+        "MBD_FETCH3D",
+        "MBD_FETCH2D",
+    ] {
+        assert!(
+            prt_shaders::glsl::RELIGHT_ES.contains(name),
+            "relight_es.glsl declares {name}"
+        );
+        assert!(GLSL_RELIGHT_450.contains(name));
+    }
+}
+
+/// The complete GLSL ES 3.00 sources compile with the Khronos reference compiler when it is
+/// installed (`glslangValidator`, Debian package glslang-tools); skipped otherwise, unless
+/// `PRT_REQUIRE_GLSLANG=1`.
+#[test]
+fn the_glsl_es_sources_compile_with_glslang() {
+    let found = std::process::Command::new("glslangValidator")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !found {
+        assert!(
+            std::env::var_os("PRT_REQUIRE_GLSLANG").is_none(),
+            "PRT_REQUIRE_GLSLANG is set but glslangValidator is not installed"
+        );
+        eprintln!("skipped: glslangValidator not installed (apt-get install glslang-tools)");
+        return;
+    }
+    let main = "
+in vec3 v_world;
+in vec3 v_normal;
+out vec4 o_color;
+void main() {
+    vec4 sh[7];
+    mbd_incident_radiance(v_world, sh);
+    o_color = vec4(mbd_irradiance(sh, v_normal), 1.0);
+}
+";
+    let dir = std::env::temp_dir().join(format!("prt-shaders-glslang-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp folder");
+    for rank in RANKS {
+        for (name, source) in [
+            ("reconstruct", prt_shaders::glsl_reconstruct(rank) + main),
+            ("relight", prt_shaders::glsl_relight(rank)),
+        ] {
+            let path = dir.join(format!("{name}_{rank}.frag"));
+            std::fs::write(&path, &source).expect("write shader");
+            let out = std::process::Command::new("glslangValidator")
+                .arg(&path)
+                .output()
+                .expect("run glslangValidator");
+            assert!(
+                out.status.success(),
+                "{name} rank {rank}:\n{}",
+                String::from_utf8_lossy(&out.stdout)
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
