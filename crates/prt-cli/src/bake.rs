@@ -245,6 +245,16 @@ fn flag(field: &str) -> &str {
 fn cli_error(error: BakeError) -> anyhow::Error {
     match error {
         BakeError::InvalidConfig { field, why } => anyhow::anyhow!("{} {why}", flag(field)),
+        // The library's message names BakeOptions' fields; prt bake sets the margin alone.
+        BakeError::Trace(prt_trace::TraceError::NoValidVoxels {
+            voxels,
+            invalid,
+            skipped,
+        }) => anyhow::anyhow!(
+            "baking failed: no valid voxel: {invalid} of {voxels} are inside geometry and \
+             {skipped} outside the scene; grow the margin ({}) so that voxels lie in open space",
+            flag("margin")
+        ),
         other => other.into(),
     }
 }
@@ -415,6 +425,18 @@ mod tests {
     use clap::{CommandFactory, Parser};
 
     use super::*;
+
+    #[test]
+    fn no_valid_voxel_names_the_margin_flag() {
+        let error = BakeError::Trace(prt_trace::TraceError::NoValidVoxels {
+            voxels: 8,
+            invalid: 8,
+            skipped: 0,
+        });
+        let message = cli_error(error).to_string();
+        assert!(message.contains("--margin"), "{message}");
+        assert!(!message.contains("BakeOptions"), "{message}");
+    }
 
     #[derive(Debug, Parser)]
     struct Bake {

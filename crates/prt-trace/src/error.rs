@@ -84,10 +84,12 @@ pub enum TraceError {
         /// What is wrong.
         why: String,
     },
-    /// The document requires an extension that changes how geometry is stored or placed
-    /// (Draco or meshopt compression, GPU instancing), which the loader cannot read.
+    /// The document needs an extension that changes how geometry is stored or placed (Draco or
+    /// meshopt compression, GPU instancing), which the loader cannot read: it is required, or
+    /// used without a complete fallback.
     #[error(
-        "required glTF extension {name} is not supported (it changes the geometry); export without it"
+        "glTF extension {name} is not supported and the geometry cannot be read without it \
+         (it compresses or instances meshes); export without it"
     )]
     UnsupportedExtension {
         /// The extension's name.
@@ -123,10 +125,12 @@ pub enum TraceError {
     #[error("the scene has no triangles (give explicit bounds to bake an empty scene)")]
     EmptyScene,
     /// A bake in which no voxel is valid: each is inside geometry (its probe rays see back faces)
-    /// or outside the scene bounds plus margin.
+    /// or outside the scene bounds plus margin. The message names the knobs of
+    /// [`crate::BakeOptions`]; front ends name their own flags for them.
     #[error(
         "no valid voxel: {invalid} of {voxels} are inside geometry and {skipped} outside the scene; \
-         grow the margin (--margin) or the grid bounds so that voxels lie in open space"
+         grow the margin (BakeOptions::margin) or the grid bounds (BakeOptions::bounds) so that \
+         voxels lie in open space"
     )]
     NoValidVoxels {
         /// Voxels in the grid.

@@ -134,10 +134,15 @@ fn load(
 }
 
 /// The GLB header is checked here because the gltf crate subtracts its 12 bytes from the
-/// declared length without checking it first.
-fn check_glb_header(bytes: &[u8], path: &Path) -> Result<(), TraceError> {
+/// declared length without checking it first. Returns the bytes the header declares: bytes
+/// past them are ignored with a warning (the gltf crate would read them as a chunk).
+fn check_glb_header<'b>(
+    bytes: &'b [u8],
+    path: &Path,
+    scene: &mut Scene,
+) -> Result<&'b [u8], TraceError> {
     if !bytes.starts_with(b"glTF") {
-        return Ok(());
+        return Ok(bytes);
     }
     let Some(declared) = bytes.get(8..12) else {
         return Err(gltf_error(path, "GLB header shorter than 12 bytes"));
@@ -151,7 +156,111 @@ fn check_glb_header(bytes: &[u8], path: &Path) -> Result<(), TraceError> {
             ),
         ));
     }
-    Ok(())
+    match bytes.get(..declared as usize) {
+        Some(declared_bytes) if declared_bytes.len() < bytes.len() => {
+            scene.warn(format!(
+                "{} byte(s) after the GLB's declared length of {declared} are ignored",
+                bytes.len() - declared_bytes.len()
+            ));
+            Ok(declared_bytes)
+        }
+        _ => Ok(bytes),
+    }
+}
+
+/// The document's JSON and the GLB binary chunk, if any.
+///
+/// gltf-json refuses some documents glTF 2.0 allows: an animation channel without a target
+/// node, a scene without a node list, an integer field written `1.0`. A document it refuses is
+/// parsed again without animations (never read), with empty node lists filled in and integral
+/// floats made integers, and refused with the first error only if that fails too.
+fn parse(bytes: &[u8], path: &Path) -> Result<(gltf::json::Root, Option<Vec<u8>>), TraceError> {
+    use gltf::json::deserialize::{from_slice, from_value};
+    let (json, blob) = if bytes.starts_with(b"glTF") {
+        let glb = gltf::Glb::from_slice(bytes).map_err(|e| gltf_error(path, describe(e)))?;
+        (glb.json, glb.bin.map(std::borrow::Cow::into_owned))
+    } else {
+        (std::borrow::Cow::Borrowed(bytes), None)
+    };
+    let strict = match from_slice::<gltf::json::Root>(&json) {
+        Ok(root) => return Ok((root, blob)),
+        Err(e) => e,
+    };
+    let relaxed = from_slice::<gltf::json::Value>(&json)
+        .ok()
+        .and_then(|mut value| {
+            integers_from_integral_floats(&mut value);
+            let root = value.as_object_mut()?;
+            root.remove("animations");
+            for scene in root
+                .get_mut("scenes")
+                .and_then(gltf::json::Value::as_array_mut)
+                .into_iter()
+                .flatten()
+            {
+                if let Some(scene) = scene.as_object_mut() {
+                    scene
+                        .entry("nodes")
+                        .or_insert_with(|| gltf::json::Value::Array(Vec::new()));
+                }
+            }
+            from_value::<gltf::json::Root>(value).ok()
+        });
+    match relaxed {
+        Some(root) => Ok((root, blob)),
+        None => Err(gltf_error(path, strict)),
+    }
+}
+
+/// Rewrites every number with an integral value written as a float (`1.0`) as an integer: JSON
+/// does not tell them apart, glTF-Validator accepts them for integer fields, serde does not
+/// (float fields take integers, so nothing else changes).
+fn integers_from_integral_floats(value: &mut gltf::json::Value) {
+    use gltf::json::Value;
+    match value {
+        Value::Number(n) => {
+            if let Some(f) = n.as_f64().filter(|f| n.is_f64() && f.fract() == 0.0)
+                && f.abs() < 9.0e15
+            {
+                *value = Value::from(f as i64);
+            }
+        }
+        Value::Array(items) => items.iter_mut().for_each(integers_from_integral_floats),
+        Value::Object(fields) => fields.values_mut().for_each(integers_from_integral_floats),
+        _ => {}
+    }
+}
+
+/// The gltf crate's validation, except for what glTF 2.0 allows: an accessor with neither a
+/// buffer view nor sparse values (all zeros, "Accessors"), a primitive without POSITION.
+fn validate(json: &gltf::json::Root, path: &Path) -> Result<(), TraceError> {
+    use gltf::json::validation::{Error, Validate};
+    let mut errors = Vec::new();
+    json.validate(json, gltf::json::Path::new, &mut |at, error| {
+        errors.push((at(), error))
+    });
+    errors.retain(|(at, error)| {
+        !(matches!(error, Error::Missing)
+            && (is_accessor_view(at.as_str()) || is_position(at.as_str())))
+    });
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(gltf_error(path, describe(gltf::Error::Validation(errors))))
+    }
+}
+
+/// Whether a JSON path is a primitive's POSITION attribute: glTF 2.0 lets a primitive omit it
+/// (it is then not rendered, and skipped here).
+fn is_position(at: &str) -> bool {
+    at.starts_with("meshes[") && at.ends_with(".attributes[\"POSITION\"]")
+}
+
+/// Whether a JSON path is `accessors[N].bufferView`.
+fn is_accessor_view(at: &str) -> bool {
+    at.strip_prefix("accessors[")
+        .and_then(|rest| rest.strip_suffix("].bufferView"))
+        .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Formats the gltf crate's error; validation failures become one line per JSON path.
@@ -217,13 +326,11 @@ fn load_into(
     base: Option<&Path>,
     options: &LoadOptions,
 ) -> Result<(), TraceError> {
-    check_glb_header(bytes, path)?;
-    let gltf::Gltf { document, mut blob } = gltf::Gltf::from_slice_without_validation(bytes)
-        .map_err(|e| gltf_error(path, describe(e)))?;
+    let bytes = check_glb_header(bytes, path, scene)?;
+    let (mut json, mut blob) = parse(bytes, path)?;
 
     // The gltf crate's validation rejects every required extension it does not know; ours
     // refuses those that change geometry and only warns about the rest.
-    let mut json = document.into_json();
     let quantized = json
         .extensions_used
         .iter()
@@ -239,22 +346,37 @@ fn load_into(
             ));
         }
     }
+    // A geometry extension that is used but not required leaves a fallback without it: read
+    // that, unless its data is missing (accessors without any, or a buffer that cannot load).
+    let geometry_used = json
+        .extensions_used
+        .iter()
+        .find(|e| GEOMETRY_EXTENSIONS.contains(&e.as_str()))
+        .cloned();
+    if let Some(ext) = &geometry_used {
+        if json
+            .accessors
+            .iter()
+            .any(|a| a.buffer_view.is_none() && a.sparse.is_none())
+        {
+            return Err(TraceError::UnsupportedExtension { name: ext.clone() });
+        }
+        scene.warn(format!(
+            "extension {ext} is not supported; the document's fallback geometry without it is read"
+        ));
+    }
     check_attribute_references(&json)?;
-    let document = gltf::Document::from_json(json).map_err(|e| gltf_error(path, describe(e)))?;
+    validate(&json, path)?;
+    let document = gltf::Document::from_json_without_validation(json);
 
+    let used = needed_buffers(&document, options.decode_textures);
     let mut buffers = Vec::new();
     for buffer in document.buffers() {
         let uri = match buffer.source() {
             gltf::buffer::Source::Bin => "<GLB BIN chunk>".to_owned(),
             gltf::buffer::Source::Uri(uri) => uri.chars().take(120).collect(),
         };
-        if buffer.length() as u64 > options.max_bytes {
-            return Err(TraceError::Limit {
-                what: "glTF buffer bytes",
-                limit: options.max_bytes,
-                got: buffer.length() as u64,
-            });
-        }
+        // A URI that does not decode is malformed even if the buffer is never read.
         if let gltf::buffer::Source::Uri(full) = buffer.source()
             && !percent_decodes_to_utf8(full)
         {
@@ -264,11 +386,37 @@ fn load_into(
                 message: "the URI's percent-encoding does not decode to UTF-8".to_owned(),
             });
         }
-        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
-            .map_err(|e| TraceError::Buffer {
+        if !used.contains(&buffer.index()) {
+            buffers.push(gltf::buffer::Data(Vec::new()));
+            continue;
+        }
+        let unsupported = |error: TraceError| match &geometry_used {
+            Some(ext) => TraceError::UnsupportedExtension { name: ext.clone() },
+            None => error,
+        };
+        if buffer.length() as u64 > options.max_bytes {
+            return Err(TraceError::Limit {
+                what: "glTF buffer bytes",
+                limit: options.max_bytes,
+                got: buffer.length() as u64,
+            });
+        }
+        if matches!(buffer.source(), gltf::buffer::Source::Bin) && blob.is_none() {
+            return Err(unsupported(TraceError::Buffer {
                 index: buffer.index(),
-                uri: uri.clone(),
-                message: e.to_string(),
+                uri,
+                message: "it has no uri, and the document has no GLB binary chunk for it \
+                          (only a .glb file's first buffer may omit its uri)"
+                    .to_owned(),
+            }));
+        }
+        let data = gltf::buffer::Data::from_source_and_blob(buffer.source(), base, &mut blob)
+            .map_err(|e| {
+                unsupported(TraceError::Buffer {
+                    index: buffer.index(),
+                    uri: uri.clone(),
+                    message: e.to_string(),
+                })
             })?;
         if data.len() < buffer.length() {
             return Err(TraceError::Buffer {
@@ -306,6 +454,8 @@ fn load_into(
         root.nodes().map(|n| (n, Mat4::IDENTITY)).collect();
     let mut triangle_count: u64 = 0;
     let mut skipped_modes = Vec::new();
+    let mut positionless = Vec::new();
+    let mut without_data = Vec::new();
     while let Some((node, parent)) = stack.pop() {
         if std::mem::replace(&mut visited[node.index()], true) {
             return Err(TraceError::BadNode {
@@ -338,16 +488,30 @@ fn load_into(
                     primitive: pi,
                     why,
                 };
-                let position = primitive
-                    .get(&gltf::Semantic::Positions)
-                    .ok_or_else(|| bad("no POSITION attribute".to_owned()))?;
+                let Some(position) = primitive.get(&gltf::Semantic::Positions) else {
+                    positionless.push(what);
+                    continue;
+                };
+                // An accessor without data is all zeros: zero positions that no weighted morph
+                // target moves, or zero indices, make only degenerate triangles. They are
+                // skipped unread, so a large count in a tiny file allocates nothing.
+                let moved = primitive.morph_targets().enumerate().any(|(k, target)| {
+                    target.positions().is_some_and(|a| has_data(&a))
+                        && weights.get(k).is_some_and(|&w| w != 0.0)
+                });
+                if (!has_data(&position) && !moved)
+                    || primitive.indices().is_some_and(|ix| !has_data(&ix))
+                {
+                    without_data.push(what);
+                    continue;
+                }
                 let mut positions =
                     reader.positions(position.index(), quantized, &format!("{what} POSITION"))?;
                 for (k, target) in primitive.morph_targets().enumerate() {
                     let (Some(offsets), Some(&w)) = (target.positions(), weights.get(k)) else {
                         continue;
                     };
-                    if w == 0.0 {
+                    if w == 0.0 || !has_data(&offsets) {
                         continue;
                     }
                     let offsets = reader.positions(
@@ -442,6 +606,21 @@ fn load_into(
         }
         stack.extend(node.children().map(|c| (c, world)));
     }
+    if !without_data.is_empty() {
+        scene.warn(format!(
+            "{} primitive(s) skipped whose positions or indices have no data (all zeros: no \
+             area): {}",
+            without_data.len(),
+            without_data.join(", ")
+        ));
+    }
+    if !positionless.is_empty() {
+        scene.warn(format!(
+            "{} primitive(s) without POSITION skipped (glTF does not render them): {}",
+            positionless.len(),
+            positionless.join(", ")
+        ));
+    }
     if !skipped_modes.is_empty() {
         scene.warn(format!(
             "{} point or line primitive(s) skipped (only surfaces are traced): {}",
@@ -450,6 +629,42 @@ fn load_into(
         ));
     }
     Ok(())
+}
+
+/// Whether an accessor has a buffer view or sparse values; one with neither is all zeros.
+fn has_data(accessor: &gltf::Accessor<'_>) -> bool {
+    accessor.view().is_some() || accessor.sparse().is_some()
+}
+
+/// The buffers the loader reads: those holding the positions, indices and morph-target
+/// positions of any primitive (and the images, when textures are decoded). Others (animations,
+/// skins, other attributes, placeholders) are never loaded, so they cannot fail a load.
+fn needed_buffers(
+    document: &gltf::Document,
+    decode_textures: bool,
+) -> std::collections::HashSet<usize> {
+    let mut accessors = Vec::new();
+    for primitive in document.meshes().flat_map(|m| m.primitives()) {
+        accessors.extend(primitive.get(&gltf::Semantic::Positions));
+        accessors.extend(primitive.indices());
+        accessors.extend(primitive.morph_targets().filter_map(|t| t.positions()));
+    }
+    let mut buffers = std::collections::HashSet::new();
+    for accessor in accessors {
+        buffers.extend(accessor.view().map(|v| v.buffer().index()));
+        if let Some(sparse) = accessor.sparse() {
+            buffers.insert(sparse.indices().view().buffer().index());
+            buffers.insert(sparse.values().view().buffer().index());
+        }
+    }
+    if decode_textures {
+        for image in document.images() {
+            if let gltf::image::Source::View { view, .. } = image.source() {
+                buffers.insert(view.buffer().index());
+            }
+        }
+    }
+    buffers
 }
 
 /// Whether a relative URI's `%XX` escapes decode to UTF-8: the gltf crate unwraps that
@@ -641,8 +856,9 @@ impl AccessorReader<'_> {
                 values
             }
             None => {
-                // A sparse accessor without a view starts from zeros: no stored data bounds its
-                // count, so the decoded size (8 bytes a component) is bounded like a buffer's.
+                // An accessor without a view is zeros (then the sparse values, if any): no stored
+                // data bounds its count, so the decoded size (8 bytes a component) is bounded
+                // like a buffer's.
                 let decoded = count.saturating_mul(dims as u64 * 8);
                 if decoded > self.max_bytes {
                     return Err(TraceError::Limit {
@@ -656,8 +872,6 @@ impl AccessorReader<'_> {
         };
         if let Some(sparse) = &a.sparse {
             self.apply_sparse(sparse, &mut values, count, dims, ct, index, used_as)?;
-        } else if a.buffer_view.is_none() {
-            return Err(bad("neither bufferView nor sparse".to_owned()));
         }
         if a.normalized {
             values.iter_mut().for_each(|v| *v = normalize(*v, ct));

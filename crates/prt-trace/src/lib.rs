@@ -68,8 +68,14 @@
 //!   of its longest axis thick along the flat axis.
 //! * Malformed glTF or GLB is a typed error naming the accessor, mesh and primitive, or node
 //!   ([`TraceError::BadAccessor`], [`TraceError::BadPrimitive`], [`TraceError::BadNode`],
-//!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; a required extension that
-//!   changes geometry is [`TraceError::UnsupportedExtension`].
+//!   [`TraceError::Buffer`], [`TraceError::Gltf`]), never a panic; an extension that changes
+//!   geometry is [`TraceError::UnsupportedExtension`] when required or used without a fallback.
+//!   What glTF 2.0 allows and gltf-json refuses is read: an accessor without a buffer view is
+//!   zeros (a primitive whose positions or indices are such zeros has no area and is skipped
+//!   unread, with a warning), a primitive without POSITION is skipped with a warning, a scene may omit `nodes`, an
+//!   animation target its `node` (animations are ignored), an integer may be written `1.0`.
+//!   Only the buffers holding positions, indices and morph targets (and images, when decoded)
+//!   are loaded.
 //! * Degenerate (zero-area) triangles are dropped and counted; NaN/Inf positions are
 //!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; point and line
 //!   primitives are skipped with a warning.

@@ -2,6 +2,8 @@
 //! from a path and from memory, and never panics. Each is `tests/good_scenes/triangle.gltf` (or
 //! `.glb`) with one thing broken, as its name says.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
@@ -15,7 +17,9 @@ const CASES: &[(&str, &str)] = &[
     ("buffer_shorter_than_declared.gltf", "Buffer"),
     ("buffer_unsupported_uri_scheme.gltf", "Buffer"),
     ("buffer_uri_percent_not_utf8.gltf", "Buffer"),
+    ("buffer_without_uri_in_gltf.gltf", "Buffer"),
     ("draco_required.gltf", "UnsupportedExtension"),
+    ("draco_used_without_fallback.gltf", "UnsupportedExtension"),
     ("empty_file.gltf", "Gltf"),
     // Found by the gltf_load fuzz target: the gltf crate unwraps the URI's percent-decoding.
     ("fuzz_buffer_uri_percent_not_utf8.gltf", "Buffer"),
@@ -74,11 +78,7 @@ fn kind(error: &TraceError) -> &'static str {
 
 #[test]
 fn the_table_lists_every_file_of_the_folder() {
-    let mut files: Vec<String> = std::fs::read_dir(folder())
-        .expect("tests/bad_scenes exists")
-        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-        .collect();
-    files.sort();
+    let files = common::scene_folder_files("bad_scenes");
     let listed: Vec<String> = CASES.iter().map(|(f, _)| f.to_string()).collect();
     assert_eq!(files, listed);
 }
@@ -128,6 +128,12 @@ fn errors_name_what_is_wrong() {
     assert!(m.contains("node 0"), "{m}");
     let m = load("index_past_vertices.gltf");
     assert!(m.contains("index 7 past 3 vertices"), "{m}");
+    // Draco used but not required, with no uncompressed data: the extension is named, not
+    // the accessors' missing buffer views.
+    let m = load("draco_used_without_fallback.gltf");
+    assert!(m.contains("KHR_draco_mesh_compression"), "{m}");
+    let m = load("buffer_without_uri_in_gltf.gltf");
+    assert!(m.contains("no uri"), "{m}");
 }
 
 #[test]

@@ -300,11 +300,18 @@ fn voxels_inside_geometry_are_invalid_and_outside_voxels_are_skipped() {
     };
     // A grid with no valid voxel at all is an error, not an all-zero volume.
     match TransferBaker::new(&scene, inside_options([2, 2, 2])).and_then(|b| b.bake(&NoProgress)) {
-        Err(TraceError::NoValidVoxels {
-            voxels: 8,
-            invalid: 8,
-            skipped: 0,
-        }) => {}
+        Err(
+            e @ TraceError::NoValidVoxels {
+                voxels: 8,
+                invalid: 8,
+                skipped: 0,
+            },
+        ) => {
+            // A library error names the option, not a command-line flag of some front end.
+            let message = e.to_string();
+            assert!(message.contains("BakeOptions::margin"), "{message}");
+            assert!(!message.contains("--"), "{message}");
+        }
         other => panic!("expected NoValidVoxels, got {:?}", other.map(|v| v.stats)),
     }
     // Stretched into the open room above the box, some voxels are valid.
