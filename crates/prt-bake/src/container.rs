@@ -65,14 +65,19 @@ impl MbdContainer {
     }
 }
 
-fn kernel_description(kernels: &HatGrid) -> KernelDescription {
-    let domain = kernels.domain();
+/// The manifest's description of a kernel family of `kind` with `nodes` over `domain`.
+pub(crate) fn kernel_description(kind: &str, nodes: [usize; 3], domain: Aabb) -> KernelDescription {
     KernelDescription {
-        kind: HAT.into(),
-        nodes: kernels.nodes().map(|n| n as u32),
+        kind: kind.into(),
+        nodes: nodes.map(|n| n as u32),
         domain_min: domain.min.to_array(),
         domain_max: domain.max.to_array(),
     }
+}
+
+/// The description of a hat grid.
+fn hat_description(kernels: &HatGrid) -> KernelDescription {
+    kernel_description(HAT, kernels.nodes(), kernels.domain())
 }
 
 /// Writes the container into `folder` (created if missing), each file atomically and the
@@ -135,9 +140,9 @@ pub fn write_container(
     let mut kernels = BTreeMap::new();
     kernels.insert(
         MBD_COEFFICIENTS.to_string(),
-        kernel_description(coefficient_kernels),
+        hat_description(coefficient_kernels),
     );
-    kernels.insert(MBD_BASIS.to_string(), kernel_description(basis_kernels));
+    kernels.insert(MBD_BASIS.to_string(), hat_description(basis_kernels));
     let encoding = contents.encoding;
     let container = Container {
         attributes,

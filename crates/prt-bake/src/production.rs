@@ -14,8 +14,8 @@ use prt_kernels::{HatGrid, HybridKernels, KernelError};
 use prt_mbd::{MbdError, MbdModel, SolveReport, SolverOptions};
 use prt_sphere::Sky;
 use prt_texture::container::{
-    ArrayLayout, Container, GridArray, KernelDescription, LoadedContainer, MBD_BASIS,
-    MBD_COEFFICIENTS, Manifest, WriteReport,
+    ArrayLayout, Container, GridArray, LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest,
+    WriteReport,
 };
 use prt_texture::{Encoding, Limits};
 use prt_trace::{TRANSFER_DIM, incident_radiance};
@@ -23,6 +23,7 @@ use serde_json::json;
 use thiserror::Error;
 
 use crate::ContainerError;
+use crate::container::kernel_description;
 
 /// Values per voxel of the irradiance target: L0 and the three L1 coefficients of R, G and B.
 pub const IRRADIANCE_L1_DIM: usize = 12;
@@ -313,15 +314,6 @@ pub fn texel_bytes(manifest: &Manifest) -> u64 {
             nodes * a.groups() as u64 * texel
         })
         .sum()
-}
-
-fn kernel_description(kind: &str, nodes: [usize; 3], domain: Aabb) -> KernelDescription {
-    KernelDescription {
-        kind: kind.into(),
-        nodes: nodes.map(|n| n as u32),
-        domain_min: domain.min.to_array(),
-        domain_max: domain.max.to_array(),
-    }
 }
 
 /// Writes the production container into `folder` (created if missing), each file atomically
