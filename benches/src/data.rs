@@ -51,16 +51,17 @@ pub fn envmap_names() -> Vec<String> {
     names
 }
 
-/// A scene by name: `cornell` (prt-trace's built-in box), `sponza` or `gas_station` (glTF in
-/// `../shared/scenes`), or why it cannot be loaded.
+/// A scene by name: `cornell` or `town` (prt-trace's built-in Cornell box and outdoor town),
+/// `sponza` or `gas_station` (glTF in `../shared/scenes`), or why it cannot be loaded.
 pub fn load_scene(name: &str) -> Result<Scene, String> {
     let file = match name {
         "cornell" => return Ok(Scene::cornell_box()),
+        "town" => return Ok(Scene::outdoor_town()),
         "sponza" => "sponza/Sponza.gltf",
         "gas_station" => "gas_station/GasStation.gltf",
         other => {
             return Err(format!(
-                "unknown scene {other} (cornell, sponza or gas_station)"
+                "unknown scene {other} (cornell, town, sponza or gas_station)"
             ));
         }
     };

@@ -36,7 +36,7 @@ use prt_texture::{Encoding, Limits};
     about = "The filterable MBD layout as written: bytes per voxel, relit and raw error against BPCA / CPCA, relighting time"
 )]
 struct Cli {
-    /// Scene: `cornell` (built in) or `sponza` (../shared/scenes/sponza).
+    /// Scene: `cornell` or `town` (built in) or `sponza` (../shared/scenes/sponza).
     #[arg(long, default_value = "cornell")]
     scene: String,
     /// Voxels along the longest axis.
