@@ -1,41 +1,11 @@
 //! End-to-end tests of the `prt` binary: a small bake whose report must show a working pipeline,
 //! and the one-line errors of bad input.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn prt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prt"))
-        .args(args)
-        .output()
-        .expect("the prt binary runs")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prt-cli-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-/// The error is one line starting with `error:` and the exit code is non-zero.
-fn assert_clean_failure(out: &Output, needle: &str) {
-    assert!(!out.status.success(), "expected failure, got success");
-    let err = stderr(out);
-    let line = err
-        .lines()
-        .find(|l| l.starts_with("error:"))
-        .unwrap_or_else(|| panic!("no error line in {err:?}"));
-    assert!(
-        line.contains(needle),
-        "error line {line:?} does not mention {needle:?}"
-    );
-    assert!(!err.contains("panicked"), "panic in {err}");
-}
+mod common;
+use common::{assert_clean_failure, prt, scratch, stderr};
 
 #[test]
 fn small_cornell_bake_writes_a_consistent_report() {

@@ -1,40 +1,8 @@
 //! `prt export` end to end: a small Cornell bake exported for every target and sky kind, and
 //! its one-line errors.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn prt(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_prt"))
-        .args(args)
-        .output()
-        .expect("the prt binary runs")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prt-export-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn assert_clean_failure(out: &Output, needle: &str) {
-    assert!(!out.status.success(), "expected failure, got success");
-    let err = stderr(out);
-    let line = err
-        .lines()
-        .find(|l| l.starts_with("error:"))
-        .unwrap_or_else(|| panic!("no error line in {err:?}"));
-    assert!(
-        line.contains(needle),
-        "{line:?} does not mention {needle:?}"
-    );
-    assert!(!err.contains("panicked"), "panic in {err}");
-}
+mod common;
+use common::{assert_clean_failure, prt, scratch, stderr};
 
 #[test]
 fn a_small_bake_exports_for_every_target_and_sky() {
