@@ -18,6 +18,7 @@
 //! | `manylight` | `manylight` | many-light matrix sampling: row-column sampling and its successors |
 //! | `texture` | `texture` | KTX2, EXR, Radiance HDR, DDS; quantisation; the MBD container |
 //! | `bake` | `bake` | the main job: scene → transfer volume → MBD (+ baselines) → scores → container, and the container's reader |
+//! | `export` | `export` | a bake lit by a sky, written as probe volumes Bevy, three.js and custom engines load |
 //! | `render` | `render` | CPU renders of a scene lit by a transfer volume under a sky, and the scene mesh file |
 //! | `shaders` | `shaders` | WGSL and GLSL ES 3.00 sources that render from the MBD container as written |
 #![deny(missing_docs)]
@@ -36,6 +37,8 @@ pub use prt_manylight as manylight;
 pub use prt_mbd as mbd;
 #[cfg(feature = "plsq")]
 pub use prt_plsq as plsq;
+#[cfg(feature = "export")]
+pub use prt_export as export;
 #[cfg(feature = "render")]
 pub use prt_render as render;
 #[cfg(feature = "shaders")]
