@@ -310,7 +310,7 @@ pub fn texel_bytes(manifest: &Manifest) -> u64 {
         .iter()
         .map(|a| {
             let nodes: u64 = a.dims.iter().map(|&n| u64::from(n)).product();
-            let texel = a.encoding.rgba_format().bytes_per_texel() as u64;
+            let texel = a.texture_format().bytes_per_texel() as u64;
             nodes * a.groups() as u64 * texel
         })
         .sum()

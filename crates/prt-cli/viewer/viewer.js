@@ -103,11 +103,16 @@ const VK_FORMATS = {
   unorm8: { vk: 37, bytes: 4 }, snorm8: { vk: 38, bytes: 4 },
   unorm16: { vk: 91, bytes: 8 }, snorm16: { vk: 92, bytes: 8 },
 };
+// One-channel arrays (`single_channel` in the manifest) of the encodings that have a one-channel
+// format.
+const VK_FORMATS_R = {
+  f32: { vk: 100, bytes: 4 }, f16: { vk: 76, bytes: 2 }, unorm8: { vk: 9, bytes: 1 },
+};
 const KTX2_ID = [0xab, 0x4b, 0x54, 0x58, 0x20, 0x32, 0x30, 0xbb, 0x0d, 0x0a, 0x1a, 0x0a];
 
 // The base level of a KTX2 file, checked against the expected format and size.
-function parseKtx2(buffer, name, encoding, size) {
-  const format = VK_FORMATS[encoding];
+function parseKtx2(buffer, name, encoding, size, singleChannel) {
+  const format = (singleChannel ? VK_FORMATS_R : VK_FORMATS)[encoding];
   if (!format) fail(`${name}: encoding ${encoding} is not supported by the viewer`);
   if (buffer.byteLength < 104) fail(`${name}: too short for a KTX2 file`);
   const bytes = new Uint8Array(buffer);
@@ -143,13 +148,20 @@ function arrayTexture(gl, entry, data) {
     fail(`${entry.file}: layout ${entry.layout} is not filterable; rebake with this prt`);
   }
   const size = entry.dims.map((d, k) => d * tiles[k]);
-  const texels = parseKtx2(data, entry.file, entry.encoding, size);
+  const single = entry.single_channel === true;
+  const texels = parseKtx2(data, entry.file, entry.encoding, size, single);
   const texture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_3D, texture);
   const [w, h, d] = size;
   const upload = (internal, format, type, array) =>
     gl.texImage3D(gl.TEXTURE_3D, 0, internal, w, h, d, 0, format, type, array);
-  switch (entry.encoding) {
+  if (single) {
+    switch (entry.encoding) {
+      case 'f32': upload(gl.R32F, gl.RED, gl.FLOAT, new Float32Array(texels)); break;
+      case 'f16': upload(gl.R16F, gl.RED, gl.HALF_FLOAT, new Uint16Array(texels)); break;
+      case 'unorm8': upload(gl.R8, gl.RED, gl.UNSIGNED_BYTE, new Uint8Array(texels)); break;
+    }
+  } else switch (entry.encoding) {
     case 'f32': upload(gl.RGBA32F, gl.RGBA, gl.FLOAT, new Float32Array(texels)); break;
     case 'f16': upload(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, new Uint16Array(texels)); break;
     case 'unorm8': upload(gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(texels)); break;

@@ -32,14 +32,14 @@ use serde::{Deserialize, Serialize};
 use crate::ktx2::{KEY_PRT_ARRAY, Ktx2Texture, Shape};
 use crate::limits::{check_at_most, checked_product};
 use crate::quant::{ChannelRange, Encoding, Quantized, dequantize, quantize};
-use crate::{Limits, TextureError};
+use crate::{Limits, PixelFormat, TextureError};
 
 /// Value of [`Manifest::format`].
 pub const CONTAINER_FORMAT: &str = "prt-container";
 /// The manifest version this crate writes; it reads every version from 1 up to this one
 /// (version 2 stopped storing identity ranges for the float encodings, version 3 added
 /// [`ArrayLayout::Atlas`]).
-pub const CONTAINER_VERSION: u32 = 3;
+pub const CONTAINER_VERSION: u32 = 4;
 /// File name of the manifest inside a container folder.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the MBD coefficient grid array and its kernel.
@@ -177,14 +177,39 @@ pub struct ArrayEntry {
     /// wrote identity maps there; they are still accepted). Use [`ArrayEntry::range`] to read it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub ranges: Vec<ChannelRange>,
+    /// `true` when a one-channel array is stored in a one-channel texture format (R32F, R16F,
+    /// R8 for the f32, f16 and unorm8 encodings) instead of the encoding's RGBA format;
+    /// containers before version 4 never are.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub single_channel: bool,
     /// Size of the KTX2 file in bytes.
     pub bytes: u64,
 }
 
+/// The one-channel texture format of `encoding`, where it has one.
+fn single_channel_format(encoding: Encoding) -> Option<PixelFormat> {
+    match encoding {
+        Encoding::F32 => Some(PixelFormat::R32Sfloat),
+        Encoding::F16 => Some(PixelFormat::R16Sfloat),
+        Encoding::Unorm8 => Some(PixelFormat::R8Unorm),
+        _ => None,
+    }
+}
+
 impl ArrayEntry {
-    /// Channels per texel of the encoding's texture format (4, or 3 for RGB9E5).
+    /// The texture format of the array's file: the encoding's RGBA format, or its one-channel
+    /// format for a [`single_channel`](ArrayEntry::single_channel) array.
+    pub fn texture_format(&self) -> PixelFormat {
+        match single_channel_format(self.encoding) {
+            Some(format) if self.single_channel => format,
+            _ => self.encoding.rgba_format(),
+        }
+    }
+
+    /// Channels per texel of [`ArrayEntry::texture_format`] (4, 3 for RGB9E5, 1 for a
+    /// single-channel array).
     pub fn group_size(&self) -> usize {
-        self.encoding.rgba_format().channels()
+        self.texture_format().channels()
     }
 
     /// The decode map of `channel`: its stored range for the normalised encodings, the identity
@@ -277,6 +302,17 @@ impl ArrayEntry {
             ));
         }
         check_at_most("array channels", self.channels as u64, limits.max_bytes)?;
+        if self.single_channel
+            && (self.channels != 1 || single_channel_format(self.encoding).is_none())
+        {
+            return Err(TextureError::malformed(
+                "manifest",
+                format!(
+                    "array {:?} is single-channel with {} channels in {:?}",
+                    self.name, self.channels, self.encoding
+                ),
+            ));
+        }
         // An atlas names its tiles (enough for every group, no empty layer of tiles along z);
         // the other layouts name none.
         let tiles_ok = match (self.layout, self.tiles) {
@@ -450,19 +486,25 @@ impl Container {
                 channels: array.channels,
                 encoding: *encoding,
                 layout: *layout,
-                tiles: (*layout == ArrayLayout::Atlas).then(|| {
-                    atlas_tiles(
-                        array.dims,
-                        array.channels.div_ceil(encoding.rgba_format().channels()),
-                    )
-                }),
+                tiles: None,
                 ranges: Vec::new(),
+                single_channel: array.channels == 1 && single_channel_format(*encoding).is_some(),
                 bytes: 0,
             };
+            if *layout == ArrayLayout::Atlas {
+                entry.tiles = Some(atlas_tiles(array.dims, entry.groups()));
+            }
             let (texture, ranges) = encode_array(&entry, array)?;
             entry.ranges = ranges;
             let mut texture = texture;
-            let json = serde_json::to_vec(&entry).map_err(|e| TextureError::Json(e.to_string()))?;
+            // The file names its entry so that a reader can tell it from another container's;
+            // the decode ranges stay in the manifest alone (they can be most of an entry).
+            let embedded = ArrayEntry {
+                ranges: Vec::new(),
+                ..entry.clone()
+            };
+            let json =
+                serde_json::to_vec(&embedded).map_err(|e| TextureError::Json(e.to_string()))?;
             texture.set_key(KEY_PRT_ARRAY, json);
             let bytes = texture.to_bytes()?;
             entry.bytes = bytes.len() as u64;
@@ -577,7 +619,7 @@ fn encode_array(
     } else {
         quantize(&padded, padded_channels, entry.encoding)?
     };
-    let texel_bytes = entry.encoding.rgba_format().bytes_per_texel();
+    let texel_bytes = entry.texture_format().bytes_per_texel();
     let shape = entry.texture_shape()?;
     let bytes = match TileMap::new(entry, &shape) {
         None => q.bytes,
@@ -598,7 +640,7 @@ fn encode_array(
             out
         }
     };
-    let texture = Ktx2Texture::new(entry.encoding.rgba_format(), shape, vec![bytes])?;
+    let texture = Ktx2Texture::new(entry.texture_format(), shape, vec![bytes])?;
     let ranges = if entry.encoding.is_normalized() {
         q.ranges[..array.channels].to_vec()
     } else {
@@ -608,7 +650,7 @@ fn encode_array(
 }
 
 fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, TextureError> {
-    let format = entry.encoding.rgba_format();
+    let format = entry.texture_format();
     if texture.format() != format || texture.shape() != entry.texture_shape()? {
         return Err(TextureError::malformed(
             "container texture",
@@ -627,7 +669,10 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
             && embedded.channels == entry.channels
             && embedded.encoding == entry.encoding
             && embedded.layout == entry.layout
-            && (0..entry.channels).all(|c| embedded.range(c) == entry.range(c));
+            && embedded.single_channel == entry.single_channel
+            // Version 3 and earlier embedded the ranges too.
+            && (embedded.ranges.is_empty()
+                || (0..entry.channels).all(|c| embedded.range(c) == entry.range(c)));
         if !same {
             return Err(TextureError::malformed(
                 "container texture",

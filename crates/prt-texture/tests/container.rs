@@ -291,6 +291,45 @@ fn rgb9e5_arrays_pack_three_channels_per_texel() {
 }
 
 #[test]
+fn one_channel_arrays_use_one_channel_textures_where_the_encoding_has_one() {
+    let a = random_array([3, 2, 2], 1, 9, 1.0);
+    for (encoding, format, single) in [
+        (Encoding::F32, prt_texture::PixelFormat::R32Sfloat, true),
+        (Encoding::F16, prt_texture::PixelFormat::R16Sfloat, true),
+        (Encoding::Unorm8, prt_texture::PixelFormat::R8Unorm, true),
+        (
+            Encoding::Unorm16,
+            prt_texture::PixelFormat::R16G16B16A16Unorm,
+            false,
+        ),
+    ] {
+        let mut c = Container::default();
+        c.arrays
+            .push(("mask".into(), a.clone(), encoding, ArrayLayout::Volume));
+        let (mut manifest, files) = c.encode().unwrap();
+        assert_eq!(manifest.arrays[0].single_channel, single, "{encoding:?}");
+        let t = prt_texture::Ktx2Texture::from_bytes(&files[0].1, &Limits::small()).unwrap();
+        assert_eq!(t.format(), format, "{encoding:?}");
+        let json = manifest.to_json().unwrap();
+        let loaded =
+            LoadedContainer::decode(&json, &Limits::small(), |_| Ok(files[0].1.clone())).unwrap();
+        for (x, y) in a.data.iter().zip(&loaded.arrays[0].1.data) {
+            assert!(
+                (x - y).abs() <= 2.0 / 255.0 * 2.0,
+                "{encoding:?}: {x} read as {y}"
+            );
+        }
+        // A manifest that disagrees with the file's format is refused.
+        manifest.arrays[0].single_channel = !single;
+        let json = manifest.to_json().unwrap();
+        assert!(
+            LoadedContainer::decode(&json, &Limits::small(), |_| Ok(files[0].1.clone())).is_err(),
+            "{encoding:?}"
+        );
+    }
+}
+
+#[test]
 fn mismatched_or_foreign_textures_are_rejected() {
     let mut c = Container::default();
     c.arrays.push((
