@@ -27,6 +27,8 @@ pub use prt_core as core;
 
 #[cfg(feature = "bake")]
 pub use prt_bake as bake;
+#[cfg(feature = "export")]
+pub use prt_export as export;
 #[cfg(feature = "kernels")]
 pub use prt_kernels as kernels;
 #[cfg(feature = "linalg")]
@@ -37,8 +39,6 @@ pub use prt_manylight as manylight;
 pub use prt_mbd as mbd;
 #[cfg(feature = "plsq")]
 pub use prt_plsq as plsq;
-#[cfg(feature = "export")]
-pub use prt_export as export;
 #[cfg(feature = "render")]
 pub use prt_render as render;
 #[cfg(feature = "shaders")]
