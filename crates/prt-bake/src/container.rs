@@ -75,6 +75,19 @@ pub(crate) fn kernel_description(kind: &str, nodes: [usize; 3], domain: Aabb) ->
     }
 }
 
+/// The encoding the manifest gives the coefficient array: the container's encoding.
+pub(crate) fn coefficient_encoding(manifest: &Manifest) -> Result<Encoding, ContainerError> {
+    manifest
+        .arrays
+        .iter()
+        .find(|a| a.name == MBD_COEFFICIENTS)
+        .map(|a| a.encoding)
+        .ok_or(ContainerError::Missing {
+            kind: "array",
+            name: MBD_COEFFICIENTS,
+        })
+}
+
 /// The description of a hat grid.
 fn hat_description(kernels: &HatGrid) -> KernelDescription {
     kernel_description(HAT, kernels.nodes(), kernels.domain())
@@ -219,15 +232,7 @@ fn from_loaded(loaded: LoadedContainer) -> Result<MbdContainer, ContainerError> 
             validity.channels
         )));
     }
-    let encoding = manifest
-        .arrays
-        .iter()
-        .find(|a| a.name == MBD_COEFFICIENTS)
-        .map(|a| a.encoding)
-        .ok_or(ContainerError::Missing {
-            kind: "array",
-            name: MBD_COEFFICIENTS,
-        })?;
+    let encoding = coefficient_encoding(manifest)?;
     let shape_error = |e: ndarray::ShapeError| ContainerError::Inconsistent(e.to_string());
     let coefficients =
         Array2::from_shape_vec((coefficients.nodes(), rank), coefficients.data.clone())

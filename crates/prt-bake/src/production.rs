@@ -23,7 +23,7 @@ use serde_json::json;
 use thiserror::Error;
 
 use crate::ContainerError;
-use crate::container::kernel_description;
+use crate::container::{coefficient_encoding, kernel_description};
 
 /// Values per voxel of the irradiance target: L0 and the three L1 coefficients of R, G and B.
 pub const IRRADIANCE_L1_DIM: usize = 12;
@@ -497,15 +497,7 @@ fn from_loaded(loaded: LoadedContainer) -> Result<ProductionContainer, Container
         std::array::from_fn(|j| sky[9 * c + j] as f32)
     }))
     .map_err(|e| inconsistent(format!("sky: {e}")))?;
-    let encoding = manifest
-        .arrays
-        .iter()
-        .find(|a| a.name == MBD_COEFFICIENTS)
-        .map(|a| a.encoding)
-        .ok_or(ContainerError::Missing {
-            kind: "array",
-            name: MBD_COEFFICIENTS,
-        })?;
+    let encoding = coefficient_encoding(manifest)?;
     let shape_error = |e: ndarray::ShapeError| inconsistent(e.to_string());
     let coefficients =
         Array2::from_shape_vec((coefficients.nodes(), rank), coefficients.data.clone())
