@@ -267,10 +267,9 @@ impl CubeMap {
     /// Exact solid angle of texel `(s, t)` of any face (the same on every face).
     pub fn texel_solid_angle(&self, s: usize, t: usize) -> f64 {
         let n = self.size as f64;
-        let area = |x: f64, y: f64| (x * y).atan2((x * x + y * y + 1.0).sqrt());
         let (x0, x1) = (2.0 * s as f64 / n - 1.0, 2.0 * (s + 1) as f64 / n - 1.0);
         let (y0, y1) = (2.0 * t as f64 / n - 1.0, 2.0 * (t + 1) as f64 / n - 1.0);
-        area(x0, y0) - area(x0, y1) - area(x1, y0) + area(x1, y1)
+        cube_rect_solid_angle(x0, x1, y0, y1)
     }
 
     /// Resamples to a lat-long map (bilinear lookups at lat-long texel centres).
@@ -284,6 +283,13 @@ pub fn cube_texel_direction(face: usize, s: usize, t: usize, size: usize) -> Vec
     let a = 2.0 * (s as f64 + 0.5) / size as f64 - 1.0;
     let b = 2.0 * (t as f64 + 0.5) / size as f64 - 1.0;
     cube_to_direction(face, a, b)
+}
+
+/// Exact solid angle of the rectangle `[a0, a1] × [b0, b1]` of a cube face (face coordinates
+/// in `[−1, 1]`, any face).
+pub fn cube_rect_solid_angle(a0: f64, a1: f64, b0: f64, b1: f64) -> f64 {
+    let f = |a: f64, b: f64| (a * b).atan2((a * a + b * b + 1.0).sqrt());
+    f(a1, b1) - f(a0, b1) - f(a1, b0) + f(a0, b0)
 }
 
 /// Face-local coordinates `sc/|ma|, tc/|ma|` in `[−1, 1]` of `face` to a unit direction (inverse

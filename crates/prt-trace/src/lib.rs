@@ -26,6 +26,9 @@
 //!   the bounds) with a G-buffer of gather points, and the pixel × VPL matrix with shadow rays as
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
 //!   its brute-force reference image.
+//! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
+//!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
+//!   wavelet transport, where a transport row has one entry per lighting texel.
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
@@ -103,6 +106,7 @@
 
 mod bake;
 mod bvh;
+mod cube;
 mod error;
 mod gltf_load;
 mod outdoor;
@@ -116,6 +120,7 @@ pub use bake::{
     constant_sky, incident_radiance, irradiance,
 };
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
+pub use cube::CubeRays;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};

@@ -17,16 +17,10 @@
 
 use glam::{DVec3, Quat};
 use prt_sphere::LatLongMap;
-use prt_sphere::envmap::cube_to_direction;
+use prt_sphere::envmap::{cube_rect_solid_angle, cube_to_direction};
 
 use crate::WaveletError;
 use crate::haar::{band_of_2d, forward_2d, inverse_2d};
-
-/// Exact solid angle of the face rectangle `[a0, a1] × [b0, b1]` (face coordinates in [−1, 1]).
-fn rect_solid_angle(a0: f64, a1: f64, b0: f64, b1: f64) -> f64 {
-    let f = |a: f64, b: f64| (a * b).atan2((a * a + b * b + 1.0).sqrt());
-    f(a1, b1) - f(a0, b1) - f(a1, b0) + f(a0, b0)
-}
 
 /// Exact solid angles of the texels of one channel plane (`6 × size × size`, face-major,
 /// row-major); they sum to 4π.
@@ -46,7 +40,12 @@ fn face_solid_angles(size: usize, block: usize) -> Vec<f64> {
     let mut out = Vec::with_capacity(n * n);
     for y in 0..n {
         for x in 0..n {
-            out.push(rect_solid_angle(edge(x), edge(x + 1), edge(y), edge(y + 1)));
+            out.push(cube_rect_solid_angle(
+                edge(x),
+                edge(x + 1),
+                edge(y),
+                edge(y + 1),
+            ));
         }
     }
     out
