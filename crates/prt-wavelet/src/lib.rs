@@ -18,6 +18,8 @@
 //! | [`analysis`] | per-frame area-weighted L1, terms per band per frame, spatio-temporal band energy |
 //! | [`brdf`] | 256-bin BRDF curves (Beckmann, free-hand) edited with BI in Daubechies-4 |
 //! | [`Relighter`], [`SparseTransport`] | `B = T L` with quantised, row-truncated wavelet transport and per-band partial images |
+//! | [`BrdfFactorisation`] | a BRDF as `K` in-out products (SVD on a paraboloid hemisphere grid): glossy transport under a changing view (thesis §7.2) |
+//! | [`CpcaModel`], [`CpcaRelighter`] | clustered-PCA transport relit in two incremental stages: projections from the lighting update, BI on the points' weights (thesis §7.3) |
 //!
 //! ## The method
 //! Lighting `L` (a cube map, 6 × n × n texels per channel) is Haar-transformed face by face.
@@ -67,6 +69,7 @@
 pub mod analysis;
 mod approx;
 pub mod brdf;
+mod cpca;
 mod cubemap;
 mod daubechies;
 mod error;
@@ -74,11 +77,17 @@ mod haar;
 mod relight;
 pub mod sequence;
 mod sh;
+mod view;
 
 pub use approx::{Approximator, BandMode, BandStrategy, FrameUpdate, Policy, Term, Weighting};
+pub use cpca::{CpcaModel, CpcaRelighter, CpcaWork, PointUpdate};
 pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, texel_solid_angles};
 pub use daubechies::Daubechies4;
 pub use error::WaveletError;
 pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};
 pub use relight::{Relighter, SparseTransport};
 pub use sh::ShApproximator;
+pub use view::{
+    BrdfFactorisation, FactorisationConfig, local_frame, paraboloid_coordinates,
+    paraboloid_direction,
+};
