@@ -320,6 +320,60 @@ mod tests {
     }
 
     #[test]
+    fn a_camera_path_under_converged_lighting_is_the_direct_product() {
+        use crate::{
+            Approximator, BandStrategy, CubemapLayout, Policy, Relighter, SparseTransport,
+            Weighting,
+        };
+        // Two points × K = 3 transport rows over a 6 × 2 × 2 map, relit incrementally until
+        // the static lighting has converged, then shaded along a camera path: every view
+        // equals `Σ_k σ_k h_k(ωo) T_k · L` computed directly, with no lighting work.
+        let f = BrdfFactorisation::fit(&blinn, &FactorisationConfig { grid: 8, terms: 3 }).unwrap();
+        let (k, n) = (3, 24);
+        let rows: Vec<f32> = (0..2 * k * n)
+            .map(|i| ((i * 37 % 11) as f32 - 5.0) * 0.1)
+            .collect();
+        let oracle =
+            prt_core::DenseOracle::new(Array2::from_shape_vec((2 * k, n), rows).unwrap(), 1)
+                .unwrap();
+        let transport = SparseTransport::from_oracle(&oracle, n, &prt_core::NoProgress).unwrap();
+        let dense = transport.to_dense();
+        let layout = CubemapLayout::new(2).unwrap();
+        let light: Vec<f32> = (0..3 * n).map(|i| (i % 7) as f32 * 0.3 - 0.4).collect();
+        let policy = Policy::PerBand(BandStrategy::L1Test);
+        let mut approx = Approximator::for_cubemap(&layout, 3, Weighting::Area, 5, policy).unwrap();
+        let mut engine = Relighter::new(transport, 3, layout.band_count()).unwrap();
+        for _ in 0..20 {
+            engine.apply(approx.step(&light).unwrap()).unwrap();
+        }
+        assert_eq!(approx.approximation(), &light[..]);
+        let lit = engine.image();
+        for step in 0..6 {
+            let wo = Vec3::new(0.1 * step as f32 - 0.3, 0.2, 0.8).normalize();
+            assert!(approx.step(&light).unwrap().terms.is_empty());
+            for point in 0..2 {
+                let mut shaded = [0.0f32; 3];
+                f.shade(wo, &lit[point * k * 3..(point + 1) * k * 3], &mut shaded);
+                let mut h = [0.0; 3];
+                f.out_factors(wo, &mut h);
+                for (c, s) in shaded.iter().enumerate() {
+                    let direct: f32 = (0..k)
+                        .map(|t| {
+                            let row = &dense[(point * k + t) * n..(point * k + t + 1) * n];
+                            let tl: f32 = row.iter().zip(&light[c * n..]).map(|(a, b)| a * b).sum();
+                            f.sigma()[t] * h[t] * tl
+                        })
+                        .sum();
+                    assert!(
+                        (s - direct).abs() <= 1e-5 * direct.abs().max(1.0),
+                        "{s} {direct}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn rejects_bad_configs() {
         let zero = FactorisationConfig { grid: 4, terms: 0 };
         assert!(BrdfFactorisation::fit(&blinn, &zero).is_err());
