@@ -132,10 +132,13 @@ fn blinn(exponent: f32) -> impl Fn(Vec3, Vec3) -> f32 + Sync {
     }
 }
 
+/// A transport row's kept (coefficient, value) pairs.
+type SparseRow = Vec<(u32, f32)>;
+
 /// Rows stored sparse, served dense.
 struct SparseRows {
     cols: usize,
-    rows: Vec<Vec<(u32, f32)>>,
+    rows: Vec<SparseRow>,
 }
 
 impl MatrixOracle for SparseRows {
@@ -343,7 +346,7 @@ fn main() {
         })
         .collect();
     let clock = Instant::now();
-    let traced: Vec<(Vec<f32>, Vec<Vec<(u32, f32)>>)> = points
+    let traced: Vec<(Vec<f32>, Vec<SparseRow>)> = points
         .par_iter()
         .map_init(
             || CubemapHaar::new(args.size).expect("size"),
@@ -386,7 +389,7 @@ fn main() {
         "traced {p_count} points × {texels} texels in {:.1} s",
         clock.elapsed().as_secs_f64()
     );
-    let (vis_cos, glossy): (Vec<Vec<f32>>, Vec<Vec<Vec<(u32, f32)>>>) = traced.into_iter().unzip();
+    let (vis_cos, glossy): (Vec<Vec<f32>>, Vec<Vec<SparseRow>>) = traced.into_iter().unzip();
     let oracle = SparseRows {
         cols: texels,
         rows: glossy.into_iter().flatten().collect(),
