@@ -18,6 +18,7 @@
 //! | [`analysis`] | per-frame area-weighted L1, terms per band per frame, spatio-temporal band energy |
 //! | [`brdf`] | 256-bin BRDF curves (Beckmann, free-hand) edited with BI in Daubechies-4 |
 //! | [`Relighter`], [`SparseTransport`] | `B = T L` with quantised, row-truncated wavelet transport and per-band partial images |
+//! | [`TransportParts`] | a sparse transport in its stored form, for files ([`SparseTransport::to_parts`], [`SparseTransport::from_parts`]) |
 //!
 //! ## The method
 //! Lighting `L` (a cube map, 6 × n × n texels per channel) is Haar-transformed face by face.
@@ -80,5 +81,5 @@ pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, texel_solid_angles};
 pub use daubechies::Daubechies4;
 pub use error::WaveletError;
 pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};
-pub use relight::{Relighter, SparseTransport};
+pub use relight::{Relighter, SparseTransport, TransportParts};
 pub use sh::ShApproximator;
