@@ -129,8 +129,8 @@ pub use cube::CubeRays;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
 pub use pixel::{
-    Bounce, PixelBakeEstimate, PixelRelighter, PixelTransport, PixelTransportBaker,
-    PixelTransportOptions, Sparsify,
+    Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
+    PixelTransportBaker, PixelTransportOptions, RelightMethod, RelitFrame, Sparsify,
 };
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, sh9};

@@ -797,3 +797,114 @@ impl PixelRelighter {
         out
     }
 }
+
+/// A lighting approximation for [`MethodRelighter`], with its terms per frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RelightMethod {
+    /// Every non-zero lighting coefficient each frame: the unapproximated product.
+    Exact,
+    /// Non-linear approximation: the `k` largest (area-weighted) coefficients of each frame.
+    Nwa(usize),
+    /// Basic incremental: the `k` largest of the difference to last frame's approximation.
+    Bi(usize),
+    /// Per-band incremental over level × face × quadrant bands, terms dealt to the bands
+    /// (prt-wavelet's best PBI variant on rotating maps).
+    Pbi(usize),
+}
+
+impl RelightMethod {
+    /// A short name: `exact`, `nwa30`, `bi30`, `pbi30`.
+    pub fn name(&self) -> String {
+        match self {
+            Self::Exact => "exact".into(),
+            Self::Nwa(k) => format!("nwa{k}"),
+            Self::Bi(k) => format!("bi{k}"),
+            Self::Pbi(k) => format!("pbi{k}"),
+        }
+    }
+}
+
+/// One frame of a [`MethodRelighter`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RelitFrame {
+    /// The relit image (linear RGB, row-major).
+    pub image: Vec<[f32; 3]>,
+    /// Area-weighted L1 error of the approximated lighting against the frame's texels.
+    pub lighting_l1: f64,
+    /// Terms chosen in each band this frame.
+    pub terms_per_band: Vec<usize>,
+    /// Transport bytes read by the engine this frame.
+    pub bytes: usize,
+    /// Wall time of the approximation step plus the engine's update (no image copy).
+    pub seconds: f64,
+}
+
+/// One lighting approximation driving one engine over a sequence of frames.
+#[derive(Debug, Clone)]
+pub struct MethodRelighter {
+    method: RelightMethod,
+    approximator: prt_wavelet::Approximator,
+    engine: PixelRelighter,
+    error: prt_wavelet::analysis::LightingError,
+}
+
+impl MethodRelighter {
+    /// An approximator (area-weighted selection, RGB) and an engine over `transport`.
+    pub fn new(transport: &PixelTransport, method: RelightMethod) -> Result<Self, TraceError> {
+        use prt_wavelet::{Approximator, BandStrategy, CubemapLayout, Policy};
+        let n = transport.options.cube_size;
+        let layout = CubemapLayout::new(n)?;
+        let (bands, terms, policy) = match method {
+            RelightMethod::Exact => (
+                layout.bands().to_vec(),
+                layout.len(),
+                Policy::NonIncremental,
+            ),
+            RelightMethod::Nwa(k) => (layout.bands().to_vec(), k, Policy::NonIncremental),
+            RelightMethod::Bi(k) => (layout.bands().to_vec(), k, Policy::Incremental),
+            RelightMethod::Pbi(k) => (
+                layout.level_face_tile_bands(2.min(n))?,
+                k,
+                Policy::PerBand(BandStrategy::Dealer),
+            ),
+        };
+        let approximator =
+            Approximator::new(bands, layout.area_weights().to_vec(), 3, terms, policy)?;
+        let engine = PixelRelighter::new(transport, approximator.band_count())?;
+        Ok(Self {
+            method,
+            approximator,
+            engine,
+            error: prt_wavelet::analysis::LightingError::new(n, 3)?,
+        })
+    }
+
+    /// The method.
+    pub fn method(&self) -> RelightMethod {
+        self.method
+    }
+
+    /// Advances to the next frame: `coefficients` are the frame's planar RGB Haar
+    /// coefficients, `texels` the same lighting before the transform (for the lighting error).
+    pub fn frame(
+        &mut self,
+        coefficients: &[f32],
+        texels: &[f32],
+    ) -> Result<RelitFrame, TraceError> {
+        let start = Instant::now();
+        let update = self.approximator.step(coefficients)?;
+        let bytes = self.engine.apply(update)?;
+        let seconds = start.elapsed().as_secs_f64();
+        let terms_per_band = update.terms_per_band();
+        let lighting_l1 = self
+            .error
+            .error(self.approximator.approximation(), texels)?;
+        Ok(RelitFrame {
+            image: self.engine.image(),
+            lighting_l1,
+            terms_per_band,
+            bytes,
+            seconds,
+        })
+    }
+}
