@@ -417,7 +417,7 @@ fn write_tables(out: &Path, all: &[(String, &[FrameRow])], stop: usize) -> Resul
          frame (linear radiance, all pixels and channels); lighting L1 = area-weighted L1 error of \
          the approximated lighting. The map rotates until frame {stop}.\n\n\
          | method | mean rel. RMSE, rotating | max rel. RMSE, rotating | rel. RMSE, last frame | \
-         frames after the stop to rel. RMSE < 1e-3 | mean lighting L1 | mean frame time |\n\
+         frames after the stop to rel. RMSE < 1e-2 | mean lighting L1 | mean frame time |\n\
          |---|---|---|---|---|---|---|\n"
     );
     for (name, rows) in all {
@@ -429,7 +429,7 @@ fn write_tables(out: &Path, all: &[(String, &[FrameRow])], stop: usize) -> Resul
             .iter()
             .enumerate()
             .skip(stop)
-            .find(|(_, r)| r.relative_rmse < 1e-3)
+            .find(|(_, r)| r.relative_rmse < 1e-2)
             .map_or("—".to_string(), |(t, _)| (t - stop).to_string());
         let l1 = rows.iter().map(|r| r.lighting_l1).sum::<f64>() / rows.len().max(1) as f64;
         let ms = rows.iter().map(|r| r.seconds).sum::<f64>() * 1e3 / rows.len().max(1) as f64;

@@ -835,6 +835,8 @@ pub struct RelitFrame {
     pub terms_per_band: Vec<usize>,
     /// Transport bytes read by the engine this frame.
     pub bytes: usize,
+    /// Bands replaced this frame (each streams its partial image and the total once).
+    pub replaced_bands: usize,
     /// Wall time of the approximation step plus the engine's update (no image copy).
     pub seconds: f64,
 }
@@ -896,6 +898,11 @@ impl MethodRelighter {
         let bytes = self.engine.apply(update)?;
         let seconds = start.elapsed().as_secs_f64();
         let terms_per_band = update.terms_per_band();
+        let replaced_bands = update
+            .modes
+            .iter()
+            .filter(|m| **m == prt_wavelet::BandMode::Replace)
+            .count();
         let lighting_l1 = self
             .error
             .error(self.approximator.approximation(), texels)?;
@@ -904,6 +911,7 @@ impl MethodRelighter {
             lighting_l1,
             terms_per_band,
             bytes,
+            replaced_bands,
             seconds,
         })
     }
