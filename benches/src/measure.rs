@@ -101,30 +101,6 @@ pub fn resident_bytes() -> f64 {
     status_bytes("VmRSS:")
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn stopwatch_counts_forward() {
-        let watch = Stopwatch::start();
-        std::thread::sleep(Duration::from_millis(2));
-        assert!(watch.wall() >= Duration::from_millis(2));
-        let cpu = watch.cpu();
-        assert!(cpu.is_nan() || cpu >= 0.0);
-    }
-
-    #[test]
-    fn memory_is_positive_where_proc_exists() {
-        // Resident memory first: the peak read afterwards cannot be below it.
-        let resident = resident_bytes();
-        let peak = peak_resident_bytes();
-        if !peak.is_nan() {
-            assert!(resident > 0.0 && peak >= resident);
-        }
-    }
-}
-
 /// Single-thread read bandwidth (bytes/s) of summing a 256 MiB buffer with 32 independent
 /// accumulators (enough to keep the loads, not the adds, the bottleneck).
 pub fn read_bandwidth() -> f64 {
@@ -147,4 +123,28 @@ pub fn read_bandwidth() -> f64 {
         .collect();
     times.sort();
     (data.len() * 4) as f64 / times[times.len() / 2].as_secs_f64()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stopwatch_counts_forward() {
+        let watch = Stopwatch::start();
+        std::thread::sleep(Duration::from_millis(2));
+        assert!(watch.wall() >= Duration::from_millis(2));
+        let cpu = watch.cpu();
+        assert!(cpu.is_nan() || cpu >= 0.0);
+    }
+
+    #[test]
+    fn memory_is_positive_where_proc_exists() {
+        // Resident memory first: the peak read afterwards cannot be below it.
+        let resident = resident_bytes();
+        let peak = peak_resident_bytes();
+        if !peak.is_nan() {
+            assert!(resident > 0.0 && peak >= resident);
+        }
+    }
 }

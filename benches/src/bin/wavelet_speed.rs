@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use prt_benches::{Table, fmt_duration, median_time, read_bandwidth, thread_cpu_ns};
+use prt_benches::{Table, fmt_duration, median_time, read_bandwidth};
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_wavelet::{
     Approximator, BandStrategy, CubemapHaar, CubemapLayout, Daubechies4, Policy, Relighter,

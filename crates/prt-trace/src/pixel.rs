@@ -299,7 +299,7 @@ impl<'a> PixelTransportBaker<'a> {
     pub fn bake(&self, progress: &dyn Progress) -> Result<PixelTransport, TraceError> {
         let pixels = self.gbuffer.points.len();
         progress.set_len(pixels as u64);
-        let rows: Vec<Option<Vec<Vec<(u32, f32)>>>> = (0..pixels)
+        let rows: Vec<Option<PixelRows>> = (0..pixels)
             .into_par_iter()
             .with_min_len(16)
             .map_init(
@@ -317,7 +317,7 @@ impl<'a> PixelTransportBaker<'a> {
         if progress.is_cancelled() || rows.iter().any(Option::is_none) {
             return Err(TraceError::Core(prt_core::CoreError::Cancelled));
         }
-        let rows: Vec<Vec<Vec<(u32, f32)>>> = rows.into_iter().flatten().collect();
+        let rows: Vec<PixelRows> = rows.into_iter().flatten().collect();
         let mut transport = Vec::with_capacity(self.channels());
         for c in 0..self.channels() {
             let channel: Vec<Vec<(u32, f32)>> = rows
@@ -422,6 +422,9 @@ impl<'a> PixelTransportBaker<'a> {
         &self.rays
     }
 }
+
+/// A pixel's sparsified rows, one per transport channel: `(coefficient, value)`.
+type PixelRows = Vec<Vec<(u32, f32)>>;
 
 /// Per-thread buffers of one pixel's rows.
 struct RowScratch {
