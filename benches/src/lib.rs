@@ -19,7 +19,7 @@ pub mod mbd;
 pub use cli::BvhQuality;
 pub use data::{cache_dir, envmap_names, load_envmap, load_scene, save_png, shared_dir};
 pub use measure::{
-    Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, resident_bytes,
-    thread_cpu_ns,
+    Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, read_bandwidth,
+    resident_bytes, thread_cpu_ns,
 };
 pub use table::{Table, fmt_duration};

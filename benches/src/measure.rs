@@ -101,6 +101,30 @@ pub fn resident_bytes() -> f64 {
     status_bytes("VmRSS:")
 }
 
+/// Single-thread read bandwidth (bytes/s) of summing a 256 MiB buffer with 32 independent
+/// accumulators (enough to keep the loads, not the adds, the bottleneck).
+pub fn read_bandwidth() -> f64 {
+    let data = vec![1.0f32; 64 << 20];
+    // Median over repetitions of the thread's CPU time (the machine is shared: wall time
+    // would count waiting), falling back to wall time where schedstat is unavailable.
+    let mut times: Vec<Duration> = (0..6)
+        .map(|_| {
+            let (cpu, wall) = (thread_cpu_ns(), std::time::Instant::now());
+            let mut acc = [0.0f32; 32];
+            for c in data.chunks_exact(32) {
+                for k in 0..32 {
+                    acc[k] += c[k];
+                }
+            }
+            std::hint::black_box(acc);
+            let cpu = Duration::from_nanos(thread_cpu_ns().zip(cpu).map_or(0, |(b, a)| b - a));
+            if cpu.is_zero() { wall.elapsed() } else { cpu }
+        })
+        .collect();
+    times.sort();
+    (data.len() * 4) as f64 / times[times.len() / 2].as_secs_f64()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

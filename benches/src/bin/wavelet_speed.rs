@@ -9,7 +9,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
-use prt_benches::{Table, fmt_duration, median_time, thread_cpu_ns};
+use prt_benches::{Table, fmt_duration, median_time, read_bandwidth};
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_wavelet::{
     Approximator, BandStrategy, CubemapHaar, CubemapLayout, Daubechies4, Policy, Relighter,
@@ -75,30 +75,6 @@ impl MatrixOracle for SyntheticTransport {
     fn elements_evaluated(&self) -> u64 {
         0
     }
-}
-
-/// Single-thread read bandwidth (bytes/s) of summing a 256 MiB buffer with 32 independent
-/// accumulators (enough to keep the loads, not the adds, the bottleneck).
-fn read_bandwidth() -> f64 {
-    let data = vec![1.0f32; 64 << 20];
-    // Median over repetitions of the thread's CPU time (the machine is shared: wall time
-    // would count waiting), falling back to wall time where schedstat is unavailable.
-    let mut times: Vec<Duration> = (0..6)
-        .map(|_| {
-            let (cpu, wall) = (thread_cpu_ns(), std::time::Instant::now());
-            let mut acc = [0.0f32; 32];
-            for c in data.chunks_exact(32) {
-                for k in 0..32 {
-                    acc[k] += c[k];
-                }
-            }
-            std::hint::black_box(acc);
-            let cpu = Duration::from_nanos(thread_cpu_ns().zip(cpu).map_or(0, |(b, a)| b - a));
-            if cpu.is_zero() { wall.elapsed() } else { cpu }
-        })
-        .collect();
-    times.sort();
-    (data.len() * 4) as f64 / times[times.len() / 2].as_secs_f64()
 }
 
 /// CPU time of all the process' threads so far (Linux: the sum of

@@ -9,6 +9,9 @@
 //!   volumes that Bevy, three.js or a custom engine load unchanged.
 //! * `prt render BAKE_DIR --out IMG` renders the scene of a bake folder lit by one of its volumes
 //!   (reference, MBD as written, BPCA, CPCA) under a sky, to PNG or EXR.
+//! * `prt relight [SCENE] --envmap MAP --out DIR` bakes per-pixel wavelet transport for a fixed
+//!   camera and renders a turning environment map frame by frame with NWA, BI and PBI lighting
+//!   approximations against the exact product (frames, animated preview, table, error plot).
 //! * `prt view BAKE_DIR` serves a bake folder on 127.0.0.1 with a WebGL2 page that draws its
 //!   scene lit by the MBD container (decoded by prt-shaders' GLSL) and relights it as the sky turns.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
@@ -22,6 +25,7 @@ mod encode;
 mod export;
 mod inspect;
 mod progress;
+mod relight;
 mod render;
 mod report;
 mod sky;
@@ -52,6 +56,9 @@ enum Command {
     Export(export::ExportArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
+    /// Relight a scene from a fixed camera under a turning environment map (per-pixel wavelet
+    /// transport; NWA, BI, PBI against the exact product).
+    Relight(relight::RelightArgs),
     /// Render a bake folder's scene lit by its reference, MBD, BPCA or CPCA volume (PNG / EXR).
     Render(render::RenderArgs),
     /// Serve a bake folder and a WebGL2 viewer that relights it in real time, on 127.0.0.1.
@@ -66,6 +73,7 @@ fn main() -> ExitCode {
         Command::Encode(args) => encode::run(&args),
         Command::Export(args) => export::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Relight(args) => relight::run(&args),
         Command::Render(args) => render::run(&args),
         Command::View(args) => view::run(&args),
     };

@@ -148,6 +148,17 @@ pub enum TraceError {
         /// Why.
         why: String,
     },
+    /// A per-pixel transport file is malformed.
+    #[error("bad pixel-transport file {path}: {why}")]
+    BadTransportFile {
+        /// The file.
+        path: PathBuf,
+        /// The first thing found wrong.
+        why: String,
+    },
+    /// An error of the wavelet transport (prt-wavelet).
+    #[error(transparent)]
+    Wavelet(#[from] prt_wavelet::WaveletError),
     /// An error of the shared vocabulary, including [`CoreError::Cancelled`].
     #[error(transparent)]
     Core(#[from] CoreError),

@@ -29,6 +29,10 @@
 //! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
 //!   wavelet transport, where a transport row has one entry per lighting texel.
+//! * **Per-pixel wavelet transport** ([`PixelTransportBaker`], [`PixelTransport`],
+//!   [`PixelRelighter`]): for a fixed camera, every pixel's row over a cube map of light
+//!   (direct, or with one diffuse bounce), Haar-transformed, sparsified ([`Sparsify`]) and
+//!   quantised for prt-wavelet's relighting engine; written to and read from a compact file.
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
@@ -110,6 +114,7 @@ mod cube;
 mod error;
 mod gltf_load;
 mod outdoor;
+mod pixel;
 mod sampling;
 mod scene;
 mod sh;
@@ -123,6 +128,10 @@ pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
+pub use pixel::{
+    Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
+    PixelTransportBaker, PixelTransportOptions, RelightMethod, RelitFrame, Sparsify,
+};
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, sh9};
 pub use vpl::{

@@ -20,6 +20,7 @@
 //! | [`Relighter`], [`SparseTransport`] | `B = T L` with quantised, row-truncated wavelet transport and per-band partial images |
 //! | [`BrdfFactorisation`] | a BRDF as `K` in-out products (SVD on a paraboloid hemisphere grid): glossy transport under a changing view (thesis §7.2) |
 //! | [`CpcaModel`], [`CpcaRelighter`] | clustered-PCA transport relit in two incremental stages: projections from the lighting update, BI on the points' weights (thesis §7.3) |
+//! | [`TransportParts`] | a sparse transport in its stored form, for files ([`SparseTransport::to_parts`], [`SparseTransport::from_parts`]) |
 //!
 //! ## The method
 //! Lighting `L` (a cube map, 6 × n × n texels per channel) is Haar-transformed face by face.
@@ -85,7 +86,7 @@ pub use cubemap::{Cubemap, CubemapHaar, CubemapLayout, texel_solid_angles};
 pub use daubechies::Daubechies4;
 pub use error::WaveletError;
 pub use haar::{Haar2d, band_of_2d, haar_forward, haar_inverse};
-pub use relight::{Relighter, SparseTransport};
+pub use relight::{Relighter, SparseTransport, TransportParts};
 pub use sh::ShApproximator;
 pub use view::{
     BrdfFactorisation, FactorisationConfig, local_frame, paraboloid_coordinates,

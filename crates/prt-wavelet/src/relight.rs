@@ -85,7 +85,7 @@ impl SparseTransport {
         progress.set_len(rows as u64);
         let mut row = vec![0.0f32; cols];
         let mut order: Vec<u32> = Vec::with_capacity(cols);
-        let mut triplets: Vec<(u32, u32, f32)> = Vec::new(); // (col, row, value)
+        let mut kept: Vec<Vec<(u32, f32)>> = Vec::with_capacity(rows);
         for r in 0..rows {
             if progress.is_cancelled() {
                 return Err(WaveletError::Cancelled);
@@ -109,31 +109,84 @@ impl SparseTransport {
                 order.select_nth_unstable_by(keep_per_row - 1, larger);
             }
             order.truncate(keep_per_row);
-            triplets.extend(order.iter().map(|&j| (j, r as u32, row[j as usize])));
+            order.sort_unstable();
+            kept.push(order.iter().map(|&j| (j, row[j as usize])).collect());
             progress.inc(1);
         }
-        triplets.sort_unstable_by_key(|e| (e.0, e.1));
-        let mut scale = vec![0.0f32; cols];
-        for &(j, _, v) in &triplets {
-            scale[j as usize] = scale[j as usize].max(v.abs());
+        Self::from_sparse_rows(cols, &kept)
+    }
+
+    /// Quantises already-truncated rows: `rows[r]` lists row `r`'s kept entries as
+    /// `(column, value)` with distinct columns in any order (exact zeros are dropped). Use it
+    /// when the rows were computed in parallel (e.g. per-pixel transport traced over rayon).
+    /// Errors: a column out of range or repeated, a non-finite value, or more than `u32::MAX`
+    /// rows or entries.
+    pub fn from_sparse_rows(cols: usize, rows: &[Vec<(u32, f32)>]) -> Result<Self, WaveletError> {
+        if rows.len() > u32::MAX as usize {
+            return Err(WaveletError::Invalid {
+                what: "transport rows",
+                why: format!("{} > u32::MAX", rows.len()),
+            });
         }
-        for s in &mut scale {
-            *s /= i16::MAX as f32;
-        }
+        // Pass 1: entries and largest magnitude per column.
         let mut col_start = vec![0usize; cols + 1];
-        for &(j, _, _) in &triplets {
-            col_start[j as usize + 1] += 1;
+        let mut scale = vec![0.0f32; cols];
+        let mut seen = vec![u32::MAX; cols];
+        for (r, row) in rows.iter().enumerate() {
+            for (k, &(j, v)) in row.iter().enumerate() {
+                let ju = j as usize;
+                if ju >= cols {
+                    return Err(WaveletError::Invalid {
+                        what: "transport row",
+                        why: format!("row {r} names column {j} of {cols}"),
+                    });
+                }
+                if !v.is_finite() {
+                    return Err(WaveletError::NonFinite {
+                        what: "transport row",
+                        index: r * cols + ju,
+                    });
+                }
+                if seen[ju] == r as u32 {
+                    return Err(WaveletError::Invalid {
+                        what: "transport row",
+                        why: format!("row {r} repeats column {j} (entry {k})"),
+                    });
+                }
+                seen[ju] = r as u32;
+                if v != 0.0 {
+                    col_start[ju + 1] += 1;
+                    scale[ju] = scale[ju].max(v.abs());
+                }
+            }
         }
         for j in 0..cols {
             col_start[j + 1] += col_start[j];
         }
-        let global_rows: Vec<u32> = triplets.iter().map(|e| e.1).collect();
-        let quantised: Vec<i16> = triplets
-            .iter()
-            .map(|&(j, _, v)| (v / scale[j as usize]).round().clamp(-32767.0, 32767.0) as i16)
-            .collect();
+        let nnz = col_start[cols];
+        if nnz > u32::MAX as usize {
+            return Err(WaveletError::Invalid {
+                what: "transport entries",
+                why: format!("{nnz} > u32::MAX"),
+            });
+        }
+        for s in &mut scale {
+            *s /= i16::MAX as f32;
+        }
+        // Pass 2: rows visited in order, so every column's entries come out sorted by row.
+        let mut fill = col_start[..cols].to_vec();
+        let mut global_rows = vec![0u32; nnz];
+        let mut quantised = vec![0i16; nnz];
+        for (r, row) in rows.iter().enumerate() {
+            for &(j, v) in row.iter().filter(|e| e.1 != 0.0) {
+                let at = fill[j as usize];
+                fill[j as usize] += 1;
+                global_rows[at] = r as u32;
+                quantised[at] = quantise(v, scale[j as usize]);
+            }
+        }
         let mut transport = Self {
-            rows,
+            rows: rows.len(),
             cols,
             tile_rows: 0,
             tile_offsets: Vec::new(),
@@ -142,6 +195,82 @@ impl SparseTransport {
             scale,
         };
         transport.index_tiles(Self::DEFAULT_TILE_ROWS, &global_rows, &quantised);
+        Ok(transport)
+    }
+
+    /// The stored form, for writing to a file: every column's entries (global row, quantised
+    /// value) in column order, the entry offset of each column and its scale.
+    pub fn to_parts(&self) -> TransportParts {
+        let (rows, quantised) = self.global_entries();
+        TransportParts {
+            rows: self.rows,
+            cols: self.cols,
+            col_start: self.col_start.iter().map(|&s| s as u64).collect(),
+            entry_rows: rows,
+            quantised,
+            scale: self.scale.clone(),
+        }
+    }
+
+    /// Rebuilds a transport from [`Self::to_parts`] (e.g. read from a file, so everything is
+    /// checked): `col_start` non-decreasing from 0 to the entry count, rows in range and
+    /// strictly increasing within a column, finite non-negative scales. Errors name the first
+    /// violation.
+    pub fn from_parts(parts: TransportParts) -> Result<Self, WaveletError> {
+        let TransportParts {
+            rows,
+            cols,
+            col_start,
+            entry_rows,
+            quantised,
+            scale,
+        } = parts;
+        let invalid = |why: String| WaveletError::Invalid {
+            what: "transport parts",
+            why,
+        };
+        WaveletError::check_len("transport column offsets", cols + 1, col_start.len())?;
+        WaveletError::check_len("transport scales", cols, scale.len())?;
+        WaveletError::check_len("transport entries", entry_rows.len(), quantised.len())?;
+        if rows > u32::MAX as usize {
+            return Err(invalid(format!("{rows} rows > u32::MAX")));
+        }
+        if col_start[0] != 0 || col_start[cols] != entry_rows.len() as u64 {
+            return Err(invalid(format!(
+                "column offsets run from {} to {}, not 0 to {}",
+                col_start[0],
+                col_start[cols],
+                entry_rows.len()
+            )));
+        }
+        if let Some(j) = scale.iter().position(|s| !s.is_finite() || *s < 0.0) {
+            return Err(invalid(format!("column {j} has scale {}", scale[j])));
+        }
+        for j in 0..cols {
+            if col_start[j + 1] < col_start[j] {
+                return Err(invalid(format!("column {j} ends before it starts")));
+            }
+            let run = &entry_rows[col_start[j] as usize..col_start[j + 1] as usize];
+            if let Some(k) = run.iter().position(|&r| r as usize >= rows) {
+                return Err(invalid(format!(
+                    "column {j} names row {} of {rows}",
+                    run[k]
+                )));
+            }
+            if run.windows(2).any(|w| w[0] >= w[1]) {
+                return Err(invalid(format!("column {j}'s rows are not increasing")));
+            }
+        }
+        let mut transport = Self {
+            rows,
+            cols,
+            tile_rows: 0,
+            tile_offsets: Vec::new(),
+            col_start: col_start.iter().map(|&s| s as usize).collect(),
+            entries: Vec::new(),
+            scale,
+        };
+        transport.index_tiles(Self::DEFAULT_TILE_ROWS, &entry_rows, &quantised);
         Ok(transport)
     }
 
@@ -338,6 +467,30 @@ impl SparseTransport {
             }
         }
     }
+}
+
+/// `v / scale` rounded to 16 bits (`scale = max |v| / 32767` of the column).
+fn quantise(v: f32, scale: f32) -> i16 {
+    (v / scale).round().clamp(-32767.0, 32767.0) as i16
+}
+
+/// A [`SparseTransport`] in its stored form ([`SparseTransport::to_parts`],
+/// [`SparseTransport::from_parts`]): entry `k` of column `j` (`col_start[j] <= k <
+/// col_start[j + 1]`) is `quantised[k] × scale[j]` at row `entry_rows[k]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TransportParts {
+    /// Rows (pixels).
+    pub rows: usize,
+    /// Columns (lighting coefficients).
+    pub cols: usize,
+    /// First entry of every column, and the entry count last (`cols + 1` offsets).
+    pub col_start: Vec<u64>,
+    /// Row of every entry, increasing within a column.
+    pub entry_rows: Vec<u32>,
+    /// Quantised value of every entry.
+    pub quantised: Vec<i16>,
+    /// Dequantisation scale of every column.
+    pub scale: Vec<f32>,
 }
 
 /// Floats per stored pixel: up to four channels are padded to four (an RGB update is one

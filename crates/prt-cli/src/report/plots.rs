@@ -118,7 +118,7 @@ pub fn seam_profile_png(
 
 /// Registers the report's font with plotters once (egui's Ubuntu Light, shipped as crate data,
 /// so no system font is needed).
-fn register_font() -> Result<()> {
+pub fn register_font() -> Result<()> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
         plotters::style::register_font(
