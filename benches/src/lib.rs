@@ -11,6 +11,7 @@
 mod cli;
 mod data;
 mod measure;
+mod plot;
 mod table;
 
 pub mod manylight;
@@ -22,4 +23,5 @@ pub use measure::{
     Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, read_bandwidth,
     resident_bytes, thread_cpu_ns,
 };
+pub use plot::{PlotLabels, PlotPoint, plot_lines};
 pub use table::{Table, fmt_duration};

@@ -293,67 +293,17 @@ fn finish(cli: &Cli, table: &Table, heading: String, csv: &str) {
 
 /// Relative MSE against the knob, one line per method, log scale.
 fn plot(points: &[(usize, String, f64)], x_label: &str, title: &str, path: &Path) {
-    use plotters::prelude::*;
-    plotters::style::register_font(
-        "sans-serif",
-        FontStyle::Normal,
-        epaint_default_fonts::UBUNTU_LIGHT,
-    )
-    .map_err(|_| "font")
-    .expect("register the plot font");
-    let mut methods: Vec<&str> = Vec::new();
-    for (_, m, _) in points {
-        if !methods.contains(&m.as_str()) {
-            methods.push(m);
-        }
-    }
-    let xs = points.iter().map(|p| p.0);
-    let (x0, x1) = (xs.clone().min().unwrap_or(0), xs.max().unwrap_or(1));
-    let ys = points.iter().map(|p| p.2).filter(|&e| e > 0.0);
-    let lo = ys.clone().fold(f64::MAX, f64::min) * 0.5;
-    let hi = ys.fold(f64::MIN, f64::max) * 2.0;
-    let root = BitMapBackend::new(path, (760, 480)).into_drawing_area();
-    root.fill(&WHITE).expect("plot");
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 20))
-        .margin(14)
-        .x_label_area_size(44)
-        .y_label_area_size(80)
-        .build_cartesian_2d(x0..x1.max(x0 + 1), (lo..hi).log_scale())
-        .expect("plot");
-    chart
-        .configure_mesh()
-        .x_desc(x_label)
-        .y_desc("relative MSE")
-        .y_label_formatter(&|v| format!("{v:.0e}"))
-        .x_label_formatter(&|v| v.to_string())
-        .label_style(("sans-serif", 14))
-        .draw()
-        .expect("plot");
-    for (i, method) in methods.iter().enumerate() {
-        let colour = Palette99::pick(i).stroke_width(2);
-        let line: Vec<(usize, f64)> = points
-            .iter()
-            .filter(|p| p.1 == *method && p.2 > 0.0)
-            .map(|p| (p.0, p.2))
-            .collect();
-        chart
-            .draw_series(LineSeries::new(line.clone(), colour))
-            .expect("plot")
-            .label(*method)
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 18, y)], colour));
-        chart
-            .draw_series(line.into_iter().map(|p| Circle::new(p, 3, colour.filled())))
-            .expect("plot");
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.8))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .draw()
-        .expect("plot");
-    root.present().expect("plot");
+    let points: Vec<prt_benches::PlotPoint> = points
+        .iter()
+        .map(|(knob, method, error)| (method.clone(), *knob as f64, *error))
+        .collect();
+    let labels = prt_benches::PlotLabels {
+        title,
+        x: x_label,
+        y: "relative MSE",
+        x_ticks: &|v| format!("{v}"),
+    };
+    prt_benches::plot_lines(&points, &labels, path).expect("plot");
     eprintln!("wrote {}", path.display());
 }
 

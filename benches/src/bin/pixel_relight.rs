@@ -14,8 +14,8 @@ use prt_benches::{Table, cache_dir, cpu_seconds, load_average, load_envmap, load
 use prt_core::NoProgress;
 use prt_texture::Limits;
 use prt_trace::{
-    MethodRelighter, PinholeView, PixelTransport, PixelTransportBaker, PixelTransportOptions,
-    RayTracer, RelightMethod, Sparsify,
+    Bounce, MethodRelighter, PinholeView, PixelTransport, PixelTransportBaker,
+    PixelTransportOptions, RayTracer, RelightMethod, Sparsify,
 };
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
@@ -54,13 +54,20 @@ struct Cli {
     /// Largest terms per row.
     #[arg(long, default_value_t = 1024)]
     max_terms: usize,
+    /// Gather rays per pixel of one diffuse bounce (0: direct light only).
+    #[arg(long, default_value_t = 0)]
+    bounce: usize,
     /// Engine speed at these image sides (Cornell box, first map) instead of the comparison.
     #[arg(long, value_delimiter = ',')]
     speed: Vec<usize>,
-    /// Transport size against image error over these energy fractions (first scene and map)
-    /// instead of the comparison.
+    /// Transport size against image error over these sparsifications, `ENERGY` or
+    /// `ENERGY:MAX_TERMS` (no cap when omitted), on the first scene and map, instead of the
+    /// comparison.
     #[arg(long, value_delimiter = ',')]
-    curve: Vec<f32>,
+    curve: Vec<String>,
+    /// With --curve: also plot bytes against error into this PNG.
+    #[arg(long)]
+    plot: Option<PathBuf>,
 }
 
 fn options(cli: &Cli, size: usize, energy: f32, max_terms: usize) -> PixelTransportOptions {
@@ -69,16 +76,34 @@ fn options(cli: &Cli, size: usize, energy: f32, max_terms: usize) -> PixelTransp
         height: size,
         cube_size: cli.cube,
         sparsify: Sparsify { energy, max_terms },
+        bounce: (cli.bounce > 0).then_some(Bounce {
+            gathers: cli.bounce,
+        }),
         ..Default::default()
     }
 }
 
+/// Wall and CPU seconds of a bake.
+struct BakeTime {
+    wall: f64,
+    cpu: f64,
+}
+
 /// The scene's transport, from target/pixel_transport/ when baked before with these options.
 fn transport(scene_name: &str, options: PixelTransportOptions) -> PixelTransport {
+    timed_transport(scene_name, options).0
+}
+
+/// [`transport`] and its bake time (`None` when read from the cache).
+fn timed_transport(
+    scene_name: &str,
+    options: PixelTransportOptions,
+) -> (PixelTransport, Option<BakeTime>) {
     let dir = cache_dir("pixel_transport");
     std::fs::create_dir_all(&dir).expect("cache dir");
+    let gathers = options.bounce.map_or(0, |b| b.gathers);
     let path: PathBuf = dir.join(format!(
-        "{scene_name}_{}_{}_{}_{}.prtpx",
+        "{scene_name}_{}_{}_{}_{}_b{gathers}.prtpx",
         options.width, options.cube_size, options.sparsify.energy, options.sparsify.max_terms
     ));
     let limits = Limits {
@@ -91,7 +116,7 @@ fn transport(scene_name: &str, options: PixelTransportOptions) -> PixelTransport
         && t.options == options
         && t.view == view
     {
-        return t;
+        return (t, None);
     }
     let tracer = RayTracer::new(scene.triangles());
     let baker = PixelTransportBaker::new(&scene, &tracer, view, options).expect("baker");
@@ -106,16 +131,20 @@ fn transport(scene_name: &str, options: PixelTransportOptions) -> PixelTransport
     );
     let (start, cpu) = (Instant::now(), cpu_seconds());
     let t = baker.bake(&NoProgress).expect("bake");
+    let time = BakeTime {
+        wall: start.elapsed().as_secs_f64(),
+        cpu: cpu_seconds() - cpu,
+    };
     eprintln!(
         "  baked in {:.1} s wall, {:.1} s CPU (load {}), {} entries ({:.1} MB)",
-        start.elapsed().as_secs_f64(),
-        cpu_seconds() - cpu,
+        time.wall,
+        time.cpu,
         load_average(),
         t.nnz(),
         t.entry_bytes() as f64 / 1e6
     );
     t.write(&path).expect("write the transport");
-    t
+    (t, Some(time))
 }
 
 /// Relative image RMSE per frame of every method, and mean frame times.
@@ -307,15 +336,41 @@ fn speed(cli: &Cli) {
     println!("{}", table.markdown());
 }
 
+/// A `--curve` point: `ENERGY` or `ENERGY:MAX_TERMS`.
+fn curve_point(text: &str, full_terms: usize) -> (f32, usize) {
+    let (energy, cap) = text.split_once(':').unwrap_or((text, ""));
+    let energy = energy
+        .parse()
+        .unwrap_or_else(|_| panic!("--curve: bad energy {text}"));
+    let cap = if cap.is_empty() {
+        full_terms
+    } else {
+        cap.parse()
+            .unwrap_or_else(|_| panic!("--curve: bad term cap {text}"))
+    };
+    (energy, cap)
+}
+
 fn curve(cli: &Cli) {
     let scene = &cli.scenes[0];
     let full_terms = 6 * cli.cube * cli.cube;
-    let full = transport(scene, options(cli, cli.size, 1.0, full_terms));
+    let baked = |(t, time): (PixelTransport, Option<BakeTime>)| {
+        let time = time.map_or("cached".to_string(), |b| {
+            format!("{:.0} s ({:.0} s CPU)", b.wall, b.cpu)
+        });
+        (t, time)
+    };
+    let (full, full_time) = baked(timed_transport(
+        scene,
+        options(cli, cli.size, 1.0, full_terms),
+    ));
     let mut table = Table::new(&[
         "energy kept",
-        "entries per pixel",
+        "max terms",
+        "entries per hit pixel",
         "transport bytes",
-        "mean rel. RMSE of the exact product vs the untruncated transport",
+        "mean rel. image RMSE vs the untruncated transport",
+        "bake wall (CPU)",
     ]);
     let latlong = load_envmap(&cli.maps[0]).unwrap_or_else(|e| panic!("{e}"));
     let rotation = Rotation::new(latlong, cli.cube, 5f32.to_radians(), 100).unwrap();
@@ -336,9 +391,22 @@ fn curve(cli: &Cli) {
             })
             .collect()
     };
+    let per_hit_pixel =
+        |t: &PixelTransport| t.nnz() as f64 / t.hit.iter().filter(|h| **h).count().max(1) as f64;
     let reference = images(&full);
-    for &energy in &cli.curve {
-        let t = transport(scene, options(cli, cli.size, energy, full_terms));
+    table.row(vec![
+        "1 (all)".into(),
+        format!("{full_terms}"),
+        format!("{:.0}", per_hit_pixel(&full)),
+        format!("{:.1} MB", full.entry_bytes() as f64 / 1e6),
+        "reference".into(),
+        full_time,
+    ]);
+    drop(full);
+    let mut points: Vec<(String, f64, f64)> = Vec::new();
+    for text in &cli.curve {
+        let (energy, cap) = curve_point(text, full_terms);
+        let (t, time) = baked(timed_transport(scene, options(cli, cli.size, energy, cap)));
         let err: f64 = images(&t)
             .iter()
             .zip(&reference)
@@ -347,19 +415,48 @@ fn curve(cli: &Cli) {
             / frames.len() as f64;
         table.row(vec![
             format!("{energy}"),
-            format!(
-                "{:.0}",
-                t.nnz() as f64 / t.hit.iter().filter(|h| **h).count().max(1) as f64
-            ),
-            format!("{:.1} MB", t.entry_bytes() as f64 / 1e6),
+            format!("{cap}"),
+            format!("{:.1}", per_hit_pixel(&t)),
+            format!("{:.2} MB", t.entry_bytes() as f64 / 1e6),
             format!("{err:.2e}"),
+            time,
         ]);
+        let series = if cap == full_terms {
+            "no cap".to_string()
+        } else {
+            format!("at most {cap} terms")
+        };
+        points.push((series, t.entry_bytes() as f64, err));
     }
+    let bounce = if cli.bounce > 0 {
+        format!(", one bounce ({} gathers)", cli.bounce)
+    } else {
+        ", direct light".to_string()
+    };
     println!(
-        "Transport size against image error, {scene} {}², {}² faces, map {} at 8 angles\n",
+        "Transport size against image error, {scene} {}²{bounce}, {}² faces, map {} at 8 angles\n",
         cli.size, cli.cube, cli.maps[0]
     );
     println!("{}", table.markdown());
+    if let Some(path) = &cli.plot {
+        plot_curve(&points, &format!("{scene}, {}²{bounce}", cli.size), path);
+    }
+}
+
+/// Image error against transport bytes, log-log, one line per term cap.
+fn plot_curve(points: &[(String, f64, f64)], title: &str, path: &std::path::Path) {
+    let points: Vec<prt_benches::PlotPoint> = points
+        .iter()
+        .map(|(series, bytes, error)| (series.clone(), bytes.log10(), *error))
+        .collect();
+    let labels = prt_benches::PlotLabels {
+        title,
+        x: "transport bytes (log scale)",
+        y: "relative image RMSE",
+        x_ticks: &|v| format!("{:.1e}", 10f64.powf(v)),
+    };
+    prt_benches::plot_lines(&points, &labels, path).expect("plot");
+    eprintln!("wrote {}", path.display());
 }
 
 fn main() {
