@@ -19,7 +19,11 @@ pub struct PlotLabels<'a> {
 
 /// Draws `points` as one line per series (in order of first appearance, points sorted by x),
 /// y on a log scale (non-positive y is left out), into a 760 × 480 PNG at `path`.
-pub fn plot_lines(points: &[PlotPoint], labels: &PlotLabels, path: &Path) -> Result<(), String> {
+pub fn plot_lines(
+    points: &[PlotPoint],
+    labels: &PlotLabels<'_>,
+    path: &Path,
+) -> Result<(), String> {
     use plotters::prelude::*;
     let failed = |e: &dyn std::fmt::Display| format!("plot {}: {e}", path.display());
     plotters::style::register_font(
