@@ -58,7 +58,8 @@ pub struct RelightArgs {
     /// Image width and height in pixels.
     #[arg(long, default_value_t = 128, value_name = "PIXELS")]
     pub size: usize,
-    /// Cube-map face side of the light directions (a power of two; 32 or 64).
+    /// Cube-map face side of the light directions (a power of two up to 256; 64 quadruples
+    /// the rays and the lighting coefficients).
     #[arg(long, default_value_t = 32, value_name = "N")]
     pub cube: usize,
     /// Add one diffuse bounce (colour bleeding); the transport becomes RGB.
@@ -80,7 +81,8 @@ pub struct RelightArgs {
     /// Seed of the bounce's gather rays.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Output folder; a transport.prtpx baked with the same options and view is reused.
+    /// Output folder: frames/METHOD_NNNN.png, preview.png (animated), frames.csv, frames.md,
+    /// error.png and transport.prtpx (reused when baked with the same options and view).
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
 }
