@@ -405,6 +405,13 @@ impl ArrayEntry {
             for v in bricks.grid {
                 limits.check_dimension("indirection texture dimension", u64::from(v))?;
             }
+            // A small atlas can stand for a huge grid: bound what decoding it allocates.
+            let dims = self.dims.map(u64::from);
+            let decoded = checked_product(
+                "decoded brick array bytes",
+                &[dims[0], dims[1], dims[2], (self.groups() * 4) as u64, 4],
+            )?;
+            check_at_most("decoded brick array bytes", decoded, limits.max_bytes)?;
         }
         Ok(())
     }

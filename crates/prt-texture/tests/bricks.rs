@@ -201,3 +201,40 @@ fn version_4_containers_still_read() {
     .unwrap();
     assert_eq!(loaded.manifest.version, 4);
 }
+
+#[test]
+fn a_huge_grid_behind_a_small_atlas_is_refused_before_decoding() {
+    let c = one(
+        &ramp([9, 5, 3], 5),
+        Encoding::F16,
+        ArrayLayout::Bricks,
+        Some(BrickRequest::new(vec![true; 135])),
+    );
+    let (manifest, _) = c.encode().unwrap();
+    let json = String::from_utf8(manifest.to_json().unwrap()).unwrap();
+    // The same entry claiming 2000 × 2000 × 1000 nodes (its brick grid to match).
+    let huge = json
+        .replacen(
+            "\"dims\": [\n        9,\n        5,\n        3\n      ]",
+            "\"dims\": [2000, 2000, 1000]",
+            1,
+        )
+        .replacen(
+            "\"grid\": [\n          2,\n          1,\n          1\n        ]",
+            "\"grid\": [500, 500, 250]",
+            1,
+        );
+    assert_ne!(huge, json);
+    let error =
+        prt_texture::container::Manifest::from_json(huge.as_bytes(), &Limits::small()).unwrap_err();
+    assert!(
+        matches!(
+            error,
+            TextureError::TooLarge {
+                what: "decoded brick array bytes",
+                ..
+            }
+        ),
+        "{error:?}"
+    );
+}
