@@ -14,6 +14,7 @@
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
+//! | [`write_container_with`], [`LayoutConfig`], [`CoefficientLayout`], [`node_liveness`], [`layout_bytes`] | the same with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
@@ -57,7 +58,9 @@ mod volumes;
 
 pub use config::{BakeConfig, Quality, TRANSFER_DIM};
 pub use container::{
-    ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
+    BRICK_MIN_SAVING, CoefficientLayout, ContainerContents, LayoutBytes, LayoutConfig, MBD_MODEL,
+    MbdContainer, VALIDITY, layout_bytes, node_liveness, read_container, write_container,
+    write_container_with,
 };
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
