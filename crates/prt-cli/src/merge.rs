@@ -56,14 +56,20 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         container: Some(args.out.join("mbd")),
         ..plan.config.clone()
     };
-    let baked = prt_bake::bake_volume(&scene.name, assembled.volume.clone(), &config, &StageBars)
-        .map_err(cli_error)?;
+    let prt_bake::AssembledVolume {
+        volume,
+        tile_of_voxel,
+        halo,
+    } = assembled;
+    // The volume moves into the bake: the merge holds one copy of it.
+    let baked =
+        prt_bake::bake_volume(&scene.name, volume, &config, &StageBars).map_err(cli_error)?;
     let stage = Stage::start("tile seams");
-    let seams = prt_bake::tile_seams(&assembled, &baked)?;
+    let seams = prt_bake::tile_seams(&tile_of_voxel, &baked)?;
     stage.finish();
     write_outputs(&args.out, &scene, &baked, args.keep_volumes, load, total)?;
 
-    let report = tiles_report(&plan, &assembled, &seams);
+    let report = tiles_report(&plan, halo, &seams);
     let path = args.out.join(TILES_REPORT);
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -73,7 +79,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         seams.trace,
         seams.mbd,
         seams.basis,
-        match assembled.halo {
+        match halo {
             Some(h) => format!(
                 "; halo: {} voxels traced twice differ by {:.2} % RMS (Monte Carlo noise)",
                 h.voxels,
@@ -89,7 +95,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
 /// The merge's record of the tiling and the seam measures.
 fn tiles_report(
     plan: &prt_bake::TilePlan,
-    assembled: &prt_bake::AssembledVolume,
+    halo: Option<prt_bake::HaloAgreement>,
     seams: &TileSeams,
 ) -> serde_json::Value {
     json!({
@@ -102,7 +108,7 @@ fn tiles_report(
             "mbd_error": seams.mbd,
             "mbd_basis": seams.basis,
         },
-        "halo_agreement": assembled.halo.map(|h| json!({
+        "halo_agreement": halo.map(|h| json!({
             "voxels": h.voxels,
             "relative_rms_difference": h.relative_rms_difference,
         })),

@@ -176,11 +176,11 @@ pub fn assemble(plan: &TilePlan, plan_dir: &Path) -> Result<AssembledVolume, Til
     })
 }
 
-/// The [`TileSeams`] of a bake of an assembled volume (`bake.volume` is `assembled.volume`).
-pub fn tile_seams(assembled: &AssembledVolume, bake: &Bake) -> Result<TileSeams, TileError> {
+/// The [`TileSeams`] of a bake of an assembled volume, with its
+/// [`AssembledVolume::tile_of_voxel`] as `labels` (the volume itself moved into the bake).
+pub fn tile_seams(labels: &[u32], bake: &Bake) -> Result<TileSeams, TileError> {
     let field = &bake.volume.field;
     let valid = &bake.volume.valid;
-    let labels = &assembled.tile_of_voxel;
     let score = |source| {
         TileError::Bake(BakeError::Score {
             method: "tile seams".into(),
