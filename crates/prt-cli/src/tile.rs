@@ -1,8 +1,9 @@
 //! `prt bake-tile`: one worker of a tiled bake (its tile from the argument or the scheduler's
 //! index variable), or every unfinished tile as local worker processes (`--all`).
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, bail};
 use prt_bake::TileOutcome;
@@ -92,11 +93,15 @@ pub fn run(args: &TileArgs) -> Result<()> {
     Ok(())
 }
 
-/// Launches one worker process (this binary) for tile `index`, its output in `log`.
-fn launch(args: &TileArgs, index: usize, threads: usize, log: &Path) -> Result<Child> {
+/// Runs one worker process (this binary) for tile `index` on a thread, and writes its output
+/// to `log` (atomically) when it ends; the thread returns whether it succeeded.
+fn launch(
+    args: &TileArgs,
+    index: usize,
+    threads: usize,
+    log: PathBuf,
+) -> Result<JoinHandle<Result<bool>>> {
     let exe = std::env::current_exe().context("cannot locate the prt binary")?;
-    let file = std::fs::File::create(log)
-        .with_context(|| format!("cannot create the worker log {}", log.display()))?;
     let mut command = Command::new(exe);
     command
         .arg("bake-tile")
@@ -107,17 +112,24 @@ fn launch(args: &TileArgs, index: usize, threads: usize, log: &Path) -> Result<C
         .env_remove(INDEX_VARIABLES[0])
         .env_remove(INDEX_VARIABLES[1])
         .stdin(Stdio::null())
-        .stdout(file.try_clone().context("worker log")?)
-        .stderr(file);
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
     if args.force {
         command.arg("--force");
     }
     if let Some(scene) = &args.scene {
         command.arg("--scene").arg(scene);
     }
-    command
+    let child = command
         .spawn()
-        .with_context(|| format!("cannot launch the worker of tile {index}"))
+        .with_context(|| format!("cannot launch the worker of tile {index}"))?;
+    Ok(std::thread::spawn(move || {
+        let out = child.wait_with_output().context("waiting for a worker")?;
+        let text = [out.stdout, out.stderr].concat();
+        prt_texture::write_atomic(&log, &text)
+            .with_context(|| format!("cannot write the worker log {}", log.display()))?;
+        Ok(out.status.success())
+    }))
 }
 
 /// The local runner: every unfinished tile (all with --force) as worker processes, `workers`
@@ -143,37 +155,34 @@ fn run_all(args: &TileArgs) -> Result<()> {
     let stage = Stage::start("tiles");
     stage.set_len(todo.len() as u64);
     let mut pending = todo.into_iter();
-    let mut running: Vec<(usize, Child)> = Vec::new();
+    let mut running: Vec<(usize, JoinHandle<Result<bool>>)> = Vec::new();
     let mut failed = Vec::new();
     loop {
         while running.len() < args.workers
             && let Some(index) = pending.next()
         {
             let log = logs.join(format!("tile-{index}.log"));
-            running.push((index, launch(args, index, threads, &log)?));
+            running.push((index, launch(args, index, threads, log)?));
         }
         if running.is_empty() {
             break;
         }
-        if stage.is_cancelled() {
-            for (_, child) in &mut running {
-                let _ = child.kill();
+        let (done, still): (Vec<_>, Vec<_>) =
+            running.into_iter().partition(|(_, w)| w.is_finished());
+        running = still;
+        for (index, worker) in done {
+            let ok = worker
+                .join()
+                .map_err(|_| anyhow::anyhow!("the thread watching tile {index} panicked"))??;
+            if !ok {
+                failed.push(index);
             }
+            stage.inc(1);
+        }
+        // Ctrl-C reaches the workers too (one process group): they cancel, and end.
+        if stage.is_cancelled() && running.is_empty() {
             bail!("cancelled; finished tiles are kept, rerun to bake the others");
         }
-        let mut still = Vec::new();
-        for (index, mut child) in running {
-            match child.try_wait().context("waiting for a worker")? {
-                Some(status) => {
-                    if !status.success() {
-                        failed.push(index);
-                    }
-                    stage.inc(1);
-                }
-                None => still.push((index, child)),
-            }
-        }
-        running = still;
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
     stage.finish();
