@@ -8,6 +8,7 @@
 //! | item | what it is, when to use it |
 //! |---|---|
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
+//! | [`bake_volume`] | the pipeline after the trace, on a volume traced elsewhere (tiles of a tiled bake) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
@@ -20,6 +21,10 @@
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
+//! | [`plan_tiles`], [`TilePlan`] | a tiled bake's plan: the global lattice cut into tiles with a halo and per-tile seeds, for `prt plan` |
+//! | [`bake_tile`], [`TileOutcome`] | one worker's tile: trace it, write it atomically into the plan folder (`prt bake-tile`) |
+//! | [`assemble`] then [`bake_volume`], [`tile_seams`] | the merge: the tiles' cores as one volume, solved once; seam measures across tile borders (`prt merge`) |
+//! | [`TileError`] | what can stop a tiled bake |
 //! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
 //!
 //! ```no_run
@@ -54,6 +59,7 @@ mod relight;
 mod scene;
 mod scores;
 mod seams;
+mod tiles;
 mod volumes;
 
 pub use config::{BakeConfig, Quality, TRANSFER_DIM};
@@ -64,7 +70,7 @@ pub use container::{
 };
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
-pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake, bake_volume};
 pub use production::{
     IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
     ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
@@ -74,6 +80,11 @@ pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
+pub use tiles::{
+    AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION,
+    PlannedScene, TileError, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats, VoxelRange,
+    assemble, bake_tile, plan_tiles, scene_hash, tile_dir, tile_is_done, tile_options, tile_seams,
+};
 pub use volumes::{
     KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,
 };
