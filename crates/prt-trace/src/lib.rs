@@ -29,6 +29,9 @@
 //! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
 //!   wavelet transport, where a transport row has one entry per lighting texel.
+//! * **BRDF-editing transport** ([`trace_half_angle_transport`]): per pixel, the glossy
+//!   transport against the bins of an editable half-angle BRDF curve under fixed view and cube-map
+//!   lighting (Ben-Artzi et al. 2006), so that the image is linear in the curve.
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
@@ -105,6 +108,7 @@
 #![deny(missing_docs)]
 
 mod bake;
+mod brdf_transport;
 mod bvh;
 mod cube;
 mod error;
@@ -118,6 +122,9 @@ mod vpl;
 pub use bake::{
     BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
     constant_sky, incident_radiance, irradiance,
+};
+pub use brdf_transport::{
+    HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
 };
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;
