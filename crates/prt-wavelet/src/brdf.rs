@@ -122,6 +122,12 @@ struct CurveEntry {
     rgb: [f32; 3],
 }
 
+/// One pixel's kept `(coefficient, RGB)` entries and its dropped energy per channel.
+struct PixelRow {
+    kept: Vec<(u32, [f32; 3])>,
+    dropped: [f32; 3],
+}
+
 /// Per-pixel RGB transport against a curve's Daubechies-4 coefficients, sparsified per pixel
 /// and stored by coefficient (a frame reads only the columns of its changed coefficients).
 ///
@@ -149,7 +155,7 @@ impl CurveTransport {
         let transform = Daubechies4::new(bins)?;
         WaveletError::check_finite("BRDF transport", rows)?;
         let row_len = 3 * bins;
-        if rows.len() % row_len != 0 || rows.len() / row_len > u32::MAX as usize {
+        if !rows.len().is_multiple_of(row_len) || rows.len() / row_len > u32::MAX as usize {
             return Err(WaveletError::Invalid {
                 what: "BRDF transport",
                 why: format!(
@@ -159,7 +165,7 @@ impl CurveTransport {
             });
         }
         let pixels = rows.len() / row_len;
-        let kept: Vec<(Vec<(u32, [f32; 3])>, [f32; 3])> = rows
+        let kept: Vec<PixelRow> = rows
             .par_chunks_exact(row_len)
             .map_init(
                 || (transform.clone(), vec![0.0f32; row_len], Vec::new()),
@@ -194,16 +200,16 @@ impl CurveTransport {
                             }
                         }
                     }
-                    (
-                        order.iter().map(|&j| (j as u32, rgb(j))).collect(),
-                        dropped.map(|d| d as f32),
-                    )
+                    PixelRow {
+                        kept: order.iter().map(|&j| (j as u32, rgb(j))).collect(),
+                        dropped: dropped.map(|d| d as f32),
+                    }
                 },
             )
             .collect();
         let mut col_start = vec![0usize; bins + 1];
-        for (row, _) in &kept {
-            for &(j, _) in row {
+        for row in &kept {
+            for &(j, _) in &row.kept {
                 col_start[j as usize + 1] += 1;
             }
         }
@@ -219,15 +225,15 @@ impl CurveTransport {
             col_start[bins]
         ];
         let mut dropped = Vec::with_capacity(pixels);
-        for (p, (row, d)) in kept.into_iter().enumerate() {
-            for (j, rgb) in row {
+        for (p, row) in kept.into_iter().enumerate() {
+            for (j, rgb) in row.kept {
                 entries[fill[j as usize]] = CurveEntry {
                     pixel: p as u32,
                     rgb,
                 };
                 fill[j as usize] += 1;
             }
-            dropped.push(d);
+            dropped.push(row.dropped);
         }
         Ok(Self {
             pixels,
