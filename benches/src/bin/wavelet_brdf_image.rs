@@ -565,3 +565,65 @@ fn cost_table(
         table.markdown()
     );
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use prt_trace::Scene;
+
+    /// The traced chain at a tiny size: the Daubechies-4 exact path is the direct sum over bins,
+    /// and BI-30 shows the exact image within `⌈nnz / 30⌉` frames of the last edit.
+    #[test]
+    fn traced_cornell_box_follows_the_laws() {
+        let scene = Scene::cornell_box();
+        let tracer = RayTracer::new(scene.triangles());
+        let view = PinholeView::for_scene(&scene).unwrap();
+        let gbuffer = GBuffer::render(&scene, &tracer, &view, 8, 8).unwrap();
+        let rays = CubeRays::new(4, 1).unwrap();
+        let lighting: Vec<f32> = (0..3 * rays.texels())
+            .map(|i| 0.2 + (i % 7) as f32)
+            .collect();
+        let options = HalfAngleOptions {
+            bins: BINS,
+            offset: 1e-3,
+        };
+        let traced = trace_half_angle_transport(
+            &tracer,
+            &gbuffer,
+            view.position,
+            &rays,
+            &lighting,
+            &options,
+            &NoProgress,
+        )
+        .unwrap();
+        let transport = CurveTransport::new(&traced.glossy, BINS, BINS).unwrap();
+        let start = curve(0.3);
+        let mut edited = curve(0.1);
+        brush_stroke(&mut edited, 40.0, 10.0, 0.5);
+        for f in [&start, &edited] {
+            let direct = traced.image(f).unwrap();
+            let wavelet = add(&traced.diffuse, &transport.image(&d4(f)).unwrap());
+            assert!(
+                relative(&wavelet, &direct) < 1e-6,
+                "{}",
+                relative(&wavelet, &direct)
+            );
+        }
+        let mut bi = Method::new("BI-30", 30, Policy::Incremental, &transport, &start);
+        bi.step(&edited);
+        let target = d4(&edited);
+        let nonzeros = bi
+            .editor
+            .coefficients()
+            .iter()
+            .zip(&target)
+            .filter(|(a, b)| a != b)
+            .count();
+        for _ in 0..nonzeros.div_ceil(30) {
+            bi.step(&edited);
+        }
+        let exact = transport.image(&target).unwrap();
+        assert!(relative(&bi.engine.image(), &exact) < 1e-6);
+    }
+}
