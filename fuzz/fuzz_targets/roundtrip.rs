@@ -4,7 +4,9 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer};
+use prt_texture::container::{
+    ArrayLayout, BrickRequest, Container, GridArray, LoadedContainer, brick_grid, live_bricks,
+};
 use prt_texture::hdr::{RgbImage, decode_hdr, encode_hdr};
 use prt_texture::{Encoding, Ktx2Texture, Limits, PixelFormat, Shape};
 
@@ -73,14 +75,34 @@ fuzz_target!(|data: &[u8]| {
             let n = dims.iter().product::<u32>() as usize * channels;
             let values = unit_values(rest, n).iter().map(|v| v * 200.0 - 100.0).collect();
             let array = GridArray::new(dims, channels, values).unwrap();
-            let layout = [ArrayLayout::Volume, ArrayLayout::Atlas, ArrayLayout::Rows][usize::from(head[6]) % 3];
+            let layout = [ArrayLayout::Volume, ArrayLayout::Atlas, ArrayLayout::Rows, ArrayLayout::Bricks]
+                [usize::from(head[6]) % 4];
             let mut c = Container::default();
             c.arrays.push(("a".into(), array.clone(), encoding, layout));
+            // Bricks of 1 to 4 cells; a node is live when its fuzz byte is odd.
+            let size = u32::from(head[7] % 4) + 1;
+            let live: Vec<bool> = (0..array.nodes()).map(|i| rest.get(i).is_some_and(|b| b & 1 == 1)).collect();
+            c.bricks.insert("a".into(), BrickRequest { size, live_nodes: live.clone() });
             let (manifest, files) = c.encode().unwrap();
             let json = manifest.to_json().unwrap();
-            let loaded = LoadedContainer::decode(&json, &Limits::small(), |_| Ok(files[0].1.clone())).unwrap();
+            let loaded = LoadedContainer::decode(&json, &Limits::small(), |name| {
+                Ok(files.iter().find(|(n, _)| n == name).expect("a written file").1.clone())
+            })
+            .unwrap();
             let entry = &manifest.arrays[0];
+            // Nodes outside a stored brick read as 0; the others as the dense layout would.
+            let stored = live_bricks(dims, size, &live).unwrap();
+            let grid = brick_grid(dims, size);
+            let in_stored = |node: usize| {
+                let p = [node % dims[0] as usize, node / dims[0] as usize % dims[1] as usize, node / (dims[0] * dims[1]) as usize];
+                let b = [0, 1, 2].map(|a| (p[a] as u32 / size).min(grid[a] - 1) as usize);
+                layout != ArrayLayout::Bricks || stored[b[0] + grid[0] as usize * (b[1] + grid[1] as usize * b[2])]
+            };
             for (i, (x, y)) in array.data.iter().zip(&loaded.arrays[0].1.data).enumerate() {
+                if !in_stored(i / channels) {
+                    assert!(!live[i / channels] && *y == 0.0, "[{i}]: {y} outside the stored bricks");
+                    continue;
+                }
                 let r = entry.range(i % channels);
                 let bound = match encoding {
                     Encoding::F32 => 0.0,

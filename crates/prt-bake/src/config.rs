@@ -3,14 +3,18 @@
 use std::path::PathBuf;
 
 use prt_texture::Encoding;
+use serde::{Deserialize, Serialize};
 
 use crate::BakeError;
 
 /// Dimension of the transfer vectors the tracer produces (four 9 × 9 operators).
 pub const TRANSFER_DIM: usize = 324;
 
-/// Every knob of a bake; `Default` gives the defaults of `prt bake`.
-#[derive(Debug, Clone, PartialEq)]
+/// Every knob of a bake; `Default` gives the defaults of `prt bake`. Serialised (a tiled bake's
+/// plan records it) without the memory budget and the container folder, which belong to the
+/// machine that runs it; a missing field reads as its default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct BakeConfig {
     /// Voxels along the longest axis of the scene box (the other axes in proportion, at least 2).
     pub resolution: usize,
@@ -36,9 +40,11 @@ pub struct BakeConfig {
     pub seed: u64,
     /// Memory budget in bytes: the bake is refused before it starts when its
     /// [`crate::MemoryEstimate`] is above it (`None`: no check).
+    #[serde(skip)]
     pub max_memory: Option<u64>,
     /// Folder to write the MBD container into, then score the model read back from it; `None`
     /// writes nothing.
+    #[serde(skip)]
     pub container: Option<PathBuf>,
 }
 

@@ -10,8 +10,8 @@ use prt_core::{Aabb, SpatialKernels};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_texture::container::{
-    ArrayLayout, Container, GridArray, KernelDescription, LoadedContainer, MBD_BASIS,
-    MBD_COEFFICIENTS, Manifest, WriteReport,
+    ArrayLayout, BrickRequest, Container, DEFAULT_BRICK_SIZE, GridArray, KernelDescription,
+    LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest, WriteReport, live_bricks,
 };
 use prt_texture::{Encoding, Limits};
 use serde_json::json;
@@ -24,6 +24,139 @@ pub const VALIDITY: &str = "validity";
 pub const MBD_MODEL: &str = "moving basis decomposition";
 /// Kernel kind of a trilinear hat grid.
 const HAT: &str = "hat";
+/// The smallest saving of coefficient-volume bytes for which [`CoefficientLayout::Auto`] picks
+/// bricks: below it the dense volume is kept (it costs a shader no indirection fetch).
+pub const BRICK_MIN_SAVING: f64 = 0.25;
+
+/// How [`write_container_with`] lays out the coefficient volume.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CoefficientLayout {
+    /// Bricks when they save at least [`BRICK_MIN_SAVING`] of the dense volume's texel bytes,
+    /// dense otherwise (small or mostly valid scenes).
+    #[default]
+    Auto,
+    /// Always the dense `volume` layout.
+    Dense,
+    /// Always the `bricks` layout (docs/formats.md, "Brick layout").
+    Bricks,
+}
+
+/// The coefficient layout [`write_container_with`] writes and which nodes it must keep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LayoutConfig<'a> {
+    /// Dense, bricks or the rule.
+    pub layout: CoefficientLayout,
+    /// Cells per brick edge (1 ..= 64).
+    pub brick_size: u32,
+    /// Per coefficient node (x fastest): whether its value must be stored (a node whose hat
+    /// support reaches a valid voxel). `None`: derived from the validity by [`node_liveness`].
+    pub live_nodes: Option<&'a [bool]>,
+}
+
+impl Default for LayoutConfig<'_> {
+    fn default() -> Self {
+        LayoutConfig {
+            layout: CoefficientLayout::Auto,
+            brick_size: DEFAULT_BRICK_SIZE,
+            live_nodes: None,
+        }
+    }
+}
+
+/// Texel bytes of the coefficient volume in each layout, as [`CoefficientLayout::Auto`] weighs
+/// them (textures' level 0; headers and manifest excluded).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LayoutBytes {
+    /// The dense `volume` layout.
+    pub dense: u64,
+    /// The `bricks` layout: the atlas of live bricks plus the indirection (4 bytes per brick).
+    pub bricks: u64,
+    /// Live bricks of all bricks.
+    pub live_bricks: u64,
+    /// All bricks.
+    pub bricks_total: u64,
+}
+
+impl LayoutBytes {
+    /// Whether the rule picks bricks: they save at least [`BRICK_MIN_SAVING`].
+    pub fn bricks_pay(&self) -> bool {
+        (self.bricks as f64) <= (1.0 - BRICK_MIN_SAVING) * self.dense as f64
+    }
+}
+
+/// The texel bytes of a coefficient volume of `nodes`, `rank` channels in `encoding`, dense and
+/// in bricks of `brick_size` cells keeping `live_nodes`.
+pub fn layout_bytes(
+    nodes: [usize; 3],
+    rank: usize,
+    encoding: Encoding,
+    brick_size: u32,
+    live_nodes: &[bool],
+) -> Result<LayoutBytes, ContainerError> {
+    let format = encoding.rgba_format();
+    let texel = (format.bytes_per_texel() * rank.div_ceil(format.channels())) as u64;
+    let live = live_bricks(nodes.map(|n| n as u32), brick_size, live_nodes)?;
+    let live_count = live.iter().filter(|&&l| l).count() as u64;
+    let side = u64::from(brick_size) + 1;
+    Ok(LayoutBytes {
+        dense: nodes.iter().product::<usize>() as u64 * texel,
+        bricks: live_count * side.pow(3) * texel + 4 * live.len() as u64,
+        live_bricks: live_count,
+        bricks_total: live.len() as u64,
+    })
+}
+
+/// Which nodes of a coefficient hat grid are live: those whose hat support (open) holds the
+/// centre of a valid voxel of `grid`, the voxel centres spanning the kernels' domain (as
+/// `prt bake` fits them: node i at voxel centre i when the grids agree).
+pub fn node_liveness(
+    kernels: &HatGrid,
+    grid: [usize; 3],
+    valid: &[bool],
+) -> Result<Vec<bool>, ContainerError> {
+    let voxels = grid.iter().product::<usize>();
+    if valid.len() != voxels {
+        return Err(ContainerError::Inconsistent(format!(
+            "{} validity flags for {voxels} voxels",
+            valid.len()
+        )));
+    }
+    let nodes = kernels.nodes();
+    if nodes == grid {
+        return Ok(valid.to_vec());
+    }
+    // Per axis: the nodes voxel i touches, in node coordinates p = i (n − 1) / (g − 1).
+    let touched = |a: usize, i: usize| -> Vec<usize> {
+        let (n, g) = (nodes[a], grid[a]);
+        if n == 1 {
+            return vec![0];
+        }
+        let p = if g > 1 {
+            i as f64 * (n - 1) as f64 / (g - 1) as f64
+        } else {
+            0.0
+        };
+        let lo = (p.floor() as usize).min(n - 1);
+        let f = p - lo as f64;
+        let mut out = vec![lo];
+        if f > 0.0 && lo + 1 < n {
+            out.push(lo + 1);
+        }
+        out
+    };
+    let mut live = vec![false; nodes.iter().product()];
+    for (v, _) in valid.iter().enumerate().filter(|(_, ok)| **ok) {
+        let (i, j, k) = (v % grid[0], v / grid[0] % grid[1], v / (grid[0] * grid[1]));
+        for &z in &touched(2, k) {
+            for &y in &touched(1, j) {
+                for &x in &touched(0, i) {
+                    live[x + nodes[0] * (y + nodes[1] * z)] = true;
+                }
+            }
+        }
+    }
+    Ok(live)
+}
 
 /// What [`write_container`] stores: a fitted model, the validity of the baked voxels and a
 /// little provenance.
@@ -94,15 +227,28 @@ fn hat_description(kernels: &HatGrid) -> KernelDescription {
 }
 
 /// Writes the container into `folder` (created if missing), each file atomically and the
+/// manifest last, in the filterable layout (docs/formats.md), the coefficients laid out by
+/// [`CoefficientLayout::Auto`] with the nodes [`node_liveness`] derives from the validity; see
+/// [`write_container_with`].
+pub fn write_container(
+    folder: &Path,
+    contents: &ContainerContents<'_>,
+) -> Result<WriteReport, ContainerError> {
+    write_container_with(folder, contents, &LayoutConfig::default())
+}
+
+/// Writes the container into `folder` (created if missing), each file atomically and the
 /// manifest last, in the filterable layout (docs/formats.md): `coefficients.ktx2` (the L
-/// coefficients per node in ⌈L/4⌉ RGBA tiles stacked along z, [`ArrayLayout::Volume`]),
+/// coefficients per node in ⌈L/4⌉ RGBA tiles stacked along z, [`ArrayLayout::Volume`], or in
+/// bricks, [`ArrayLayout::Bricks`], with `coefficients.bricks.ktx2`, as `layout` says),
 /// `basis.ktx2` (the 324·L basis values per basis node in 81·L RGBA tiles,
 /// [`ArrayLayout::Atlas`]), `validity.ktx2` and `manifest.json`. Node `i` of a hat grid is
 /// texel `i` of its tile, so hardware trilinear filtering at texel centres computes the hat
 /// sums. Returns what was written (bytes included).
-pub fn write_container(
+pub fn write_container_with(
     folder: &Path,
     contents: &ContainerContents<'_>,
+    layout: &LayoutConfig<'_>,
 ) -> Result<WriteReport, ContainerError> {
     let model = contents.model;
     let coefficient_kernels = model.coefficient_kernels();
@@ -157,7 +303,41 @@ pub fn write_container(
     );
     kernels.insert(MBD_BASIS.to_string(), hat_description(basis_kernels));
     let encoding = contents.encoding;
+    let nodes = coefficient_kernels.nodes();
+    let live_nodes = match layout.live_nodes {
+        Some(live) => live.to_vec(),
+        None => node_liveness(coefficient_kernels, contents.grid, contents.valid)?,
+    };
+    let use_bricks = match layout.layout {
+        CoefficientLayout::Dense => false,
+        CoefficientLayout::Bricks => true,
+        CoefficientLayout::Auto => {
+            layout_bytes(nodes, rank, encoding, layout.brick_size, &live_nodes)?.bricks_pay()
+        }
+    };
+    let mut bricks = BTreeMap::new();
+    let coefficient_layout = if use_bricks {
+        bricks.insert(
+            MBD_COEFFICIENTS.to_string(),
+            BrickRequest {
+                size: layout.brick_size,
+                live_nodes,
+            },
+        );
+        attributes.insert(
+            "live_nodes".into(),
+            json!("coefficient nodes whose hat support holds a valid voxel centre; the bricks without one read as 0"),
+        );
+        attributes.insert(
+            "texture_coordinates".into(),
+            json!("hat node coordinate p = clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1); brick b = min(floor(p / size), grid - 1); its indirection texel (x, y, z, live) * 255 gives the atlas brick a; uvw = (a * (size + 1) + p - b * size + 0.5 + (0, 0, group * atlas_z * (size + 1))) / texture_size"),
+        );
+        ArrayLayout::Bricks
+    } else {
+        ArrayLayout::Volume
+    };
     let container = Container {
+        bricks,
         attributes,
         kernels,
         arrays: vec![
@@ -165,7 +345,7 @@ pub fn write_container(
                 MBD_COEFFICIENTS.to_string(),
                 coefficients,
                 encoding,
-                ArrayLayout::Volume,
+                coefficient_layout,
             ),
             (MBD_BASIS.to_string(), basis, encoding, ArrayLayout::Atlas),
             (

@@ -8,17 +8,23 @@
 //! | item | what it is, when to use it |
 //! |---|---|
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
+//! | [`bake_volume`] | the pipeline after the trace, on a volume traced elsewhere (tiles of a tiled bake) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
+//! | [`write_container_with`], [`LayoutConfig`], [`CoefficientLayout`], [`node_liveness`], [`layout_bytes`] | the same with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
+//! | [`plan_tiles`], [`TilePlan`] | a tiled bake's plan: the global lattice cut into tiles with a halo and per-tile seeds, for `prt plan` |
+//! | [`bake_tile`], [`TileOutcome`] | one worker's tile: trace it, write it atomically into the plan folder (`prt bake-tile`) |
+//! | [`assemble`] then [`bake_volume`], [`tile_seams`] | the merge: the tiles' cores as one volume, solved once; seam measures across tile borders (`prt merge`) |
+//! | [`TileError`] | what can stop a tiled bake |
 //! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
 //!
 //! ```no_run
@@ -53,15 +59,18 @@ mod relight;
 mod scene;
 mod scores;
 mod seams;
+mod tiles;
 mod volumes;
 
 pub use config::{BakeConfig, Quality, TRANSFER_DIM};
 pub use container::{
-    ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
+    BRICK_MIN_SAVING, CoefficientLayout, ContainerContents, LayoutBytes, LayoutConfig, MBD_MODEL,
+    MbdContainer, VALIDITY, layout_bytes, node_liveness, read_container, write_container,
+    write_container_with,
 };
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
-pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake, bake_volume};
 pub use production::{
     IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
     ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
@@ -71,6 +80,11 @@ pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
 pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
+pub use tiles::{
+    AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION,
+    PlannedScene, TileError, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats, VoxelRange,
+    assemble, bake_tile, plan_tiles, scene_hash, tile_dir, tile_is_done, tile_options, tile_seams,
+};
 pub use volumes::{
     KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,
 };

@@ -191,6 +191,23 @@ pub fn bake(
             .bake(p)
             .map_err(BakeError::Trace)
     })?;
+    let mut baked = bake_volume(&scene.name, volume, config, progress)?;
+    times.append(&mut baked.stage_times);
+    baked.stage_times = times;
+    Ok(baked)
+}
+
+/// Every stage of [`bake`] after the trace, on a volume traced elsewhere (e.g. assembled from
+/// tiles traced by separate workers): MBD, the baselines, the scores, the seam views and, when
+/// `config.container` is set, the container. `scene_name` is recorded in the container.
+pub fn bake_volume(
+    scene_name: &str,
+    volume: TransferVolume,
+    config: &BakeConfig,
+    progress: &(impl BakeProgress + ?Sized),
+) -> Result<Bake, BakeError> {
+    config.validate()?;
+    let mut times = Vec::new();
     let field = &volume.field;
 
     // MBD, then the baselines at equal basis count (one rank-L basis per basis node).
@@ -297,7 +314,7 @@ pub fn bake(
                 model: &model,
                 grid: field.dims(),
                 valid: &volume.valid,
-                scene: &scene.name,
+                scene: scene_name,
                 lambda: config.lambda,
                 encoding: config.encoding,
             };

@@ -408,6 +408,7 @@ pub fn write_production(
                 ArrayLayout::Volume,
             ),
         ],
+        ..Container::default()
     };
     container
         .write(folder)

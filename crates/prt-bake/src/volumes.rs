@@ -104,6 +104,7 @@ pub fn write_volumes(
         attributes,
         kernels: BTreeMap::new(),
         arrays,
+        ..Container::default()
     };
     Ok(container.write(folder)?)
 }

@@ -389,6 +389,7 @@ fn the_basis_is_written_as_a_filterable_atlas_and_a_rows_basis_still_reads() {
         attributes: loaded.manifest.attributes.clone(),
         kernels: loaded.manifest.kernels.clone(),
         arrays: Vec::new(),
+        ..Container::default()
     };
     for (entry, (name, array)) in loaded.manifest.arrays.iter().zip(&loaded.arrays) {
         let layout = if name == "basis" {

@@ -206,7 +206,7 @@ const ASSUMED_RAYS_PER_SECOND_PER_THREAD: f64 = 6.0e6;
 impl BakeArgs {
     /// The pipeline's configuration: the preset, each explicit knob over it, writing the
     /// container into `container`.
-    fn config(&self, container: Option<PathBuf>) -> BakeConfig {
+    pub(crate) fn config(&self, container: Option<PathBuf>) -> BakeConfig {
         let preset = BakeConfig::preset(self.quality.into());
         BakeConfig {
             resolution: self.res.unwrap_or(preset.resolution),
@@ -242,7 +242,7 @@ fn flag(field: &str) -> &str {
 }
 
 /// A bake error, with a configuration field named by its flag.
-fn cli_error(error: BakeError) -> anyhow::Error {
+pub(crate) fn cli_error(error: BakeError) -> anyhow::Error {
     match error {
         BakeError::InvalidConfig { field, why } => anyhow::anyhow!("{} {why}", flag(field)),
         // The library's message names BakeOptions' fields; prt bake sets the margin alone.
@@ -289,6 +289,20 @@ pub fn run(args: &BakeArgs) -> Result<()> {
 
     let config = args.config(Some(out_dir.join("mbd")));
     let baked = prt_bake::bake(&scene, &config, &StageBars).map_err(cli_error)?;
+    write_outputs(&out_dir, &scene, &baked, args.keep_volumes, load, total)
+}
+
+/// Everything `prt bake` writes beside the container once the pipeline ran: the kept volumes,
+/// the scene mesh, the report and its images; then the summary on stdout. `load` is the scene's
+/// load time and `total` the start of the whole command, for the report's times.
+pub(crate) fn write_outputs(
+    out_dir: &Path,
+    scene: &SceneInput,
+    baked: &Bake,
+    keep: KeepVolumes,
+    load: std::time::Duration,
+    total: Instant,
+) -> Result<()> {
     let valid = baked.volume.stats.valid_fraction();
     if valid < LOW_VALID_FRACTION {
         eprintln!(
@@ -298,14 +312,14 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         );
     }
 
-    keep_volumes(args.keep_volumes, &out_dir.join("volumes"), &baked)?;
+    keep_volumes(keep, &out_dir.join("volumes"), baked)?;
     let mesh = out_dir.join(crate::render::SCENE_MESH);
     prt_render::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
 
     let stage = Stage::start("report");
-    let images = report::write_images(&out_dir, &baked)?;
-    let renders = report::write_renders(&out_dir, &baked, &scene.scene, &out_dir.join("mbd"))?;
+    let images = report::write_images(out_dir, baked)?;
+    let renders = report::write_renders(out_dir, baked, &scene.scene, &out_dir.join("mbd"))?;
     let report_time = stage.finish();
     let stage_seconds = std::iter::once(("load".to_string(), load))
         .chain(
@@ -319,12 +333,12 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         .collect();
     let report = Report {
         scene: &scene.name,
-        bake: &baked,
+        bake: baked,
         stage_seconds,
         total_seconds: total.elapsed().as_secs_f64(),
     };
-    report::write_report(&out_dir, &report, &images, renders.as_ref())?;
-    print_summary(&report, &out_dir, &baked);
+    report::write_report(out_dir, &report, &images, renders.as_ref())?;
+    print_summary(&report, out_dir, baked);
     Ok(())
 }
 

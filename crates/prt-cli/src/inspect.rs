@@ -127,6 +127,14 @@ fn inspect_manifest(path: &Path, limits: &Limits) -> Result<()> {
         let tiles = a
             .tiles
             .map(|[x, y, z]| format!(" ({x} x {y} x {z} tiles)"))
+            .or_else(|| {
+                a.bricks.as_ref().map(|b| {
+                    format!(
+                        " ({} of {:?} bricks of {} cells live, indirection {} bytes in {})",
+                        b.live, b.grid, b.size, b.indirection_bytes, b.indirection
+                    )
+                })
+            })
             .unwrap_or_default();
         println!(
             "  array {}: {:?} nodes x {} channels, {:?}, {:?} layout{tiles}, {} bytes in {}",

@@ -14,6 +14,10 @@
 //!   approximations against the exact product (frames, animated preview, table, error plot).
 //! * `prt view BAKE_DIR` serves a bake folder on 127.0.0.1 with a WebGL2 page that draws its
 //!   scene lit by the MBD container (decoded by prt-shaders' GLSL) and relights it as the sky turns.
+//! * `prt plan SCENE --tiles X,Y,Z --out PLAN_DIR`, `prt bake-tile PLAN_DIR [--tile I | --all]`
+//!   and `prt merge PLAN_DIR --out BAKE_DIR` split a bake into tiles traced by independent
+//!   workers (a Kubernetes Indexed Job, a Slurm job array, or local processes) and merge them
+//!   into the bake folder `prt bake` writes (deploy/ has the manifests).
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -24,11 +28,14 @@ mod bake;
 mod encode;
 mod export;
 mod inspect;
+mod merge;
+mod plan;
 mod progress;
 mod relight;
 mod render;
 mod report;
 mod sky;
+mod tile;
 mod view;
 
 use std::process::ExitCode;
@@ -63,6 +70,14 @@ enum Command {
     Render(render::RenderArgs),
     /// Serve a bake folder and a WebGL2 viewer that relights it in real time, on 127.0.0.1.
     View(view::ViewArgs),
+    /// Cut a bake into tiles of its voxel lattice for independent workers (writes PLAN_DIR).
+    Plan(plan::PlanArgs),
+    /// Trace one tile of a plan (index from --tile, $JOB_COMPLETION_INDEX or
+    /// $SLURM_ARRAY_TASK_ID), or every tile as local worker processes (--all).
+    BakeTile(tile::TileArgs),
+    /// Assemble a plan's finished tiles, solve MBD once and write the bake folder `prt bake`
+    /// writes, with the seam measures across tile borders.
+    Merge(merge::MergeArgs),
 }
 
 fn main() -> ExitCode {
@@ -76,6 +91,9 @@ fn main() -> ExitCode {
         Command::Relight(args) => relight::run(&args),
         Command::Render(args) => render::run(&args),
         Command::View(args) => view::run(&args),
+        Command::Plan(args) => plan::run(&args),
+        Command::BakeTile(args) => tile::run(&args),
+        Command::Merge(args) => merge::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

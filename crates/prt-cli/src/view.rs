@@ -301,7 +301,15 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
             };
             let source = match path {
                 "/shaders/common.glsl" => glsl_common(rank),
-                "/shaders/reconstruct.glsl" => prt_shaders::glsl_reconstruct(rank),
+                "/shaders/reconstruct.glsl" => {
+                    // The coefficient volume's layout: dense unless `layout=bricks`.
+                    let layout = if query.split('&').any(|kv| kv == "layout=bricks") {
+                        prt_shaders::CoefficientLayout::Bricks
+                    } else {
+                        prt_shaders::CoefficientLayout::Dense
+                    };
+                    prt_shaders::glsl_reconstruct_for(rank, layout)
+                }
                 _ => prt_shaders::glsl_relight(rank),
             };
             Response::ok("text/plain; charset=utf-8", source)

@@ -143,11 +143,15 @@ function parseKtx2(buffer, name, encoding, size, singleChannel) {
 // A container array as a WebGL texture in its layout, with its per-group scale and bias.
 function arrayTexture(gl, entry, data) {
   const groups = Math.ceil(entry.channels / 4);
-  const tiles = entry.layout === 'volume' ? [1, 1, groups] : entry.tiles;
-  if (!tiles || (entry.layout !== 'volume' && entry.layout !== 'atlas')) {
+  const bricks = entry.layout === 'bricks' ? entry.bricks : null;
+  const tiles = entry.layout === 'volume' ? [1, 1, groups] : (bricks ? [1, 1, 1] : entry.tiles);
+  if (!tiles || !['volume', 'atlas', 'bricks'].includes(entry.layout) || (entry.layout === 'bricks' && !bricks)) {
     fail(`${entry.file}: layout ${entry.layout} is not filterable; rebake with this prt`);
   }
-  const size = entry.dims.map((d, k) => d * tiles[k]);
+  // A brick atlas: (size + 1)³ texels per brick, one atlas per group stacked along z.
+  const size = bricks
+    ? bricks.atlas.map((a, k) => a * (bricks.size + 1) * (k === 2 ? groups : 1))
+    : entry.dims.map((d, k) => d * tiles[k]);
   const single = entry.single_channel === true;
   const texels = parseKtx2(data, entry.file, entry.encoding, size, single);
   const texture = gl.createTexture();
@@ -186,7 +190,19 @@ function arrayTexture(gl, entry, data) {
     scale[c] = c < entry.channels ? (range ? range.scale : 1) : 0;
     bias[c] = c < entry.channels && range ? range.bias : 0;
   }
-  return { texture, size, tiles, groups, scale, bias, linear: filter === gl.LINEAR };
+  return { texture, size, tiles, groups, scale, bias, linear: filter === gl.LINEAR, bricks };
+}
+
+// The indirection of a brick-layout array: RGBA8 unorm, one texel per brick, read with texelFetch.
+async function indirectionTexture(gl, folder, bricks) {
+  if (!/^[A-Za-z0-9_.-]+\.ktx2$/.test(bricks.indirection)) fail(`${folder}: bad file name ${bricks.indirection}`);
+  const data = await fetchBytes(`bake/${folder}/${bricks.indirection}`);
+  const texels = parseKtx2(data, bricks.indirection, 'unorm8', bricks.grid, false);
+  const texture = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_3D, texture);
+  gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGBA8, ...bricks.grid, 0, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(texels));
+  setSampling(gl, gl.TEXTURE_3D, gl.NEAREST);
+  return texture;
 }
 
 function setSampling(gl, target, filter) {
@@ -585,12 +601,13 @@ async function main() {
   const coefficientKernel = kernel('coefficients');
   const basisKernel = kernel('basis');
   const basisEntry = entryOf(manifest, 'basis', 'mbd');
+  const bricked = entryOf(manifest, 'coefficients', 'mbd').layout === 'bricks';
   if (basisEntry.channels !== TRANSFER_DIM * rank) fail(`mbd basis has ${basisEntry.channels} channels, not 324 × ${rank}`);
 
   const [common1, relight1, relightRank, reconstructRank] = await Promise.all([
     fetchText('shaders/common.glsl?rank=1'),
     fetchText('shaders/relight.glsl?rank=1'), fetchText(`shaders/relight.glsl?rank=${rank}`),
-    fetchText(`shaders/reconstruct.glsl?rank=${rank}`),
+    fetchText(`shaders/reconstruct.glsl?rank=${rank}${bricked ? '&layout=bricks' : ''}`),
   ]);
   const relightPrograms = new Map([
     [1, program(gl, FULLSCREEN_VS, relight1, 'relight (rank 1)')],
@@ -608,6 +625,7 @@ async function main() {
     const [coefficients, basis, validity] = await Promise.all(
       ['coefficients', 'basis', 'validity'].map((n) => loadArray(gl, 'mbd', manifest, n)));
     if (!coefficients.linear) fail('the coefficient volume needs float filtering (OES_texture_float_linear)');
+    if (coefficients.bricks) coefficients.indirection = await indirectionTexture(gl, 'mbd', coefficients.bricks);
     const voxels = validity.size;
     const relitTiles = [RELIT_GROUPS, rank, 1];
     const basisNodes = basisKernel.nodes;
@@ -700,6 +718,11 @@ async function main() {
         .texture('u_mbd_coefficient_texture', 0, gl.TEXTURE_3D, m.coefficients.texture)
         .texture('u_mbd_relit_texture', 1, gl.TEXTURE_3D, m.relit)
         .vec3('u_node_step', m.step);
+      const b = m.coefficients.bricks;
+      if (b) {
+        voxel.vec4s('u_mbd_bricks.grid', [...b.grid, b.size]).vec4s('u_mbd_bricks.atlas', [...b.atlas, 0])
+          .texture('u_mbd_coefficient_indirection', 3, gl.TEXTURE_3D, m.coefficients.indirection);
+      }
     } else {
       voxel = keptVoxelProgram.use().texture('u_relit_voxels', 0, gl.TEXTURE_3D, m.relit);
     }

@@ -21,6 +21,7 @@
 //! |---|---|
 //! | [`wgsl_reconstruct`], [`wgsl_relight`] | complete WGSL modules for a rank (reconstruction functions with their bindings; the relighting compute shader) |
 //! | [`glsl_reconstruct`], [`glsl_relight`] | GLSL ES 3.00 sources for a rank: the reconstruction functions (append your `main`), the relighting fragment shader |
+//! | [`wgsl_reconstruct_for`], [`glsl_reconstruct_for`], [`CoefficientLayout`] | the reconstruction for a coefficient volume dense or in bricks (one indirection fetch per pixel) |
 //! | [`wgsl`], [`glsl`] | the source files as strings, for a page or an engine that assembles them itself |
 //! | [`RELIT_GROUPS`], [`BASIS_GROUPS`], [`coefficient_groups`] | texels per relit basis vector, per raw basis vector, per coefficient node |
 //!
@@ -33,6 +34,16 @@ pub const RELIT_GROUPS: usize = 7;
 /// Texels (RGBA) per raw basis vector: 324 values.
 pub const BASIS_GROUPS: usize = 81;
 
+/// How the container stores the coefficient volume (its `coefficients` array's `layout`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum CoefficientLayout {
+    /// `volume`: ⌈L/4⌉ tiles stacked along z.
+    #[default]
+    Dense,
+    /// `bricks`: a brick atlas read through an indirection texture.
+    Bricks,
+}
+
 /// Texels (RGBA) per coefficient node for rank `rank`: ⌈L/4⌉.
 pub fn coefficient_groups(rank: usize) -> usize {
     rank.div_ceil(4)
@@ -44,6 +55,10 @@ pub mod wgsl {
     pub const COMMON: &str = include_str!("../shaders/wgsl/common.wgsl");
     /// `mbd_incident_radiance(x)` with its bindings (group 0, bindings 0–3); needs [`COMMON`].
     pub const RECONSTRUCT: &str = include_str!("../shaders/wgsl/reconstruct.wgsl");
+    /// The dense coefficient volume's `mbd_coefficient_site` / `mbd_coefficient_texel`.
+    pub const COEFFICIENTS_DENSE: &str = include_str!("../shaders/wgsl/coefficients_dense.wgsl");
+    /// The bricked coefficient volume's, with the indirection binding (group 0, binding 4).
+    pub const COEFFICIENTS_BRICKS: &str = include_str!("../shaders/wgsl/coefficients_bricks.wgsl");
     /// The relighting compute shader `mbd_relight_main` (group 0, bindings 0–3); needs [`COMMON`].
     pub const RELIGHT: &str = include_str!("../shaders/wgsl/relight.wgsl");
 }
@@ -57,6 +72,13 @@ pub mod glsl {
     pub const RECONSTRUCT: &str = include_str!("../shaders/glsl/reconstruct.glsl");
     /// WebGL2 uniforms and samplers of [`RECONSTRUCT`].
     pub const RECONSTRUCT_ES: &str = include_str!("../shaders/glsl/reconstruct_es.glsl");
+    /// The dense coefficient volume's `mbd_coefficient_site` / `mbd_coefficient_texel` (before
+    /// [`RECONSTRUCT`]).
+    pub const COEFFICIENTS_DENSE: &str = include_str!("../shaders/glsl/coefficients_dense.glsl");
+    /// The bricked coefficient volume's (before [`RECONSTRUCT`]); needs [`BRICKS_ES`].
+    pub const COEFFICIENTS_BRICKS: &str = include_str!("../shaders/glsl/coefficients_bricks.glsl");
+    /// WebGL2 uniform and sampler of [`COEFFICIENTS_BRICKS`].
+    pub const BRICKS_ES: &str = include_str!("../shaders/glsl/bricks_es.glsl");
     /// The relighting fragment shader (with `main`); needs [`COMMON`] and [`RELIGHT_ES`].
     pub const RELIGHT: &str = include_str!("../shaders/glsl/relight.glsl");
     /// WebGL2 uniforms, samplers and output of [`RELIGHT`].
@@ -73,10 +95,27 @@ fn glsl_header(rank: usize) -> String {
     format!("{}#define RANK {rank}\n", glsl::ES_HEADER)
 }
 
-/// The WGSL reconstruction module for rank `rank`: `mbd_incident_radiance(x)` and
-/// `mbd_irradiance(sh, normal)` with the bindings of `reconstruct.wgsl`; add your entry points.
+/// The WGSL reconstruction module for rank `rank` and a dense coefficient volume:
+/// `mbd_incident_radiance(x)` and `mbd_irradiance(sh, normal)` with the bindings of
+/// `reconstruct.wgsl`; add your entry points.
 pub fn wgsl_reconstruct(rank: usize) -> String {
-    [&wgsl_header(rank), wgsl::COMMON, wgsl::RECONSTRUCT].concat()
+    wgsl_reconstruct_for(rank, CoefficientLayout::Dense)
+}
+
+/// [`wgsl_reconstruct`] for a coefficient volume in `layout` (bricks add binding 4, the
+/// indirection texture).
+pub fn wgsl_reconstruct_for(rank: usize, layout: CoefficientLayout) -> String {
+    let coefficients = match layout {
+        CoefficientLayout::Dense => wgsl::COEFFICIENTS_DENSE,
+        CoefficientLayout::Bricks => wgsl::COEFFICIENTS_BRICKS,
+    };
+    [
+        &wgsl_header(rank),
+        wgsl::COMMON,
+        wgsl::RECONSTRUCT,
+        coefficients,
+    ]
+    .concat()
 }
 
 /// The WGSL relighting compute shader for rank `rank` (entry point `mbd_relight_main`,
@@ -85,16 +124,35 @@ pub fn wgsl_relight(rank: usize) -> String {
     [&wgsl_header(rank), wgsl::COMMON, wgsl::RELIGHT].concat()
 }
 
-/// The GLSL ES 3.00 reconstruction functions for rank `rank` (header, declarations,
-/// `mbd_incident_radiance`, `mbd_irradiance`): append your fragment shader's `main`.
+/// The GLSL ES 3.00 reconstruction functions for rank `rank` and a dense coefficient volume
+/// (header, declarations, `mbd_incident_radiance`, `mbd_irradiance`): append your fragment
+/// shader's `main`.
 pub fn glsl_reconstruct(rank: usize) -> String {
-    [
-        &glsl_header(rank),
-        glsl::COMMON,
-        glsl::RECONSTRUCT_ES,
-        glsl::RECONSTRUCT,
-    ]
-    .concat()
+    glsl_reconstruct_for(rank, CoefficientLayout::Dense)
+}
+
+/// [`glsl_reconstruct`] for a coefficient volume in `layout` (bricks add `u_mbd_bricks` and the
+/// indirection sampler `u_mbd_coefficient_indirection`).
+pub fn glsl_reconstruct_for(rank: usize, layout: CoefficientLayout) -> String {
+    let header = glsl_header(rank);
+    let parts: &[&str] = match layout {
+        CoefficientLayout::Dense => &[
+            &header,
+            glsl::COMMON,
+            glsl::RECONSTRUCT_ES,
+            glsl::COEFFICIENTS_DENSE,
+            glsl::RECONSTRUCT,
+        ],
+        CoefficientLayout::Bricks => &[
+            &header,
+            glsl::COMMON,
+            glsl::RECONSTRUCT_ES,
+            glsl::BRICKS_ES,
+            glsl::COEFFICIENTS_BRICKS,
+            glsl::RECONSTRUCT,
+        ],
+    };
+    parts.concat()
 }
 
 /// The GLSL ES 3.00 relighting fragment shader for rank `rank`, complete.

@@ -3,6 +3,7 @@
 //! GLSL front end reads Vulkan GLSL 4.40+ only.
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
+use prt_shaders::CoefficientLayout;
 
 const RANKS: [usize; 4] = [1, 3, 4, 8];
 
@@ -35,10 +36,13 @@ fn fs_main(@location(0) world: vec3<f32>, @location(1) normal: vec3<f32>) -> @lo
 #[test]
 fn the_wgsl_modules_validate() {
     for rank in RANKS {
-        let reconstruct = prt_shaders::wgsl_reconstruct(rank) + WGSL_FRAGMENT;
-        let module = parse_wgsl(&reconstruct, &format!("reconstruct.wgsl rank {rank}"));
-        validate(&module, &format!("reconstruct.wgsl rank {rank}"));
-        assert!(module.entry_points.iter().any(|e| e.name == "fs_main"));
+        for layout in [CoefficientLayout::Dense, CoefficientLayout::Bricks] {
+            let reconstruct = prt_shaders::wgsl_reconstruct_for(rank, layout) + WGSL_FRAGMENT;
+            let what = format!("reconstruct.wgsl rank {rank}, {layout:?}");
+            let module = parse_wgsl(&reconstruct, &what);
+            validate(&module, &what);
+            assert!(module.entry_points.iter().any(|e| e.name == "fs_main"));
+        }
 
         let relight = prt_shaders::wgsl_relight(rank);
         let module = parse_wgsl(&relight, &format!("relight.wgsl rank {rank}"));
@@ -66,6 +70,15 @@ layout(set = 0, binding = 1) uniform texture3D u_mbd_coefficient_texture;
 layout(set = 0, binding = 2) uniform texture3D u_mbd_relit_texture;
 layout(set = 0, binding = 3) uniform sampler u_mbd_linear_clamp;
 #define MBD_SAMPLE3D(t, uvw) textureLod(sampler3D(t, u_mbd_linear_clamp), uvw, 0.0)
+";
+
+/// The same for coefficients_bricks.glsl (the stand-in for bricks_es.glsl).
+const GLSL_BRICKS_450: &str = "
+layout(std140, set = 1, binding = 0) uniform MbdBrickLayout {
+    MbdBricks u_mbd_bricks;
+};
+layout(set = 1, binding = 1) uniform texture3D u_mbd_coefficient_indirection;
+#define MBD_FETCH_INDIRECTION(t, p) texelFetch(sampler3D(t, u_mbd_linear_clamp), p, 0)
 ";
 
 const GLSL_FRAGMENT_450: &str = "
@@ -108,20 +121,35 @@ fn glsl_450(rank: usize, parts: &[&str]) -> String {
 fn the_glsl_bodies_validate() {
     use prt_shaders::glsl;
     for rank in RANKS {
-        let reconstruct = glsl_450(
-            rank,
-            &[
-                glsl::COMMON,
-                GLSL_RECONSTRUCT_450,
-                glsl::RECONSTRUCT,
-                GLSL_FRAGMENT_450,
-            ],
-        );
-        let what = format!("reconstruct.glsl rank {rank}");
-        validate(
-            &parse_glsl(&reconstruct, naga::ShaderStage::Fragment, &what),
-            &what,
-        );
+        for (layout, parts) in [
+            (
+                "dense",
+                [
+                    glsl::COMMON,
+                    GLSL_RECONSTRUCT_450,
+                    "",
+                    glsl::COEFFICIENTS_DENSE,
+                ],
+            ),
+            (
+                "bricks",
+                [
+                    glsl::COMMON,
+                    GLSL_RECONSTRUCT_450,
+                    GLSL_BRICKS_450,
+                    glsl::COEFFICIENTS_BRICKS,
+                ],
+            ),
+        ] {
+            let mut parts = parts.to_vec();
+            parts.extend([glsl::RECONSTRUCT, GLSL_FRAGMENT_450]);
+            let reconstruct = glsl_450(rank, &parts);
+            let what = format!("reconstruct.glsl rank {rank}, {layout}");
+            validate(
+                &parse_glsl(&reconstruct, naga::ShaderStage::Fragment, &what),
+                &what,
+            );
+        }
         let relight = glsl_450(rank, &[glsl::COMMON, GLSL_RELIGHT_450, glsl::RELIGHT]);
         let what = format!("relight.glsl rank {rank}");
         validate(
@@ -153,6 +181,21 @@ fn the_glsl_es_sources_are_complete() {
         );
         assert!(GLSL_RECONSTRUCT_450.contains(name));
     }
+    for name in [
+        "u_mbd_bricks",
+        "u_mbd_coefficient_indirection",
+        "MBD_FETCH_INDIRECTION",
+    ] {
+        assert!(
+            prt_shaders::glsl::BRICKS_ES.contains(name),
+            "bricks_es.glsl declares {name}"
+        );
+        assert!(GLSL_BRICKS_450.contains(name));
+    }
+    let bricks = prt_shaders::glsl_reconstruct_for(8, CoefficientLayout::Bricks);
+    assert!(
+        bricks.starts_with("#version 300 es\n") && bricks.contains("u_mbd_coefficient_indirection")
+    );
     for name in [
         "u_mbd_basis",
         "u_mbd_relit",
@@ -196,6 +239,10 @@ void main() {
     for rank in RANKS {
         for (name, source) in [
             ("reconstruct", prt_shaders::glsl_reconstruct(rank) + main),
+            (
+                "reconstruct_bricks",
+                prt_shaders::glsl_reconstruct_for(rank, CoefficientLayout::Bricks) + main,
+            ),
             ("relight", prt_shaders::glsl_relight(rank)),
         ] {
             let path = dir.join(format!("{name}_{rank}.frag"));

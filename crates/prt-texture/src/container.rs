@@ -11,6 +11,9 @@
 //! | [`MBD_COEFFICIENTS`] | coefficient-kernel nodes | L (rank) | [`ArrayLayout::Volume`]: L channels packed in RGBA 3D textures |
 //! | [`MBD_BASIS`] | basis-kernel nodes | D x L (basis matrix per node, row-major) | [`ArrayLayout::Atlas`] (filterable) or [`ArrayLayout::Rows`] |
 //!
+//! (the coefficients may instead be in [`ArrayLayout::Bricks`]: only the bricks holding live
+//! nodes, in a brick atlas, with an indirection grid; [`Container::bricks`] says which nodes)
+//!
 //! with two [`KernelDescription`]s (kind, node counts, domain) under the same names. The byte
 //! layout of the manifest and of the textures is in docs/formats.md.
 //!
@@ -29,6 +32,11 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::bricks::{
+    BrickRequest, Bricks, DEFAULT_BRICK_SIZE, MAX_ATLAS_BRICKS, MAX_BRICK_SIZE, brick_atlas,
+    brick_grid, live_bricks,
+};
+use crate::bricks::{atlas_texels, brick_of, slot_coordinate};
 use crate::ktx2::{KEY_PRT_ARRAY, Ktx2Texture, Shape};
 use crate::limits::{check_at_most, checked_product};
 use crate::quant::{ChannelRange, Encoding, Quantized, dequantize, quantize};
@@ -38,8 +46,8 @@ use crate::{Limits, PixelFormat, TextureError};
 pub const CONTAINER_FORMAT: &str = "prt-container";
 /// The manifest version this crate writes; it reads every version from 1 up to this one
 /// (version 2 stopped storing identity ranges for the float encodings, version 3 added
-/// [`ArrayLayout::Atlas`]).
-pub const CONTAINER_VERSION: u32 = 4;
+/// [`ArrayLayout::Atlas`], version 4 single-channel formats, version 5 [`ArrayLayout::Bricks`]).
+pub const CONTAINER_VERSION: u32 = 5;
 /// File name of the manifest inside a container folder.
 pub const MANIFEST_FILE: &str = "manifest.json";
 /// Name of the MBD coefficient grid array and its kernel.
@@ -125,6 +133,13 @@ pub enum ArrayLayout {
     /// A 2D texture of `(groups, nodes)`: row `n` holds node `n`'s channel groups (not
     /// filterable; for tools).
     Rows,
+    /// Sparse and filterable: the node grid cut into bricks of `B` cells ([`Bricks`]); only the
+    /// bricks holding a live node are stored, each as `(B+1)³` texels (a one-node apron on the
+    /// high side) in a 3D brick atlas, one atlas per channel group stacked along z; an
+    /// RGBA8 indirection texture of one texel per brick gives its atlas brick coordinate
+    /// (alpha 1) or says it is empty (all 0). Nodes of empty bricks read back as 0. For
+    /// coefficient volumes of scenes with much empty or solid space (container version 5).
+    Bricks,
 }
 
 /// The tile arrangement [`Container::encode`] gives an [`ArrayLayout::Atlas`] of `groups` tiles
@@ -172,6 +187,9 @@ pub struct ArrayEntry {
     /// Tiles along x, y, z of an [`ArrayLayout::Atlas`] (absent for the other layouts).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tiles: Option<[u32; 3]>,
+    /// The bricks of an [`ArrayLayout::Bricks`] array (absent for the other layouts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bricks: Option<Bricks>,
     /// Per-channel decode map of the normalised encodings, `value = bias + scale · texel`.
     /// Empty for the float encodings and RGB9E5, which decode directly (container version 1
     /// wrote identity maps there; they are still accepted). Use [`ArrayEntry::range`] to read it.
@@ -232,7 +250,7 @@ impl ArrayEntry {
         match self.layout {
             ArrayLayout::Volume => Some([1, 1, u32::try_from(self.groups()).ok()?]),
             ArrayLayout::Atlas => self.tiles,
-            ArrayLayout::Rows => None,
+            ArrayLayout::Rows | ArrayLayout::Bricks => None,
         }
     }
 
@@ -253,6 +271,16 @@ impl ArrayEntry {
         let [x, y, z] = self.dims.map(u64::from);
         let (w, h, d) = match (self.layout, self.tile_grid()) {
             (ArrayLayout::Rows, _) => (groups, nodes, 0),
+            (ArrayLayout::Bricks, _) => {
+                let bricks = self.bricks.as_ref().ok_or_else(|| {
+                    TextureError::malformed(
+                        "manifest",
+                        format!("array {:?} has no bricks", self.name),
+                    )
+                })?;
+                let [w, h, d] = atlas_texels(bricks, self.groups())?;
+                (w, h, d)
+            }
             (_, Some([tx, ty, tz])) => (x * u64::from(tx), y * u64::from(ty), z * u64::from(tz)),
             (_, None) => {
                 return Err(TextureError::malformed(
@@ -326,6 +354,7 @@ impl ArrayEntry {
             (ArrayLayout::Atlas, None) => false,
             (_, tiles) => tiles.is_none(),
         };
+        self.validate_bricks()?;
         if !tiles_ok {
             return Err(TextureError::malformed(
                 "manifest",
@@ -371,6 +400,72 @@ impl ArrayEntry {
         let shape = self.texture_shape()?;
         for v in [shape.width, shape.height, shape.depth] {
             limits.check_dimension("array texture dimension", u64::from(v))?;
+        }
+        if let Some(bricks) = &self.bricks {
+            for v in bricks.grid {
+                limits.check_dimension("indirection texture dimension", u64::from(v))?;
+            }
+            // A small atlas can stand for a huge grid: bound what decoding it allocates.
+            let dims = self.dims.map(u64::from);
+            let decoded = checked_product(
+                "decoded brick array bytes",
+                &[dims[0], dims[1], dims[2], (self.groups() * 4) as u64, 4],
+            )?;
+            check_at_most("decoded brick array bytes", decoded, limits.max_bytes)?;
+        }
+        Ok(())
+    }
+
+    /// A brick-layout array names consistent bricks; the other layouts name none.
+    fn validate_bricks(&self) -> Result<(), TextureError> {
+        let bricks = match (self.layout, &self.bricks) {
+            (ArrayLayout::Bricks, Some(bricks)) => bricks,
+            (ArrayLayout::Bricks, None) => {
+                return Err(TextureError::malformed(
+                    "manifest",
+                    format!("array {:?} has the bricks layout but no bricks", self.name),
+                ));
+            }
+            (_, None) => return Ok(()),
+            (layout, Some(_)) => {
+                return Err(TextureError::malformed(
+                    "manifest",
+                    format!("array {:?}: bricks for a {layout:?} layout", self.name),
+                ));
+            }
+        };
+        let bad = |why: String| {
+            Err(TextureError::malformed(
+                "manifest",
+                format!("array {:?}: {why}", self.name),
+            ))
+        };
+        if !(1..=MAX_BRICK_SIZE).contains(&bricks.size) {
+            return bad(format!("brick size {}", bricks.size));
+        }
+        if bricks.grid != brick_grid(self.dims, bricks.size) {
+            return bad(format!(
+                "{:?} bricks of {} cells for {:?} nodes",
+                bricks.grid, bricks.size, self.dims
+            ));
+        }
+        // u128: the products of three u32 cannot overflow.
+        let product = |v: [u32; 3]| v.map(u128::from).iter().product::<u128>();
+        let live = u128::from(bricks.live);
+        let atlas_ok = bricks
+            .atlas
+            .iter()
+            .all(|&a| (1..=MAX_ATLAS_BRICKS).contains(&a))
+            && product(bricks.atlas) >= live
+            && live <= product(bricks.grid);
+        if !atlas_ok {
+            return bad(format!(
+                "an atlas of {:?} bricks for {} live of {:?}",
+                bricks.atlas, bricks.live, bricks.grid
+            ));
+        }
+        if bricks.indirection != format!("{}.bricks.ktx2", self.name) {
+            return bad(format!("indirection file {:?}", bricks.indirection));
         }
         Ok(())
     }
@@ -448,6 +543,8 @@ pub struct Container {
     pub kernels: BTreeMap<String, KernelDescription>,
     /// Named arrays with their encoding and layout, in order.
     pub arrays: Vec<(String, GridArray, Encoding, ArrayLayout)>,
+    /// The brick size and live nodes of every [`ArrayLayout::Bricks`] array, by name.
+    pub bricks: BTreeMap<String, BrickRequest>,
 }
 
 /// A file of a container: its name and bytes.
@@ -487,6 +584,7 @@ impl Container {
                 encoding: *encoding,
                 layout: *layout,
                 tiles: None,
+                bricks: None,
                 ranges: Vec::new(),
                 single_channel: array.channels == 1 && single_channel_format(*encoding).is_some(),
                 bytes: 0,
@@ -494,8 +592,37 @@ impl Container {
             if *layout == ArrayLayout::Atlas {
                 entry.tiles = Some(atlas_tiles(array.dims, entry.groups()));
             }
-            let (texture, ranges) = encode_array(&entry, array)?;
+            let live = match (*layout, self.bricks.get(name)) {
+                (ArrayLayout::Bricks, Some(request)) => {
+                    let live = live_bricks(array.dims, request.size, &request.live_nodes)?;
+                    let count = live.iter().filter(|&&l| l).count() as u64;
+                    entry.bricks = Some(Bricks {
+                        size: request.size,
+                        grid: brick_grid(array.dims, request.size),
+                        live: count,
+                        atlas: brick_atlas(count)?,
+                        indirection: format!("{name}.bricks.ktx2"),
+                        indirection_bytes: 0,
+                    });
+                    Some(live)
+                }
+                (ArrayLayout::Bricks, None) => {
+                    return Err(TextureError::invalid(
+                        "container",
+                        format!("array {name:?} has the bricks layout but no brick request"),
+                    ));
+                }
+                _ => None,
+            };
+            let (texture, ranges) = encode_array(&entry, array, live.as_deref())?;
             entry.ranges = ranges;
+            if let (Some(live), Some(bricks)) = (&live, &entry.bricks) {
+                let bytes = indirection_texture(bricks, live)?.to_bytes()?;
+                if let Some(b) = entry.bricks.as_mut() {
+                    b.indirection_bytes = bytes.len() as u64;
+                }
+                files.push((format!("{name}.bricks.ktx2"), bytes));
+            }
             let mut texture = texture;
             // The file names its entry so that a reader can tell it from another container's;
             // the decode ranges stay in the manifest alone (they can be most of an entry).
@@ -593,15 +720,28 @@ impl LoadedContainer {
         for entry in &manifest.arrays {
             let bytes = load(&entry.file)?;
             let texture = Ktx2Texture::from_bytes(&bytes, limits)?;
-            arrays.push((entry.name.clone(), decode_array(entry, &texture)?));
+            let slots = match &entry.bricks {
+                Some(bricks) => {
+                    let bytes = load(&bricks.indirection)?;
+                    let indirection = Ktx2Texture::from_bytes(&bytes, limits)?;
+                    Some(brick_slots(entry, bricks, &indirection)?)
+                }
+                None => None,
+            };
+            arrays.push((
+                entry.name.clone(),
+                decode_array(entry, &texture, slots.as_deref())?,
+            ));
         }
         Ok(LoadedContainer { manifest, arrays })
     }
 }
 
+/// Encodes an array's texture; `live` is the liveness of each brick of a brick-layout array.
 fn encode_array(
     entry: &ArrayEntry,
     array: &GridArray,
+    live: Option<&[bool]>,
 ) -> Result<(Ktx2Texture, Vec<ChannelRange>), TextureError> {
     let group = entry.group_size();
     let padded_channels = entry.groups() * group;
@@ -621,9 +761,35 @@ fn encode_array(
     };
     let texel_bytes = entry.texture_format().bytes_per_texel();
     let shape = entry.texture_shape()?;
-    let bytes = match TileMap::new(entry, &shape) {
-        None => q.bytes,
-        Some(map) => {
+    let bytes = match (TileMap::new(entry, &shape), &entry.bricks, live) {
+        (_, Some(bricks), Some(live)) => {
+            let map = BrickMap::new(entry, bricks, &shape);
+            let mut out = vec![0u8; map.texels()? * texel_bytes];
+            let groups = entry.groups();
+            let side = bricks.size + 1;
+            let [gx, gy, _] = bricks.grid.map(|g| g as usize);
+            let slots = live.iter().enumerate().filter(|(_, l)| **l);
+            for (slot, (b, _)) in slots.enumerate() {
+                let brick = [b % gx, b / gx % gy, b / (gx * gy)].map(|i| i as u32);
+                let at = slot_coordinate(slot, bricks.atlas);
+                // Every texel of the brick, apron included: node b·B + p, clamped to the grid.
+                for p in 0..side.pow(3) {
+                    let p = [p % side, p / side % side, p / (side * side)];
+                    let node = [0, 1, 2]
+                        .map(|a| (brick[a] * bricks.size + p[a]).min(entry.dims[a] - 1) as usize);
+                    let n = map.node_index(node);
+                    for g in 0..groups {
+                        let from = (n * groups + g) * texel_bytes;
+                        let to = map.texel(at, p, g) * texel_bytes;
+                        out[to..to + texel_bytes]
+                            .copy_from_slice(&q.bytes[from..from + texel_bytes]);
+                    }
+                }
+            }
+            out
+        }
+        (None, _, _) => q.bytes,
+        (Some(map), _, _) => {
             // node-major [node][group] → each group's texels in its tile (unused tiles stay 0)
             let groups = entry.groups();
             let texels = checked_product(
@@ -649,7 +815,12 @@ fn encode_array(
     Ok((texture, ranges))
 }
 
-fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, TextureError> {
+/// Decodes an array's texture; `slots` is the atlas brick of each brick of a brick-layout array.
+fn decode_array(
+    entry: &ArrayEntry,
+    texture: &Ktx2Texture,
+    slots: Option<&[Option<[usize; 3]>]>,
+) -> Result<GridArray, TextureError> {
     let format = entry.texture_format();
     if texture.format() != format || texture.shape() != entry.texture_shape()? {
         return Err(TextureError::malformed(
@@ -670,6 +841,7 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
             && embedded.encoding == entry.encoding
             && embedded.layout == entry.layout
             && embedded.single_channel == entry.single_channel
+            && embedded.bricks == entry.bricks
             // Version 3 and earlier embedded the ranges too.
             && (embedded.ranges.is_empty()
                 || (0..entry.channels).all(|c| embedded.range(c) == entry.range(c)));
@@ -685,9 +857,41 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
     let group = entry.group_size();
     let texel_bytes = format.bytes_per_texel();
     let nodes = entry.dims.iter().map(|&d| d as usize).product::<usize>();
-    let node_major = match TileMap::new(entry, &texture.shape()) {
-        None => level.clone(),
-        Some(map) => {
+    // Nodes of empty bricks, which read back as 0 whatever the encoding's decode of zero bytes.
+    let mut empty = Vec::new();
+    let node_major = match (TileMap::new(entry, &texture.shape()), &entry.bricks, slots) {
+        (_, Some(bricks), Some(slots)) => {
+            let map = BrickMap::new(entry, bricks, &texture.shape());
+            if level.len() != map.texels()? * texel_bytes {
+                return Err(TextureError::malformed(
+                    "container texture",
+                    format!("{} is not as long as its shape", entry.file),
+                ));
+            }
+            let mut out = vec![0u8; nodes * groups * texel_bytes];
+            for (n, node_texels) in out.chunks_exact_mut(groups * texel_bytes).enumerate() {
+                let node = map.node(n);
+                let mut brick = 0;
+                let mut p = [0u32; 3];
+                for a in (0..3).rev() {
+                    let (b, q) = brick_of(node[a], bricks.size, bricks.grid[a]);
+                    brick = brick * bricks.grid[a] as usize + b as usize;
+                    p[a] = q;
+                }
+                match slots[brick] {
+                    Some(at) => {
+                        for (g, texel) in node_texels.chunks_exact_mut(texel_bytes).enumerate() {
+                            let from = map.texel(at, p, g) * texel_bytes;
+                            texel.copy_from_slice(&level[from..from + texel_bytes]);
+                        }
+                    }
+                    None => empty.push(n),
+                }
+            }
+            out
+        }
+        (None, _, _) => level.clone(),
+        (Some(map), _, _) => {
             let mut out = vec![0u8; nodes * groups * texel_bytes];
             for (i, texel) in out.chunks_exact_mut(texel_bytes).enumerate() {
                 let at = map.texel(i / groups, i % groups) * texel_bytes;
@@ -726,7 +930,121 @@ fn decode_array(entry: &ArrayEntry, texture: &Ktx2Texture) -> Result<GridArray, 
     for node in values.chunks_exact(padded_channels) {
         data.extend_from_slice(&node[..entry.channels]);
     }
+    for n in empty {
+        data[n * entry.channels..(n + 1) * entry.channels].fill(0.0);
+    }
     GridArray::new(entry.dims, entry.channels, data)
+}
+
+/// The indirection texture of a brick layout: RGBA8 unorm, one texel per brick, `(x, y, z, 255)`
+/// for a live brick at atlas brick `(x, y, z)`, zeros for an empty one.
+fn indirection_texture(bricks: &Bricks, live: &[bool]) -> Result<Ktx2Texture, TextureError> {
+    let mut bytes = vec![0u8; live.len() * 4];
+    let slots = live.iter().enumerate().filter(|(_, l)| **l);
+    for (slot, (b, _)) in slots.enumerate() {
+        let at = slot_coordinate(slot, bricks.atlas);
+        // Below MAX_ATLAS_BRICKS = 256 (brick_atlas checks it).
+        bytes[4 * b..4 * b + 4].copy_from_slice(&[at[0] as u8, at[1] as u8, at[2] as u8, 255]);
+    }
+    let [gx, gy, gz] = bricks.grid;
+    Ktx2Texture::new(
+        PixelFormat::R8G8B8A8Unorm,
+        Shape::d3(gx, gy, gz),
+        vec![bytes],
+    )
+}
+
+/// The atlas brick of every brick, from the indirection texture, checked against the entry:
+/// the format and shape, `live` live bricks, each inside the atlas and in its own slot.
+fn brick_slots(
+    entry: &ArrayEntry,
+    bricks: &Bricks,
+    texture: &Ktx2Texture,
+) -> Result<Vec<Option<[usize; 3]>>, TextureError> {
+    let bad = |why: &str| {
+        Err(TextureError::malformed(
+            "container texture",
+            format!("{}: {why}", bricks.indirection),
+        ))
+    };
+    let [gx, gy, gz] = bricks.grid;
+    if texture.format() != PixelFormat::R8G8B8A8Unorm || texture.shape() != Shape::d3(gx, gy, gz) {
+        return bad("not an RGBA8 texture of one texel per brick");
+    }
+    let [ax, ay, az] = bricks.atlas.map(|a| a as usize);
+    let mut used = vec![false; ax * ay * az];
+    let mut slots = Vec::with_capacity(texture.levels()[0].len() / 4);
+    for texel in texture.levels()[0].chunks_exact(4) {
+        slots.push(match texel {
+            [0, 0, 0, 0] => None,
+            &[x, y, z, 255] => {
+                let at = [x, y, z].map(usize::from);
+                if at[0] >= ax || at[1] >= ay || at[2] >= az {
+                    return bad("a brick outside the atlas");
+                }
+                let slot = &mut used[at[0] + ax * (at[1] + ay * at[2])];
+                if std::mem::replace(slot, true) {
+                    return bad("two bricks in one atlas slot");
+                }
+                Some(at)
+            }
+            _ => return bad("a texel that is neither a brick nor empty"),
+        });
+    }
+    let live = slots.iter().filter(|s| s.is_some()).count() as u64;
+    if live != bricks.live || slots.len() != entry_bricks(entry) {
+        return bad("a live-brick count other than the manifest's");
+    }
+    Ok(slots)
+}
+
+/// Bricks of a brick-layout entry.
+fn entry_bricks(entry: &ArrayEntry) -> usize {
+    entry
+        .bricks
+        .as_ref()
+        .map_or(0, |b| b.grid.iter().map(|&g| g as usize).product())
+}
+
+/// Where node `(i, j, k)`'s group `g` lives in a brick atlas.
+struct BrickMap {
+    dims: [usize; 3],
+    side: usize,
+    /// Texels of one group's atlas along z (groups are stacked along z).
+    group_depth: usize,
+    texture: [usize; 3],
+}
+
+impl BrickMap {
+    fn new(entry: &ArrayEntry, bricks: &Bricks, shape: &Shape) -> BrickMap {
+        let side = bricks.size as usize + 1;
+        BrickMap {
+            dims: entry.dims.map(|d| d as usize),
+            side,
+            group_depth: bricks.atlas[2] as usize * side,
+            texture: [shape.width, shape.height, shape.depth].map(|d| d as usize),
+        }
+    }
+
+    fn texels(&self) -> Result<usize, TextureError> {
+        Ok(checked_product("brick atlas texels", &self.texture.map(|t| t as u64))? as usize)
+    }
+
+    fn node(&self, n: usize) -> [u32; 3] {
+        let [nx, ny, _] = self.dims;
+        [n % nx, n / nx % ny, n / (nx * ny)].map(|i| i as u32)
+    }
+
+    fn node_index(&self, node: [usize; 3]) -> usize {
+        node[0] + self.dims[0] * (node[1] + self.dims[1] * node[2])
+    }
+
+    /// Flat texel index (x fastest) of texel `p` of the brick at atlas brick `at`, group `g`.
+    fn texel(&self, at: [usize; 3], p: [u32; 3], g: usize) -> usize {
+        let [x, y, z] = [0, 1, 2].map(|a| at[a] * self.side + p[a] as usize);
+        let z = z + g * self.group_depth;
+        x + self.texture[0] * (y + self.texture[1] * z)
+    }
 }
 
 /// Where node `n`'s group `g` lives in a tiled (filterable) texture.

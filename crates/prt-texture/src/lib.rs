@@ -62,6 +62,7 @@
 #![deny(missing_docs)]
 
 mod atomic;
+mod bricks;
 pub mod container;
 pub mod dds;
 pub mod engine;

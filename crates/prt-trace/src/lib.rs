@@ -33,6 +33,9 @@
 //!   [`PixelRelighter`]): for a fixed camera, every pixel's row over a cube map of light
 //!   (direct, or with one diffuse bounce), Haar-transformed, sparsified ([`Sparsify`]) and
 //!   quantised for prt-wavelet's relighting engine; written to and read from a compact file.
+//! * **BRDF-editing transport** ([`trace_half_angle_transport`]): per pixel, the glossy
+//!   transport against the bins of an editable half-angle BRDF curve under fixed view and cube-map
+//!   lighting (Ben-Artzi et al. 2006), so that the image is linear in the curve.
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
@@ -109,6 +112,7 @@
 #![deny(missing_docs)]
 
 mod bake;
+mod brdf_transport;
 mod bvh;
 mod cube;
 mod error;
@@ -123,6 +127,9 @@ mod vpl;
 pub use bake::{
     BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
     constant_sky, incident_radiance, irradiance,
+};
+pub use brdf_transport::{
+    HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
 };
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;

@@ -16,7 +16,7 @@
 //! | [`ShApproximator`] | PBI for spherical-harmonic lighting with tolerance-driven band filling |
 //! | [`sequence`] | lighting sequences: rotation about +Y with a stop frame, interpolation |
 //! | [`analysis`] | per-frame area-weighted L1, terms per band per frame, spatio-temporal band energy |
-//! | [`brdf`] | 256-bin BRDF curves (Beckmann, free-hand) edited with BI in Daubechies-4 |
+//! | [`brdf`] | 256-bin BRDF curves (Beckmann, free-hand) edited with BI in Daubechies-4, and on an image: per-pixel curve transport, incremental image updates |
 //! | [`Relighter`], [`SparseTransport`] | `B = T L` with quantised, row-truncated wavelet transport and per-band partial images |
 //! | [`BrdfFactorisation`] | a BRDF as `K` in-out products (SVD on a paraboloid hemisphere grid): glossy transport under a changing view (thesis §7.2) |
 //! | [`CpcaModel`], [`CpcaRelighter`] | clustered-PCA transport relit in two incremental stages: projections from the lighting update, BI on the points' weights (thesis §7.3) |

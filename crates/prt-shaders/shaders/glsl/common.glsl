@@ -10,6 +10,15 @@ struct MbdGrid {
     vec4 tiles;      // xyz: tiles per axis; the texture is nodes * tiles texels
 };
 
+// A hat grid stored in bricks (docs/formats.md, "Brick layout"): bricks of `size` cells, each
+// (size + 1)^3 texels of an atlas (its last layer an apron copying the next brick's first
+// nodes), one atlas per channel group stacked along z; an RGBA8 indirection texture of one texel
+// per brick holds (atlas brick xyz, live) / 255.
+struct MbdBricks {
+    vec4 grid;  // xyz: bricks per axis; w: cells per brick edge (size)
+    vec4 atlas; // xyz: atlas bricks per axis (one group); the texture is atlas * (size + 1) texels, z times the groups
+};
+
 // Coefficient groups: L coefficients, four per texel.
 #define MBD_COEFFICIENT_GROUPS ((RANK + 3) / 4)
 // Texels per relit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.

@@ -10,6 +10,15 @@ struct MbdGrid {
     tiles: vec4<f32>,      // xyz: tiles per axis; the texture is nodes * tiles texels
 }
 
+// A hat grid stored in bricks (docs/formats.md, "Brick layout"): bricks of `size` cells, each
+// (size + 1)^3 texels of an atlas (its last layer an apron copying the next brick's first
+// nodes), one atlas per channel group stacked along z; an rgba8unorm indirection texture of one
+// texel per brick holds (atlas brick xyz, live) / 255.
+struct MbdBricks {
+    grid: vec4<f32>,  // xyz: bricks per axis; w: cells per brick edge (size)
+    atlas: vec4<f32>, // xyz: atlas bricks per axis (one group); the texture is atlas * (size + 1) texels, z times the groups
+}
+
 // Coefficient groups: L coefficients, four per texel.
 const MBD_COEFFICIENT_GROUPS: u32 = (RANK + 3u) / 4u;
 // Texels per relit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.

@@ -1,0 +1,300 @@
+//! Tiled bakes measured: for each tile count, `prt plan`, every tile's worker run one after
+//! another and the merge, each under `/usr/bin/time -v` (wall, user + system CPU, peak RSS);
+//! and, with `--single`, two single-process bakes (seeds 0 and 1) against the last tiled one:
+//! the per-voxel difference of the traced volumes and the MBD errors, to tell the tiled bake's
+//! difference from Monte Carlo noise.
+//!
+//! `cargo run --release -p prt-benches --bin tiles_scaling -- --prt target/release/prt --scene ../shared/scenes/sponza/Sponza.gltf --res 48 --tiles 1,2,4,8,16 --single [--csv DIR]`
+//!
+//! Tile counts map to grids 1 = 1×1×1, 2 = 2×1×1, 4 = 2×2×1, 8 = 4×2×1, 16 = 4×4×1 (x, y, z;
+//! y is up). The machine is shared: the load average is printed beside every row.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use clap::Parser;
+use prt_benches::{Table, load_average};
+use prt_texture::Limits;
+
+#[derive(Debug, Parser)]
+#[command(about = "Measures tiled bakes: per-tile and merge wall, CPU and peak RSS")]
+struct Cli {
+    /// The prt binary (build it with `cargo build --release -p prt-cli`).
+    #[arg(long, default_value = "target/release/prt")]
+    prt: PathBuf,
+    /// The scene (glTF).
+    #[arg(long, default_value = "../shared/scenes/sponza/Sponza.gltf")]
+    scene: PathBuf,
+    /// Voxels along the longest axis.
+    #[arg(long, default_value_t = 48)]
+    res: usize,
+    /// Tile counts (1, 2, 4, 8 or 16).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16")]
+    tiles: Vec<usize>,
+    /// Halo of every plan, in voxels.
+    #[arg(long, default_value_t = 1)]
+    halo: usize,
+    /// Also bake the scene single-process with seeds 0 and 1 and compare with the last tiled bake.
+    #[arg(long)]
+    single: bool,
+    /// Working folder (plans and bake folders).
+    #[arg(long, default_value = "target/tiles_scaling")]
+    work: PathBuf,
+    /// Folder for the tables as CSV (tiles_scaling.csv, tiles_vs_single.csv).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+}
+
+/// What `/usr/bin/time -v` measured of one process.
+#[derive(Debug, Clone, Copy, Default)]
+struct Measured {
+    wall: f64,
+    cpu: f64,
+    peak_rss_mib: f64,
+}
+
+/// Runs `prt args...` under `/usr/bin/time -v`; panics with its stderr when it fails.
+fn timed(prt: &Path, args: &[&str], log: &Path) -> Measured {
+    let out = Command::new("/usr/bin/time")
+        .arg("-v")
+        .arg("-o")
+        .arg(log)
+        .arg(prt)
+        .args(args)
+        .output()
+        .expect("/usr/bin/time runs");
+    assert!(
+        out.status.success(),
+        "prt {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = std::fs::read_to_string(log).expect("time's log");
+    let field = |key: &str| {
+        text.lines()
+            .find_map(|l| l.trim().strip_prefix(key))
+            .map(|v| v.trim().to_string())
+            .unwrap_or_else(|| panic!("no {key:?} in {text}"))
+    };
+    let seconds = |v: String| v.parse::<f64>().expect("seconds");
+    // "h:mm:ss" or "m:ss.ss".
+    let wall = field("Elapsed (wall clock) time (h:mm:ss or m:ss):")
+        .split(':')
+        .fold(0.0, |acc, part| {
+            acc * 60.0 + part.parse::<f64>().expect("time")
+        });
+    Measured {
+        wall,
+        cpu: seconds(field("User time (seconds):")) + seconds(field("System time (seconds):")),
+        peak_rss_mib: field("Maximum resident set size (kbytes):")
+            .parse::<f64>()
+            .expect("kbytes")
+            / 1024.0,
+    }
+}
+
+fn grid(tiles: usize) -> &'static str {
+    match tiles {
+        1 => "1,1,1",
+        2 => "2,1,1",
+        4 => "2,2,1",
+        8 => "4,2,1",
+        16 => "4,4,1",
+        other => panic!("{other} tiles: use 1, 2, 4, 8 or 16"),
+    }
+}
+
+/// Knobs of every bake here.
+fn knobs(res: &str) -> Vec<&str> {
+    vec!["--res", res, "--no-baselines", "--keep-volumes", "always"]
+}
+
+/// A bake folder's kept traced volume (f16) and validity.
+fn traced(dir: &Path) -> prt_bake::KeptVolumes {
+    prt_bake::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap()
+}
+
+/// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` of two traced volumes over voxels valid in both.
+fn difference(a: &prt_bake::KeptVolumes, b: &prt_bake::KeptVolumes) -> f64 {
+    assert_eq!(a.grid, b.grid);
+    let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());
+    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    for v in (0..fa.num_voxels()).filter(|&v| a.valid[v] && b.valid[v]) {
+        for (&x, &y) in fa.voxel(v).iter().zip(fb.voxel(v)) {
+            diff += (f64::from(x) - f64::from(y)).powi(2);
+            norm += f64::from(y).powi(2);
+        }
+    }
+    (diff / norm).sqrt()
+}
+
+/// The tile of every voxel of the plan's lattice (x fastest).
+fn tile_labels(plan: &prt_bake::TilePlan) -> Vec<u32> {
+    let [nx, ny, nz] = plan.lattice_dims;
+    let mut labels = vec![0u32; nx * ny * nz];
+    for tile in &plan.tiles {
+        for z in tile.core.min[2]..tile.core.max[2] {
+            for y in tile.core.min[1]..tile.core.max[1] {
+                for x in tile.core.min[0]..tile.core.max[0] {
+                    labels[x + nx * (y + ny * z)] = tile.index as u32;
+                }
+            }
+        }
+    }
+    labels
+}
+
+/// The seam ratios across the plan's tile borders of a bake folder (tiled or not): of its
+/// traced volume against itself blurred, and of its MBD container's error, as `prt merge`
+/// measures them.
+fn border_seams(dir: &Path, kept: &prt_bake::KeptVolumes, labels: &[u32]) -> (f64, f64) {
+    let field = kept.get("reference").unwrap();
+    let options = prt_mbd::SeamOptions {
+        denoise_sigma: prt_bake::BLUR_SIGMA,
+        valid: Some(&kept.valid),
+    };
+    let trace = prt_mbd::error_seams(field, field, labels, &options).unwrap();
+    let model = prt_bake::read_container(&dir.join("mbd"), &Limits::default())
+        .unwrap()
+        .model;
+    let recon = prt_core::resample_to_grid(&model, field.dims(), field.bounds()).unwrap();
+    let mbd = prt_mbd::error_seams(field, &recon, labels, &options).unwrap();
+    (trace.ratio(), mbd.ratio())
+}
+
+/// MBD's relative MSE (as written) from a bake folder's report.json.
+fn mbd_error(dir: &Path) -> f64 {
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    let rows = report["methods"].as_array().expect("method rows");
+    rows.iter()
+        .find(|r| {
+            r["method"]
+                .as_str()
+                .is_some_and(|m| m.contains("as written"))
+        })
+        .or(rows.first())
+        .and_then(|r| r["relative_mse"].as_f64())
+        .expect("relative_mse")
+}
+
+fn main() {
+    let cli = Cli::parse();
+    std::fs::create_dir_all(&cli.work).unwrap();
+    let res = cli.res.to_string();
+    let scene = cli.scene.to_str().unwrap();
+    let mut table = Table::new(&[
+        "tiles",
+        "largest tile (voxels traced)",
+        "tile wall s (mean / max)",
+        "tile CPU s (sum)",
+        "tile peak RSS MiB (max)",
+        "merge wall s",
+        "merge CPU s",
+        "merge peak RSS MiB",
+        "load avg (1/5/15 min)",
+    ]);
+    let mut last = None;
+    for &tiles in &cli.tiles {
+        let plan = cli.work.join(format!("plan-{tiles}"));
+        let out = cli.work.join(format!("bake-{tiles}"));
+        let _ = std::fs::remove_dir_all(&plan);
+        let (plan_s, out_s) = (plan.to_str().unwrap(), out.to_str().unwrap());
+        let halo = cli.halo.to_string();
+        let mut args = vec!["plan", scene, "--tiles", grid(tiles), "--halo", &halo];
+        args.extend(["--out", plan_s]);
+        args.extend(
+            knobs(&res)
+                .into_iter()
+                .filter(|&k| k != "--keep-volumes" && k != "always"),
+        );
+        let log = cli.work.join("time.log");
+        timed(&cli.prt, &args, &log);
+        let load = load_average();
+        let plan_data = prt_bake::TilePlan::read(&plan).unwrap();
+        let runs: Vec<Measured> = (0..tiles)
+            .map(|i| {
+                let index = i.to_string();
+                timed(&cli.prt, &["bake-tile", plan_s, "--tile", &index], &log)
+            })
+            .collect();
+        let merge = timed(
+            &cli.prt,
+            &["merge", plan_s, "--out", out_s, "--keep-volumes", "always"],
+            &log,
+        );
+        let largest = plan_data
+            .tiles
+            .iter()
+            .map(|t| t.traced.len())
+            .max()
+            .unwrap();
+        let mean = runs.iter().map(|m| m.wall).sum::<f64>() / tiles as f64;
+        let max = runs.iter().map(|m| m.wall).fold(0.0, f64::max);
+        table.row(vec![
+            format!("{tiles} ({})", grid(tiles).replace(',', "×")),
+            largest.to_string(),
+            format!("{mean:.1} / {max:.1}"),
+            format!("{:.1}", runs.iter().map(|m| m.cpu).sum::<f64>()),
+            format!(
+                "{:.0}",
+                runs.iter().map(|m| m.peak_rss_mib).fold(0.0, f64::max)
+            ),
+            format!("{:.1}", merge.wall),
+            format!("{:.1}", merge.cpu),
+            format!("{:.0}", merge.peak_rss_mib),
+            load,
+        ]);
+        println!("{}", table.markdown());
+        last = Some(out);
+    }
+    table
+        .write_csv(cli.csv.as_deref(), "tiles_scaling")
+        .unwrap();
+    if let (true, Some(tiled)) = (cli.single, last) {
+        let mut single = Table::new(&[
+            "bake",
+            "wall s",
+            "CPU s",
+            "peak RSS MiB",
+            "traced volume vs single seed 0 (relative RMS)",
+            "MBD relative MSE (as written)",
+            "seam ratio at the tile borders: trace / MBD error",
+        ]);
+        let mut dirs = Vec::new();
+        for seed in ["0", "1"] {
+            let out = cli.work.join(format!("single-{seed}"));
+            let mut args = vec![
+                "bake",
+                scene,
+                "--out",
+                out.to_str().unwrap(),
+                "--seed",
+                seed,
+            ];
+            args.extend(knobs(&res));
+            let m = timed(&cli.prt, &args, &cli.work.join("time.log"));
+            dirs.push((format!("single process, seed {seed}"), out, Some(m)));
+        }
+        let plan = cli.work.join(format!("plan-{}", cli.tiles.last().unwrap()));
+        let labels = tile_labels(&prt_bake::TilePlan::read(&plan).unwrap());
+        dirs.push(("tiled (last row above)".into(), tiled, None));
+        let reference = traced(&dirs[0].1);
+        for (name, dir, m) in &dirs {
+            let m = m.unwrap_or_default();
+            let kept = traced(dir);
+            let (trace_seam, mbd_seam) = border_seams(dir, &kept, &labels);
+            single.row(vec![
+                name.clone(),
+                format!("{:.1}", m.wall),
+                format!("{:.1}", m.cpu),
+                format!("{:.0}", m.peak_rss_mib),
+                format!("{:.4}", difference(&kept, &reference)),
+                format!("{:.4e}", mbd_error(dir)),
+                format!("{trace_seam:.3} / {mbd_seam:.3}"),
+            ]);
+        }
+        println!("{}", single.markdown());
+        single
+            .write_csv(cli.csv.as_deref(), "tiles_vs_single")
+            .unwrap();
+    }
+}

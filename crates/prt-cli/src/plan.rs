@@ -1,0 +1,127 @@
+//! `prt plan`: cut a bake into tiles for independent workers (`prt bake-tile`), merged by
+//! `prt merge`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use prt_bake::{MemoryEstimate, SceneInput, TilePlan};
+
+use crate::bake::{BakeArgs, KeepVolumes, cli_error};
+
+/// Options of `prt plan`: the scene and every knob of `prt bake`, the tiling and the halo.
+#[derive(Debug, clap::Args)]
+pub struct PlanArgs {
+    #[command(flatten)]
+    pub bake: BakeArgs,
+    /// Tiles along x, y and z, e.g. 2,2,1 (at most one per voxel along an axis).
+    #[arg(long, value_parser = parse_counts)]
+    pub tiles: [usize; 3],
+    /// Voxels each tile traces beyond its own on every side. The merge keeps each voxel from
+    /// the tile that owns it and compares the overlap (two independent traces) as a measure of
+    /// the Monte Carlo noise at tile borders; 0 traces no voxel twice.
+    #[arg(long, default_value_t = 0)]
+    pub halo: usize,
+}
+
+/// `X,Y,Z` of positive integers.
+fn parse_counts(text: &str) -> Result<[usize; 3], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    let numbers: Vec<usize> = parts
+        .iter()
+        .map(|p| p.parse::<usize>().ok().filter(|&n| n > 0))
+        .collect::<Option<_>>()
+        .ok_or_else(|| format!("{text:?} is not three positive integers like 2,2,1"))?;
+    <[usize; 3]>::try_from(numbers)
+        .map_err(|_| format!("{text:?} is not three positive integers like 2,2,1"))
+}
+
+/// The scene a plan names: its glTF file (or `over`, a copy of it elsewhere) or the built-in
+/// Cornell box.
+pub fn load_scene(plan: &TilePlan, over: Option<&Path>) -> Result<SceneInput> {
+    let path = over
+        .map(Path::to_path_buf)
+        .or_else(|| plan.scene.path.clone());
+    match path {
+        Some(path) => SceneInput::load_gltf(&path).map_err(cli_error),
+        None => Ok(SceneInput::cornell_box()),
+    }
+}
+
+/// Reads the plan in `plan_dir`, with the folder in the message when it cannot.
+pub fn read_plan(plan_dir: &Path) -> Result<TilePlan> {
+    TilePlan::read(plan_dir).with_context(|| {
+        format!(
+            "cannot read the plan in {} (write one with `prt plan`)",
+            plan_dir.display()
+        )
+    })
+}
+
+pub fn run(args: &PlanArgs) -> Result<()> {
+    if args.bake.keep_volumes != KeepVolumes::Auto {
+        bail!("--keep-volumes is a flag of `prt merge`, which writes the bake folder");
+    }
+    let config = args.bake.config(Some(PathBuf::from("mbd")));
+    config.validate().map_err(cli_error)?;
+    let scene = match &args.bake.scene {
+        Some(path) => SceneInput::load_gltf(path).map_err(cli_error)?,
+        None => SceneInput::cornell_box(),
+    };
+    // The merge solves the whole volume in one process: check it against the budget now.
+    if let (Some(bounds), Some(budget)) = (scene.scene.bounds(), config.max_memory) {
+        let (size, triangles) = (bounds.size().to_array(), scene.scene.triangles().len());
+        MemoryEstimate::new(&config, size, triangles)
+            .check(&config, size, triangles, budget)
+            .map_err(cli_error)?;
+    }
+    let plan = prt_bake::plan_tiles(
+        &scene,
+        args.bake.scene.as_deref(),
+        &config,
+        args.tiles,
+        args.halo,
+    )?;
+    let out = args
+        .bake
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new("prt-out").join(&scene.name));
+    let path = plan.write(&out)?;
+    let largest = plan.tiles.iter().map(|t| t.traced.len()).max().unwrap_or(0);
+    println!(
+        "planned {} tiles ({}×{}×{}) of the {}×{}×{} lattice of {}, halo {}, largest tile {} \
+         voxels traced",
+        plan.tiles.len(),
+        plan.counts[0],
+        plan.counts[1],
+        plan.counts[2],
+        plan.lattice_dims[0],
+        plan.lattice_dims[1],
+        plan.lattice_dims[2],
+        plan.scene.name,
+        plan.halo,
+        largest
+    );
+    println!("wrote {}", path.display());
+    println!(
+        "next: prt bake-tile {} --tile I for I in 0..{} (or --all), then prt merge {} --out BAKE_DIR",
+        out.display(),
+        plan.tiles.len(),
+        out.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn counts_are_three_positive_integers() {
+        assert_eq!(parse_counts("2,2,1"), Ok([2, 2, 1]));
+        assert_eq!(parse_counts(" 4, 1 ,2"), Ok([4, 1, 2]));
+        for bad in ["2,2", "2,2,0", "a,b,c", "1,2,3,4", ""] {
+            assert!(parse_counts(bad).is_err(), "{bad}");
+        }
+    }
+}

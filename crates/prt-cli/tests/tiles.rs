@@ -1,0 +1,183 @@
+//! A tiled bake of the built-in Cornell box at a tiny resolution: plan 2×2×1, four local worker
+//! processes, merge; the result against single-process bakes, a retried tile's bytes, the
+//! scheduler index variables, and the deploy files.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{assert_clean_failure, prt, scratch, stderr};
+use prt_texture::Limits;
+
+/// The knobs of every bake here: tiny and fast.
+const KNOBS: [&str; 9] = [
+    "--res",
+    "8",
+    "--rays",
+    "48",
+    "--cache-rays",
+    "8",
+    "--iterations",
+    "8",
+    "--no-baselines",
+];
+
+fn ok(out: &std::process::Output) {
+    assert!(out.status.success(), "{}", stderr(out));
+}
+
+/// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` over voxels valid in both bakes' traced volumes.
+fn difference(a: &Path, b: &Path) -> f64 {
+    let read =
+        |dir: &Path| prt_bake::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap();
+    let (a, b) = (read(a), read(b));
+    assert_eq!(a.grid, b.grid, "the tiled lattice is the single bake's");
+    let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());
+    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    for v in (0..fa.num_voxels()).filter(|&v| a.valid[v] && b.valid[v]) {
+        for (&x, &y) in fa.voxel(v).iter().zip(fb.voxel(v)) {
+            diff += (f64::from(x) - f64::from(y)).powi(2);
+            norm += f64::from(y).powi(2);
+        }
+    }
+    (diff / norm).sqrt()
+}
+
+#[test]
+fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes() {
+    let dir = scratch("tiles");
+    let plan = dir.join("plan");
+    let plan_s = plan.to_str().unwrap();
+    let mut args = vec!["plan", "--tiles", "2,2,1", "--halo", "1", "--out", plan_s];
+    args.extend(KNOBS);
+    ok(&prt(&args));
+
+    // The merge refuses a plan whose tiles have not run.
+    let early = prt(&[
+        "merge",
+        plan_s,
+        "--out",
+        dir.join("early").to_str().unwrap(),
+    ]);
+    assert_clean_failure(&early, "has not finished");
+
+    ok(&prt(&["bake-tile", plan_s, "--all", "--workers", "4"]));
+    for i in 0..4 {
+        assert!(prt_bake::tile_is_done(&plan, i), "tile {i}");
+    }
+    let tiled = dir.join("tiled");
+    let merged = prt(&["merge", plan_s, "--out", tiled.to_str().unwrap()]);
+    ok(&merged);
+    // The same bake folder as `prt bake`: a container that reads back, and the report.
+    let container = prt_bake::read_container(&tiled.join("mbd"), &Limits::default()).unwrap();
+    assert_eq!(container.grid, [8, 8, 8]);
+    assert!(tiled.join("report.md").is_file());
+
+    // Two single-process bakes with different seeds: the tiled trace differs from the first
+    // no more than the second does (both are independent Monte Carlo samples of it).
+    let single = |name: &str, seed: &str| {
+        let out = dir.join(name);
+        let mut args = vec!["bake", "--out", out.to_str().unwrap(), "--seed", seed];
+        args.extend(KNOBS);
+        ok(&prt(&args));
+        out
+    };
+    let (s0, s1) = (single("single0", "0"), single("single1", "1"));
+    let (tiled_vs_single, noise) = (difference(&tiled, &s0), difference(&s1, &s0));
+    assert!(
+        tiled_vs_single < 1.25 * noise && noise > 0.0,
+        "tiled vs single {tiled_vs_single:.4}, single seed 1 vs 0 {noise:.4}"
+    );
+
+    // Seam ratios across tile borders are about 1.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tiled.join("tiles.json")).unwrap()).unwrap();
+    for key in ["trace", "mbd_error", "mbd_basis"] {
+        let ratio = report["seam_ratio_across_tile_borders"][key]
+            .as_f64()
+            .unwrap();
+        assert!((0.7..1.4).contains(&ratio), "{key}: {ratio}");
+    }
+    assert!(report["halo_agreement"]["voxels"].as_u64().unwrap() > 0);
+
+    // A finished tile is skipped; a forced retry gives the same bytes.
+    let files = ["transfer.f32", "valid.u8", "tile.json"];
+    let tile2 = prt_bake::tile_dir(&plan, 2);
+    let before: Vec<Vec<u8>> = files
+        .iter()
+        .map(|f| std::fs::read(tile2.join(f)).unwrap())
+        .collect();
+    let skipped = prt(&["bake-tile", plan_s, "--tile", "2"]);
+    ok(&skipped);
+    assert!(String::from_utf8_lossy(&skipped.stdout).contains("already done"));
+    // The retry takes its index from the Slurm variable, as an array task would.
+    let retried = Command::new(env!("CARGO_BIN_EXE_prt"))
+        .args(["bake-tile", plan_s, "--force"])
+        .env_remove("JOB_COMPLETION_INDEX")
+        .env("SLURM_ARRAY_TASK_ID", "2")
+        .output()
+        .unwrap();
+    ok(&retried);
+    for (file, bytes) in files.iter().zip(&before) {
+        assert!(
+            &std::fs::read(tile2.join(file)).unwrap() == bytes,
+            "{file} differs after a retry"
+        );
+    }
+
+    // No index anywhere is a clear error; so is an index outside the plan.
+    let none = Command::new(env!("CARGO_BIN_EXE_prt"))
+        .args(["bake-tile", plan_s])
+        .env_remove("JOB_COMPLETION_INDEX")
+        .env_remove("SLURM_ARRAY_TASK_ID")
+        .output()
+        .unwrap();
+    assert_clean_failure(&none, "no tile index");
+    let outside = Command::new(env!("CARGO_BIN_EXE_prt"))
+        .args(["bake-tile", plan_s])
+        .env("JOB_COMPLETION_INDEX", "4")
+        .output()
+        .unwrap();
+    assert_clean_failure(&outside, "tile 4 does not exist");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_deploy_files_parse() {
+    let deploy = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy");
+    for script in ["prt-bake.sbatch", "prt-merge.sbatch", "submit.sh"] {
+        match Command::new("bash")
+            .arg("-n")
+            .arg(deploy.join("slurm").join(script))
+            .output()
+        {
+            Ok(out) => assert!(out.status.success(), "bash -n {script}: {}", stderr(&out)),
+            Err(e) => eprintln!("skipped: bash not available ({e})"),
+        }
+    }
+    let manifest = deploy.join("kubernetes/prt-bake-indexed-job.yaml");
+    let text = std::fs::read_to_string(&manifest).unwrap();
+    for needle in [
+        "completionMode: Indexed",
+        "prt bake-tile",
+        "prt merge",
+        "JOB_COMPLETION_INDEX",
+    ] {
+        assert!(text.contains(needle), "the manifest lacks {needle:?}");
+    }
+    // A full YAML parse where python3 with PyYAML is at hand (no YAML crate in the workspace).
+    let check = "import sys, yaml; docs = [d for d in yaml.safe_load_all(open(sys.argv[1])) if d]; \
+                 assert [d['kind'] for d in docs].count('Job') == 3, [d['kind'] for d in docs]";
+    match Command::new("python3")
+        .args(["-c", check])
+        .arg(&manifest)
+        .output()
+    {
+        Ok(out) if String::from_utf8_lossy(&out.stderr).contains("No module named 'yaml'") => {
+            eprintln!("skipped: PyYAML not available")
+        }
+        Ok(out) => assert!(out.status.success(), "YAML: {}", stderr(&out)),
+        Err(e) => eprintln!("skipped: python3 not available ({e})"),
+    }
+}
