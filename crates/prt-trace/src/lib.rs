@@ -102,6 +102,7 @@
 #![deny(missing_docs)]
 
 mod bake;
+mod bricks;
 mod bvh;
 mod error;
 mod gltf_load;
@@ -115,6 +116,7 @@ pub use bake::{
     BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
     constant_sky, incident_radiance, irradiance,
 };
+pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
