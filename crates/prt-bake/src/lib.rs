@@ -9,6 +9,7 @@
 //! |---|---|
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
+//! | [`Layout`], [`BrickSummary`] | dense or sparse-brick tracing and masked fitting, and what a sparse bake kept |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
@@ -55,13 +56,13 @@ mod scores;
 mod seams;
 mod volumes;
 
-pub use config::{BakeConfig, Quality, TRANSFER_DIM};
+pub use config::{BakeConfig, Layout, Quality, SPARSE_FROM_VOXELS, TRANSFER_DIM};
 pub use container::{
     ContainerContents, MBD_MODEL, MbdContainer, VALIDITY, read_container, write_container,
 };
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
-pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake};
+pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake};
 pub use production::{
     IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
     ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
