@@ -113,8 +113,8 @@ mod tests {
         valid[index(1, 2, 0)] = true;
         let live = live_coefficient_nodes(dims, &valid);
         for z in 0..3 {
-            for y in 0..4 {
-                for x in 0..5 {
+            for y in 0..4usize {
+                for x in 0..5usize {
                     let near = x.abs_diff(1) <= 1 && y.abs_diff(2) <= 1 && z <= 1;
                     assert_eq!(live[index(x, y, z)], near, "{x} {y} {z}");
                 }

