@@ -46,12 +46,46 @@ pub struct BakeConfig {
     /// writes nothing.
     #[serde(skip)]
     pub container: Option<PathBuf>,
+    /// Dense or sparse-brick tracing and fitting.
+    pub layout: Layout,
+    /// With a sparse layout, drop the bricks none of whose valid voxels sees geometry within this
+    /// distance in metres (`None`: keep every brick with a valid voxel).
+    pub brick_max_distance: Option<f32>,
+}
+
+/// How a bake traces, stores and fits its volume.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// Every voxel of the box traced and fitted (invalid voxels as zeros).
+    Dense,
+    /// Bricks of 4³ voxels: only bricks with a valid voxel are traced (after a probe pass) and
+    /// MBD and clustered PCA fit the valid voxels only (a masked loss).
+    Sparse,
+    /// [`Layout::Sparse`] from [`SPARSE_FROM_VOXELS`] voxels up, else [`Layout::Dense`].
+    #[default]
+    Auto,
+}
+
+/// The grid size from which [`Layout::Auto`] bakes sparse bricks (64³ voxels): smaller grids
+/// (the default Cornell and Sponza bakes) take seconds either way and keep their dense figures.
+pub const SPARSE_FROM_VOXELS: usize = 1 << 18;
+
+impl Layout {
+    /// Whether a grid of `dims` voxels is baked in sparse bricks.
+    pub fn is_sparse(self, dims: [usize; 3]) -> bool {
+        match self {
+            Layout::Dense => false,
+            Layout::Sparse => true,
+            Layout::Auto => dims.iter().product::<usize>() >= SPARSE_FROM_VOXELS,
+        }
+    }
 }
 
 impl Default for BakeConfig {
     /// 32 voxels along the longest axis, 256 rays per voxel, 64 cache rays, no margin, rank 8
     /// on 5 basis nodes per axis, 64 iterations, λ = 1e-4, f16 storage, baselines on, seed 0,
-    /// no memory budget, no container.
+    /// no memory budget, no container, [`Layout::Auto`] keeping every brick with a valid voxel.
     fn default() -> Self {
         BakeConfig {
             resolution: 32,
@@ -67,6 +101,8 @@ impl Default for BakeConfig {
             seed: 0,
             max_memory: None,
             container: None,
+            layout: Layout::Auto,
+            brick_max_distance: None,
         }
     }
 }
@@ -139,6 +175,15 @@ impl BakeConfig {
             self.basis_nodes >= 2,
             "basis_nodes",
             format!("must be at least 2 (got {})", self.basis_nodes),
+        )?;
+        check(
+            self.brick_max_distance
+                .is_none_or(|d| d.is_finite() && d >= 0.0),
+            "brick_max_distance",
+            format!(
+                "{:?} is not a finite non-negative length",
+                self.brick_max_distance
+            ),
         )?;
         check(
             (1..=TRANSFER_DIM).contains(&self.rank),

@@ -10,6 +10,7 @@
 //! | [`bake`] | the whole pipeline for a [`SceneInput`] and a [`BakeConfig`], reporting through a [`Progress`](prt_core::Progress) |
 //! | [`bake_volume`] | the pipeline after the trace, on a volume traced elsewhere (tiles of a tiled bake) |
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
+//! | [`Layout`], [`BrickSummary`] | dense or sparse-brick tracing and masked fitting, and what a sparse bake kept |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
@@ -62,7 +63,7 @@ mod seams;
 mod tiles;
 mod volumes;
 
-pub use config::{BakeConfig, Quality, TRANSFER_DIM};
+pub use config::{BakeConfig, Layout, Quality, SPARSE_FROM_VOXELS, TRANSFER_DIM};
 pub use container::{
     BRICK_MIN_SAVING, CoefficientLayout, ContainerContents, LayoutBytes, LayoutConfig, MBD_MODEL,
     MbdContainer, VALIDITY, layout_bytes, node_liveness, read_container, write_container,
@@ -70,7 +71,9 @@ pub use container::{
 };
 pub use error::{BakeError, ContainerError};
 pub use memory::{MemoryEstimate, largest_resolution};
-pub use pipeline::{Bake, BakeProgress, BakedMbd, Baseline, Stage, bake, bake_volume};
+pub use pipeline::{
+    Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,
+};
 pub use production::{
     IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
     ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,

@@ -10,6 +10,12 @@
 //! voxels shrink) and the ray-tracing structures. [`MemoryEstimate`] takes the larger of the
 //! two stages, adds the scene and a fixed allowance for the process itself, and is checked
 //! against a budget before the trace starts.
+//!
+//! A sparse-brick bake ([`crate::Layout`]) holds its kept bricks and, once traced, their dense
+//! scatter: two copies while tracing. Its masked clustered PCA clusters a compact copy of the
+//! valid rows and projects it before scattering: one more copy after. How many voxels are
+//! valid is known only after the probe pass, so the estimate counts every voxel valid (an
+//! upper bound; what a sparse bake saves in memory is measured in docs/results.md).
 
 use crate::{BakeConfig, BakeError, TRANSFER_DIM};
 
@@ -31,6 +37,8 @@ pub struct MemoryEstimate {
     pub field_bytes: u64,
     /// Volume copies alive at the peak (see the module docs).
     pub field_copies: u64,
+    /// Volume copies alive while tracing: 1 dense, 2 sparse (the bricks and their scatter).
+    pub trace_copies: u64,
     /// The scene's triangles and ray-tracing structures.
     pub scene_bytes: u64,
     /// The surface cache while tracing, counted at one point per triangle: a finer lattice
@@ -55,22 +63,31 @@ impl MemoryEstimate {
         // each and clustered PCA works on a copy: +3. A container read back is scored on its
         // own reconstruction: +1. Keeping the volumes (`write_volumes`) holds f32 copies of the
         // traced and baseline volumes and their encoding beside what the bake keeps: +1.
+        let sparse = config.layout.is_sparse(dims);
         let field_copies =
-            6 + if config.baselines { 3 } else { 0 } + u64::from(config.container.is_some());
+            6 + if config.baselines {
+                3 + u64::from(sparse)
+            } else {
+                0
+            } + u64::from(config.container.is_some());
         MemoryEstimate {
             voxels,
             field_bytes,
             field_copies,
+            trace_copies: 1 + u64::from(sparse),
             scene_bytes: (triangles as u64).saturating_mul(TRIANGLE_BYTES),
             cache_bytes: (triangles as u64).saturating_mul(CACHE_POINT_BYTES),
             process_bytes: PROCESS_BYTES,
         }
     }
 
-    /// The total in bytes: the process, the scene, and the larger of the trace (one volume
-    /// and the surface cache) and what follows it (every volume copy).
+    /// The total in bytes: the process, the scene, and the larger of the trace (its volume
+    /// copies and the surface cache) and what follows it (every volume copy).
     pub fn total(&self) -> u64 {
-        let trace = self.field_bytes.saturating_add(self.cache_bytes);
+        let trace = self
+            .field_bytes
+            .saturating_mul(self.trace_copies)
+            .saturating_add(self.cache_bytes);
         let after = self.field_bytes.saturating_mul(self.field_copies);
         trace
             .max(after)
@@ -156,6 +173,7 @@ mod tests {
                 resolution,
                 baselines,
                 container: Some("mbd".into()),
+                layout: crate::Layout::Dense,
                 ..BakeConfig::default()
             };
             let estimate = MemoryEstimate::for_grid(&config, dims, triangles).total();

@@ -10,9 +10,11 @@ use prt_mbd::{
 
 use crate::BakeConfig;
 
-/// MBD of rank `config.rank` on `basis_nodes` hat-grid nodes per axis.
+/// MBD of rank `config.rank` on `basis_nodes` hat-grid nodes per axis; with `valid`, on the
+/// valid voxels only.
 pub(crate) fn fit_mbd(
     field: &GridField,
+    valid: Option<&[bool]>,
     config: &BakeConfig,
     basis_nodes: [usize; 3],
     progress: &dyn Progress,
@@ -26,7 +28,10 @@ pub(crate) fn fit_mbd(
         },
         ..Mbd::new(config.rank, Basis::HatGrid { nodes: basis_nodes })
     };
-    let fit = mbd.fit(field, progress)?;
+    let fit = match valid {
+        Some(valid) => mbd.fit_masked(field, valid, progress)?,
+        None => mbd.fit(field, progress)?,
+    };
     // A hat-grid basis is what the container stores; unwrap it from the basis enum.
     let (coefficient_kernels, basis_kernels, coefficients, basis) = fit.model.into_parts();
     let BasisKernels::HatGrid(basis_kernels) = basis_kernels else {
@@ -59,16 +64,61 @@ pub(crate) fn fit_bpca(
     .compress(field, progress)
 }
 
-/// Clustered PCA with `clusters` rank-L bases.
+/// Clustered PCA with `clusters` rank-L bases; with `valid`, of the valid voxels only.
 pub(crate) fn fit_cpca(
     field: &GridField,
+    valid: Option<&[bool]>,
     config: &BakeConfig,
     clusters: usize,
     progress: &dyn Progress,
 ) -> Result<PiecewisePcaModel, MbdError> {
-    ClusteredPca {
+    let cpca = ClusteredPca {
         seed: config.seed,
         ..ClusteredPca::new(config.rank, clusters)
+    };
+    match valid {
+        Some(valid) => cpca.compress_masked(field, valid, progress),
+        None => cpca.compress(field, progress),
     }
-    .compress(field, progress)
+}
+
+/// Per coefficient node of MBD (one per voxel, x fastest): whether its hat's support reaches a
+/// valid voxel, i.e. a valid voxel lies within one voxel along every axis. The other nodes
+/// carry no data (zero in a masked fit) and a sparse container need not store them.
+pub(crate) fn live_coefficient_nodes(dims: [usize; 3], valid: &[bool]) -> Vec<bool> {
+    // Dilate the mask by one voxel along each axis in turn (separable).
+    let mut live = valid.to_vec();
+    let strides = [1, dims[0], dims[0] * dims[1]];
+    for axis in 0..3 {
+        let prev = live.clone();
+        for (v, l) in live.iter_mut().enumerate() {
+            let c = v / strides[axis] % dims[axis];
+            *l = prev[v]
+                || (c > 0 && prev[v - strides[axis]])
+                || (c + 1 < dims[axis] && prev[v + strides[axis]]);
+        }
+    }
+    live
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_node_is_live_within_one_voxel_of_a_valid_voxel() {
+        let dims = [5, 4, 3];
+        let index = |x: usize, y: usize, z: usize| x + dims[0] * (y + dims[1] * z);
+        let mut valid = vec![false; 60];
+        valid[index(1, 2, 0)] = true;
+        let live = live_coefficient_nodes(dims, &valid);
+        for z in 0..3 {
+            for y in 0..4usize {
+                for x in 0..5usize {
+                    let near = x.abs_diff(1) <= 1 && y.abs_diff(2) <= 1 && z <= 1;
+                    assert_eq!(live[index(x, y, z)], near, "{x} {y} {z}");
+                }
+            }
+        }
+    }
 }

@@ -7,10 +7,10 @@ use prt_kernels::HatGrid;
 use prt_mbd::{LocalBasis, MbdModel, PiecewisePcaModel, SolveReport};
 use prt_texture::Limits;
 use prt_texture::container::WriteReport;
-use prt_trace::{BakeOptions, TransferBaker, TransferVolume};
+use prt_trace::{BakeOptions, BrickMap, BrickOptions, BrickStats, TransferBaker, TransferVolume};
 
 use crate::container::{ContainerContents, read_container, write_container};
-use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd};
+use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd, live_coefficient_nodes};
 use crate::scores::{Method, MethodScores, eval_options, score};
 use crate::seams::{SeamView, seam_view, smooth};
 use crate::{BakeConfig, BakeError, MemoryEstimate, SceneInput};
@@ -103,6 +103,19 @@ pub struct BakedMbd {
     pub labels: Vec<u32>,
     /// The model evaluated at the voxel centres.
     pub reconstruction: GridField,
+    /// Per coefficient node (one per voxel, x fastest): whether its support reaches a valid
+    /// voxel. The other nodes hold no data (exactly zero after a sparse bake's masked fit);
+    /// a brick layout need not store them.
+    pub live_coefficients: Vec<bool>,
+}
+
+/// What a sparse-brick bake traced and stored ([`crate::Layout::Sparse`]).
+#[derive(Debug, Clone)]
+pub struct BrickSummary {
+    /// The kept bricks and their indirection.
+    pub map: BrickMap,
+    /// Voxels probed, traced and stored, and the probe pass's time.
+    pub stats: BrickStats,
 }
 
 /// A fitted baseline.
@@ -117,8 +130,11 @@ pub struct Baseline {
 /// Everything a bake produced.
 #[derive(Debug, Clone)]
 pub struct Bake {
-    /// The traced transfer volume (field, validity, tracer statistics).
+    /// The traced transfer volume (field, validity, tracer statistics); after a sparse bake,
+    /// the kept bricks scattered into the grid (zero elsewhere).
     pub volume: TransferVolume,
+    /// The bricks of a sparse bake (`None`: dense).
+    pub bricks: Option<BrickSummary>,
     /// The MBD fit.
     pub mbd: BakedMbd,
     /// The baselines, BPCA then CPCA (empty when `config.baselines` is off).
@@ -177,21 +193,37 @@ pub fn bake(
         MemoryEstimate::new(config, size, triangles).check(config, size, triangles, budget)?;
     }
     let mut times = Vec::new();
+    let resolution = config.grid_resolution(bounds.size().to_array());
+    let sparse = config.layout.is_sparse(resolution);
     let options = BakeOptions {
-        resolution: config.grid_resolution(bounds.size().to_array()),
+        resolution,
         margin: config.margin,
         rays_per_voxel: config.rays_per_voxel,
         cache_rays: config.cache_rays,
         seed: config.seed,
         ..BakeOptions::default()
     };
-    let volume = run_stage(progress, &mut times, Stage::Trace, |p| {
-        TransferBaker::new(&scene.scene, options)
-            .map_err(BakeError::TracerSetup)?
-            .bake(p)
-            .map_err(BakeError::Trace)
+    let (volume, bricks) = run_stage(progress, &mut times, Stage::Trace, |p| {
+        let baker = TransferBaker::new(&scene.scene, options).map_err(BakeError::TracerSetup)?;
+        if !sparse {
+            return Ok((baker.bake(p).map_err(BakeError::Trace)?, None));
+        }
+        let brick_options = BrickOptions {
+            max_distance: config.brick_max_distance,
+            ..BrickOptions::default()
+        };
+        let bricked = baker
+            .bake_bricks(&brick_options, p)
+            .map_err(BakeError::Trace)?;
+        // The fits and scores below read a grid; the bricks are scattered into it once.
+        let volume = bricked.to_dense().map_err(BakeError::Trace)?;
+        let summary = BrickSummary {
+            map: bricked.bricks,
+            stats: bricked.brick_stats,
+        };
+        Ok((volume, Some(summary)))
     })?;
-    let mut baked = bake_volume(&scene.name, volume, config, progress)?;
+    let mut baked = bake_volume(&scene.name, volume, bricks, config, progress)?;
     times.append(&mut baked.stage_times);
     baked.stage_times = times;
     Ok(baked)
@@ -199,21 +231,26 @@ pub fn bake(
 
 /// Every stage of [`bake`] after the trace, on a volume traced elsewhere (e.g. assembled from
 /// tiles traced by separate workers): MBD, the baselines, the scores, the seam views and, when
-/// `config.container` is set, the container. `scene_name` is recorded in the container.
+/// `config.container` is set, the container. `scene_name` is recorded in the container;
+/// `bricks` describes a sparse trace (`None` for a dense one). With a sparse layout
+/// ([`crate::Layout::is_sparse`] for the volume's grid) the fits see the valid voxels only.
 pub fn bake_volume(
     scene_name: &str,
     volume: TransferVolume,
+    bricks: Option<BrickSummary>,
     config: &BakeConfig,
     progress: &(impl BakeProgress + ?Sized),
 ) -> Result<Bake, BakeError> {
     config.validate()?;
     let mut times = Vec::new();
     let field = &volume.field;
+    let sparse = config.layout.is_sparse(field.dims());
+    let mask = sparse.then_some(volume.valid.as_slice());
 
     // MBD, then the baselines at equal basis count (one rank-L basis per basis node).
     let basis_nodes = config.basis_grid(field.dims());
     let ((model, report), mbd_time) = run_stage(progress, &mut times, Stage::Mbd, |p| {
-        let (fit, time) = timed(|| fit_mbd(field, config, basis_nodes, p));
+        let (fit, time) = timed(|| fit_mbd(field, mask, config, basis_nodes, p));
         Ok((fit.map_err(BakeError::Mbd)?, time))
     })?;
 
@@ -251,7 +288,7 @@ pub fn bake_volume(
             for method in [Method::Bpca, Method::Cpca] {
                 let (fit, time) = timed(|| match method {
                     Method::Bpca => fit_bpca(field, config, basis_nodes, p),
-                    _ => fit_cpca(field, config, clusters, p),
+                    _ => fit_cpca(field, mask, config, clusters, p),
                 });
                 let model = fit.map_err(|source| BakeError::Baseline {
                     method: if method == Method::Bpca {
@@ -345,9 +382,12 @@ pub fn bake_volume(
         container = Some(report);
     }
 
+    let live_coefficients = live_coefficient_nodes(field.dims(), &volume.valid);
     Ok(Bake {
         volume,
+        bricks,
         mbd: BakedMbd {
+            live_coefficients,
             model,
             report,
             basis_nodes,

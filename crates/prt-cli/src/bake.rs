@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use prt_bake::{Bake, BakeConfig, BakeError, MemoryEstimate, Quality, SceneInput};
+use prt_bake::{Bake, BakeConfig, BakeError, Layout, MemoryEstimate, Quality, SceneInput};
 use prt_texture::Encoding;
 
 use crate::progress::{Stage, StageBars};
@@ -49,6 +49,28 @@ pub enum KeepVolumes {
 
 /// Largest kept volumes `--keep-volumes auto` writes.
 const AUTO_KEEP_BYTES: u64 = 512 << 20;
+
+/// `prt bake --layout`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
+pub enum LayoutArg {
+    /// The whole box, every voxel traced and fitted.
+    Dense,
+    /// Bricks with a valid voxel only, masked fits.
+    Sparse,
+    /// Sparse from 64³ voxels up.
+    #[default]
+    Auto,
+}
+
+impl From<LayoutArg> for Layout {
+    fn from(arg: LayoutArg) -> Layout {
+        match arg {
+            LayoutArg::Dense => Layout::Dense,
+            LayoutArg::Sparse => Layout::Sparse,
+            LayoutArg::Auto => Layout::Auto,
+        }
+    }
+}
 
 /// A named preset of `prt bake` (`--quality`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
@@ -139,6 +161,15 @@ pub struct BakeArgs {
     /// Skip the blockwise / clustered PCA baselines (faster; the report then has MBD only).
     #[arg(long)]
     pub no_baselines: bool,
+    /// Volume layout: `sparse` probes every voxel, traces only the 4³-voxel bricks holding a
+    /// valid voxel (the same values as dense there) and fits MBD and clustered PCA on the valid
+    /// voxels only; `dense` traces and fits the whole box; `auto` is sparse from 64³ voxels up.
+    #[arg(long, value_enum, default_value_t = LayoutArg::Auto)]
+    pub layout: LayoutArg,
+    /// With a sparse layout, also drop bricks none of whose valid voxels sees geometry within
+    /// this many metres (open space far from every surface). Default: keep them.
+    #[arg(long, value_name = "METRES")]
+    pub brick_max_distance: Option<f32>,
     /// Seed of every random choice (tracing, solver, evaluation).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -222,6 +253,8 @@ impl BakeArgs {
             seed: self.seed,
             max_memory: Some(self.max_memory.unwrap_or_else(default_memory_budget)),
             container,
+            layout: self.layout.into(),
+            brick_max_distance: self.brick_max_distance,
         }
     }
 }
@@ -237,6 +270,7 @@ fn flag(field: &str) -> &str {
         "basis_nodes" => "--basis-nodes",
         "max_iterations" => "--iterations",
         "lambda" => "--lambda",
+        "brick_max_distance" => "--brick-max-distance",
         other => other,
     }
 }
@@ -289,6 +323,21 @@ pub fn run(args: &BakeArgs) -> Result<()> {
 
     let config = args.config(Some(out_dir.join("mbd")));
     let baked = prt_bake::bake(&scene, &config, &StageBars).map_err(cli_error)?;
+    if let Some(bricks) = &baked.bricks {
+        let s = &bricks.stats;
+        eprintln!(
+            "sparse bricks: {} of {} bricks of {}³ kept; voxels probed {}, traced {}, stored {} \
+             (dense: {}); probe pass {:.1} s",
+            bricks.map.kept_bricks(),
+            bricks.map.bricks(),
+            bricks.map.edge(),
+            s.probed_voxels,
+            s.traced_voxels,
+            s.stored_voxels,
+            baked.volume.stats.voxels,
+            s.probe_time.as_secs_f64()
+        );
+    }
     write_outputs(&out_dir, &scene, &baked, args.keep_volumes, load, total)
 }
 

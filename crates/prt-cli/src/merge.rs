@@ -63,7 +63,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     } = assembled;
     // The volume moves into the bake: the merge holds one copy of it.
     let baked =
-        prt_bake::bake_volume(&scene.name, volume, &config, &StageBars).map_err(cli_error)?;
+        prt_bake::bake_volume(&scene.name, volume, None, &config, &StageBars).map_err(cli_error)?;
     let stage = Stage::start("tile seams");
     let seams = prt_bake::tile_seams(&tile_of_voxel, &baked)?;
     stage.finish();

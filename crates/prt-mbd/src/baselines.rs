@@ -453,6 +453,48 @@ impl Compressor for ClusteredPca {
     }
 }
 
+impl ClusteredPca {
+    /// Clustered PCA of the voxels with `valid[v]` only: the valid rows are clustered and
+    /// projected, the invalid voxels' values are never read and their coefficients are zero
+    /// (label 0). For a traced volume whose invalid voxels hold no data; clustering fewer rows
+    /// also costs less.
+    ///
+    /// # Errors
+    /// As [`Compressor::compress`] on the valid voxels; [`MbdError::ShapeMismatch`] for a mask
+    /// of the wrong length.
+    pub fn compress_masked(
+        &self,
+        field: &GridField,
+        valid: &[bool],
+        progress: &dyn Progress,
+    ) -> Result<PiecewisePcaModel, MbdError> {
+        if valid.len() != field.num_voxels() {
+            return Err(MbdError::ShapeMismatch {
+                what: "validity mask",
+                expected: vec![field.num_voxels()],
+                got: vec![valid.len()],
+            });
+        }
+        let rows: Vec<usize> = (0..valid.len()).filter(|&v| valid[v]).collect();
+        // The valid rows as a field of their own (clustering ignores where a voxel is).
+        let compact = GridField::from_data(
+            [rows.len().max(1), 1, 1],
+            Aabb::UNIT,
+            field.data().select(Axis(0), &rows),
+        )?;
+        let model = self.compress(&compact, progress)?;
+        drop(compact);
+        let mut labels = vec![0u32; field.num_voxels()];
+        let mut coefficients = Array2::<f32>::zeros((field.num_voxels(), self.rank));
+        for (k, &v) in rows.iter().enumerate() {
+            labels[v] = model.labels[k];
+            coefficients.row_mut(v).assign(&model.coefficients.row(k));
+        }
+        let stored = model.bases.len() + coefficients.len();
+        PiecewisePcaModel::new(model.name, field, labels, model.bases, coefficients, stored)
+    }
+}
+
 /// k-means vector quantisation: every voxel is replaced by the nearest of `codewords`
 /// centroids and stores only its index.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -131,6 +131,49 @@ impl Mbd {
         }
     }
 
+    /// [`Mbd::fit`] on the voxels with `valid[v]` only: invalid voxels have zero weight in the
+    /// loss and their values are never read (see [`crate::expert::solve_masked`]); coefficient
+    /// kernels that no valid voxel reaches stay exactly zero. For a traced volume whose invalid
+    /// voxels (inside geometry) hold no data.
+    ///
+    /// # Errors
+    /// As [`Mbd::fit`]; [`MbdError::InvalidOption`] for a basis other than
+    /// [`Basis::HatGrid`] or with a polish (both fit every voxel), or a mask without a valid
+    /// voxel; [`MbdError::ShapeMismatch`] for a mask of the wrong length.
+    pub fn fit_masked(
+        &self,
+        field: &GridField,
+        valid: &[bool],
+        progress: &dyn Progress,
+    ) -> Result<MbdFit, MbdError> {
+        let Basis::HatGrid { nodes } = self.basis else {
+            return Err(MbdError::InvalidOption {
+                what: "basis",
+                why: "a masked fit needs Basis::HatGrid".into(),
+            });
+        };
+        if self.polish.is_some() {
+            return Err(MbdError::InvalidOption {
+                what: "polish",
+                why: "the polish fits every voxel; a masked fit runs without it".into(),
+            });
+        }
+        let (model, solve) = crate::solver::solve_masked(
+            field,
+            valid,
+            coefficient_kernels(field)?,
+            BasisKernels::HatGrid(hat_basis(field, nodes)?),
+            self.rank,
+            &self.solver,
+            progress,
+        )?;
+        Ok(MbdFit {
+            model,
+            solve,
+            polish: None,
+        })
+    }
+
     /// Bad polish options fail before the solve, not after it.
     pub(crate) fn check_polish(&self, basis_kernels: usize) -> Result<(), MbdError> {
         match &self.polish {

@@ -91,7 +91,8 @@ pub mod expert {
     //! or pipeline.
     //!
     //! * [`solve`] / [`solve_from_basis`]: the stochastic solver over any coefficient and basis
-    //!   [`prt_core::SpatialKernels`], from the global principal subspace or from a given basis.
+    //!   [`prt_core::SpatialKernels`], from the global principal subspace or from a given basis;
+    //!   [`solve_masked`] fits the valid voxels only.
     //! * [`polish`] / [`exact_loss`]: the exact continuous loss of a model with
     //!   [`Mbd`](crate::Mbd)'s coefficient hats, and its minimisation; [`trilinear_energy`]
     //!   gives the same integral for a grid reconstruction, e.g. a baseline's.
@@ -110,7 +111,9 @@ pub mod expert {
         polish, trilinear_energy,
     };
     pub use crate::projection::{projection_residuals, residual_seam_ratio};
-    pub use crate::solver::{HELD_OUT_INTERVAL, IterationRecord, solve, solve_from_basis};
+    pub use crate::solver::{
+        HELD_OUT_INTERVAL, IterationRecord, solve, solve_from_basis, solve_masked,
+    };
 }
 
 // Internal paths used across modules.

@@ -46,6 +46,9 @@ const PREPARED_TARGET_FLOATS: usize = 1 << 24;
 /// The fixed parts of an MBD fit: target, kernels, rank, regularisation.
 pub(crate) struct Problem<'a, C, B> {
     pub field: &'a GridField,
+    /// Per voxel, whether its value is data (`None`: every voxel). Samples lie in valid voxels
+    /// only and the target blends valid voxels only: invalid voxels' values are never read.
+    pub mask: Option<&'a [bool]>,
     pub coefficient_kernels: &'a C,
     pub basis_kernels: &'a B,
     pub rank: usize,
@@ -133,6 +136,7 @@ struct KernelScratch {
 impl Samples {
     /// One jittered sample per voxel for `iteration`, reproducible from `seed`. With
     /// `jitter = false` the samples sit at the voxel centres.
+    #[cfg(test)]
     pub fn draw<B: SpatialKernels>(
         field: &GridField,
         basis: &B,
@@ -140,20 +144,41 @@ impl Samples {
         iteration: u64,
         jitter: bool,
     ) -> Self {
+        Self::draw_masked(field, None, basis, seed, iteration, jitter)
+    }
+
+    /// [`Samples::draw`] in the voxels where `mask` holds only (every voxel without one). The
+    /// random numbers of every voxel are drawn either way, so a voxel's sample does not depend
+    /// on the mask.
+    pub fn draw_masked<B: SpatialKernels>(
+        field: &GridField,
+        mask: Option<&[bool]>,
+        basis: &B,
+        seed: u64,
+        iteration: u64,
+        jitter: bool,
+    ) -> Self {
         let size = field.voxel_size();
         let mut rng = Pcg64Mcg::seed_from_u64(mix(seed, iteration));
+        let mut voxels = Vec::new();
         let points: Vec<Vec3> = (0..field.num_voxels())
-            .map(|v| {
+            .filter_map(|v| {
                 let centre = field.centre_of(v);
-                if !jitter {
-                    return centre;
+                let point = if jitter {
+                    let u = Vec3::new(
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                        rng.random::<f32>(),
+                    );
+                    centre + (u - 0.5) * size
+                } else {
+                    centre
+                };
+                let keep = mask.is_none_or(|m| m[v]);
+                if keep {
+                    voxels.push(v);
                 }
-                let u = Vec3::new(
-                    rng.random::<f32>(),
-                    rng.random::<f32>(),
-                    rng.random::<f32>(),
-                );
-                centre + (u - 0.5) * size
+                keep.then_some(point)
             })
             .collect();
         if basis.num_support_cells() == 0 {
@@ -161,8 +186,9 @@ impl Samples {
             // are close together and share most of their (scattered) basis kernels.
             let dims = field.dims();
             let bricks = dims.map(|d| d.div_ceil(FALLBACK_BRICK));
-            let keys = (0..points.len())
-                .map(|v| {
+            let keys = voxels
+                .iter()
+                .map(|&v| {
                     let b = [
                         v % dims[0],
                         (v / dims[0]) % dims[1],
@@ -410,8 +436,39 @@ impl<C: SpatialKernels, B: SpatialKernels> Problem<'_, C, B> {
         out: &mut [f32],
     ) -> Result<(), CoreError> {
         for (row, &id) in out.chunks_exact_mut(self.dim()).zip(ids) {
-            let tw = self.field.trilinear_weights(points[id as usize])?;
-            blend8(row, tw.indices.map(|v| self.field.voxel(v)), tw.weights);
+            self.target_at(points[id as usize], row)?;
+        }
+        Ok(())
+    }
+
+    /// The target `f(x)`: the trilinear blend of the field's voxels; with a mask, the invalid
+    /// voxels count as zero and are never read. (Renormalising the valid corners' weights
+    /// instead makes a target the trilinear coefficient hats cannot follow across a wall one
+    /// voxel thick: measured on Sponza 128, 3.7x the error.)
+    pub fn target_at(&self, x: Vec3, out: &mut [f32]) -> Result<(), CoreError> {
+        let tw = self.field.trilinear_weights(x)?;
+        let Some(mask) = self.mask else {
+            blend8(out, tw.indices.map(|v| self.field.voxel(v)), tw.weights);
+            return Ok(());
+        };
+        let mut weights = tw.weights;
+        let mut any_valid = None;
+        for (w, &v) in weights.iter_mut().zip(&tw.indices) {
+            if mask[v] {
+                any_valid = Some(v);
+            } else {
+                *w = 0.0;
+            }
+        }
+        match any_valid {
+            Some(valid) => {
+                // Invalid corners read a valid voxel at weight zero: their values stay unread.
+                let rows = tw
+                    .indices
+                    .map(|v| self.field.voxel(if mask[v] { v } else { valid }));
+                blend8(out, rows, weights);
+            }
+            None => out.fill(0.0),
         }
         Ok(())
     }
@@ -935,7 +992,7 @@ mod tests {
         #[test]
         fn gradient_and_diagonal_hessian_match_finite_differences(seed in 0u64..1000, pick in 0usize..1000) {
             let (field, coef, basis, c, b) = setup(seed);
-            let p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.3, preconditioner: Preconditioner::Diagonal };
+            let p = Problem { field: &field, mask: None, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.3, preconditioner: Preconditioner::Diagonal };
             let samples = Samples::draw(&field, &basis, seed, 3, true);
             let e = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
             let e0 = e.loss();
@@ -963,7 +1020,7 @@ mod tests {
         #[test]
         fn block_preconditioner_dominates_the_hessian_diagonal(seed in 0u64..1000) {
             let (field, coef, basis, c, b) = setup(seed);
-            let mut p = Problem { field: &field, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.0, preconditioner: Preconditioner::Diagonal };
+            let mut p = Problem { field: &field, mask: None, coefficient_kernels: &coef, basis_kernels: &basis, rank: 2, lambda: 0.0, preconditioner: Preconditioner::Diagonal };
             let samples = Samples::draw(&field, &basis, seed, 0, true);
             let exact = p.evaluate(&samples, &c, &b, true, &NoProgress).unwrap();
             p.preconditioner = Preconditioner::Block;
@@ -988,6 +1045,7 @@ mod tests {
         let (field, coef, basis, c, b) = setup(5);
         let p = Problem {
             field: &field,
+            mask: None,
             coefficient_kernels: &coef,
             basis_kernels: &basis,
             rank: 2,

@@ -144,6 +144,48 @@ pub fn solve<C: SpatialKernels, B: SpatialKernels>(
 ) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
     solve_with(
         field,
+        None,
+        coefficient_kernels,
+        basis_kernels,
+        Start::GlobalPca { rank },
+        options,
+        progress,
+    )
+}
+
+/// [`solve`] on the valid voxels of `field` only (`valid[v]`, x-fastest voxels): samples lie in
+/// valid voxels, the target blends valid voxels only, and the start is the valid voxels'
+/// principal subspace, so the fit does not depend on the invalid voxels' values. Coefficient
+/// kernels that no valid voxel's sample reaches stay exactly zero.
+///
+/// # Errors
+/// As [`solve`], and [`MbdError::ShapeMismatch`] when `valid` does not have one entry per voxel,
+/// [`MbdError::InvalidOption`] when no voxel is valid.
+pub fn solve_masked<C: SpatialKernels, B: SpatialKernels>(
+    field: &GridField,
+    valid: &[bool],
+    coefficient_kernels: C,
+    basis_kernels: B,
+    rank: usize,
+    options: &SolverOptions,
+    progress: &dyn Progress,
+) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
+    if valid.len() != field.num_voxels() {
+        return Err(MbdError::ShapeMismatch {
+            what: "validity mask",
+            expected: vec![field.num_voxels()],
+            got: vec![valid.len()],
+        });
+    }
+    if !valid.contains(&true) {
+        return Err(MbdError::InvalidOption {
+            what: "validity mask",
+            why: "no voxel is valid".into(),
+        });
+    }
+    solve_with(
+        field,
+        Some(valid),
         coefficient_kernels,
         basis_kernels,
         Start::GlobalPca { rank },
@@ -186,6 +228,7 @@ pub fn solve_from_basis<C: SpatialKernels, B: SpatialKernels>(
     }
     solve_with(
         field,
+        None,
         coefficient_kernels,
         basis_kernels,
         Start::Basis(initial_basis),
@@ -204,6 +247,7 @@ enum Start<'a> {
 
 fn solve_with<C: SpatialKernels, B: SpatialKernels>(
     field: &GridField,
+    mask: Option<&[bool]>,
     coefficient_kernels: C,
     basis_kernels: B,
     start_from: Start<'_>,
@@ -218,6 +262,7 @@ fn solve_with<C: SpatialKernels, B: SpatialKernels>(
     validate(field, &coefficient_kernels, &basis_kernels, rank, options)?;
     let problem = Problem {
         field,
+        mask,
         coefficient_kernels: &coefficient_kernels,
         basis_kernels: &basis_kernels,
         rank,
@@ -236,8 +281,9 @@ fn solve_with<C: SpatialKernels, B: SpatialKernels>(
         ..SolveReport::default()
     };
     progress.set_len(options.max_iterations as u64);
-    let mut held_out = Samples::draw(
+    let mut held_out = Samples::draw_masked(
         field,
+        mask,
         &basis_kernels,
         options.seed,
         HELD_OUT_STREAM,
@@ -253,8 +299,9 @@ fn solve_with<C: SpatialKernels, B: SpatialKernels>(
     let mut previous_samples = None;
     for iteration in 0..options.max_iterations {
         progress.check()?;
-        let mut samples = Samples::draw(
+        let mut samples = Samples::draw_masked(
             field,
+            mask,
             &basis_kernels,
             options.seed,
             iteration as u64,
@@ -728,7 +775,13 @@ pub(crate) fn initialise<C: SpatialKernels, B: SpatialKernels>(
     let field = problem.field;
     let (l, d) = (problem.rank, field.dim());
     let n = problem.basis_kernels.len();
-    let global = principal_subspace(field.data().view(), l)?;
+    let global = match problem.mask {
+        None => principal_subspace(field.data().view(), l)?,
+        Some(mask) => {
+            let rows: Vec<usize> = (0..mask.len()).filter(|&v| mask[v]).collect();
+            principal_subspace(field.data().select(ndarray::Axis(0), &rows).view(), l)?
+        }
+    };
     let flat = global.as_slice().unwrap_or(&[]);
     let mut basis = vec![0.0f32; n * l * d];
     for node in basis.chunks_exact_mut(l * d) {
@@ -768,7 +821,7 @@ fn fit_coefficients<C: SpatialKernels, B: SpatialKernels>(
                 let Some(x) = problem.coefficient_kernels.centre(index) else {
                     return Ok(());
                 };
-                field.sample(x, f)?;
+                problem.target_at(x, f)?;
                 problem.basis_kernels.eval(x, psi)?;
                 b.fill(0.0);
                 for (n, w) in psi.iter() {

@@ -275,7 +275,7 @@ struct SlotMaterial {
 /// Per-surface-point SH irradiance-transfer vectors `t_j(p) = (1/π) ∫_H V(p, ω) (n·ω) Y_j(ω) dω`
 /// on a barycentric lattice over each triangle, for each side.
 #[derive(Debug, Clone)]
-struct SurfaceCache {
+pub(crate) struct SurfaceCache {
     /// First point of each slot.
     start: Vec<u32>,
     /// Lattice subdivision of each slot (0: a single point at the centroid).
@@ -297,6 +297,16 @@ fn lattice_index(m: usize, a: usize, b: usize) -> usize {
 }
 
 impl SurfaceCache {
+    /// Lattice points (both sides of a point count once).
+    pub(crate) fn points(&self) -> usize {
+        self.values.len() / 2
+    }
+
+    /// Entries (point sides) evaluated so far.
+    pub(crate) fn evaluated(&self) -> usize {
+        self.values.iter().filter(|v| v.get().is_some()).count()
+    }
+
     #[inline]
     /// The interpolated transfer of `side` of `slot` at the barycentrics `uv()`, evaluating
     /// missing lattice entries with `eval(point, side)`.
@@ -367,7 +377,7 @@ pub struct TransferBaker<'s> {
     eps: f32,
     groups: usize,
     probe_groups: usize,
-    bvh_time: Duration,
+    pub(crate) bvh_time: Duration,
 }
 
 impl<'s> TransferBaker<'s> {
@@ -582,8 +592,57 @@ impl<'s> TransferBaker<'s> {
         }
     }
 
+    /// The validity test of [`TransferBaker::voxel_transfer`] alone: the same probe rays, only
+    /// counted. Returns `(valid, distance to the nearest hit or infinity, rays traced)`; the
+    /// validity equals `voxel_transfer`'s bit for bit (same directions, same test).
+    pub(crate) fn probe_voxel(&self, x: Vec3, voxel: usize) -> (bool, f32, u64) {
+        let dirs = icosahedron();
+        let scramble = hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64);
+        let mut backfaces = 0usize;
+        let mut nearest = f32::INFINITY;
+        for g in 0..self.probe_groups {
+            let q = group_rotation(g as u32, scramble);
+            for &d in dirs.iter() {
+                let w = q * d;
+                if let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) {
+                    nearest = nearest.min(hit.t);
+                    if self.tracer.slot_normal(hit.slot).dot(w) >= 0.0 {
+                        backfaces += 1;
+                    }
+                }
+            }
+        }
+        let rays = (self.probe_groups * ICOSA) as u64;
+        (!self.probe_rejects(backfaces), nearest, rays)
+    }
+
+    /// Whether `backfaces` of the probe rays make a voxel invalid (inside geometry).
+    fn probe_rejects(&self, backfaces: usize) -> bool {
+        backfaces as f32 > self.options.max_backface_fraction * (self.probe_groups * ICOSA) as f32
+    }
+
+    /// Whether voxel centre `x` lies outside the traced box (explicit bounds only).
+    pub(crate) fn outside_trace_box(&self, x: Vec3) -> bool {
+        self.trace_box.is_some_and(|b| !b.contains(x))
+    }
+
+    /// The grid of voxels the baker traces (zero-valued).
+    pub(crate) fn empty_field(&self, dim: usize) -> Result<GridField, TraceError> {
+        Ok(GridField::new(self.options.resolution, self.grid, dim)?)
+    }
+
+    /// Builds the surface cache the indirect mode needs (`None` without one) and its set-up time.
+    pub(crate) fn surface_cache(&self) -> (Option<SurfaceCache>, Duration) {
+        let t0 = Instant::now();
+        let cache = match self.options.indirect {
+            IndirectMode::SurfaceCache => Some(self.build_cache()),
+            IndirectMode::BruteForce | IndirectMode::Off => None,
+        };
+        (cache, t0.elapsed())
+    }
+
     /// Transfer vector of one voxel into `out` (324 values); returns `(valid, rays traced)`.
-    fn voxel_transfer(
+    pub(crate) fn voxel_transfer(
         &self,
         x: Vec3,
         voxel: usize,
@@ -661,10 +720,7 @@ impl<'s> TransferBaker<'s> {
             for (a, &gv) in acc.iter_mut().zip(group.iter()) {
                 *a += gv as f64;
             }
-            if g + 1 == self.probe_groups
-                && backfaces as f32
-                    > self.options.max_backface_fraction * (self.probe_groups * ICOSA) as f32
-            {
+            if g + 1 == self.probe_groups && self.probe_rejects(backfaces) {
                 out.fill(0.0);
                 return (false, rays);
             }
@@ -682,16 +738,11 @@ impl<'s> TransferBaker<'s> {
     /// every voxel is inside geometry or outside the scene bounds plus margin (the volume would
     /// be all zero and all masked). [`BakeStats::valid_fraction`] tells how much is valid.
     pub fn bake(&self, progress: &dyn Progress) -> Result<TransferVolume, TraceError> {
-        let field = GridField::new(self.options.resolution, self.grid, TRANSFER_DIM)?;
+        let field = self.empty_field(TRANSFER_DIM)?;
         let voxels = field.num_voxels();
         let cache_rays = AtomicU64::new(0);
-        let t0 = Instant::now();
-        let cache = match self.options.indirect {
-            IndirectMode::SurfaceCache => Some(self.build_cache()),
-            IndirectMode::BruteForce | IndirectMode::Off => None,
-        };
-        let cache_time = t0.elapsed();
-        let cache_points = cache.as_ref().map_or(0, |c| c.values.len() / 2);
+        let (cache, cache_time) = self.surface_cache();
+        let cache_points = cache.as_ref().map_or(0, SurfaceCache::points);
 
         let t1 = Instant::now();
         let voxel_rays = AtomicU64::new(0);
@@ -722,7 +773,7 @@ impl<'s> TransferBaker<'s> {
                     {
                         let v = c * VOXEL_CHUNK + k;
                         let x = centres[v];
-                        if self.trace_box.is_some_and(|b| !b.contains(x)) {
+                        if self.outside_trace_box(x) {
                             skipped.fetch_add(1, Ordering::Relaxed);
                             continue;
                         }
@@ -745,9 +796,7 @@ impl<'s> TransferBaker<'s> {
             skipped_voxels: skipped.into_inner() as usize,
             rays_per_voxel: self.rays_per_voxel(),
             cache_points,
-            cache_evaluated: cache
-                .as_ref()
-                .map_or(0, |c| c.values.iter().filter(|v| v.get().is_some()).count()),
+            cache_evaluated: cache.as_ref().map_or(0, SurfaceCache::evaluated),
             cache_rays: cache_rays.into_inner(),
             voxel_rays: voxel_rays.into_inner(),
             bvh_time: self.bvh_time,

@@ -20,6 +20,11 @@
 //!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and
 //!     `L^c_j(h) = (ρ_c/π) ∫_H V(h, ω') (n·ω') Y_j(ω') dω'` is the radiance leaving `h` when the
 //!     sky is `Y_j`.
+//! * **Sparse bricks** ([`TransferBaker::bake_bricks`], [`BrickOptions`], [`BrickMap`],
+//!   [`BrickedVolume`]): a probe pass (the validity test's rays only) classifies bricks of 4³
+//!   voxels; bricks without a valid voxel (opt-in: far from geometry) are neither traced nor
+//!   stored, and the kept voxels equal the dense bake's bit for bit. For large grids with much
+//!   solid or outside space.
 //! * **Many lights** ([`trace_vpls`], [`GBuffer`], [`VplOracle`]): virtual point lights by
 //!   particle tracing from the emitters (instant radiosity, Keller 1997; a sun and sky for
 //!   scenes without emitters), a pinhole view ([`PinholeView`]: the glTF camera or a framing of
@@ -113,6 +118,7 @@
 
 mod bake;
 mod brdf_transport;
+mod bricks;
 mod bvh;
 mod cube;
 mod error;
@@ -131,6 +137,7 @@ pub use bake::{
 pub use brdf_transport::{
     HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
 };
+pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;
 pub use error::TraceError;
