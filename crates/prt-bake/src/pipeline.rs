@@ -10,7 +10,7 @@ use prt_texture::container::WriteReport;
 use prt_trace::{BakeOptions, BrickMap, BrickOptions, BrickStats, TransferBaker, TransferVolume};
 
 use crate::container::{ContainerContents, read_container, write_container};
-use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd, live_coefficient_nodes};
+use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd};
 use crate::scores::{Method, MethodScores, eval_options, score};
 use crate::seams::{SeamView, seam_view, smooth};
 use crate::{BakeConfig, BakeError, MemoryEstimate, SceneInput};
@@ -103,10 +103,6 @@ pub struct BakedMbd {
     pub labels: Vec<u32>,
     /// The model evaluated at the voxel centres.
     pub reconstruction: GridField,
-    /// Per coefficient node (one per voxel, x fastest): whether its support reaches a valid
-    /// voxel. The other nodes hold no data (exactly zero after a sparse bake's masked fit);
-    /// a brick layout need not store them.
-    pub live_coefficients: Vec<bool>,
 }
 
 /// What a sparse-brick bake traced and stored ([`crate::Layout::Sparse`]).
@@ -382,12 +378,10 @@ pub fn bake_volume(
         container = Some(report);
     }
 
-    let live_coefficients = live_coefficient_nodes(field.dims(), &volume.valid);
     Ok(Bake {
         volume,
         bricks,
         mbd: BakedMbd {
-            live_coefficients,
             model,
             report,
             basis_nodes,
