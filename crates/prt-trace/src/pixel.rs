@@ -198,6 +198,7 @@ pub struct PixelTransportBaker<'a> {
     options: PixelTransportOptions,
     gbuffer: GBuffer,
     rays: CubeRays,
+    haar: CubemapHaar,
     offset: f32,
 }
 
@@ -236,6 +237,7 @@ impl<'a> PixelTransportBaker<'a> {
         let offset = options.offset * bounds.size().length();
         let gbuffer = GBuffer::render(scene, tracer, &view, options.width, options.height)?;
         let rays = CubeRays::new(n, options.samples)?;
+        let haar = CubemapHaar::new(n)?;
         Ok(Self {
             scene,
             tracer,
@@ -243,6 +245,7 @@ impl<'a> PixelTransportBaker<'a> {
             options,
             gbuffer,
             rays,
+            haar,
             offset,
         })
     }
@@ -278,7 +281,7 @@ impl<'a> PixelTransportBaker<'a> {
             .collect();
         let start = Instant::now();
         chosen.par_iter().for_each_init(
-            || RowScratch::new(self.rays.texels(), self.rays.size()),
+            || RowScratch::new(self.rays.texels(), &self.haar),
             |scratch, &p| {
                 let _ = self.pixel_rows(p, scratch);
             },
@@ -303,7 +306,7 @@ impl<'a> PixelTransportBaker<'a> {
             .into_par_iter()
             .with_min_len(16)
             .map_init(
-                || RowScratch::new(self.rays.texels(), self.rays.size()),
+                || RowScratch::new(self.rays.texels(), &self.haar),
                 |scratch, p| {
                     if progress.is_cancelled() {
                         return None;
@@ -436,12 +439,12 @@ struct RowScratch {
 }
 
 impl RowScratch {
-    fn new(texels: usize, size: usize) -> Self {
+    fn new(texels: usize, haar: &CubemapHaar) -> Self {
         Self {
             direct: vec![0.0; texels],
             secondary: vec![0.0; texels],
             bounce: [vec![0.0; texels], vec![0.0; texels], vec![0.0; texels]],
-            haar: CubemapHaar::new(size).expect("the baker checked the cube size"),
+            haar: haar.clone(),
             order: Vec::with_capacity(texels),
         }
     }
