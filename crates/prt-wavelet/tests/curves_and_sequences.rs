@@ -1,11 +1,14 @@
 //! BRDF editing convergence, SH PBI, lighting sequences and the analyses.
 
+mod common;
+
+use common::{apply_edit, edit};
 use proptest::prelude::*;
 use prt_core::metrics::relative_frobenius_error;
 use prt_sphere::LatLongMap;
 use prt_sphere::envmap::cube_texel_direction;
 use prt_wavelet::analysis::{LightingError, band_energy};
-use prt_wavelet::brdf::{CurveEditor, beckmann_curve, brush_stroke};
+use prt_wavelet::brdf::{CurveEditor, beckmann_curve};
 use prt_wavelet::sequence::{Interpolation, Rotation};
 use prt_wavelet::{
     Cubemap, CubemapHaar, CubemapLayout, ShApproximator, WaveletError, texel_solid_angles,
@@ -31,41 +34,15 @@ fn beckmann_is_normalised_over_projected_area() {
     assert!(beckmann_curve(f32::NAN, 256).is_err());
 }
 
-#[derive(Debug, Clone)]
-enum Edit {
-    Roughness(f32),
-    Stroke {
-        centre: f32,
-        radius: f32,
-        delta: f32,
-    },
-}
-
-fn edit() -> impl Strategy<Value = Edit> {
-    prop_oneof![
-        (0.03f32..1.5).prop_map(Edit::Roughness),
-        (0.0f32..256.0, 1.0f32..60.0, -20.0f32..40.0).prop_map(|(centre, radius, delta)| {
-            Edit::Stroke {
-                centre,
-                radius,
-                delta,
-            }
-        }),
-    ]
-}
-
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(40))]
 
     #[test]
-    fn brdf_edits_converge_within_nine_frames_at_30_terms(start in 0.05f32..1.0, edits in prop::collection::vec(edit(), 1..12)) {
+    fn brdf_edits_converge_within_nine_frames_at_30_terms(start in 0.05f32..1.0, edits in prop::collection::vec(edit(-20.0..40.0), 1..12)) {
         let mut editor = CurveEditor::new(256, 30).unwrap();
         let mut curve = beckmann_curve(start, 256).unwrap();
         for e in &edits {
-            match *e {
-                Edit::Roughness(m) => curve = beckmann_curve(m, 256).unwrap(),
-                Edit::Stroke { centre, radius, delta } => brush_stroke(&mut curve, centre, radius, delta),
-            }
+            apply_edit(&mut curve, e);
             editor.step(&curve).unwrap();
         }
         let mut errors = Vec::new();
