@@ -2,8 +2,9 @@
 //! on every live node and at every valid voxel centre; the rule keeps small or mostly valid
 //! grids dense; node liveness follows the validity.
 
-use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
+use common::scratch;
 
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
@@ -16,17 +17,6 @@ use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_texture::container::ArrayLayout;
 use prt_texture::{Encoding, Limits};
-
-fn scratch() -> PathBuf {
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "prt-bake-bricks-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
 
 const BOX: Aabb = Aabb {
     min: Vec3::new(-1.0, 0.0, -0.5),
@@ -71,7 +61,7 @@ fn write_read(
     layout: CoefficientLayout,
     brick_size: u32,
 ) -> (prt_bake::MbdContainer, ArrayLayout) {
-    let folder = scratch();
+    let folder = scratch("bricks");
     let contents = ContainerContents {
         model,
         grid,

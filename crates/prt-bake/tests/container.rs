@@ -1,8 +1,10 @@
 //! The MBD container's writer and reader: round trips within each encoding's bound, and typed
 //! errors (never a panic) for missing or malformed containers.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
+use common::scratch;
+use std::path::Path;
 
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
@@ -13,18 +15,6 @@ use prt_mbd::MbdModel;
 use prt_texture::container::{MANIFEST_FILE, Manifest};
 use prt_texture::quant::rgb9e5_error_bound;
 use prt_texture::{Encoding, Limits, TextureError};
-
-/// A fresh empty folder under the system's temp folder.
-fn scratch() -> PathBuf {
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "prt-bake-container-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
 
 const BOX: Aabb = Aabb {
     min: Vec3::new(-1.0, 0.0, -0.5),
@@ -117,7 +107,7 @@ proptest! {
         encoding in prop::sample::select(ENCODINGS.to_vec()),
     ) {
         let original = model(rank, dim, &values);
-        let folder = scratch();
+        let folder = scratch("container");
         write(&folder, &original, encoding);
         let back = read(&folder).expect("read");
         prop_assert_eq!(back.encoding, encoding);
@@ -150,7 +140,7 @@ proptest! {
 fn rgb9e5_round_trips_non_negative_models_and_refuses_negative_ones() {
     let values: Vec<f32> = (0..50).map(|i| (i * 37 % 101) as f32 * 0.25).collect();
     let original = model(3, 3, &values);
-    let folder = scratch();
+    let folder = scratch("container");
     write(&folder, &original, Encoding::Rgb9e5);
     let back = read(&folder).expect("read");
     assert_within(
@@ -172,7 +162,7 @@ fn rgb9e5_round_trips_non_negative_models_and_refuses_negative_ones() {
         encoding: Encoding::Rgb9e5,
     };
     assert!(matches!(
-        write_container(&scratch(), &contents),
+        write_container(&scratch("container"), &contents),
         Err(ContainerError::Texture(TextureError::OutOfRange { .. }))
     ));
     let _ = std::fs::remove_dir_all(folder);
@@ -184,7 +174,7 @@ fn the_read_back_model_evaluates_like_the_original() {
         .map(|i| ((i * 53) % 97) as f32 / 97.0 - 0.5)
         .collect();
     let original = model(3, 5, &values);
-    let folder = scratch();
+    let folder = scratch("container");
     write(&folder, &original, Encoding::F32);
     let back = read(&folder).expect("read");
     let (mut a, mut b) = (vec![0.0; 5], vec![0.0; 5]);
@@ -203,7 +193,7 @@ fn the_read_back_model_evaluates_like_the_original() {
 /// Writes a valid f32 container of a rank-4 model, lets `damage` change it, and reads it.
 fn damaged(damage: impl FnOnce(&Path)) -> ContainerError {
     let values: Vec<f32> = (0..31).map(|i| i as f32 - 15.0).collect();
-    let folder = scratch();
+    let folder = scratch("container");
     write(&folder, &model(4, 3, &values), Encoding::F32);
     damage(&folder);
     let error = read(&folder).expect_err("a damaged container must not read");
@@ -223,7 +213,7 @@ fn edit_manifest(folder: &Path, edit: impl FnOnce(&mut Manifest)) {
 
 #[test]
 fn a_missing_container_or_file_is_an_io_error() {
-    let error = read(&scratch()).expect_err("nothing there");
+    let error = read(&scratch("container")).expect_err("nothing there");
     assert!(
         matches!(error, ContainerError::Texture(TextureError::Io { .. })),
         "{error:?}"
@@ -336,7 +326,7 @@ fn nan_in_the_data_is_a_typed_error() {
 #[test]
 fn a_container_over_the_limits_is_refused_before_it_is_decoded() {
     let values: Vec<f32> = (0..31).map(|i| i as f32).collect();
-    let folder = scratch();
+    let folder = scratch("container");
     write(&folder, &model(4, 3, &values), Encoding::F16);
     let tiny = Limits {
         max_dimension: 2,
@@ -368,7 +358,7 @@ fn the_basis_is_written_as_a_filterable_atlas_and_a_rows_basis_still_reads() {
     use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer};
     let values: Vec<f32> = (0..97).map(|i| (i as f32 * 0.37).sin()).collect();
     let original = model(3, 324, &values);
-    let folder = scratch();
+    let folder = scratch("container");
     write(&folder, &original, Encoding::F32);
     let back = read(&folder).expect("read");
     let layout = |name: &str| {
@@ -401,7 +391,7 @@ fn the_basis_is_written_as_a_filterable_atlas_and_a_rows_basis_still_reads() {
         rows.arrays
             .push((name.clone(), array, entry.encoding, layout));
     }
-    let other = scratch();
+    let other = scratch("container");
     rows.write(&other).expect("write rows");
     assert_eq!(read(&other).expect("read rows").model, original);
 

@@ -2,8 +2,9 @@
 //! voxels, and a small fit → write → read round trip on the built-in outdoor scene within the
 //! 8-bit quantisation bound, with typed errors for damaged containers.
 
-use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
+
+use common::scratch;
 
 use prt_bake::{
     ContainerError, IRRADIANCE_L1_DIM, ProductionConfig, ProductionContents, ProductionError,
@@ -14,18 +15,6 @@ use prt_sphere::Sky;
 use prt_texture::container::{MANIFEST_FILE, Manifest};
 use prt_texture::{Encoding, Limits};
 use prt_trace::{BakeOptions, Scene, TransferBaker, TransferVolume};
-
-/// A fresh empty folder under the system's temp folder.
-fn scratch() -> PathBuf {
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "prt-bake-production-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
 
 fn bake(scene: &Scene, resolution: [usize; 3], bounds: Aabb) -> TransferVolume {
     let options = BakeOptions {
@@ -108,7 +97,7 @@ fn production_fit_writes_and_reads_back_within_the_8_bit_bound() {
         .relative_mse;
     assert!(error < 0.05, "relative MSE {error}");
 
-    let folder = scratch();
+    let folder = scratch("production");
     let contents = ProductionContents {
         model: &fit.model,
         grid: target.dims(),
