@@ -213,7 +213,7 @@ fn main() {
             .compress(&field, &NoProgress)
             .expect("CPCA");
         for (name, baseline, label_bytes) in [("BPCA", &blocks, 0.0), ("CPCA", &clusters, 1.0)] {
-            let recon = baseline.reconstruction();
+            let recon = baseline.reconstruct().expect("reconstruction");
             let (raw, lit) = errors(
                 &field,
                 &sky,

@@ -429,7 +429,7 @@ fn main() {
         let watch = Stopwatch::start();
         let (config, model) = baseline(key);
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
-        let reconstruction = model.reconstruction();
+        let reconstruction = model.reconstruct().expect("reconstruction");
         let error = relative_mse(&raw, &valid, |v, out| {
             out.copy_from_slice(reconstruction.voxel(v))
         });

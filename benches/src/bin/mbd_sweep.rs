@@ -586,8 +586,12 @@ fn polish_sweep(cli: &Cli, polish_iterations: usize, polish_tolerance: f64) {
         let (m, cost) = Cost::measure(|| fit(f));
         // The baselines are trilinear interpolations of their voxel reconstructions, so the
         // trilinear energy of the difference is their exact error.
-        let diff = GridField::from_data(f.dims(), f.bounds(), m.reconstruction().data() - f.data())
-            .expect("difference grid");
+        let diff = GridField::from_data(
+            f.dims(),
+            f.bounds(),
+            m.reconstruct().expect("reconstruction").data() - f.data(),
+        )
+        .expect("difference grid");
         println!(
             "{name}: {:.1} s CPU, {}, exact {:.4e}",
             cost.cpu,

@@ -28,8 +28,15 @@ pub struct BakeConfig {
     pub rank: usize,
     /// MBD basis-grid nodes per axis (at least 2; an axis with fewer voxels gets one per voxel).
     pub basis_nodes: usize,
-    /// MBD iteration cap.
+    /// MBD iteration cap (of the coarse solves, with a coarse start).
     pub max_iterations: usize,
+    /// MBD's coarse start ([`prt_mbd::Mbd::coarse_start`]): times the volume is halved and
+    /// fitted before the full-resolution solve (`None`: until it has fewer than
+    /// [`SPARSE_FROM_VOXELS`] voxels, so none below 64³). It trades a little error for a
+    /// several-fold shorter solve.
+    pub coarse_levels: Option<usize>,
+    /// With a coarse start, the iteration cap of the full-resolution solve.
+    pub full_iterations: usize,
     /// MBD ridge weight λ on the coefficients.
     pub lambda: f32,
     /// Storage encoding of the container's coefficient and basis volumes.
@@ -84,7 +91,8 @@ impl Layout {
 
 impl Default for BakeConfig {
     /// 32 voxels along the longest axis, 256 rays per voxel, 64 cache rays, no margin, rank 8
-    /// on 5 basis nodes per axis, 64 iterations, λ = 1e-4, f16 storage, baselines on, seed 0,
+    /// on 5 basis nodes per axis, 64 iterations (a coarse start from 64³ voxels up, then 16 at
+    /// full resolution), λ = 1e-4, f16 storage, baselines on, seed 0,
     /// no memory budget, no container, [`Layout::Auto`] keeping every brick with a valid voxel.
     fn default() -> Self {
         BakeConfig {
@@ -95,6 +103,8 @@ impl Default for BakeConfig {
             rank: 8,
             basis_nodes: 5,
             max_iterations: 64,
+            coarse_levels: None,
+            full_iterations: 16,
             lambda: 1e-4,
             encoding: Encoding::F16,
             baselines: true,
@@ -199,6 +209,11 @@ impl BakeConfig {
             "must be at least 1".into(),
         )?;
         check(
+            self.full_iterations >= 1,
+            "full_iterations",
+            "must be at least 1".into(),
+        )?;
+        check(
             self.lambda.is_finite() && self.lambda >= 0.0,
             "lambda",
             "must be finite and >= 0".into(),
@@ -221,6 +236,20 @@ impl BakeConfig {
             } else {
                 res
             }
+        })
+    }
+
+    /// The coarse levels MBD fits on a grid of `dims` voxels before the full-resolution solve:
+    /// `coarse_levels`, else as many halvings as bring the grid below [`SPARSE_FROM_VOXELS`].
+    pub fn coarse_levels(&self, dims: [usize; 3]) -> usize {
+        self.coarse_levels.unwrap_or_else(|| {
+            let mut voxels = dims.iter().product::<usize>();
+            let mut levels = 0;
+            while voxels >= SPARSE_FROM_VOXELS {
+                voxels /= 8;
+                levels += 1;
+            }
+            levels
         })
     }
 

@@ -25,6 +25,7 @@
 //! | [`plan_tiles`], [`TilePlan`] | a tiled bake's plan: the global lattice cut into tiles with a halo and per-tile seeds, for `prt plan` |
 //! | [`bake_tile`], [`TileOutcome`] | one worker's tile: trace it, write it atomically into the plan folder (`prt bake-tile`) |
 //! | [`assemble`] then [`bake_volume`], [`tile_seams`] | the merge: the tiles' cores as one volume, solved once; seam measures across tile borders (`prt merge`) |
+//! | [`merge_streamed`], [`StreamedMerge`] | the merge in memory bounded by a tile: basis fitted at half resolution, refined by sweeps over the tiles, per-voxel coefficients (`prt merge --stream`) |
 //! | [`TileError`] | what can stop a tiled bake |
 //! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
 //!
@@ -85,8 +86,9 @@ pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
 pub use tiles::{
     AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION,
-    PlannedScene, TileError, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats, VoxelRange,
-    assemble, bake_tile, plan_tiles, scene_hash, tile_dir, tile_is_done, tile_options, tile_seams,
+    PlannedScene, StreamedMerge, TileError, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats,
+    VoxelRange, assemble, bake_tile, merge_streamed, plan_tiles, scene_hash, tile_dir,
+    tile_is_done, tile_options, tile_seams,
 };
 pub use volumes::{
     KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,

@@ -1,11 +1,11 @@
 //! What a bake needs in memory, estimated before anything large is allocated.
 //!
 //! The largest allocations of a bake are copies of the 324-D volume, `F = voxels × 324 × 4`
-//! bytes each: the traced field, MBD's reconstruction on the grid (kept for the report), one
-//! reconstruction per baseline (kept), clustered PCA's working copy, the denoised reference of
-//! the seam view and one projection residual at a time, the error of the seam measure, and the
-//! model read back from the container with its reconstruction, and the copies made to keep the
-//! volumes (`write_volumes`). While the volume is traced, only
+//! bytes each: the traced field; while a method is scored, its reconstruction on the grid (one
+//! at a time: MBD's, each baseline's, the container's read back; none is kept) and the seam
+//! measure's denoised reference and error; the seam view's denoised reference and one
+//! projection residual; clustered PCA's working copy; and the copies made to keep the volumes
+//! (`write_volumes`). While the volume is traced, only
 //! its own copy exists, beside the surface cache (at least one point per triangle, more as the
 //! voxels shrink) and the ray-tracing structures. [`MemoryEstimate`] takes the larger of the
 //! two stages, adds the scene and a fixed allowance for the process itself, and is checked
@@ -58,18 +58,16 @@ impl MemoryEstimate {
     pub fn for_grid(config: &BakeConfig, dims: [usize; 3], triangles: usize) -> Self {
         let voxels = dims.iter().fold(1u64, |n, &d| n.saturating_mul(d as u64));
         let field_bytes = voxels.saturating_mul(TRANSFER_DIM as u64 * 4);
-        // Traced field, MBD's grid reconstruction, the seam view's denoised reference and one
-        // residual, the error of the seam measure: 5. The baselines keep one reconstruction
-        // each and clustered PCA works on a copy: +3. A container read back is scored on its
-        // own reconstruction: +1. Keeping the volumes (`write_volumes`) holds f32 copies of the
-        // traced and baseline volumes and their encoding beside what the bake keeps: +1.
+        // Traced field, one reconstruction being scored, the seam measure's denoised reference
+        // and error: 4. Keeping the volumes (`write_volumes`) holds an f32 reconstruction and
+        // its encoding: +1. Clustered PCA works on a copy: +1, and a sparse layout's masked fit
+        // on a compact copy of the valid rows: +1.
         let sparse = config.layout.is_sparse(dims);
-        let field_copies =
-            6 + if config.baselines {
-                3 + u64::from(sparse)
-            } else {
-                0
-            } + u64::from(config.container.is_some());
+        let field_copies = 5 + if config.baselines {
+            1 + u64::from(sparse)
+        } else {
+            0
+        };
         MemoryEstimate {
             voxels,
             field_bytes,
@@ -160,12 +158,12 @@ mod tests {
     #[test]
     fn the_estimate_covers_measured_peaks_without_wasting_the_budget() {
         for (dims, triangles, baselines, measured_kib) in [
-            ([32usize, 31, 32], 32usize, true, 482_044u64),
-            ([48, 47, 48], 32, true, 1_290_180),
-            ([64, 63, 64], 32, true, 3_028_520),
-            ([64, 63, 64], 32, false, 1_767_404),
-            ([32, 13, 20], 262_087, true, 178_168),
-            ([48, 20, 30], 262_087, true, 500_328),
+            ([32usize, 31, 32], 32usize, true, 362_588u64),
+            ([48, 47, 48], 32, true, 873_388),
+            ([64, 63, 64], 32, true, 2_052_740),
+            ([64, 63, 64], 32, false, 1_561_108),
+            ([32, 13, 20], 262_087, true, 204_308),
+            ([48, 20, 30], 262_087, true, 367_752),
         ] {
             let resolution = dims[0];
             // `prt bake` always writes the container.

@@ -4,14 +4,14 @@
 use prt_core::{Compressor, GridField, Progress};
 use prt_kernels::HatGrid;
 use prt_mbd::{
-    Basis, BasisKernels, BlockPca, ClusteredPca, Mbd, MbdError, MbdModel, PiecewisePcaModel,
-    SolveReport, SolverOptions,
+    Basis, BasisKernels, BlockPca, ClusteredPca, CoarseStart, Mbd, MbdError, MbdModel,
+    PiecewisePcaModel, SolveReport, SolverOptions,
 };
 
 use crate::BakeConfig;
 
-/// MBD of rank `config.rank` on `basis_nodes` hat-grid nodes per axis; with `valid`, on the
-/// valid voxels only.
+/// MBD of rank `config.rank` on `basis_nodes` hat-grid nodes per axis, after the config's
+/// coarse start; with `valid`, on the valid voxels only.
 pub(crate) fn fit_mbd(
     field: &GridField,
     valid: Option<&[bool]>,
@@ -19,13 +19,22 @@ pub(crate) fn fit_mbd(
     basis_nodes: [usize; 3],
     progress: &dyn Progress,
 ) -> Result<(MbdModel<HatGrid, HatGrid>, SolveReport), MbdError> {
+    let levels = config.coarse_levels(field.dims());
     let mbd = Mbd {
         solver: SolverOptions {
             lambda: config.lambda,
-            max_iterations: config.max_iterations,
+            max_iterations: if levels > 0 {
+                config.full_iterations
+            } else {
+                config.max_iterations
+            },
             seed: config.seed ^ 0x4D42_4400,
             ..SolverOptions::default()
         },
+        coarse_start: (levels > 0).then_some(CoarseStart {
+            levels,
+            iterations: config.max_iterations,
+        }),
         ..Mbd::new(config.rank, Basis::HatGrid { nodes: basis_nodes })
     };
     let fit = match valid {

@@ -2,7 +2,7 @@
 
 use std::time::{Duration, Instant};
 
-use prt_core::{GridField, Progress, resample_to_grid};
+use prt_core::{Progress, resample_to_grid};
 use prt_kernels::HatGrid;
 use prt_mbd::{LocalBasis, MbdModel, PiecewisePcaModel, SolveReport};
 use prt_texture::Limits;
@@ -101,8 +101,6 @@ pub struct BakedMbd {
     pub basis_nodes: [usize; 3],
     /// The basis cell of every voxel.
     pub labels: Vec<u32>,
-    /// The model evaluated at the voxel centres.
-    pub reconstruction: GridField,
 }
 
 /// What a sparse-brick bake traced and stored ([`crate::Layout::Sparse`]).
@@ -119,7 +117,7 @@ pub struct BrickSummary {
 pub struct Baseline {
     /// [`Method::Bpca`] or [`Method::Cpca`].
     pub method: Method,
-    /// The model (labels, bases and reconstruction on the grid).
+    /// The model (labels, bases and coefficients on the grid).
     pub model: PiecewisePcaModel,
 }
 
@@ -257,24 +255,23 @@ pub fn bake_volume(
             source,
         }
     };
-    let (labels, reconstruction, mbd_scores) =
-        run_stage(progress, &mut times, Stage::Evaluate, |_| {
-            let labels =
-                basis_cells(model.basis_kernels(), field).map_err(score_error(Method::Mbd))?;
-            let reconstruction = resample_to_grid(&model, field.dims(), field.bounds())
-                .map_err(|e| score_error(Method::Mbd)(e.into()))?;
-            let scores = score(
-                Method::Mbd,
-                &model,
-                field,
-                &reconstruction,
-                &labels,
-                &eval,
-                mbd_time,
-            )
-            .map_err(score_error(Method::Mbd))?;
-            Ok((labels, reconstruction, scores))
-        })?;
+    // Grid reconstructions are made for scoring and dropped: each is as large as the field.
+    let (labels, mbd_scores) = run_stage(progress, &mut times, Stage::Evaluate, |_| {
+        let labels = basis_cells(model.basis_kernels(), field).map_err(score_error(Method::Mbd))?;
+        let reconstruction = resample_to_grid(&model, field.dims(), field.bounds())
+            .map_err(|e| score_error(Method::Mbd)(e.into()))?;
+        let scores = score(
+            Method::Mbd,
+            &model,
+            field,
+            &reconstruction,
+            &labels,
+            &eval,
+            mbd_time,
+        )
+        .map_err(score_error(Method::Mbd))?;
+        Ok((labels, scores))
+    })?;
     let mut comparison = vec![mbd_scores];
 
     let mut baselines = Vec::new();
@@ -294,12 +291,13 @@ pub fn bake_volume(
                     },
                     source,
                 })?;
+                let reconstruction = model.reconstruct().map_err(score_error(method))?;
                 comparison.push(
                     score(
                         method,
                         &model,
                         field,
-                        model.reconstruction(),
+                        &reconstruction,
                         model.labels(),
                         &eval,
                         time,
@@ -386,7 +384,6 @@ pub fn bake_volume(
             report,
             basis_nodes,
             labels,
-            reconstruction,
         },
         baselines,
         comparison,

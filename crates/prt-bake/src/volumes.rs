@@ -69,13 +69,11 @@ pub fn write_volumes(
     push_parts(&mut arrays, REFERENCE, field, dims, encoding)?;
     for baseline in &bake.baselines {
         let name = baseline.method.name().to_lowercase();
-        push_parts(
-            &mut arrays,
-            &name,
-            baseline.model.reconstruction(),
-            dims,
-            encoding,
-        )?;
+        let reconstruction = baseline
+            .model
+            .reconstruct()
+            .map_err(ContainerError::Model)?;
+        push_parts(&mut arrays, &name, &reconstruction, dims, encoding)?;
         names.push(name);
     }
     let validity = bake

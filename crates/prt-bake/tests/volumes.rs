@@ -35,8 +35,12 @@ fn the_reference_and_the_baselines_round_trip_within_f16_rounding() {
     assert_eq!(kept.valid, baked.volume.valid);
     let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
     assert_eq!(names, [REFERENCE, "bpca", "cpca"]);
-    let originals = std::iter::once(&baked.volume.field)
-        .chain(baked.baselines.iter().map(|b| b.model.reconstruction()));
+    let originals = std::iter::once(baked.volume.field.clone()).chain(
+        baked
+            .baselines
+            .iter()
+            .map(|b| b.model.reconstruct().expect("reconstruction")),
+    );
     for ((name, back), original) in kept.volumes.iter().zip(originals) {
         for (a, b) in original.data().iter().zip(back.data()) {
             // f16: relative 2⁻¹¹, absolute 2⁻²⁵ for subnormals.

@@ -149,8 +149,20 @@ pub struct BakeArgs {
         |c| c.basis_nodes.to_string(),
     ))]
     pub basis_nodes: Option<usize>,
-    #[arg(long, help = knob_help("MBD iteration cap", |c| c.max_iterations.to_string()))]
+    #[arg(long, help = knob_help(
+        "MBD iteration cap (of the coarse solves, with a coarse start)",
+        |c| c.max_iterations.to_string(),
+    ))]
     pub iterations: Option<usize>,
+    /// Times MBD halves the volume and fits it before the full-resolution solve [default: until
+    /// it has fewer than 64³ voxels].
+    #[arg(long)]
+    pub coarse_levels: Option<usize>,
+    #[arg(long, help = knob_help(
+        "With a coarse start, the full-resolution solve's iteration cap",
+        |c| c.full_iterations.to_string(),
+    ))]
+    pub full_iterations: Option<usize>,
     #[arg(long, help = knob_help(
         "MBD ridge weight λ on the coefficients",
         |c| c.lambda.to_string(),
@@ -215,7 +227,7 @@ fn parse_bytes(text: &str) -> Result<u64, String> {
 
 /// 80 % of the machine's physical memory (`MemTotal` in /proc/meminfo), or 8 GiB where it
 /// cannot be read.
-fn default_memory_budget() -> u64 {
+pub(crate) fn default_memory_budget() -> u64 {
     let total_kib = std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|text| {
@@ -247,6 +259,8 @@ impl BakeArgs {
             rank: self.rank.unwrap_or(preset.rank),
             basis_nodes: self.basis_nodes.unwrap_or(preset.basis_nodes),
             max_iterations: self.iterations.unwrap_or(preset.max_iterations),
+            coarse_levels: self.coarse_levels.or(preset.coarse_levels),
+            full_iterations: self.full_iterations.unwrap_or(preset.full_iterations),
             lambda: self.lambda.unwrap_or(preset.lambda),
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
@@ -269,6 +283,7 @@ fn flag(field: &str) -> &str {
         "rank" => "--rank",
         "basis_nodes" => "--basis-nodes",
         "max_iterations" => "--iterations",
+        "full_iterations" => "--full-iterations",
         "lambda" => "--lambda",
         "brick_max_distance" => "--brick-max-distance",
         other => other,

@@ -4,11 +4,11 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use prt_bake::TileSeams;
 use serde_json::json;
 
-use crate::bake::{KeepVolumes, cli_error, write_outputs};
+use crate::bake::{KeepVolumes, cli_error, default_memory_budget, write_outputs};
 use crate::plan::{load_scene, read_plan};
 use crate::progress::{Stage, StageBars};
 
@@ -30,6 +30,15 @@ pub struct MergeArgs {
     /// The scene file, when it lives at another path on this machine than in the plan.
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// Merge in memory bounded by one tile: never assemble the volume; fit MBD's basis to the
+    /// volume averaged down below 64³ voxels, refine it by `--sweeps` passes over the tiles, fit
+    /// each voxel's coefficients on it. Writes the container, scene.mesh and tiles.json (no baselines, report or seam
+    /// views, which need the whole volume).
+    #[arg(long)]
+    pub stream: bool,
+    /// With `--stream`: alternating least-squares sweeps over the tiles after the coarse fit.
+    #[arg(long, default_value_t = 2, requires = "stream")]
+    pub sweeps: usize,
 }
 
 pub fn run(args: &MergeArgs) -> Result<()> {
@@ -48,7 +57,25 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
+    if args.stream {
+        return run_streamed(args, &plan, &scene, total);
+    }
 
+    // The in-memory merge holds the whole volume: refuse it over the budget before reading.
+    let estimate = prt_bake::MemoryEstimate::for_grid(
+        &plan.config,
+        plan.lattice_dims,
+        scene.scene.triangles().len(),
+    );
+    let budget = default_memory_budget();
+    if estimate.total() > budget {
+        bail!(
+            "merging in memory needs about {:.2} GiB, over this machine's budget of {:.2} GiB; \
+             merge with --stream, which holds one tile",
+            estimate.total() as f64 / f64::from(1u32 << 30),
+            budget as f64 / f64::from(1u32 << 30)
+        );
+    }
     let stage = Stage::start("assemble");
     let assembled = prt_bake::assemble(&plan, &args.plan_dir)?;
     stage.finish();
@@ -87,6 +114,76 @@ pub fn run(args: &MergeArgs) -> Result<()> {
             ),
             None => String::new(),
         }
+    );
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+/// `prt merge --stream`: the container, scene.mesh and tiles.json, in memory bounded by a tile.
+fn run_streamed(
+    args: &MergeArgs,
+    plan: &prt_bake::TilePlan,
+    scene: &prt_bake::SceneInput,
+    total: Instant,
+) -> Result<()> {
+    let config = prt_bake::BakeConfig {
+        container: Some(args.out.join("mbd")),
+        ..plan.config.clone()
+    };
+    let stage = Stage::start("streamed merge");
+    let merged = prt_bake::merge_streamed(
+        plan,
+        &args.plan_dir,
+        &scene.name,
+        &config,
+        args.sweeps,
+        &stage,
+    )?;
+    stage.finish();
+    let mesh = args.out.join(crate::render::SCENE_MESH);
+    prt_render::write_mesh(&mesh, &scene.scene)
+        .with_context(|| format!("cannot write {}", mesh.display()))?;
+    let valid = merged.valid.iter().filter(|&&v| v).count();
+    let bytes = merged.container.as_ref().map(|c| c.total_bytes);
+    let report = json!({
+        "tiles": plan.tiles.len(),
+        "counts": plan.counts,
+        "halo": plan.halo,
+        "lattice": plan.lattice_dims,
+        "streamed": {
+            "coarse_grid": merged.coarse_dims,
+            "coarse_iterations": merged.coarse_solve.history.len(),
+            "sweeps": args.sweeps,
+            "relative_error_at_valid_voxel_centres": merged.relative_errors,
+            "valid_voxels": valid,
+            "container_bytes": bytes,
+            "bytes_per_valid_voxel": bytes.map(|b| b as f64 / valid.max(1) as f64),
+            "stage_seconds": merged
+                .stage_times
+                .iter()
+                .map(|(name, time)| json!([name, time.as_secs_f64()]))
+                .collect::<Vec<_>>(),
+            "total_seconds": total.elapsed().as_secs_f64(),
+        },
+    });
+    let path = args.out.join(TILES_REPORT);
+    prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    let errors: Vec<String> = merged
+        .relative_errors
+        .iter()
+        .map(|e| format!("{e:.3e}"))
+        .collect();
+    println!(
+        "streamed merge of {} tiles: basis fitted on {:?} voxels, relative error at the valid \
+         voxel centres {} (coarse fit, then after each sweep); {} valid voxels, {} bytes \
+         written; total {:.1} s",
+        plan.tiles.len(),
+        merged.coarse_dims,
+        errors.join(" → "),
+        valid,
+        bytes.unwrap_or(0),
+        total.elapsed().as_secs_f64()
     );
     println!("wrote {}", path.display());
     Ok(())

@@ -57,6 +57,10 @@ pub fn read_plan(plan_dir: &Path) -> Result<TilePlan> {
     })
 }
 
+fn gib(bytes: u64) -> f64 {
+    bytes as f64 / f64::from(1u32 << 30)
+}
+
 pub fn run(args: &PlanArgs) -> Result<()> {
     if args.bake.keep_volumes != KeepVolumes::Auto {
         bail!("--keep-volumes is a flag of `prt merge`, which writes the bake folder");
@@ -67,13 +71,25 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         Some(path) => SceneInput::load_gltf(path).map_err(cli_error)?,
         None => SceneInput::cornell_box(),
     };
-    // The merge solves the whole volume in one process: check it against the budget now.
-    if let (Some(bounds), Some(budget)) = (scene.scene.bounds(), config.max_memory) {
-        let (size, triangles) = (bounds.size().to_array(), scene.scene.triangles().len());
-        MemoryEstimate::new(&config, size, triangles)
-            .check(&config, size, triangles, budget)
-            .map_err(cli_error)?;
-    }
+    // The in-memory merge solves the whole volume in one process; say now when it will not fit.
+    let merge_note = match (scene.scene.bounds(), config.max_memory) {
+        (Some(bounds), Some(budget)) => {
+            let estimate = MemoryEstimate::new(
+                &config,
+                bounds.size().to_array(),
+                scene.scene.triangles().len(),
+            );
+            (estimate.total() > budget).then(|| {
+                format!(
+                    "note: merging in memory needs about {:.2} GiB, over this machine's budget of \
+                     {:.2} GiB: merge with `prt merge --stream`, which holds one tile",
+                    gib(estimate.total()),
+                    gib(budget)
+                )
+            })
+        }
+        _ => None,
+    };
     let plan = prt_bake::plan_tiles(
         &scene,
         args.bake.scene.as_deref(),
@@ -103,6 +119,9 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         largest
     );
     println!("wrote {}", path.display());
+    if let Some(note) = merge_note {
+        println!("{note}");
+    }
     println!(
         "next: prt bake-tile {} --tile I for I in 0..{} (or --all), then prt merge {} --out BAKE_DIR",
         out.display(),

@@ -101,6 +101,42 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     }
     assert!(report["halo_agreement"]["voxels"].as_u64().unwrap() > 0);
 
+    // The streamed merge writes a container on the same lattice and validity (on 3 basis
+    // nodes per axis: it fits the basis on the lattice halved, 4 voxels per axis).
+    let plan3 = dir.join("plan3");
+    let plan3_s = plan3.to_str().unwrap();
+    let mut args = vec![
+        "plan",
+        "--tiles",
+        "2,2,1",
+        "--out",
+        plan3_s,
+        "--basis-nodes",
+        "3",
+    ];
+    args.extend(KNOBS);
+    ok(&prt(&args));
+    ok(&prt(&["bake-tile", plan3_s, "--all", "--workers", "2"]));
+    let streamed = dir.join("streamed");
+    ok(&prt(&[
+        "merge",
+        plan3_s,
+        "--out",
+        streamed.to_str().unwrap(),
+        "--stream",
+        "--sweeps",
+        "1",
+    ]));
+    let back = prt_bake::read_container(&streamed.join("mbd"), &Limits::default()).unwrap();
+    assert_eq!((back.grid, &back.valid), (container.grid, &container.valid));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(streamed.join("tiles.json")).unwrap())
+            .unwrap();
+    let errors = report["streamed"]["relative_error_at_valid_voxel_centres"]
+        .as_array()
+        .unwrap();
+    assert_eq!(errors.len(), 2);
+
     // A finished tile is skipped; a forced retry gives the same bytes.
     let files = ["transfer.f32", "valid.u8", "tile.json"];
     let tile2 = prt_bake::tile_dir(&plan, 2);

@@ -34,6 +34,51 @@ pub struct TrilinearWeights {
     pub weights: [f32; 8],
 }
 
+impl TrilinearWeights {
+    /// The voxels and weights that trilinearly interpolate at `p` on a grid of `dims` voxels
+    /// filling `bounds` (clamped to the box of voxel centres), for models that store a grid's
+    /// values in another form than a [`GridField`].
+    pub fn at(dims: [usize; 3], bounds: Aabb, p: Vec3) -> Result<Self, CoreError> {
+        if !p.is_finite() {
+            let index = (0..3).find(|&k| !p[k].is_finite()).unwrap_or(0);
+            return Err(CoreError::NonFinite {
+                what: "query point",
+                index,
+            });
+        }
+        let local = bounds.to_local(p);
+        let mut lo = [0usize; 3];
+        let mut hi = [0usize; 3];
+        let mut t = [0.0f32; 3];
+        for k in 0..3 {
+            let n = dims[k];
+            // Continuous voxel coordinate: voxel centres sit at integers.
+            let u = (local[k] * n as f32 - 0.5).clamp(0.0, (n - 1) as f32);
+            let i0 = (u.floor() as usize).min(n.saturating_sub(2));
+            lo[k] = i0;
+            hi[k] = (i0 + 1).min(n - 1);
+            t[k] = if n == 1 { 0.0 } else { u - i0 as f32 };
+        }
+        let mut indices = [0usize; 8];
+        let mut weights = [0.0f32; 8];
+        for c in 0..8 {
+            let pick = |k: usize| {
+                if (c >> k) & 1 == 1 {
+                    (hi[k], t[k])
+                } else {
+                    (lo[k], 1.0 - t[k])
+                }
+            };
+            let (ix, wx) = pick(0);
+            let (iy, wy) = pick(1);
+            let (iz, wz) = pick(2);
+            indices[c] = ix + dims[0] * (iy + dims[1] * iz);
+            weights[c] = wx * wy * wz;
+        }
+        Ok(Self { indices, weights })
+    }
+}
+
 impl GridField {
     /// A zero field. Errors if a dimension or `dim` is zero or the bounds are not a valid box.
     pub fn new(dims: [usize; 3], bounds: Aabb, dim: usize) -> Result<Self, CoreError> {
@@ -213,43 +258,7 @@ impl GridField {
     /// The voxels and weights that trilinearly interpolate at `p` (clamped to the box of voxel
     /// centres).
     pub fn trilinear_weights(&self, p: Vec3) -> Result<TrilinearWeights, CoreError> {
-        if !p.is_finite() {
-            let index = (0..3).find(|&k| !p[k].is_finite()).unwrap_or(0);
-            return Err(CoreError::NonFinite {
-                what: "query point",
-                index,
-            });
-        }
-        let local = self.bounds.to_local(p);
-        let mut lo = [0usize; 3];
-        let mut hi = [0usize; 3];
-        let mut t = [0.0f32; 3];
-        for k in 0..3 {
-            let n = self.dims[k];
-            // Continuous voxel coordinate: voxel centres sit at integers.
-            let u = (local[k] * n as f32 - 0.5).clamp(0.0, (n - 1) as f32);
-            let i0 = (u.floor() as usize).min(n.saturating_sub(2));
-            lo[k] = i0;
-            hi[k] = (i0 + 1).min(n - 1);
-            t[k] = if n == 1 { 0.0 } else { u - i0 as f32 };
-        }
-        let mut indices = [0usize; 8];
-        let mut weights = [0.0f32; 8];
-        for c in 0..8 {
-            let pick = |k: usize| {
-                if (c >> k) & 1 == 1 {
-                    (hi[k], t[k])
-                } else {
-                    (lo[k], 1.0 - t[k])
-                }
-            };
-            let (ix, wx) = pick(0);
-            let (iy, wy) = pick(1);
-            let (iz, wz) = pick(2);
-            indices[c] = self.index(ix, iy, iz);
-            weights[c] = wx * wy * wz;
-        }
-        Ok(TrilinearWeights { indices, weights })
+        TrilinearWeights::at(self.dims, self.bounds, p)
     }
 
     /// Trilinear interpolation at `p` into `out` (`out.len()` must equal [`GridField::dim`]).

@@ -10,7 +10,7 @@
 
 use glam::Vec3;
 use ndarray::{Array2, Array3, ArrayView2, Axis, linalg::general_mat_mul, s};
-use prt_core::{Aabb, Compressor, CoreError, FieldModel, GridField, Progress};
+use prt_core::{Aabb, Compressor, CoreError, FieldModel, GridField, Progress, TrilinearWeights};
 use prt_linalg::{KMeansOptions, kmeans};
 use rayon::prelude::*;
 
@@ -26,13 +26,12 @@ pub struct PiecewisePcaModel {
     labels: Vec<u32>,
     bases: Array3<f32>,
     coefficients: Array2<f32>,
-    reconstruction: GridField,
+    dims: [usize; 3],
+    bounds: Aabb,
     stored_scalars: usize,
 }
 
 impl PiecewisePcaModel {
-    /// Builds the model and its voxel reconstruction. `stored_scalars` is what the method
-    /// stores (for vector quantisation, one index per voxel rather than coefficients).
     /// A subspace model: every voxel projected onto its cluster's basis; it stores the bases
     /// and L coefficients per voxel.
     fn projected(
@@ -46,6 +45,8 @@ impl PiecewisePcaModel {
         Self::new(name, field, labels, bases, coefficients, stored)
     }
 
+    /// The model on `field`'s grid. `stored_scalars` is what the method stores (for vector
+    /// quantisation, one index per voxel rather than coefficients).
     fn new(
         name: String,
         field: &GridField,
@@ -54,22 +55,13 @@ impl PiecewisePcaModel {
         coefficients: Array2<f32>,
         stored_scalars: usize,
     ) -> Result<Self, MbdError> {
-        let d = field.dim();
-        let mut data = Array2::<f32>::zeros((field.num_voxels(), d));
-        data.axis_iter_mut(Axis(0))
-            .into_par_iter()
-            .enumerate()
-            .for_each(|(v, mut row)| {
-                let basis = bases.index_axis(Axis(0), labels[v] as usize);
-                row.assign(&coefficients.row(v).dot(&basis));
-            });
-        let reconstruction = GridField::from_data(field.dims(), field.bounds(), data)?;
         Ok(Self {
             name,
             labels,
             bases,
             coefficients,
-            reconstruction,
+            dims: field.dims(),
+            bounds: field.bounds(),
             stored_scalars,
         })
     }
@@ -89,19 +81,66 @@ impl PiecewisePcaModel {
         &self.coefficients
     }
 
-    /// The reconstructed voxel values.
-    pub fn reconstruction(&self) -> &GridField {
-        &self.reconstruction
+    /// The reconstructed voxel values, computed on each call (voxels × D floats: the model
+    /// itself keeps only its labels, bases and coefficients).
+    pub fn reconstruct(&self) -> Result<GridField, MbdError> {
+        let d = self.bases.dim().2;
+        let voxels = self.labels.len();
+        let mut data = Array2::<f32>::zeros((voxels, d));
+        data.axis_iter_mut(Axis(0))
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(v, mut row)| {
+                let basis = self.bases.index_axis(Axis(0), self.labels[v] as usize);
+                row.assign(&self.coefficients.row(v).dot(&basis));
+            });
+        Ok(GridField::from_data(self.dims, self.bounds, data)?)
     }
 }
 
 impl FieldModel for PiecewisePcaModel {
     fn dim(&self) -> usize {
-        self.reconstruction.dim()
+        self.bases.dim().2
     }
 
+    /// The trilinear interpolation of the voxel reconstructions: the corners' coefficients are
+    /// blended per cluster first, so a point inside one cluster costs one `L × D` product.
     fn eval(&self, x: Vec3, out: &mut [f32]) -> Result<(), CoreError> {
-        self.reconstruction.sample(x, out)
+        if out.len() != self.dim() {
+            return Err(CoreError::LengthMismatch {
+                what: "sample output",
+                expected: self.dim(),
+                got: out.len(),
+            });
+        }
+        let corners = TrilinearWeights::at(self.dims, self.bounds, x)?;
+        let l = self.coefficients.ncols();
+        let mut blended = vec![0.0f32; l];
+        let mut done = [false; 8];
+        let mut out = ndarray::aview_mut1(out);
+        out.fill(0.0);
+        for c in 0..8 {
+            if done[c] {
+                continue;
+            }
+            let label = self.labels[corners.indices[c]];
+            blended.fill(0.0);
+            for k in c..8 {
+                let voxel = corners.indices[k];
+                if !done[k] && self.labels[voxel] == label {
+                    done[k] = true;
+                    let w = corners.weights[k];
+                    for (b, &x) in blended.iter_mut().zip(self.coefficients.row(voxel)) {
+                        *b += w * x;
+                    }
+                }
+            }
+            let basis = self.bases.index_axis(Axis(0), label as usize);
+            for (&w, row) in blended.iter().zip(basis.rows()) {
+                out.scaled_add(w, &row);
+            }
+        }
+        Ok(())
     }
 
     fn stored_scalars(&self) -> usize {
@@ -551,9 +590,12 @@ impl Compressor for KMeansVq {
 /// The box spanned by the voxel centres of `field` (where a hat grid with one node per voxel
 /// puts its nodes).
 pub fn voxel_centre_box(field: &GridField) -> Aabb {
-    let [nx, ny, nz] = field.dims();
-    Aabb::new(
-        field.voxel_centre(0, 0, 0),
-        field.voxel_centre(nx - 1, ny - 1, nz - 1),
-    )
+    voxel_centre_box_of(field.dims(), field.bounds())
+}
+
+/// [`voxel_centre_box`] of a grid of `dims` voxels filling `bounds`.
+pub(crate) fn voxel_centre_box_of(dims: [usize; 3], bounds: Aabb) -> Aabb {
+    let size = bounds.size() / Vec3::from_array(dims.map(|n| n as f32));
+    let centre = |i: [usize; 3]| bounds.min + (Vec3::from_array(i.map(|i| i as f32)) + 0.5) * size;
+    Aabb::new(centre([0; 3]), centre(dims.map(|n| n - 1)))
 }

@@ -4,12 +4,13 @@ use glam::Vec3;
 use prt_core::{Aabb, Compressor, CoreError, GridField, KernelWeights, Progress, SpatialKernels};
 use prt_kernels::HatGrid;
 
-use crate::baselines::voxel_centre_box;
 use crate::clustered::{LabelKernels, LabelSmoothing, align_to};
+use crate::coarse::{CoarseStart, can_halve, halve};
 use crate::polish::{self, BasisLayout, PolishBasis, PolishOptions, PolishReport};
+use crate::solver::{Start, check_mask, solve_with};
 use crate::subspace::principal_subspace;
 use crate::{
-    ClusteredPca, MbdError, MbdModel, PiecewisePcaModel, SolveReport, SolverOptions, solve,
+    ClusteredPca, MbdError, MbdModel, PiecewisePcaModel, SolveReport, SolverOptions,
     solve_from_basis,
 };
 
@@ -30,6 +31,10 @@ pub struct Mbd {
     /// the solver's model as it stops). It pays where the solver stops far above the optimum:
     /// clustered basis kernels on scenes like Sponza, smooth noise-free fields.
     pub polish: Option<PolishOptions>,
+    /// Start from a fit of the field at half (quarter, ...) resolution (beyond the paper,
+    /// opt-in, [`Basis::HatGrid`] only; `None`: the paper's start, the global principal
+    /// subspace). For large volumes, where each full-resolution iteration is costly.
+    pub coarse_start: Option<CoarseStart>,
 }
 
 impl Default for Mbd {
@@ -90,6 +95,7 @@ impl Mbd {
             basis,
             solver: SolverOptions::default(),
             polish: None,
+            coarse_start: None,
         }
     }
 
@@ -105,16 +111,8 @@ impl Mbd {
     pub fn fit(&self, field: &GridField, progress: &dyn Progress) -> Result<MbdFit, MbdError> {
         match self.basis {
             Basis::HatGrid { nodes } => {
-                let basis = hat_basis(field, nodes)?;
-                self.check_polish(basis.len())?;
-                let (model, solve_report) = solve(
-                    field,
-                    coefficient_kernels(field)?,
-                    BasisKernels::HatGrid(basis),
-                    self.rank,
-                    &self.solver,
-                    progress,
-                )?;
+                self.check_polish(hat_basis(field, nodes)?.len())?;
+                let (model, solve_report) = self.solve_hat_grid(field, None, nodes, progress)?;
                 self.finish(field, model, solve_report, progress)
             }
             Basis::Clusters { count, .. } => {
@@ -158,20 +156,67 @@ impl Mbd {
                 why: "the polish fits every voxel; a masked fit runs without it".into(),
             });
         }
-        let (model, solve) = crate::solver::solve_masked(
-            field,
-            valid,
-            coefficient_kernels(field)?,
-            BasisKernels::HatGrid(hat_basis(field, nodes)?),
-            self.rank,
-            &self.solver,
-            progress,
-        )?;
+        check_mask(field, valid)?;
+        let (model, solve) = self.solve_hat_grid(field, Some(valid), nodes, progress)?;
         Ok(MbdFit {
             model,
             solve,
             polish: None,
         })
+    }
+
+    /// The solver on a [`Basis::HatGrid`] of `nodes`, on the voxels `valid` (`None`: all),
+    /// after the [`Mbd::coarse_start`] if one is set.
+    fn solve_hat_grid(
+        &self,
+        field: &GridField,
+        valid: Option<&[bool]>,
+        nodes: [usize; 3],
+        progress: &dyn Progress,
+    ) -> Result<(MbdModel<HatGrid, BasisKernels>, SolveReport), MbdError> {
+        let basis_kernels = BasisKernels::HatGrid(hat_basis(field, nodes)?);
+        let coarse = match self.coarse_start {
+            Some(start) if start.levels > 0 && can_halve(field.dims(), nodes) => {
+                let (coarse_field, coarse_valid) = halve(field, valid)?;
+                let coarser = Mbd {
+                    solver: SolverOptions {
+                        max_iterations: start.iterations,
+                        seed: crate::objective::mix(self.solver.seed, start.levels as u64),
+                        ..self.solver.clone()
+                    },
+                    coarse_start: Some(CoarseStart {
+                        levels: start.levels - 1,
+                        ..start
+                    }),
+                    ..self.clone()
+                };
+                progress.message("coarse start");
+                Some(coarser.solve_hat_grid(
+                    &coarse_field,
+                    coarse_valid.as_deref(),
+                    nodes,
+                    progress,
+                )?)
+            }
+            _ => None,
+        };
+        let start = match &coarse {
+            Some((model, _)) => Start::Basis(model.basis()),
+            None => Start::GlobalPca { rank: self.rank },
+        };
+        let (model, mut report) = solve_with(
+            field,
+            valid,
+            coefficient_kernels(field)?,
+            basis_kernels,
+            start,
+            &self.solver,
+            progress,
+        )?;
+        if let Some((_, coarse_report)) = coarse {
+            report.coarse_seconds = coarse_report.coarse_seconds + coarse_report.total_seconds();
+        }
+        Ok((model, report))
     }
 
     /// Bad polish options fail before the solve, not after it.
@@ -223,21 +268,32 @@ impl Compressor for Mbd {
 
 /// The coefficient kernels of [`Mbd`] on `field`: one hat per voxel centre.
 pub(crate) fn coefficient_kernels(field: &GridField) -> Result<HatGrid, MbdError> {
-    HatGrid::new(field.dims(), voxel_centre_box(field)).map_err(|e| MbdError::InvalidKernels {
-        which: "coefficient",
-        why: e.to_string(),
+    HatGrid::new(field.dims(), crate::baselines::voxel_centre_box(field)).map_err(|e| {
+        MbdError::InvalidKernels {
+            which: "coefficient",
+            why: e.to_string(),
+        }
     })
 }
 
 /// The hat basis of [`Basis::HatGrid`] on `field`.
 fn hat_basis(field: &GridField, nodes: [usize; 3]) -> Result<HatGrid, MbdError> {
+    hat_basis_on(field.dims(), field.bounds(), nodes)
+}
+
+/// [`hat_basis`] of a grid of `dims` voxels filling `bounds`.
+pub(crate) fn hat_basis_on(
+    dims: [usize; 3],
+    bounds: Aabb,
+    nodes: [usize; 3],
+) -> Result<HatGrid, MbdError> {
     if let Some(axis) = (0..3).find(|&k| nodes[k] < 2) {
         return Err(MbdError::InvalidKernels {
             which: "basis",
             why: format!("axis {axis} has {} nodes, need at least 2", nodes[axis]),
         });
     }
-    HatGrid::new(nodes, basis_box(field)).map_err(|e| MbdError::InvalidKernels {
+    HatGrid::new(nodes, basis_box_of(dims, bounds)).map_err(|e| MbdError::InvalidKernels {
         which: "basis",
         why: e.to_string(),
     })
@@ -248,7 +304,12 @@ fn hat_basis(field: &GridField, nodes: [usize; 3]) -> Result<HatGrid, MbdError> 
 /// the outer half voxel, so nodes on the field's faces would spend half a voxel per side where
 /// nothing changes.
 pub fn basis_box(field: &GridField) -> Aabb {
-    let (centres, bounds, dims) = (voxel_centre_box(field), field.bounds(), field.dims());
+    basis_box_of(field.dims(), field.bounds())
+}
+
+/// [`basis_box`] of a grid of `dims` voxels filling `bounds`.
+fn basis_box_of(dims: [usize; 3], bounds: Aabb) -> Aabb {
+    let centres = crate::baselines::voxel_centre_box_of(dims, bounds);
     let pick = |c: Vec3, b: Vec3| {
         Vec3::new(
             if dims[0] >= 2 { c.x } else { b.x },

@@ -16,9 +16,11 @@
 //! ## Fit MBD to your field
 //! [`Mbd`] is the one way to fit: a rank, a [`Basis`] (the paper's hat grid, or kernels
 //! derived from clustered PCA's clusters), [`SolverOptions`] for the paper's stochastic
-//! quasi-Newton solver and an optional exact [`PolishOptions`] polish. [`Mbd::fit`] returns an
-//! [`MbdFit`]: the [`MbdModel`] (a [`prt_core::FieldModel`], tensors laid out for volume
-//! textures: coefficients `M × L`, basis `N × L × D`) and the solver's and polish's reports.
+//! quasi-Newton solver, an optional exact [`PolishOptions`] polish and an optional
+//! [`CoarseStart`] (fit the volume at half resolution first: for large volumes). [`Mbd::fit`]
+//! returns an [`MbdFit`]: the [`MbdModel`] (a [`prt_core::FieldModel`], tensors laid out for
+//! volume textures: coefficients `M × L`, basis `N × L × D`) and the solver's and polish's
+//! reports.
 //!
 //! ```
 //! use prt_core::{Aabb, NoProgress};
@@ -62,6 +64,7 @@
 
 mod baselines;
 mod clustered;
+mod coarse;
 mod error;
 mod eval;
 mod fit;
@@ -70,12 +73,14 @@ mod objective;
 mod polish;
 mod projection;
 mod solver;
+mod stream;
 mod subspace;
 mod synthetic;
 mod voxel_weights;
 
 pub use baselines::{BlockPca, ClusteredPca, GlobalPca, KMeansVq, PiecewisePcaModel};
 pub use clustered::LabelSmoothing;
+pub use coarse::CoarseStart;
 pub use error::MbdError;
 pub use eval::{ErrorSeams, EvalOptions, Evaluation, SeamOptions, error_seams, evaluate};
 pub use fit::{Basis, BasisKernels, Mbd, MbdFit};
@@ -84,6 +89,7 @@ pub use objective::Preconditioner;
 pub use polish::{PolishOptions, PolishReport};
 pub use projection::{LocalBasis, projection_seam_ratio};
 pub use solver::{SolveReport, SolverOptions};
+pub use stream::{BasisNormals, ProjectScratch, StreamedMbd};
 pub use synthetic::SyntheticField;
 
 pub mod expert {
@@ -102,6 +108,7 @@ pub mod expert {
     //!   measures, for drawing them.
     pub use crate::baselines::voxel_centre_box;
     pub use crate::clustered::{LabelKernels, MAX_LABEL_RADIUS};
+    pub use crate::coarse::{can_halve, halved_grid};
     pub use crate::eval::{blur_valid, kernel_labels, nonzero_voxels};
     pub use crate::fit::basis_box;
     pub use crate::fit::fit_on_clusters;
@@ -117,7 +124,7 @@ pub mod expert {
 }
 
 // Internal paths used across modules.
-pub(crate) use solver::{solve, solve_from_basis};
+pub(crate) use solver::solve_from_basis;
 
 /// The README's example, compiled and run as a doc test so that it stays true.
 #[doc = include_str!("../README.md")]

@@ -104,6 +104,19 @@ pub struct SolveReport {
     pub history: Vec<IterationRecord>,
     /// Whether the stopping rule fired before the iteration cap.
     pub converged: bool,
+    /// Seconds spent in the solves of [`crate::Mbd::coarse_start`] before this one (0 without
+    /// a coarse start); not part of `init_seconds` nor of the history's `elapsed`.
+    pub coarse_seconds: f64,
+}
+
+impl SolveReport {
+    /// Seconds of this solve: the initialisation and every iteration (the coarse start's
+    /// solves not included).
+    pub fn total_seconds(&self) -> f64 {
+        self.history
+            .last()
+            .map_or(self.init_seconds, |record| record.elapsed)
+    }
 }
 
 /// Fits a rank-`rank` MBD with the given kernels to `field` (the target `f(x)` is the field's
@@ -170,19 +183,7 @@ pub fn solve_masked<C: SpatialKernels, B: SpatialKernels>(
     options: &SolverOptions,
     progress: &dyn Progress,
 ) -> Result<(MbdModel<C, B>, SolveReport), MbdError> {
-    if valid.len() != field.num_voxels() {
-        return Err(MbdError::ShapeMismatch {
-            what: "validity mask",
-            expected: vec![field.num_voxels()],
-            got: vec![valid.len()],
-        });
-    }
-    if !valid.contains(&true) {
-        return Err(MbdError::InvalidOption {
-            what: "validity mask",
-            why: "no voxel is valid".into(),
-        });
-    }
+    check_mask(field, valid)?;
     solve_with(
         field,
         Some(valid),
@@ -237,15 +238,33 @@ pub fn solve_from_basis<C: SpatialKernels, B: SpatialKernels>(
     )
 }
 
+/// A validity mask must have one entry per voxel and a valid voxel.
+pub(crate) fn check_mask(field: &GridField, valid: &[bool]) -> Result<(), MbdError> {
+    if valid.len() != field.num_voxels() {
+        return Err(MbdError::ShapeMismatch {
+            what: "validity mask",
+            expected: vec![field.num_voxels()],
+            got: vec![valid.len()],
+        });
+    }
+    if !valid.contains(&true) {
+        return Err(MbdError::InvalidOption {
+            what: "validity mask",
+            why: "no voxel is valid".into(),
+        });
+    }
+    Ok(())
+}
+
 /// Where [`solve_with`] starts.
-enum Start<'a> {
+pub(crate) enum Start<'a> {
     /// Every basis node at the global rank-`rank` principal subspace (the paper's start).
     GlobalPca { rank: usize },
     /// A given basis, `N × L × D`.
     Basis(&'a Array3<f32>),
 }
 
-fn solve_with<C: SpatialKernels, B: SpatialKernels>(
+pub(crate) fn solve_with<C: SpatialKernels, B: SpatialKernels>(
     field: &GridField,
     mask: Option<&[bool]>,
     coefficient_kernels: C,

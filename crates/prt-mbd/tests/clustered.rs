@@ -249,6 +249,7 @@ fn cluster_basis_follows_stripes_the_hat_grid_cannot() {
             ..SolverOptions::default()
         },
         polish: None,
+        coarse_start: None,
     };
     let fit = clustered.fit(&field, &NoProgress).unwrap();
     assert!(fit.polish.is_none());

@@ -61,6 +61,7 @@ proptest! {
             basis: Basis::Clusters { count: 4, smoothing: LabelSmoothing { radius, falloff: 0.5 } },
             solver: SolverOptions { max_iterations: 8, seed, ..SolverOptions::default() },
             polish: None,
+            coarse_start: None,
         };
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
         let options = PolishOptions { iterations: 4, tolerance: 0.0, ..PolishOptions::default() };

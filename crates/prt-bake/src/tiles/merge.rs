@@ -4,11 +4,11 @@
 use std::path::Path;
 
 use ndarray::Array2;
-use prt_core::GridField;
+use prt_core::{GridField, resample_to_grid};
 use prt_mbd::{LocalBasis, SeamOptions};
 use prt_trace::{BakeStats, TransferVolume};
 
-use super::plan::{TileError, TilePlan, flat, voxels};
+use super::plan::{TileError, TilePlan, TileSpec, flat, voxels};
 use super::worker::{TILE_FILE, TRANSFER_FILE, TileStats, VALID_FILE, tile_dir, tile_is_done};
 use crate::{BLUR_SIGMA, Bake, BakeError, TRANSFER_DIM};
 
@@ -64,6 +64,75 @@ fn read(path: &Path) -> Result<Vec<u8>, TileError> {
     })
 }
 
+/// One finished tile's files, checked against the plan.
+pub(crate) struct TileRead {
+    /// What the worker recorded.
+    pub info: TileStats,
+    /// The traced vectors of the tile's voxels (core and halo, x fastest), 324 each.
+    pub transfer: Vec<f32>,
+    /// Whether each of those voxels is valid.
+    pub valid: Vec<bool>,
+}
+
+/// Reads tile `tile` of `plan` from `plan_dir`. Errors when it has not finished, or its files do
+/// not match the plan (size, seed, scene) or hold a non-finite value (named by voxel).
+pub(crate) fn read_tile(
+    plan: &TilePlan,
+    plan_dir: &Path,
+    tile: &TileSpec,
+) -> Result<TileRead, TileError> {
+    if !tile_is_done(plan_dir, tile.index) {
+        return Err(TileError::NotDone(tile.index));
+    }
+    let dir = tile_dir(plan_dir, tile.index);
+    let info_path = dir.join(TILE_FILE);
+    let info: TileStats = serde_json::from_slice(&read(&info_path)?)
+        .map_err(|e| malformed(&info_path, e.to_string()))?;
+    let tdims = tile.traced.dims();
+    if info.dims != tdims || info.seed != tile.seed || info.scene_hash != plan.scene.hash {
+        return Err(malformed(
+            &info_path,
+            format!("tile {} was traced for another plan", tile.index),
+        ));
+    }
+    let n = tile.traced.len();
+    let transfer_path = dir.join(TRANSFER_FILE);
+    let bytes = read(&transfer_path)?;
+    if bytes.len() != n * TRANSFER_DIM * 4 {
+        return Err(malformed(
+            &transfer_path,
+            format!(
+                "{} bytes, the tile's {n} voxels need {}",
+                bytes.len(),
+                n * TRANSFER_DIM * 4
+            ),
+        ));
+    }
+    let valid_path = dir.join(VALID_FILE);
+    let tile_valid = read(&valid_path)?;
+    if tile_valid.len() != n || tile_valid.iter().any(|&b| b > 1) {
+        return Err(malformed(&valid_path, format!("not {n} bytes of 0 or 1")));
+    }
+    let transfer: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    if let Some(i) = transfer.iter().position(|x| !x.is_finite()) {
+        let v = voxels(&tile.traced)
+            .nth(i / TRANSFER_DIM)
+            .unwrap_or_default();
+        return Err(malformed(
+            &transfer_path,
+            format!("non-finite value at voxel {v:?} of the lattice"),
+        ));
+    }
+    Ok(TileRead {
+        info,
+        transfer,
+        valid: tile_valid.iter().map(|&b| b == 1).collect(),
+    })
+}
+
 /// Reads every finished tile of `plan` from `plan_dir` and assembles the cores into the volume
 /// on the plan's lattice. Errors when a tile has not finished, or a tile's files do not match
 /// the plan (size, seed, scene) or hold a non-finite value (named by tile and voxel).
@@ -77,57 +146,20 @@ pub fn assemble(plan: &TilePlan, plan_dir: &Path) -> Result<AssembledVolume, Til
     // (global voxel, the halo trace's vector): compared once every core is in place.
     let mut halo: Vec<(usize, Vec<f32>)> = Vec::new();
     for tile in &plan.tiles {
-        if !tile_is_done(plan_dir, tile.index) {
-            return Err(TileError::NotDone(tile.index));
-        }
-        let dir = tile_dir(plan_dir, tile.index);
-        let info_path = dir.join(TILE_FILE);
-        let info: TileStats = serde_json::from_slice(&read(&info_path)?)
-            .map_err(|e| malformed(&info_path, e.to_string()))?;
-        let tdims = tile.traced.dims();
-        if info.dims != tdims || info.seed != tile.seed || info.scene_hash != plan.scene.hash {
-            return Err(malformed(
-                &info_path,
-                format!("tile {} was traced for another plan", tile.index),
-            ));
-        }
-        let n = tile.traced.len();
-        let transfer_path = dir.join(TRANSFER_FILE);
-        let bytes = read(&transfer_path)?;
-        if bytes.len() != n * TRANSFER_DIM * 4 {
-            return Err(malformed(
-                &transfer_path,
-                format!(
-                    "{} bytes, the tile's {n} voxels need {}",
-                    bytes.len(),
-                    n * TRANSFER_DIM * 4
-                ),
-            ));
-        }
-        let valid_path = dir.join(VALID_FILE);
-        let tile_valid = read(&valid_path)?;
-        if tile_valid.len() != n || tile_valid.iter().any(|&b| b > 1) {
-            return Err(malformed(&valid_path, format!("not {n} bytes of 0 or 1")));
-        }
+        let TileRead {
+            info,
+            transfer,
+            valid: tile_valid,
+        } = read_tile(plan, plan_dir, tile)?;
         for (local, v) in voxels(&tile.traced).enumerate() {
-            let raw = &bytes[local * TRANSFER_DIM * 4..(local + 1) * TRANSFER_DIM * 4];
-            let vector: Vec<f32> = raw
-                .chunks_exact(4)
-                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-                .collect();
-            if vector.iter().any(|x| !x.is_finite()) {
-                return Err(malformed(
-                    &transfer_path,
-                    format!("non-finite value at voxel {v:?} of the lattice"),
-                ));
-            }
+            let vector = &transfer[local * TRANSFER_DIM..(local + 1) * TRANSFER_DIM];
             let g = flat(dims, v);
             if tile.core.contains(v) {
-                data[g * TRANSFER_DIM..(g + 1) * TRANSFER_DIM].copy_from_slice(&vector);
-                valid[g] = tile_valid[local] == 1;
+                data[g * TRANSFER_DIM..(g + 1) * TRANSFER_DIM].copy_from_slice(vector);
+                valid[g] = tile_valid[local];
                 tile_of_voxel[g] = tile.index as u32;
-            } else if tile_valid[local] == 1 {
-                halo.push((g, vector));
+            } else if tile_valid[local] {
+                halo.push((g, vector.to_vec()));
             }
         }
         stats.voxels += tile.core.len();
@@ -192,8 +224,9 @@ pub fn tile_seams(labels: &[u32], bake: &Bake) -> Result<TileSeams, TileError> {
         valid: Some(valid),
     };
     let trace = prt_mbd::error_seams(field, field, labels, &options).map_err(score)?;
-    let mbd =
-        prt_mbd::error_seams(field, &bake.mbd.reconstruction, labels, &options).map_err(score)?;
+    let reconstruction = resample_to_grid(&bake.mbd.model, field.dims(), field.bounds())
+        .map_err(|e| score(e.into()))?;
+    let mbd = prt_mbd::error_seams(field, &reconstruction, labels, &options).map_err(score)?;
     let smoothed = prt_mbd::expert::blur_valid(field, valid, BLUR_SIGMA).map_err(score)?;
     let basis = LocalBasis::Moving {
         kernels: bake.mbd.model.basis_kernels(),

@@ -14,6 +14,7 @@
 
 mod merge;
 mod plan;
+mod stream;
 mod worker;
 
 pub use merge::{AssembledVolume, HaloAgreement, TileSeams, assemble, tile_seams};
@@ -21,6 +22,7 @@ pub use plan::{
     PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlannedScene, TileError, TilePlan, TileSpec, VoxelRange,
     plan_tiles, scene_hash,
 };
+pub use stream::{StreamedMerge, merge_streamed};
 pub use worker::{
     DONE_MARKER, TileOutcome, TileStats, bake_tile, tile_dir, tile_is_done, tile_options,
 };

@@ -7,7 +7,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use glam::Vec3;
 use prt_bake::{Bake, Method, SeamView};
-use prt_core::GridField;
+use prt_core::{FieldModel, GridField};
 use prt_sphere::Sky;
 use prt_texture::write_atomic;
 use prt_trace::{incident_radiance, irradiance};
@@ -18,8 +18,8 @@ use crate::report::plots::{draw_text, seam_profile_png};
 struct ImageMethod<'a> {
     /// File-name key ("mbd", "bpca", ...).
     key: &'static str,
-    /// The reconstruction on the input grid.
-    reconstruction: &'a GridField,
+    /// The model.
+    model: &'a dyn FieldModel,
     /// Cluster (for MBD: basis cell) of every voxel; the seam profile marks where it changes.
     labels: &'a [u32],
     /// Whether the method's basis moves continuously (MBD) or is one per block or cluster.
@@ -33,28 +33,26 @@ fn image_methods(bake: &Bake) -> Vec<ImageMethod<'_>> {
     let views = bake.seam_views.iter().map(|(_, view)| view);
     std::iter::once((
         Method::Mbd.key(),
-        &bake.mbd.reconstruction,
+        &bake.mbd.model as &dyn FieldModel,
         bake.mbd.labels.as_slice(),
         true,
     ))
     .chain(bake.baselines.iter().map(|b| {
         (
             b.method.key(),
-            b.model.reconstruction(),
+            &b.model as &dyn FieldModel,
             b.model.labels(),
             false,
         )
     }))
     .zip(views)
-    .map(
-        |((key, reconstruction, labels, moving), view)| ImageMethod {
-            key,
-            reconstruction,
-            labels,
-            moving,
-            view,
-        },
-    )
+    .map(|((key, model, labels, moving), view)| ImageMethod {
+        key,
+        model,
+        labels,
+        moving,
+        view,
+    })
     .collect()
 }
 
@@ -63,14 +61,25 @@ fn irradiance_rgb(t: &[f32], sky: &Sky) -> [f32; 3] {
     incident_radiance(t, sky).map(|l| irradiance(&l, Vec3::Y))
 }
 
-/// Irradiance at every voxel of the horizontal slice `y` (x fastest); `None` for invalid voxels.
-fn irradiance_slice(field: &GridField, valid: &[bool], y: usize) -> Vec<Option<[f32; 3]>> {
+/// Irradiance at every voxel of `field`'s horizontal slice `y` (x fastest) from the transfer
+/// vector `transfer(v, out)` gives for voxel `v`; `None` for invalid voxels.
+fn irradiance_slice(
+    field: &GridField,
+    valid: &[bool],
+    y: usize,
+    mut transfer: impl FnMut(usize, &mut [f32]) -> Result<()>,
+) -> Result<Vec<Option<[f32; 3]>>> {
     let [nx, _, nz] = field.dims();
     let sky = Sky::default();
+    let mut t = vec![0.0f32; field.dim()];
     (0..nx * nz)
         .map(|p| {
             let v = field.index(p % nx, y, p / nx);
-            valid[v].then(|| irradiance_rgb(field.voxel(v), &sky))
+            if !valid[v] {
+                return Ok(None);
+            }
+            transfer(v, &mut t)?;
+            Ok(Some(irradiance_rgb(&t, &sky)))
         })
         .collect()
 }
@@ -149,7 +158,10 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
         .collect();
 
     // Irradiance, tone-mapped with the exposure that maps the reference's mean to mid-grey.
-    let reference = irradiance_slice(field, valid, y);
+    let reference = irradiance_slice(field, valid, y, |v, t| {
+        t.copy_from_slice(field.voxel(v));
+        Ok(())
+    })?;
     let mean = {
         let vals: Vec<f32> = reference
             .iter()
@@ -160,13 +172,15 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
     };
     let exposure = if mean > 0.0 { 1.0 / mean } else { 1.0 };
     let display = |p: &Option<[f32; 3]>| p.map(|rgb| rgb.map(|v| tonemap(v, exposure)));
-    let slices: Vec<(&str, Vec<Option<[f32; 3]>>)> = std::iter::once(("reference", &reference))
-        .map(|(k, s)| (k, s.iter().map(display).collect()))
-        .chain(methods.iter().map(|m| {
-            let s = irradiance_slice(m.reconstruction, valid, y);
-            (m.key, s.iter().map(display).collect())
-        }))
-        .collect();
+    let mut slices: Vec<(&str, Vec<Option<[f32; 3]>>)> =
+        vec![("reference", reference.iter().map(display).collect())];
+    for m in &methods {
+        // A model at a voxel centre is its value on the grid.
+        let s = irradiance_slice(field, valid, y, |v, t| {
+            Ok(m.model.eval(field.centre_of(v), t)?)
+        })?;
+        slices.push((m.key, s.iter().map(display).collect()));
+    }
 
     // Error maps in display units: the difference a viewer sees between the images above. (An
     // absolute radiometric error is dominated by the brightest voxels, e.g. Sponza's border

@@ -38,7 +38,7 @@ pub struct RenderSummary {
 
 /// Renders the bake's scene from its first view under the default sky, lit by the traced
 /// volume, by MBD as written (the container in `container`, read back, else the fitted model)
-/// and by each baseline's reconstruction; writes each render, each difference from the
+/// and by each baseline; writes each render, each difference from the
 /// reference and `rendered.png` (all of them) into `out_dir`.
 pub fn write_renders(
     out_dir: &Path,
@@ -67,7 +67,7 @@ pub fn write_renders(
     for b in &bake.baselines {
         volumes.push((
             b.method.key().into(),
-            RelitVolume::from_transfer(b.model.reconstruction(), valid, &sky)?,
+            RelitVolume::from_model(&b.model, field.dims(), field.bounds(), valid, &sky)?,
         ));
     }
     let tracer = RayTracer::new(scene.triangles());

@@ -258,9 +258,7 @@ pub fn hat_kernels(
 #[allow(dead_code)] // not every test file uses every helper
 pub fn hat_mbd(rank: usize, nodes: [usize; 3], solver: prt_mbd::SolverOptions) -> prt_mbd::Mbd {
     prt_mbd::Mbd {
-        rank,
-        basis: prt_mbd::Basis::HatGrid { nodes },
         solver,
-        polish: None,
+        ..prt_mbd::Mbd::new(rank, prt_mbd::Basis::HatGrid { nodes })
     }
 }

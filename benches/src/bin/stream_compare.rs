@@ -1,0 +1,74 @@
+//! The streamed merge (`prt merge --stream`) against the in-memory merge of the same tiles:
+//! each bake's container read back, scored against the assembled traced volume.
+//!
+//! ```text
+//! prt plan ../shared/scenes/sponza/Sponza.gltf --res 128 --tiles 2,1,2 --halo 1 --out /tmp/plan128
+//! prt bake-tile /tmp/plan128 --all --workers 2
+//! prt merge /tmp/plan128 --stream --sweeps 4 --out /tmp/stream128
+//! prt merge /tmp/plan128 --out /tmp/memory128
+//! cargo run --release -p prt-benches --bin stream_compare -- --plan /tmp/plan128 /tmp/memory128 /tmp/stream128
+//! ```
+//!
+//! Two errors per bake, both over the valid voxels of the assembled volume: at the voxel
+//! centres (what the streamed merge minimises) and `prt_mbd::evaluate`'s relative MSE over
+//! jittered samples (the bake report's, invalid voxels included as zeros).
+
+use std::path::PathBuf;
+
+use clap::Parser;
+use prt_bake::{TilePlan, assemble, read_container};
+use prt_benches::Table;
+use prt_core::FieldModel;
+use prt_mbd::{EvalOptions, evaluate};
+use prt_texture::Limits;
+
+#[derive(Debug, Parser)]
+#[command(about = "Streamed against in-memory merges of one tiled bake")]
+struct Cli {
+    /// The plan folder whose tiles the bakes merged.
+    #[arg(long)]
+    plan: PathBuf,
+    /// Bake folders (each with mbd/) to score.
+    bakes: Vec<PathBuf>,
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let cli = Cli::parse();
+    let plan = TilePlan::read(&cli.plan)?;
+    let volume = assemble(&plan, &cli.plan)?.volume;
+    let (field, valid) = (&volume.field, &volume.valid);
+    let mut table = Table::new(&[
+        "bake",
+        "relative error, valid voxel centres",
+        "relative MSE, jittered (report's)",
+        "container bytes per valid voxel",
+    ]);
+    let valid_count = valid.iter().filter(|&&v| v).count();
+    for bake in &cli.bakes {
+        let folder = bake.join("mbd");
+        let container = read_container(&folder, &Limits::default())?;
+        let mut out = vec![0.0f32; field.dim()];
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for v in (0..field.num_voxels()).filter(|&v| valid[v]) {
+            container.model.eval(field.centre_of(v), &mut out)?;
+            for (&a, &b) in field.voxel(v).iter().zip(&out) {
+                num += f64::from(a - b).powi(2);
+                den += f64::from(a).powi(2);
+            }
+        }
+        let jittered = evaluate(&container.model, field, &EvalOptions::default())?;
+        let bytes: u64 = std::fs::read_dir(&folder)?
+            .filter_map(Result::ok)
+            .filter_map(|e| e.metadata().ok())
+            .map(|m| m.len())
+            .sum();
+        table.row(vec![
+            bake.display().to_string(),
+            format!("{:.4e}", num / den),
+            format!("{:.4e}", jittered.relative_mse),
+            format!("{:.2}", bytes as f64 / valid_count as f64),
+        ]);
+    }
+    println!("{}", table.markdown());
+    Ok(())
+}

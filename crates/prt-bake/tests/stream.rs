@@ -1,0 +1,108 @@
+//! The streamed merge (`merge_streamed`): the same model on any number of threads, sweeps that
+//! never raise its error, an error close to the in-memory merge's, and a container that reads
+//! back.
+
+use prt_bake::{
+    BakeConfig, SceneInput, assemble, bake_tile, bake_volume, merge_streamed, plan_tiles,
+    read_container,
+};
+use prt_core::{FieldModel, GridField, NoProgress};
+use prt_texture::Limits;
+
+mod common;
+use common::scratch;
+
+fn on_threads<T: Send>(threads: usize, run: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("thread pool")
+        .install(run)
+}
+
+/// `Σ‖f − f̂‖² / Σ‖f‖²` over the valid voxel centres.
+fn centre_error(model: &dyn FieldModel, field: &GridField, valid: &[bool]) -> f64 {
+    let mut out = vec![0.0f32; field.dim()];
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for v in (0..field.num_voxels()).filter(|&v| valid[v]) {
+        model.eval(field.centre_of(v), &mut out).expect("eval");
+        for (&a, &b) in field.voxel(v).iter().zip(&out) {
+            num += f64::from(a - b).powi(2);
+            den += f64::from(a).powi(2);
+        }
+    }
+    num / den
+}
+
+#[test]
+fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory_merge() {
+    let scene = SceneInput::cornell_box();
+    let config = BakeConfig {
+        resolution: 16,
+        rays_per_voxel: 24,
+        cache_rays: 8,
+        rank: 4,
+        basis_nodes: 4,
+        max_iterations: 24,
+        baselines: false,
+        ..BakeConfig::default()
+    };
+    let plan = plan_tiles(&scene, None, &config, [2, 2, 1], 1).expect("plan");
+    let dir = scratch("stream");
+    plan.write(&dir).expect("plan written");
+    for index in 0..plan.tiles.len() {
+        bake_tile(&plan, &dir, &scene, index, false, &NoProgress).expect("tile");
+    }
+    let out = scratch("stream-out");
+    let streamed_config = BakeConfig {
+        container: Some(out.join("mbd")),
+        ..config.clone()
+    };
+    let merge = |threads| {
+        on_threads(threads, || {
+            merge_streamed(&plan, &dir, "cornell", &streamed_config, 3, &NoProgress)
+                .expect("streamed merge")
+        })
+    };
+    let (one, three) = (merge(1), merge(3));
+    assert_eq!(one.model.coefficients(), three.model.coefficients());
+    assert_eq!(one.model.basis(), three.model.basis());
+    assert_eq!(one.relative_errors, three.relative_errors);
+
+    // Each sweep lowers the loss (its residual term may rise by the ridge's order only).
+    let errors = &one.relative_errors;
+    assert_eq!(errors.len(), 4);
+    for pair in errors.windows(2) {
+        assert!(pair[1] <= pair[0] * (1.0 + 1e-3), "{errors:?}");
+    }
+
+    // Against the in-memory merge of the same tiles, on the same voxels.
+    let assembled = assemble(&plan, &dir).expect("assembled");
+    let field = assembled.volume.field.clone();
+    let valid = assembled.volume.valid.clone();
+    assert_eq!(valid, one.valid);
+    let in_memory = bake_volume("cornell", assembled.volume, None, &config, &NoProgress)
+        .expect("in-memory merge");
+    let streamed_error = centre_error(&one.model, &field, &valid);
+    let in_memory_error = centre_error(&in_memory.mbd.model, &field, &valid);
+    println!(
+        "voxel-centre relative error: streamed {errors:?} (checked {streamed_error:.4e}), \
+         in memory {in_memory_error:.4e}"
+    );
+    assert!((streamed_error - errors[3]).abs() <= 1e-3 * errors[3]);
+    assert!(
+        streamed_error <= 1.25 * in_memory_error,
+        "streamed {streamed_error:.4e} against in memory {in_memory_error:.4e}"
+    );
+
+    // The container reads back as the model, up to its f16 storage.
+    let back = read_container(&out.join("mbd"), &Limits::default()).expect("container");
+    assert_eq!(back.valid, valid);
+    let back_error = centre_error(&back.model, &field, &valid);
+    assert!(
+        back_error <= streamed_error * 1.01 + 1e-6,
+        "{back_error} vs {streamed_error}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(&out);
+}
