@@ -34,7 +34,7 @@ pub struct MergeArgs {
     /// volume averaged down below 64³ voxels, refine it by `--sweeps` passes over the tiles, fit
     /// each voxel's coefficients on it. Writes the container, scene.mesh and tiles.json (no baselines, report or seam
     /// views, which need the whole volume).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "keep_volumes")]
     pub stream: bool,
     /// With `--stream`: alternating least-squares sweeps over the tiles after the coarse fit.
     #[arg(long, default_value_t = 2, requires = "stream")]
