@@ -309,14 +309,14 @@ impl<'a> PixelTransportBaker<'a> {
                 || RowScratch::new(self.rays.texels(), &self.haar),
                 |scratch, p| {
                     if progress.is_cancelled() {
-                        return None;
+                        return Ok(None);
                     }
-                    let rows = self.pixel_rows(p, scratch);
+                    let rows = self.pixel_rows(p, scratch)?;
                     progress.inc(1);
-                    Some(rows)
+                    Ok(Some(rows))
                 },
             )
-            .collect();
+            .collect::<Result<_, TraceError>>()?;
         if progress.is_cancelled() || rows.iter().any(Option::is_none) {
             return Err(TraceError::Core(prt_core::CoreError::Cancelled));
         }
@@ -349,10 +349,10 @@ impl<'a> PixelTransportBaker<'a> {
 
     /// The sparsified wavelet rows of pixel `p` (one per channel; empty rows where nothing is
     /// hit).
-    fn pixel_rows(&self, p: usize, scratch: &mut RowScratch) -> Vec<Vec<(u32, f32)>> {
+    fn pixel_rows(&self, p: usize, scratch: &mut RowScratch) -> Result<PixelRows, TraceError> {
         let channels = self.channels();
         let Some(point) = self.gbuffer.points[p] else {
-            return vec![Vec::new(); channels];
+            return Ok(vec![Vec::new(); channels]);
         };
         let RowScratch {
             direct,
@@ -369,8 +369,8 @@ impl<'a> PixelTransportBaker<'a> {
             direct,
         );
         let Some(Bounce { gathers }) = self.options.bounce else {
-            haar.forward(direct).expect("row length matches the cube");
-            return vec![self.options.sparsify.keep(direct, order)];
+            haar.forward(direct)?;
+            return Ok(vec![self.options.sparsify.keep(direct, order)]);
         };
         for b in bounce.iter_mut() {
             b.fill(0.0);
@@ -414,10 +414,10 @@ impl<'a> PixelTransportBaker<'a> {
             for (b, d) in b.iter_mut().zip(direct.iter()) {
                 *b += d;
             }
-            haar.forward(b).expect("row length matches the cube");
+            haar.forward(b)?;
             out.push(self.options.sparsify.keep(b, order));
         }
-        out
+        Ok(out)
     }
 
     /// Secondary rows use one sample per texel: they are averaged over the gathers anyway.
