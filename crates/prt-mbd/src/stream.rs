@@ -123,7 +123,7 @@ impl StreamedMbd {
                 got: voxel.to_vec(),
             });
         }
-        let ProjectScratch { psi, b, a, rhs } = scratch;
+        let ProjectScratch { psi, b, a, rhs, .. } = scratch;
         self.basis_kernels.eval(self.centre(voxel), psi)?;
         // b(x), L × D.
         b.clear();
@@ -177,7 +177,7 @@ impl StreamedMbd {
         f: &[f32],
         c: &[f32],
         normals: &mut BasisNormals,
-        psi: &mut KernelWeights,
+        scratch: &mut ProjectScratch,
     ) -> Result<(), MbdError> {
         let (l, d) = (self.rank(), self.dim());
         let n = self.basis_kernels.len();
@@ -188,19 +188,18 @@ impl StreamedMbd {
                 got: vec![normals.unknowns, normals.dim, f.len(), c.len()],
             });
         }
+        let ProjectScratch { psi, entries, .. } = scratch;
         self.basis_kernels.eval(self.centre(voxel), psi)?;
         // a = ψ(x) ⊗ c: entries (node, l) = ψ_node c_l.
-        let entries: Vec<(usize, f64)> = psi
-            .iter()
-            .flat_map(|(node, w)| {
-                c.iter()
-                    .enumerate()
-                    .map(move |(i, &ci)| (node as usize * l + i, f64::from(w) * f64::from(ci)))
-            })
-            .collect();
+        entries.clear();
+        for (node, w) in psi.iter() {
+            for (i, &ci) in c.iter().enumerate() {
+                entries.push((node as usize * l + i, f64::from(w) * f64::from(ci)));
+            }
+        }
         let m = normals.unknowns;
-        for &(p, ap) in &entries {
-            for &(q, aq) in &entries {
+        for &(p, ap) in entries.iter() {
+            for &(q, aq) in entries.iter() {
                 normals.gram[p * m + q] += ap * aq;
             }
             let row = &mut normals.rhs[p * d..(p + 1) * d];
@@ -281,13 +280,14 @@ impl StreamedMbd {
     }
 }
 
-/// Reused buffers of [`StreamedMbd::project`].
+/// Reused buffers of [`StreamedMbd::project`] and [`StreamedMbd::accumulate`].
 #[derive(Debug, Clone, Default)]
 pub struct ProjectScratch {
     psi: KernelWeights,
     b: Vec<f32>,
     a: Vec<f64>,
     rhs: Vec<f64>,
+    entries: Vec<(usize, f64)>,
 }
 
 /// The normal equations of the basis step, `G = Σ a aᵀ` and `R = Σ a fᵀ` over voxels with

@@ -314,7 +314,7 @@ impl TransferBaker<'_> {
         let (cache, cache_time) = self.surface_cache();
         let t1 = Instant::now();
         let brick_len = options.edge.pow(3);
-        let mut data = Array2::<f32>::zeros((bricks.stored_voxels(), TRANSFER_DIM));
+        let mut data = vec![0.0f32; bricks.stored_voxels() * TRANSFER_DIM];
         let traced: Vec<(usize, usize)> = bricks
             .kept()
             .flat_map(|b| (0..brick_len).map(move |k| (b, k)))
@@ -330,13 +330,9 @@ impl TransferBaker<'_> {
         let cache_rays = AtomicU64::new(0);
         let voxel_rays = AtomicU64::new(probe_rays.into_inner());
         {
-            let Some(slice) = data.as_slice_mut() else {
-                unreachable!("a fresh array is in standard layout")
-            };
             // Rows are brick-contiguous, so a chunk of rows is a chunk of bricks.
             let rows_per_chunk = brick_len * BRICKS_PER_CHUNK;
-            slice
-                .par_chunks_mut(TRANSFER_DIM * rows_per_chunk)
+            data.par_chunks_mut(TRANSFER_DIM * rows_per_chunk)
                 .enumerate()
                 .try_for_each(|(c, out)| {
                     progress.check()?;
@@ -389,6 +385,13 @@ impl TransferBaker<'_> {
             dropped_valid_voxels: probed_valid - kept_valid,
             probe_time,
         };
+        let data =
+            Array2::from_shape_vec((bricks.stored_voxels(), TRANSFER_DIM), data).map_err(|e| {
+                TraceError::InvalidOption {
+                    what: "bricks",
+                    why: e.to_string(),
+                }
+            })?;
         Ok(BrickedVolume {
             bricks,
             data,

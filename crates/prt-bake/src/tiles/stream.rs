@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ndarray::Array2;
-use prt_core::{GridField, KernelWeights, Progress};
+use prt_core::{GridField, Progress};
 use prt_kernels::HatGrid;
 use prt_mbd::expert::{can_halve, halved_grid};
 use prt_mbd::{
@@ -280,13 +280,12 @@ fn project_chunk(
         normals: accumulate.then(|| model.normals()),
     };
     let mut scratch = ProjectScratch::default();
-    let mut psi = KernelWeights::default();
     for (&(v, local), c) in chunk.iter().zip(part.coefficients.chunks_exact_mut(l)) {
         let f = &read.transfer[local * d..(local + 1) * d];
         part.residual += model.project(v, f, c, &mut scratch)?;
         part.energy += f.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>();
         if let Some(normals) = part.normals.as_mut() {
-            model.accumulate(v, f, c, normals, &mut psi)?;
+            model.accumulate(v, f, c, normals, &mut scratch)?;
         }
     }
     Ok(part)
