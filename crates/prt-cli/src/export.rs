@@ -2,15 +2,17 @@
 //! volumes engines load unchanged (prt-export does the work; this module parses, draws progress
 //! and reports what was written).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_export::{
-    AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
-    dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
+    AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, LitVolume, ShConfig, ThreejsConfig,
+    WrittenFile, dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
+    remove_negative_light,
 };
+use prt_sphere::Sky;
 use prt_texture::Limits;
 
 use crate::progress::Stage;
@@ -61,8 +63,8 @@ pub struct ExportArgs {
     pub sky: SkyArgs,
     /// Dilation of valid probes into invalid ones: `RADIUS[,PASSES]` (voxels; each pass fills
     /// every invalid voxel with valid or filled neighbours within RADIUS by their 1/d²-weighted
-    /// mean), or `none`.
-    #[arg(long, default_value = "1,1", value_name = "RADIUS[,PASSES]")]
+    /// mean; without PASSES, passes until every invalid voxel is filled), or `none`.
+    #[arg(long, default_value = "1", value_name = "RADIUS[,PASSES]")]
     pub dilate: String,
     /// Texel format of the Bevy texture.
     #[arg(long, value_enum, default_value_t = Format::Rgb9e5)]
@@ -92,24 +94,26 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
         .collect::<Result<Vec<_>, _>>()
         .with_context(|| format!("--dilate {spec}: expected RADIUS[,PASSES] or none"))?;
     match values[..] {
-        [radius] => Ok(DilateConfig { radius, passes: 1 }),
+        [radius] => Ok(DilateConfig {
+            radius,
+            passes: DilateConfig::UNTIL_FILLED,
+        }),
         [radius, passes] => Ok(DilateConfig { radius, passes }),
         _ => bail!("--dilate {spec}: expected RADIUS[,PASSES] or none"),
     }
 }
 
-pub fn run(args: &ExportArgs) -> Result<()> {
-    let dilation = parse_dilate(&args.dilate)?;
-    let sky = args.sky.sky()?;
-    let start = Instant::now();
-    let lit = if args.from == "mbd" {
-        let container_dir = args.bake_dir.join("mbd");
+/// The bake in `bake_dir` lit by `sky`: the MBD container (`from` = `mbd`) or a kept volume
+/// (`reference`, `bpca`, `cpca`).
+pub fn light_bake(bake_dir: &Path, from: &str, sky: &Sky) -> Result<LitVolume> {
+    if from == "mbd" {
+        let container_dir = bake_dir.join("mbd");
         if !container_dir.join("manifest.json").is_file() {
             bail!(
                 "{} holds no MBD container (expected {}/manifest.json, written by `prt bake --out {}`)",
-                args.bake_dir.display(),
+                bake_dir.display(),
                 container_dir.display(),
-                args.bake_dir.display()
+                bake_dir.display()
             );
         }
         let container =
@@ -120,41 +124,57 @@ pub fn run(args: &ExportArgs) -> Result<()> {
                 )
             })?;
         let stage = Stage::start("light");
-        let lit = light_container(&container, &sky, &stage)?;
+        let lit = light_container(&container, sky, &stage)?;
         stage.finish();
-        lit
-    } else {
-        let folder = args.bake_dir.join("volumes");
-        if !folder.join("manifest.json").is_file() {
-            bail!(
-                "--from {}: {} holds no kept volumes (`prt bake --keep-volumes always` writes them)",
-                args.from,
-                folder.display()
-            );
-        }
-        let kept = prt_bake::read_volumes(&folder, &Limits::default())
-            .with_context(|| format!("cannot read the kept volumes in {}", folder.display()))?;
-        let Some(field) = kept.get(&args.from) else {
-            let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
-            bail!(
-                "--from {}: not among the kept volumes ({}) nor `mbd`",
-                args.from,
-                names.join(", ")
-            );
-        };
-        let stage = Stage::start("light");
-        let lit = light_field(field, &kept.valid, &sky, &stage)?;
-        stage.finish();
-        lit
+        return Ok(lit);
+    }
+    let folder = bake_dir.join("volumes");
+    if !folder.join("manifest.json").is_file() {
+        bail!(
+            "{from}: {} holds no kept volumes (`prt bake --keep-volumes always` writes them)",
+            folder.display()
+        );
+    }
+    let kept = prt_bake::read_volumes(&folder, &Limits::default())
+        .with_context(|| format!("cannot read the kept volumes in {}", folder.display()))?;
+    let Some(field) = kept.get(from) else {
+        let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
+        bail!(
+            "{from}: not among the kept volumes ({}) nor `mbd`",
+            names.join(", ")
+        );
     };
-    let dilated = dilate(&lit, &dilation)?;
+    let stage = Stage::start("light");
+    let lit = light_field(field, &kept.valid, sky, &stage)?;
+    stage.finish();
+    Ok(lit)
+}
+
+/// What every engine export is made from: the lit bake with its invalid voxels filled by
+/// `dilation` and its negative light removed (both counted on stderr).
+pub fn prepare_for_engines(lit: &LitVolume, dilation: &DilateConfig) -> Result<LitVolume> {
+    let dilated = dilate(lit, dilation)?;
+    let clean = remove_negative_light(&dilated.volume)?;
     let [nx, ny, nz] = lit.dims;
     eprintln!(
-        "{nx}x{ny}x{nz} voxels, {} valid; dilation filled {} invalid voxels, left {}",
+        "{nx}x{ny}x{nz} voxels, {} valid; dilation filled {} invalid voxels, left {}; \
+         negative irradiance removed from {} voxel channels (bands 1-2 scaled) and {} zeroed",
         lit.valid.iter().filter(|&&v| v).count(),
         dilated.filled,
-        dilated.unfilled
+        dilated.unfilled,
+        clean.scaled,
+        clean.zeroed
     );
+    Ok(clean.volume)
+}
+
+pub fn run(args: &ExportArgs) -> Result<()> {
+    let dilation = parse_dilate(&args.dilate)?;
+    let sky = args.sky.sky()?;
+    let start = Instant::now();
+    let lit = light_bake(&args.bake_dir, &args.from, &sky)
+        .with_context(|| format!("--from {}", args.from))?;
+    let volume = prepare_for_engines(&lit, &dilation)?;
     let target = args
         .target
         .to_possible_value()
@@ -176,7 +196,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
                 },
                 intensity: args.intensity,
             };
-            let written = export_bevy(&dilated.volume, &config, &out)?;
+            let written = export_bevy(&volume, &config, &out)?;
             if written.clamped > 0 {
                 eprintln!(
                     "{} ambient-cube values were negative (SH ringing) and stored as 0",
@@ -185,8 +205,8 @@ pub fn run(args: &ExportArgs) -> Result<()> {
             }
             written.files
         }
-        Target::Threejs => export_threejs(&dilated.volume, &ThreejsConfig::default(), &out)?.files,
-        Target::Sh => export_sh(&dilated.volume, &ShConfig::default(), &out)?.files,
+        Target::Threejs => export_threejs(&volume, &ThreejsConfig::default(), &out)?.files,
+        Target::Sh => export_sh(&volume, &ShConfig::default(), &out)?.files,
     };
     for file in &files {
         println!("{:>10} bytes  {}", file.bytes, file.path.display());

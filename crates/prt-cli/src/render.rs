@@ -6,9 +6,12 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::{REFERENCE, read_container, read_volumes};
+use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
+use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
 use prt_render::{
-    NamedView, RelitVolume, RenderConfig, Rendered, ToneMap, grid_bounds, read_mesh, render, views,
+    NamedView, RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds, read_mesh,
+    render, views,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
@@ -45,13 +48,36 @@ impl MethodArg {
     }
 }
 
+/// Whose probe lookup lights the render.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LookupArg {
+    /// prt's: the volume half a voxel off the surface, interpolated over valid voxels only.
+    Prt,
+    /// Bevy's IrradianceVolume on `prt export --target bevy`'s data: at the surface point,
+    /// ambient cubes, Valve's blend.
+    Bevy,
+    /// three.js's LightProbeGrid on `prt export --target threejs`'s data: half a probe spacing
+    /// off the surface, L2 SH irradiance clamped at 0.
+    Threejs,
+}
+
+/// A lit bake as an engine samples its export.
+struct EngineLight(EngineLookup);
+
+impl SurfaceLight for EngineLight {
+    fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3> {
+        self.0.irradiance(position, normal)
+    }
+}
+
 /// Options of `prt render`.
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Each pixel traces one primary ray through the scene mesh (BAKE_DIR/scene.mesh) \
 and shows emission + albedo/π · E, where E is the diffuse irradiance of the chosen volume relit \
-by the sky (incident-radiance SH9 per voxel, trilinear between voxel centres over the valid \
-voxels, looked up half a voxel off the surface along its normal); rays that miss show the sky. \
+by the sky (incident-radiance SH9 per voxel; --lookup prt: trilinear between voxel centres over \
+the valid voxels, looked up half a voxel off the surface along its normal; --lookup bevy or \
+threejs: that engine's shader on the export's data); rays that miss show the sky. \
 PNG output is tone-mapped: exposure, the ACES filmic curve (Narkowicz's fit), sRGB. EXR output \
 holds the linear radiance. With --method other than reference, and the kept volumes present, \
 the RMSE against the reference render is printed."
@@ -70,6 +96,11 @@ pub struct RenderArgs {
     /// Volume that lights the scene.
     #[arg(long, value_enum, default_value_t = MethodArg::Mbd)]
     pub method: MethodArg,
+    /// Whose lookup reads the volume: prt's own, or what Bevy or three.js computes from
+    /// `prt export`'s files for the same volume and sky (dilated with the export's default,
+    /// negative light removed, padded; without the texture format's rounding).
+    #[arg(long, value_enum, default_value_t = LookupArg::Prt)]
+    pub lookup: LookupArg,
     /// Width and height of the image, in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
@@ -157,6 +188,27 @@ fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<RelitVol
         .with_context(|| format!("cannot relight the {} volume", method.key()))
 }
 
+/// What lights the render: the volume of `method` read by `lookup`.
+fn load_light(
+    bake_dir: &Path,
+    method: MethodArg,
+    lookup: LookupArg,
+    sky: &Sky,
+) -> Result<Box<dyn SurfaceLight>> {
+    let engine = match lookup {
+        LookupArg::Prt => return Ok(Box::new(load_volume(bake_dir, method, sky)?)),
+        LookupArg::Bevy => Engine::Bevy,
+        LookupArg::Threejs => Engine::Threejs,
+    };
+    let lit = crate::export::light_bake(bake_dir, method.key(), sky)?;
+    let volume = crate::export::prepare_for_engines(&lit, &DilateConfig::default())?;
+    Ok(Box::new(EngineLight(EngineLookup::new(
+        &volume,
+        engine,
+        AmbientCubeFit::Axes,
+    )?)))
+}
+
 /// The view `--camera` picks, with an error that lists them all.
 fn pick_view(scene: &Scene, camera: usize) -> Result<NamedView> {
     let all = views(scene);
@@ -210,7 +262,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let sky = args.sky.sky()?;
     let scene = load_scene(&args.bake_dir)?;
     let view = pick_view(&scene, args.camera)?;
-    let volume = load_volume(&args.bake_dir, args.method, &sky)?;
+    let light = load_light(&args.bake_dir, args.method, args.lookup, &sky)?;
     let tracer = RayTracer::new(scene.triangles());
     let config = RenderConfig {
         width: args.size,
@@ -219,7 +271,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     };
     let stage = Stage::start("render");
     let start = Instant::now();
-    let image = render(&scene, &tracer, &view.view, &volume, &sky, &config, &stage)?;
+    let image = render(&scene, &tracer, &view.view, &*light, &sky, &config, &stage)?;
     let seconds = start.elapsed().as_secs_f64();
     stage.finish();
     let tone = args
@@ -227,12 +279,16 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         .map_or_else(|| ToneMap::auto(&image), |exposure| ToneMap { exposure });
     save_render(&args.out, &image, &tone)?;
     eprintln!(
-        "{} × {} pixels, camera {} ({}), {} volume, {:.3} s; exposure {:.4}{}",
+        "{} × {} pixels, camera {} ({}), {} volume, {} lookup, {:.3} s; exposure {:.4}{}",
         image.width,
         image.height,
         args.camera,
         view.name,
         args.method.key(),
+        args.lookup
+            .to_possible_value()
+            .map(|v| v.get_name().to_string())
+            .unwrap_or_default(),
         seconds,
         tone.exposure,
         if image.unlit > 0 {
@@ -245,12 +301,12 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         }
     );
     if args.method != MethodArg::Reference && args.bake_dir.join("volumes").is_dir() {
-        let reference = load_volume(&args.bake_dir, MethodArg::Reference, &sky)?;
+        let reference = load_light(&args.bake_dir, MethodArg::Reference, args.lookup, &sky)?;
         let base = render(
             &scene,
             &tracer,
             &view.view,
-            &reference,
+            &*reference,
             &sky,
             &config,
             &NoProgress,

@@ -7,7 +7,7 @@ use prt_texture::engine::{AmbientCubeVolume, bevy_irradiance_volume_as};
 use serde_json::json;
 
 use crate::write::{grid_json, prepare, write_json, write_ktx2, write_validity};
-use crate::{AmbientCubeFit, ExportError, LitVolume, WrittenFile, ambient_cube};
+use crate::{AmbientCubeFit, ENGINE_PADDING, ExportError, LitVolume, WrittenFile, ambient_cube};
 
 /// File name of the Bevy irradiance-volume texture.
 pub const BEVY_TEXTURE: &str = "irradiance_volume.ktx2";
@@ -57,14 +57,18 @@ pub struct BevyExport {
 }
 
 /// Writes `volume` as a Bevy irradiance volume into `folder`: [`BEVY_TEXTURE`] (ambient cubes
-/// of `E/π`, Bevy's layout), [`BEVY_PLACEMENT`] (the Transform that stretches Bevy's unit
-/// cube `[-½, ½]³` over the grid's bounds, the intensity, the grid) and the validity mask.
+/// of `E/π`, Bevy's layout, of the volume padded by [`ENGINE_PADDING`]), [`BEVY_PLACEMENT`]
+/// (the Transform that stretches Bevy's unit cube `[-½, ½]³` over the padded grid's bounds, so
+/// that Bevy's light-probe weight, 0 on the cube's faces, is 1 on every surface of the baked
+/// box; the intensity; the grid) and the padded grid's validity mask.
 pub fn export_bevy(
     volume: &LitVolume,
     config: &BevyConfig,
     folder: &Path,
 ) -> Result<BevyExport, ExportError> {
     volume.check()?;
+    let unpadded = volume;
+    let volume = &volume.padded(ENGINE_PADDING);
     if !config.intensity.is_finite() || config.intensity < 0.0 {
         return Err(ExportError::invalid(
             "Bevy intensity",
@@ -93,7 +97,7 @@ pub fn export_bevy(
     prepare(folder)?;
     let mut files = vec![write_ktx2(folder, BEVY_TEXTURE, &texture)?];
     let placement = json!({
-        "format": "prt Bevy irradiance volume placement, version 1",
+        "format": "prt Bevy irradiance volume placement, version 2",
         "texture": BEVY_TEXTURE,
         "texel_format": match config.format {
             BevyFormat::Rgb9e5 => "E5B9G9R9_UFLOAT_PACK32",
@@ -103,6 +107,11 @@ pub fn export_bevy(
             "translation": volume.bounds.centre().to_array(),
             "rotation": [0.0, 0.0, 0.0, 1.0],
             "scale": volume.bounds.size().to_array(),
+        },
+        "padding": ENGINE_PADDING,
+        "bounds": {
+            "min": unpadded.bounds.min.to_array(),
+            "max": unpadded.bounds.max.to_array(),
         },
         "intensity": config.intensity,
         "values": "irradiance / pi of the sky-lit bake (a white Lambertian surface's exit radiance), in the sky's units",

@@ -4,7 +4,8 @@
 use crate::{ExportError, LitVolume};
 
 /// How invalid voxels are filled before export (the rule of Unity's adaptive probe volumes'
-/// dilation, whose defaults are these: distance 1, one iteration, squared-distance weighting).
+/// dilation: distance 1, squared-distance weighting; Unity stops after one iteration, prt's
+/// default repeats it until no invalid voxel is left, since engines sample every voxel).
 ///
 /// Each pass gives every voxel not yet known (invalid in the bake and not filled by an earlier
 /// pass) the average of the known voxels within `radius` voxels (a (2r+1)³ cube), weighted by
@@ -19,13 +20,19 @@ pub struct DilateConfig {
     pub passes: usize,
 }
 
+impl DilateConfig {
+    /// Passes of [`DilateConfig::default`]: as many as it takes to fill every invalid voxel
+    /// (a flood fill from the valid voxels outwards, nearest first).
+    pub const UNTIL_FILLED: usize = usize::MAX;
+}
+
 impl Default for DilateConfig {
-    /// Radius 1, one pass: every voxel that trilinear filtering can reach from a valid voxel's
-    /// cell gets a value.
+    /// Radius 1, passes until every invalid voxel is filled (a volume with no valid voxel
+    /// stays as it is).
     fn default() -> Self {
         DilateConfig {
             radius: 1,
-            passes: 1,
+            passes: Self::UNTIL_FILLED,
         }
     }
 }
@@ -52,12 +59,12 @@ pub fn dilate(volume: &LitVolume, config: &DilateConfig) -> Result<Dilated, Expo
     let [nx, ny, nz] = volume.dims.map(|d| d as isize);
     let mut filled = 0;
     let passes = if r == 0 { 0 } else { config.passes };
+    // Only the voxels still unknown are visited, so a flood fill through a deep solid costs
+    // the remaining voxels per pass, not the grid.
+    let mut pending: Vec<usize> = (0..out.voxels()).filter(|&v| !known[v]).collect();
     for _ in 0..passes {
         let mut updates = Vec::new();
-        for v in 0..out.voxels() {
-            if known[v] {
-                continue;
-            }
+        for &v in &pending {
             let [x, y, z] = out.coords(v).map(|i| i as isize);
             let mut acc = [[0.0f64; 9]; 3];
             let mut total = 0.0f64;
@@ -98,6 +105,7 @@ pub fn dilate(volume: &LitVolume, config: &DilateConfig) -> Result<Dilated, Expo
             out.radiance[v] = l;
             known[v] = true;
         }
+        pending.retain(|&v| !known[v]);
     }
     Ok(Dilated {
         volume: out,

@@ -52,7 +52,41 @@ impl LitVolume {
         self.bounds.min + Vec3::from_array(c) * self.voxel_size()
     }
 
-    /// The box spanned by the voxel centres (where node-centred engines put their probes).
+    /// The volume grown by `layers` voxels on every side, each new voxel a copy of the nearest
+    /// voxel of `self` (value and validity): an engine that interpolates across the box then
+    /// reads, anywhere inside `self.bounds`, exactly what clamping to `self` would give, while
+    /// the surfaces on `self.bounds` lie `layers` voxels inside the box it is placed by.
+    pub fn padded(&self, layers: usize) -> LitVolume {
+        let dims = self.dims.map(|d| d + 2 * layers);
+        let grow = layers as f32 * self.voxel_size();
+        let n: usize = dims.iter().product();
+        let (mut valid, mut radiance) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let source = [x, y, z]
+                        .iter()
+                        .zip(self.dims)
+                        .map(|(&i, d)| i.saturating_sub(layers).min(d - 1))
+                        .collect::<Vec<_>>();
+                    let v = source[0] + self.dims[0] * (source[1] + self.dims[1] * source[2]);
+                    valid.push(self.valid[v]);
+                    radiance.push(self.radiance[v]);
+                }
+            }
+        }
+        LitVolume {
+            dims,
+            bounds: Aabb {
+                min: self.bounds.min - grow,
+                max: self.bounds.max + grow,
+            },
+            valid,
+            radiance,
+        }
+    }
+
+    /// The box spanned by the voxel centres.
     pub fn centre_box(&self) -> Aabb {
         let half = 0.5 * self.voxel_size();
         Aabb {

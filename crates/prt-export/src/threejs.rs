@@ -104,34 +104,47 @@ pub fn threejs_atlas_probe(texels: &[f32], dims: [usize; 3], voxel: [usize; 3]) 
     std::array::from_fn(|c| std::array::from_fn(|k| flat[3 * k + c]))
 }
 
-/// Writes `volume` as a three.js `LightProbeGrid` into `folder`: [`THREEJS_TEXTURE`] (the
-/// RGBA16F 3D atlas), [`THREEJS_PLACEMENT`] (position, size and resolution of the probe grid:
-/// three.js puts probes on the box corners, so its box is the box of voxel centres) and the
-/// validity mask.
+/// Voxel layers [`export_threejs`] and [`export_bevy`](crate::export_bevy) add on every side
+/// of the grid ([`LitVolume::padded`]), so that every surface of the baked box lies a whole
+/// voxel inside the box the engine is given.
+pub const ENGINE_PADDING: usize = 1;
+
+/// Writes `volume` as a three.js `LightProbeGrid` (three.js 0.187 and later) into `folder`:
+/// [`THREEJS_TEXTURE`] (the RGBA16F 3D atlas of the volume padded by [`ENGINE_PADDING`]),
+/// [`THREEJS_PLACEMENT`] (position, size and resolution of the grid: three.js ≥ 0.187 splits
+/// its box into one cell per probe with the probe at the cell's centre, which is prt's voxel
+/// layout, so the box is the padded grid's bounds) and the validity mask of the padded grid.
 pub fn export_threejs(
     volume: &LitVolume,
     _config: &ThreejsConfig,
     folder: &Path,
 ) -> Result<ThreejsExport, ExportError> {
-    let atlas = threejs_atlas(volume)?;
+    volume.check()?;
+    let padded = volume.padded(ENGINE_PADDING);
+    let atlas = threejs_atlas(&padded)?;
     prepare(folder)?;
     let mut files = vec![write_ktx2(folder, THREEJS_TEXTURE, &atlas)?];
-    let centres = volume.centre_box();
     let placement = json!({
-        "format": "prt three.js LightProbeGrid placement, version 1",
+        "format": "prt three.js LightProbeGrid placement, version 2",
+        "three": ">= 0.187 (one cell per probe, probes at cell centres)",
         "texture": THREEJS_TEXTURE,
-        "position": centres.centre().to_array(),
-        "size": centres.size().to_array(),
-        "resolution": volume.dims,
+        "position": padded.bounds.centre().to_array(),
+        "size": padded.bounds.size().to_array(),
+        "resolution": padded.dims,
+        "padding": ENGINE_PADDING,
+        "bounds": {
+            "min": volume.bounds.min.to_array(),
+            "max": volume.bounds.max.to_array(),
+        },
         "atlas": {
-            "shape": [volume.dims[0], volume.dims[1], ATLAS_SUBVOLUMES * (volume.dims[2] + 2)],
+            "shape": [padded.dims[0], padded.dims[1], ATLAS_SUBVOLUMES * (padded.dims[2] + 2)],
             "texel_format": "R16G16B16A16_SFLOAT",
             "packing": "sub-volume t (nz + 2 slices, first and last repeat the edge slice) holds values 4t..4t+3 of c0.rgb c1.rgb ... c8.rgb 1",
             "coefficients": "radiance SH in three.js's basis: 1, y, z, x, xy, yz, 3z^2-1, xz, x^2-y^2",
         },
-        "grid": grid_json(volume),
+        "grid": grid_json(&padded),
     });
     files.push(write_json(folder, THREEJS_PLACEMENT, &placement)?);
-    files.push(write_validity(folder, volume)?);
+    files.push(write_validity(folder, &padded)?);
     Ok(ThreejsExport { files })
 }

@@ -113,7 +113,8 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
             // Sides are stored clamped at 0 (where the SH rings negative).
             let exact = lit.irradiance(v, d) / std::f32::consts::PI;
             let want = if k < 6 { exact.max(Vec3::ZERO) } else { exact };
-            let got = bevy_sample(&texels, 3, [nx, 2 * ny, 3 * nz], unit_pos(lit.dims, v), d);
+            let atlas = [nx + 2, 2 * (ny + 2), 3 * (nz + 2)];
+            let got = bevy_sample(&texels, 3, atlas, unit_pos(lit.dims, ENGINE_PADDING, v), d);
             let fit = if k < 6 { Vec3::ZERO } else { bound };
             let storage =
                 rgb9e5_error_bound(want.max_element().max(0.0) + fit.max_element()) + 1e-6;
@@ -134,16 +135,16 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     export_threejs(&lit, &ThreejsConfig::default(), &three_dir).unwrap();
     let tex = Ktx2Texture::read_file(&three_dir.join(THREEJS_TEXTURE), &Limits::default()).unwrap();
     let texels = tex.level_f32(0).unwrap();
-    let centres = lit.centre_box();
+    let padded = lit.padded(ENGINE_PADDING);
     for v in 0..lit.voxels() {
         for &d in &dirs {
             let want = lit.irradiance(v, d);
             let got = threejs_sample(
                 &texels,
-                [nx, ny, 7 * (nz + 2)],
-                centres.min,
-                centres.max,
-                lit.dims,
+                [nx + 2, ny + 2, 7 * (nz + 4)],
+                padded.bounds.min,
+                padded.bounds.max,
+                padded.dims,
                 lit.voxel_centre(v),
                 d,
             );

@@ -1,5 +1,7 @@
 //! Laws: lighting is linear in the transfer and follows the sky's rotation; dilation never
-//! changes a valid voxel, keeps a constant volume constant and fills what it can reach.
+//! changes a valid voxel, keeps a constant volume constant and by default fills every voxel;
+//! padding is invisible inside the baked box; removing negative light leaves no negative
+//! irradiance and touches nothing else; the engines' lookups light every surface of the box.
 
 mod common;
 
@@ -7,7 +9,10 @@ use common::random_radiance;
 use glam::{Mat3, Vec3};
 use proptest::prelude::*;
 use prt_core::{Aabb, GridField, NoProgress};
-use prt_export::{DilateConfig, LitVolume, dilate, light_field};
+use prt_export::{
+    AmbientCubeFit, DilateConfig, Engine, EngineLookup, LitVolume, ambient_cube,
+    ambient_cube_blend, dilate, light_field, remove_negative_light, test_directions,
+};
 use prt_sphere::Sky;
 
 fn lit(dims: [usize; 3], mask: u64, seed: u64) -> LitVolume {
@@ -20,8 +25,112 @@ fn lit(dims: [usize; 3], mask: u64, seed: u64) -> LitVolume {
     }
 }
 
+/// A point on face `face` (0..6: −x +x −y +y −z +z) of `bounds` at `(u, v)` across it, and the
+/// face's inward normal.
+fn on_face(bounds: Aabb, face: usize, u: f32, v: f32) -> (Vec3, Vec3) {
+    let axis = face / 2;
+    let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+    let mut p = Vec3::ZERO;
+    p[a] = bounds.min[a] + u * bounds.size()[a];
+    p[b] = bounds.min[b] + v * bounds.size()[b];
+    let mut n = Vec3::ZERO;
+    if face % 2 == 0 {
+        p[axis] = bounds.min[axis];
+        n[axis] = 1.0;
+    } else {
+        p[axis] = bounds.max[axis];
+        n[axis] = -1.0;
+    }
+    (p, n)
+}
+
+fn close(a: Vec3, b: Vec3) -> bool {
+    (a - b).abs().max_element() <= 1e-4 * (1.0 + b.abs().max_element())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
+
+    #[test]
+    fn padding_is_invisible_inside_the_baked_box(
+        nx in 1usize..5, ny in 1usize..5, nz in 1usize..5, seed in 0u64..1000,
+        t in prop::array::uniform3(0.0f32..=1.0), d in prop::array::uniform3(-1.0f32..1.0),
+    ) {
+        let volume = lit([nx, ny, nz], u64::MAX, seed);
+        let padded = volume.padded(2);
+        prop_assert_eq!(padded.dims, [nx + 4, ny + 4, nz + 4]);
+        prop_assume!(Vec3::from_array(d).length() > 0.1);
+        let n = Vec3::from_array(d).normalize();
+        let p = volume.bounds.min + Vec3::from_array(t) * volume.bounds.size();
+        prop_assert!(close(padded.irradiance_at(p, n), volume.irradiance_at(p, n)));
+    }
+
+    #[test]
+    fn removing_negative_light_leaves_none_and_touches_nothing_else(
+        seed in 0u64..1000, ring in 0.0f32..3.0,
+    ) {
+        let mut volume = lit([3, 2, 2], u64::MAX, seed);
+        // Exaggerate bands 1-2 of some voxels so that their irradiance rings negative.
+        for (v, l) in volume.radiance.iter_mut().enumerate() {
+            if v % 3 == 0 {
+                l.iter_mut().for_each(|c| c[1..].iter_mut().for_each(|x| *x *= 1.0 + ring * 4.0));
+            }
+        }
+        volume.radiance[5][1] = [-1.0, 0.2, 0.0, 0.1, 0.0, 0.0, 0.0, 0.0, 0.3];
+        let out = remove_negative_light(&volume).unwrap();
+        prop_assert!(out.zeroed >= 1);
+        let dirs = test_directions();
+        let mut changed = 0;
+        for v in 0..volume.voxels() {
+            let before_ok = dirs.iter().all(|&n| volume.irradiance(v, n).min_element() >= 0.0);
+            if before_ok {
+                prop_assert_eq!(out.volume.radiance[v], volume.radiance[v]);
+            }
+            for &n in &dirs {
+                let e = out.volume.irradiance(v, n);
+                prop_assert!(e.min_element() >= -1e-5 * (1.0 + e.abs().max_element()), "voxel {v} {n}: {e}");
+            }
+            for c in 0..3 {
+                if out.volume.radiance[v][c] != volume.radiance[v][c] {
+                    changed += 1;
+                    // The mean (band 0) stays unless the channel had no light to keep.
+                    let kept = out.volume.radiance[v][c][0] == volume.radiance[v][c][0];
+                    prop_assert!(kept || out.volume.radiance[v][c] == [0.0; 9]);
+                }
+            }
+        }
+        prop_assert_eq!(changed, out.scaled + out.zeroed);
+    }
+
+    /// On every face of the baked box, with its inward normal, Bevy's lookup has full weight
+    /// and reads the ambient cube interpolated at the point itself, and three.js's reads the
+    /// SH half a voxel inside: no surface of the box goes dark.
+    #[test]
+    fn engine_lookups_light_every_surface_of_the_baked_box(
+        nx in 1usize..5, ny in 1usize..5, nz in 1usize..5, seed in 0u64..1000,
+        face in 0usize..6, u in 0.0f32..=1.0, v in 0.0f32..=1.0,
+    ) {
+        let volume = lit([nx, ny, nz], u64::MAX, seed);
+        let (p, n) = on_face(volume.bounds, face, u, v);
+        let bevy = EngineLookup::new(&volume, Engine::Bevy, AmbientCubeFit::Axes).unwrap();
+        let cubes: Vec<_> = volume.radiance.iter().map(|l| ambient_cube(l, AmbientCubeFit::Axes)).collect();
+        let mut cube = [[0.0f32; 3]; 6];
+        for (voxel, w) in volume.trilinear(p) {
+            for (side, value) in cube.iter_mut().zip(&cubes[voxel]) {
+                for c in 0..3 {
+                    side[c] += w * value[c].max(0.0);
+                }
+            }
+        }
+        let want = std::f32::consts::PI * ambient_cube_blend(&cube, n);
+        let got = bevy.irradiance(p, n);
+        prop_assert!(got.is_some_and(|g| close(g, want)), "Bevy {got:?} vs {want}");
+
+        let three = EngineLookup::new(&volume, Engine::Threejs, AmbientCubeFit::Axes).unwrap();
+        let want = volume.irradiance_at(p + 0.5 * n * volume.voxel_size(), n).max(Vec3::ZERO);
+        let got = three.irradiance(p, n);
+        prop_assert!(got.is_some_and(|g| close(g, want)), "three.js {got:?} vs {want}");
+    }
 
     #[test]
     fn dilation_keeps_valid_voxels_and_counts_what_it_fills(
@@ -45,9 +154,9 @@ proptest! {
         if radius == 0 || passes == 0 {
             prop_assert_eq!(out.filled, 0);
         }
-        // With enough passes every invalid voxel of a grid holding a valid one is filled.
-        if radius >= 1 && volume.valid.iter().any(|&v| v) {
-            let all = dilate(&volume, &DilateConfig { radius, passes: 64 }).unwrap();
+        // By default every invalid voxel of a grid holding a valid one is filled.
+        if volume.valid.iter().any(|&v| v) {
+            let all = dilate(&volume, &DilateConfig::default()).unwrap();
             prop_assert_eq!(all.unfilled, 0);
         }
     }

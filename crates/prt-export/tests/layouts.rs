@@ -121,8 +121,9 @@ fn bevy_texture_sampled_as_bevy_does_gives_back_irradiance() {
         };
         let out = export_bevy(&lit, &config, &dir).unwrap();
         assert_eq!(out.files.len(), 3);
-        check_ktx2(&dir.join(BEVY_TEXTURE), [3, 8, 6], vk);
-        check_ktx2(&dir.join(VALIDITY_FILE), [3, 4, 2], VK_R8_UNORM);
+        // Padded by one voxel layer on every side: 5 × 6 × 4 probes.
+        check_ktx2(&dir.join(BEVY_TEXTURE), [5, 12, 12], vk);
+        check_ktx2(&dir.join(VALIDITY_FILE), [5, 6, 4], VK_R8_UNORM);
         let texture = Ktx2Texture::read_file(&dir.join(BEVY_TEXTURE), &Limits::default()).unwrap();
         let channels = texture.format().channels();
         let texels = texture.level_f32(0).unwrap();
@@ -130,7 +131,7 @@ fn bevy_texture_sampled_as_bevy_does_gives_back_irradiance() {
             serde_json::from_str(&std::fs::read_to_string(dir.join(BEVY_PLACEMENT)).unwrap())
                 .unwrap();
         let scale = placement["transform"]["scale"].as_array().unwrap();
-        assert!((scale[0].as_f64().unwrap() - 3.0).abs() < 1e-6);
+        assert!((scale[0].as_f64().unwrap() - 5.0).abs() < 1e-6);
         for v in 0..lit.voxels() {
             let l = &lit.radiance[v];
             let storage = |e: Vec3| match format {
@@ -145,7 +146,8 @@ fn bevy_texture_sampled_as_bevy_does_gives_back_irradiance() {
                 .enumerate()
             {
                 let e = lit.irradiance(v, d) / std::f32::consts::PI;
-                let got = bevy_sample(&texels, channels, [3, 8, 6], unit_pos(lit.dims, v), d);
+                let at = unit_pos(lit.dims, ENGINE_PADDING, v);
+                let got = bevy_sample(&texels, channels, [5, 12, 12], at, d);
                 let fit = if k < 6 { Vec3::ZERO } else { cube_bound };
                 let err = (got - e).abs();
                 assert!(
@@ -162,9 +164,10 @@ fn threejs_atlas_decodes_to_each_voxels_sh_within_f16_rounding() {
     let lit = volume([3, 2, 4], 11);
     let dir = temp("threejs");
     export_threejs(&lit, &ThreejsConfig::default(), &dir).unwrap();
-    let atlas_dims = [3u32, 2, 7 * (4 + 2)];
+    // Padded by one voxel layer on every side: 5 × 4 × 6 probes.
+    let atlas_dims = [5u32, 4, 7 * (6 + 2)];
     check_ktx2(&dir.join(THREEJS_TEXTURE), atlas_dims, VK_RGBA16F);
-    check_ktx2(&dir.join(VALIDITY_FILE), [3, 2, 4], VK_R8_UNORM);
+    check_ktx2(&dir.join(VALIDITY_FILE), [5, 4, 6], VK_R8_UNORM);
     let texture = Ktx2Texture::read_file(&dir.join(THREEJS_TEXTURE), &Limits::default()).unwrap();
     let texels = texture.level_f32(0).unwrap();
     let doc: serde_json::Value =
@@ -183,10 +186,12 @@ fn threejs_atlas_decodes_to_each_voxels_sh_within_f16_rounding() {
     let atlas = atlas_dims.map(|d| d as usize);
     for v in 0..lit.voxels() {
         let [x, y, z] = lit.coords(v);
-        // Coefficients by the packing formula: sub-volume t, slice t (nz + 2) + z + 1.
+        // Coefficients by the packing formula: sub-volume t, slice t (nz + 2) + z + 1, of the
+        // padded grid (voxel (x, y, z) is padded voxel (x + 1, y + 1, z + 1)).
+        let (x, y, z) = (x + 1, y + 1, z + 1);
         let mut flat = Vec::new();
         for t in 0..7 {
-            let texel = x + 3 * (y + 2 * (t * 6 + z + 1));
+            let texel = x + 5 * (y + 4 * (t * 8 + z + 1));
             flat.extend_from_slice(&texels[4 * texel..4 * texel + 4]);
         }
         for c in 0..3 {
@@ -200,16 +205,22 @@ fn threejs_atlas_decodes_to_each_voxels_sh_within_f16_rounding() {
             }
         }
         assert_eq!(flat[27], 1.0);
-        // The padding slices repeat the edge slices.
-        if z == 0 {
+        // The atlas's padding slices and the grid's padding layer repeat the edge slices.
+        if z == 1 {
             for t in 0..7 {
-                let (pad, data) = (x + 3 * (y + 2 * (t * 6)), x + 3 * (y + 2 * (t * 6 + 1)));
+                let slab = |s: usize| x + 5 * (y + 4 * (t * 8 + s));
+                let (pad, layer, data) = (slab(0), slab(1), slab(2));
+                assert_eq!(
+                    texels[4 * layer..4 * layer + 4],
+                    texels[4 * data..4 * data + 4]
+                );
                 assert_eq!(texels[4 * pad..4 * pad + 4], texels[4 * data..4 * data + 4]);
             }
         }
         // three.js's shader at the probe: its irradiance is prt's to f16 rounding.
         for d in random_directions(8, v as u64) {
-            let got = threejs_sample(&texels, atlas, min, max, lit.dims, lit.voxel_centre(v), d);
+            let res = lit.dims.map(|d| d + 2 * ENGINE_PADDING);
+            let got = threejs_sample(&texels, atlas, min, max, res, lit.voxel_centre(v), d);
             let want = lit.irradiance(v, d);
             for c in 0..3 {
                 let bound = f16_irradiance_bound(&lit.radiance[v][c]) + 1e-3 * want[c].abs();

@@ -12,6 +12,7 @@
 //! |---|---|
 //! | [`RelitVolume`] | incident-radiance SH9 RGB per voxel of a transfer volume or model under a sky; trilinear over valid voxels |
 //! | [`render`], [`RenderConfig`], [`Rendered`] | the image: linear RGB radiance per pixel, sky where rays miss |
+//! | [`SurfaceLight`] | what lights a surface point: a [`RelitVolume`] by prt's lookup, or an engine's lookup (prt-export) |
 //! | [`voxels_read`] | which voxels a render reads, to limit per-voxel work to them |
 //! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
 //! | [`views`], [`NamedView`] | the scene's glTF cameras, then the automatic `front` and `inside` views |
@@ -58,7 +59,7 @@ mod volume;
 
 pub use error::{MeshError, RenderError};
 pub use mesh::{MESH_MAGIC, MESH_VERSION, decode_mesh, encode_mesh, read_mesh, write_mesh};
-pub use render::{RenderConfig, Rendered, render, voxels_read};
+pub use render::{RenderConfig, Rendered, SurfaceLight, render, voxels_read};
 pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};
 pub use views::{NamedView, views};
 pub use volume::{RELIT_DIM, RelitVolume, grid_bounds};

@@ -5,7 +5,7 @@ use std::f32::consts::PI;
 use glam::Vec3;
 use prt_core::{GridField, Progress};
 use prt_sphere::Sky;
-use prt_trace::{GBuffer, GatherPoint, PinholeView, RayTracer, Scene};
+use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
 use rayon::prelude::*;
 
 use crate::{RelitVolume, RenderError};
@@ -17,22 +17,37 @@ pub struct RenderConfig {
     pub width: usize,
     /// Image height in pixels.
     pub height: usize,
-    /// How far the volume lookup point moves off the surface along its normal, in voxel edges
-    /// (per axis: the offset is `normal_offset · n ⊙ voxel size`). Half a voxel keeps a wall's
-    /// lookup from leaning on the voxels behind it.
-    pub normal_offset: f32,
 }
 
 impl Default for RenderConfig {
-    /// 512 × 512 pixels, a normal offset of half a voxel.
+    /// 512 × 512 pixels.
     fn default() -> Self {
         Self {
             width: 512,
             height: 512,
-            normal_offset: 0.5,
         }
     }
 }
+
+/// What lights the surfaces [`render`] shades: diffuse irradiance at a surface point.
+pub trait SurfaceLight: Sync {
+    /// Irradiance (RGB) at the surface point `position` of unit normal `normal` (facing the
+    /// viewer); `None` where nothing lights it.
+    fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3>;
+}
+
+/// prt's own lookup: [`RelitVolume::irradiance`] half a voxel off the surface along its normal
+/// (per axis: `½ n ⊙ voxel size`), which keeps a wall's lookup from leaning on the voxels
+/// behind it, over the valid voxels only.
+impl SurfaceLight for RelitVolume {
+    fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3> {
+        let offset = NORMAL_OFFSET * self.field().voxel_size();
+        self.irradiance(position + normal * offset, normal)
+    }
+}
+
+/// How far prt's lookup moves off the surface, in voxel edges.
+const NORMAL_OFFSET: f32 = 0.5;
 
 /// A rendered image: linear RGB radiance per pixel, row-major from the top-left.
 #[derive(Debug, Clone, PartialEq)]
@@ -72,30 +87,27 @@ impl Rendered {
 }
 
 /// Renders `scene` from `view`: one primary ray per pixel centre (prt-trace's [`GBuffer`]);
-/// a hit shows `emission + albedo/π · E`, with `E` the diffuse irradiance of `volume`
-/// ([`RelitVolume::irradiance`]) at the hit point moved [`RenderConfig::normal_offset`] voxels
-/// along the normal facing the viewer; a miss shows the sky's radiance along the ray. The back
+/// a hit shows `emission + albedo/π · E`, with `E` the irradiance `light` gives the hit point
+/// and its normal facing the viewer ([`SurfaceLight`]; for a [`RelitVolume`], prt's lookup);
+/// a miss shows the sky's radiance along the ray. The back
 /// of a single-sided surface is black. Shading runs in parallel over rows, reporting one unit
 /// per row to `progress` and stopping when it is cancelled; the image is the same on any
 /// thread count. `tracer` must have been built over `scene.triangles()`.
 ///
-/// Errors: [`RenderError::InvalidOption`] for an empty image or a normal offset that is not
-/// finite, [`RenderError::Trace`] for a view that is not finite, [`RenderError::Core`] when
+/// Errors: [`RenderError::Trace`] for a view that is not finite, [`RenderError::Core`] when
 /// cancelled.
 pub fn render(
     scene: &Scene,
     tracer: &RayTracer,
     view: &PinholeView,
-    volume: &RelitVolume,
+    light: &dyn SurfaceLight,
     sky: &Sky,
     config: &RenderConfig,
     progress: &dyn Progress,
 ) -> Result<Rendered, RenderError> {
-    check_offset(config)?;
     let (width, height) = (config.width, config.height);
     let gbuffer = GBuffer::render(scene, tracer, view, width, height)?;
     progress.set_len(height as u64);
-    let offset = config.normal_offset * volume.field().voxel_size();
     let rows: Vec<Vec<([f32; 3], bool, bool)>> = (0..height)
         .into_par_iter()
         .map(|y| {
@@ -108,7 +120,7 @@ pub fn render(
                         false,
                     ),
                     Some(point) => {
-                        let e = volume.irradiance(lookup_point(point, offset), point.normal);
+                        let e = light.surface_irradiance(point.position, point.normal);
                         let radiance = point.emission + point.albedo / PI * e.unwrap_or(Vec3::ZERO);
                         (radiance.to_array(), true, e.is_none())
                     }
@@ -133,23 +145,8 @@ pub fn render(
     Ok(out)
 }
 
-/// Where a surface point reads the volume: moved `offset` (per axis) along its normal.
-fn lookup_point(point: &GatherPoint, offset: Vec3) -> Vec3 {
-    point.position + point.normal * offset
-}
-
-fn check_offset(config: &RenderConfig) -> Result<(), RenderError> {
-    if !config.normal_offset.is_finite() {
-        return Err(RenderError::InvalidOption {
-            what: "normal offset",
-            why: format!("{} is not finite", config.normal_offset),
-        });
-    }
-    Ok(())
-}
-
 /// The voxels of a grid with `grid`'s dimensions and box that [`render`] reads for this view
-/// and configuration (every voxel with a non-zero interpolation weight at some pixel's lookup
+/// and configuration with prt's lookup (every voxel with a non-zero interpolation weight at some pixel's lookup
 /// point), so that work per voxel can be limited to them (x fastest, one flag per voxel).
 ///
 /// Errors: as [`render`].
@@ -160,12 +157,11 @@ pub fn voxels_read(
     grid: &GridField,
     config: &RenderConfig,
 ) -> Result<Vec<bool>, RenderError> {
-    check_offset(config)?;
     let gbuffer = GBuffer::render(scene, tracer, view, config.width, config.height)?;
-    let offset = config.normal_offset * grid.voxel_size();
+    let offset = NORMAL_OFFSET * grid.voxel_size();
     let mut read = vec![false; grid.num_voxels()];
     for point in gbuffer.points.iter().flatten() {
-        let Ok(tw) = grid.trilinear_weights(lookup_point(point, offset)) else {
+        let Ok(tw) = grid.trilinear_weights(point.position + point.normal * offset) else {
             continue;
         };
         for (&v, &w) in tw.indices.iter().zip(&tw.weights) {

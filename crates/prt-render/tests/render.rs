@@ -2,7 +2,7 @@
 
 use glam::{Mat4, Vec3};
 use prt_core::{Aabb, AtomicProgress, GridField, NoProgress};
-use prt_render::{RelitVolume, RenderConfig, Rendered, ToneMap, render, views};
+use prt_render::{RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, render, views};
 use prt_sphere::Sky;
 use prt_trace::{BakeOptions, Camera, PinholeView, RayTracer, Scene, TRANSFER_DIM, TransferBaker};
 
@@ -134,16 +134,13 @@ fn invalid_voxels_are_left_out_of_the_interpolation() {
     let sky = Sky::constant([1.0; 3]);
     let volume = RelitVolume::from_transfer(&transfer, &valid, &sky).expect("volume");
     // No normal offset: the plane lies halfway between the two layers.
-    let config = RenderConfig {
-        normal_offset: 0.0,
-        ..small(8, 8)
-    };
+    let config = small(8, 8);
     let tracer = RayTracer::new(scene.triangles());
     let image = render(
         &scene,
         &tracer,
         &looking_down(),
-        &volume,
+        &AtSurface(&volume),
         &sky,
         &config,
         &NoProgress,
@@ -159,8 +156,17 @@ fn invalid_voxels_are_left_out_of_the_interpolation() {
     assert!(dark.pixels.iter().all(|p| *p == [0.0; 3]));
 }
 
+/// A relit volume read at the surface point itself, with no normal offset.
+struct AtSurface<'a>(&'a RelitVolume);
+
+impl SurfaceLight for AtSurface<'_> {
+    fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3> {
+        self.0.irradiance(position, normal)
+    }
+}
+
 #[test]
-fn the_lookup_moves_off_the_surface_by_the_normal_offset() {
+fn prts_lookup_moves_half_a_voxel_off_the_surface() {
     // Transfer that grows with height: the plane at y = 0 reads the volume at y = offset.
     let scene = Scene::ground_plane(2.0, Vec3::ONE);
     let bounds = Aabb::new(Vec3::new(-2.0, -2.0, -2.0), Vec3::new(2.0, 2.0, 2.0));
@@ -173,18 +179,15 @@ fn the_lookup_moves_off_the_surface_by_the_normal_offset() {
     let sky = Sky::constant([1.0; 3]);
     let volume = RelitVolume::from_transfer(&transfer, &[true; 16], &sky).expect("volume");
     let tracer = RayTracer::new(scene.triangles());
-    for offset in [0.0f32, 0.5] {
-        let config = RenderConfig {
-            normal_offset: offset,
-            ..small(4, 4)
-        };
+    let at_surface = AtSurface(&volume);
+    for (offset, light) in [(0.0f32, &at_surface as &dyn SurfaceLight), (0.5, &volume)] {
         let image = render(
             &scene,
             &tracer,
             &looking_down(),
-            &volume,
+            light,
             &sky,
-            &config,
+            &small(4, 4),
             &NoProgress,
         )
         .expect("render");
@@ -285,15 +288,18 @@ fn bad_inputs_are_errors() {
     let (scene, volume, sky) = cornell_volume();
     let tracer = RayTracer::new(scene.triangles());
     let view = views(&scene)[0].view;
-    for config in [
-        small(0, 4),
-        RenderConfig {
-            normal_offset: f32::NAN,
-            ..small(4, 4)
-        },
-    ] {
-        assert!(render(&scene, &tracer, &view, &volume, &sky, &config, &NoProgress).is_err());
-    }
+    assert!(
+        render(
+            &scene,
+            &tracer,
+            &view,
+            &volume,
+            &sky,
+            &small(0, 4),
+            &NoProgress
+        )
+        .is_err()
+    );
 }
 
 #[test]

@@ -89,21 +89,22 @@ pub fn bevy_sample(
     x * n.x * n.x + y * n.y * n.y + z * n.z * n.z
 }
 
-/// three.js's `sampleLightProbeGrid` (lightprobes_pars_fragment) without the half-spacing
-/// normal offset: the atlas fetch and the L2 irradiance of its basis.
+/// three.js 0.187's `getLightProbeGridIrradiance` (lightprobes_pars_fragment) without the
+/// half-spacing normal offset: the box holds one cell per probe, probes at cell centres, the
+/// lookup clamped to the outermost probe centres; the atlas fetch and the L2 irradiance of its
+/// basis (before the shader's clamp at 0).
 pub fn threejs_sample(
     texels: &[f32],
     atlas: [usize; 3],
-    probes_min: Vec3,
-    probes_max: Vec3,
+    box_min: Vec3,
+    box_max: Vec3,
     res: [usize; 3],
     pos: Vec3,
     n: Vec3,
 ) -> Vec3 {
     let res_f = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
-    let range = probes_max - probes_min;
-    let mut uvw = ((pos - probes_min) / range).clamp(Vec3::ZERO, Vec3::ONE);
-    uvw = uvw * (res_f - 1.0) / res_f + 0.5 / res_f;
+    let range = box_max - box_min;
+    let uvw = ((pos - box_min) / range).clamp(0.5 / res_f, 1.0 - 0.5 / res_f);
     let nz = res_f.z;
     let padded = nz + 2.0;
     let depth = 7.0 * padded;
@@ -156,13 +157,12 @@ pub fn f16_bound(v: f32) -> f32 {
     v.abs() * 2f32.powi(-11) + 6e-8
 }
 
-/// The grid's probe at voxel `v` in Bevy's unit cube.
-pub fn unit_pos(dims: [usize; 3], v: usize) -> Vec3 {
+/// Voxel `v` of a `dims` grid in Bevy's unit cube when the exported grid is that grid padded
+/// by `pad` voxel layers on every side.
+pub fn unit_pos(dims: [usize; 3], pad: usize, v: usize) -> Vec3 {
     let [nx, ny, _] = dims;
     let c = [v % nx, v / nx % ny, v / (nx * ny)];
-    Vec3::new(
-        (c[0] as f32 + 0.5) / dims[0] as f32 - 0.5,
-        (c[1] as f32 + 0.5) / dims[1] as f32 - 0.5,
-        (c[2] as f32 + 0.5) / dims[2] as f32 - 0.5,
-    )
+    Vec3::from_array(std::array::from_fn(|a| {
+        (c[a] as f32 + pad as f32 + 0.5) / (dims[a] + 2 * pad) as f32 - 0.5
+    }))
 }
