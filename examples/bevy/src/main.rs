@@ -4,19 +4,50 @@
 //! prt bake scene.gltf --out bake
 //! prt export bake --target bevy --out bake/bevy
 //! cargo run --release --manifest-path examples/bevy/Cargo.toml -- bake/bevy scene.gltf
+//! # no display: an image instead of a window, then exit (software Vulkan will do)
+//! cargo run --release --manifest-path examples/bevy/Cargo.toml -- bake/bevy scene.gltf \
+//!     --screenshot shot.png
 //! ```
 //!
 //! The volume is Bevy's own `IrradianceVolume` on a `LightProbe`, placed by the transform in
-//! `irradiance_volume.json`: nothing here decodes prt data. The scene has no other light, and
-//! the camera's exposure (EV100 0, about 1:1) shows the volume's values, which are in the sky's
-//! units, without a physical intensity.
+//! `irradiance_volume.json`: nothing here decodes prt data. The scene has no other light and no
+//! ambient light, tone mapping is off and the camera's exposure is EV100 = −log₂ 1.2, which
+//! makes Bevy's exposure factor `2^−EV100 / 1.2` exactly 1: a pixel holds the radiance Bevy
+//! computes, `albedo · volume · intensity`, in the sky's units.
+//!
+//! Options (after the two paths):
+//!
+//! * `--view EX,EY,EZ,TX,TY,TZ,FOV`: the camera at the eye `E` looking at `T` with +Y up and a
+//!   vertical field of view of `FOV` degrees (a view of `prt render --camera N`: the tests
+//!   pass the one prt computes); without it the camera looks at the volume's centre from near
+//!   its +Z face.
+//! * `--screenshot PATH`: render without a window (no winit: an offscreen `Rgba16Float` image
+//!   on whatever Vulkan adapter wgpu finds, e.g. Mesa's lavapipe), save it and exit. `.pfm`
+//!   writes the linear RGB values (32-bit float Portable Float Map), `.png` writes them clamped
+//!   to [0, 1] and sRGB-encoded, which is what the window shows.
+//! * `--size W[xH]`: the screenshot's size in pixels (default 512, square).
+//! * `--frames N`: with `--screenshot`, frames to render after the assets have loaded before
+//!   capturing (default 5); it also waits until no render pipeline is still compiling, then
+//!   captures until two captures in a row (N frames apart) agree bit for bit, so that a frame
+//!   drawn before everything was ready is never saved.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
 
-use bevy::asset::{AssetPlugin, UnapprovedPathMode};
-use bevy::camera::Exposure;
+use bevy::app::ScheduleRunnerPlugin;
+use bevy::asset::{AssetPlugin, RecursiveDependencyLoadState, UnapprovedPathMode};
+use bevy::camera::{Exposure, RenderTarget};
+use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::light::{GlobalAmbientLight, IrradianceVolume, LightProbe};
 use bevy::prelude::*;
+use bevy::render::render_resource::{PipelineCache, TextureFormat, TextureUsages};
+use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
+use bevy::render::{Render, RenderApp, RenderSystems};
+use bevy::window::ExitCondition;
+use bevy::winit::WinitPlugin;
+use bevy::world_serialization::WorldAsset;
 
 /// What the program was given: asset paths (relative to the file-system root, where the asset
 /// server is rooted) and the volume's placement.
@@ -27,34 +58,177 @@ struct Inputs {
     translation: Vec3,
     scale: Vec3,
     intensity: f32,
+    /// Eye, target and vertical field of view (radians) of `--view`.
+    view: Option<(Vec3, Vec3, f32)>,
+}
+
+/// The command line past the two paths.
+struct Options {
+    view: Option<(Vec3, Vec3, f32)>,
+    screenshot: Option<PathBuf>,
+    size: UVec2,
+    frames: u32,
+}
+
+/// Bevy's exposure factor is `2^−ev100 / 1.2`; this EV100 makes it 1.
+fn unit_exposure() -> Exposure {
+    Exposure {
+        ev100: -1.2f32.log2(),
+    }
 }
 
 fn main() -> AppExit {
-    let args: Vec<String> = std::env::args().collect();
-    let (Some(export), Some(scene)) = (args.get(1), args.get(2)) else {
-        eprintln!("usage: prt-bevy-example EXPORT_DIR SCENE.gltf");
-        return AppExit::error();
-    };
-    let inputs = match read_inputs(Path::new(export), Path::new(scene)) {
-        Ok(inputs) => inputs,
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (inputs, options) = match parse(&args) {
+        Ok(parsed) => parsed,
         Err(e) => {
             eprintln!("error: {e}");
+            eprintln!(
+                "usage: prt-bevy-example EXPORT_DIR SCENE.gltf [--view EX,EY,EZ,TX,TY,TZ,FOV] \
+                 [--screenshot OUT.pfm|OUT.png] [--size W[xH]] [--frames N]"
+            );
             return AppExit::error();
         }
     };
-    App::new()
-        .add_plugins(DefaultPlugins.set(AssetPlugin {
-            file_path: "/".into(),
-            unapproved_path_mode: UnapprovedPathMode::Allow,
-            ..default()
-        }))
-        .insert_resource(GlobalAmbientLight {
-            brightness: 0.0,
-            ..default()
-        })
-        .insert_resource(inputs)
-        .add_systems(Startup, setup)
-        .run()
+    let assets = AssetPlugin {
+        file_path: "/".into(),
+        unapproved_path_mode: UnapprovedPathMode::Allow,
+        ..default()
+    };
+    let mut app = App::new();
+    match options.screenshot {
+        None => {
+            app.add_plugins(DefaultPlugins.set(assets))
+                .add_systems(Startup, setup_window_camera);
+        }
+        Some(path) => {
+            // No window and no winit: frames are driven by the schedule runner.
+            app.add_plugins(
+                DefaultPlugins
+                    .set(assets)
+                    .set(WindowPlugin {
+                        primary_window: None,
+                        exit_condition: ExitCondition::DontExit,
+                        close_when_requested: false,
+                        ..default()
+                    })
+                    .disable::<WinitPlugin>(),
+            )
+            .add_plugins(ScheduleRunnerPlugin::run_loop(Duration::from_millis(1)));
+            let waiting = Arc::new(AtomicUsize::new(usize::MAX));
+            app.sub_app_mut(RenderApp)
+                .insert_resource(WaitingPipelines(waiting.clone()))
+                .add_systems(
+                    Render,
+                    count_waiting_pipelines.in_set(RenderSystems::Cleanup),
+                );
+            app.insert_resource(Capture {
+                path,
+                size: options.size,
+                frames: options.frames,
+                target: Handle::default(),
+                scene: Handle::default(),
+                volume: Handle::default(),
+                waiting: WaitingPipelines(waiting),
+                state: CaptureState::Loading,
+                previous: None,
+                outcome: Arc::new(std::sync::Mutex::new(None)),
+            })
+            .add_systems(Startup, setup_image_camera.after(setup))
+            .add_systems(Update, capture);
+        }
+    }
+    app.insert_resource(GlobalAmbientLight {
+        brightness: 0.0,
+        ..default()
+    })
+    .insert_resource(inputs)
+    .add_systems(Startup, setup)
+    .run()
+}
+
+/// Reads the command line and the placement JSON beside the texture.
+fn parse(args: &[String]) -> Result<(Inputs, Options), String> {
+    let (Some(export), Some(scene)) = (args.first(), args.get(1)) else {
+        return Err("EXPORT_DIR and SCENE.gltf are required".into());
+    };
+    let mut options = Options {
+        view: None,
+        screenshot: None,
+        size: UVec2::splat(512),
+        frames: 5,
+    };
+    let mut rest = args[2..].iter();
+    while let Some(flag) = rest.next() {
+        let mut value = || {
+            rest.next()
+                .ok_or_else(|| format!("{flag} needs a value"))
+                .cloned()
+        };
+        match flag.as_str() {
+            "--view" => {
+                let v = value()?;
+                let numbers: Vec<f32> = v
+                    .split(',')
+                    .map(|s| s.trim().parse::<f32>())
+                    .collect::<Result<_, _>>()
+                    .map_err(|e| format!("--view {v}: {e}"))?;
+                let [ex, ey, ez, tx, ty, tz, fov] = numbers[..] else {
+                    return Err(format!("--view {v}: expected 7 numbers"));
+                };
+                if !(fov > 0.0 && fov < 180.0) {
+                    return Err(format!("--view {v}: the field of view is not in (0, 180)"));
+                }
+                options.view = Some((
+                    Vec3::new(ex, ey, ez),
+                    Vec3::new(tx, ty, tz),
+                    fov.to_radians(),
+                ));
+            }
+            "--screenshot" => options.screenshot = Some(PathBuf::from(value()?)),
+            "--size" => {
+                let v = value()?;
+                let parts: Vec<u32> = v
+                    .split('x')
+                    .map(str::parse)
+                    .collect::<Result<_, _>>()
+                    .map_err(|e| format!("--size {v}: {e}"))?;
+                options.size = match parts[..] {
+                    [s] => UVec2::splat(s),
+                    [w, h] => UVec2::new(w, h),
+                    _ => return Err(format!("--size {v}: expected W or WxH")),
+                };
+                if options.size.min_element() == 0 || options.size.max_element() > 8192 {
+                    return Err(format!("--size {v}: not in 1..=8192"));
+                }
+            }
+            "--frames" => {
+                let v = value()?;
+                options.frames = v.parse().map_err(|e| format!("--frames {v}: {e}"))?;
+            }
+            other => return Err(format!("unknown option {other}")),
+        }
+    }
+    if let Some(path) = &options.screenshot {
+        match extension(path).as_str() {
+            "pfm" | "png" => {}
+            _ => {
+                return Err(format!(
+                    "--screenshot {}: must end in .pfm or .png",
+                    path.display()
+                ));
+            }
+        }
+    }
+    let mut inputs = read_inputs(Path::new(export), Path::new(scene))?;
+    inputs.view = options.view;
+    Ok((inputs, options))
+}
+
+fn extension(path: &Path) -> String {
+    path.extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default()
 }
 
 /// Reads the placement JSON beside the texture and makes both paths absolute.
@@ -70,7 +244,12 @@ fn read_inputs(export: &Path, scene: &Path) -> Result<Inputs, String> {
     let vec3 = |key: &str| -> Result<Vec3, String> {
         let values: Vec<f32> = doc["transform"][key]
             .as_array()
-            .map(|a| a.iter().filter_map(|v| v.as_f64()).map(|v| v as f32).collect())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|v| v.as_f64())
+                    .map(|v| v as f32)
+                    .collect()
+            })
             .unwrap_or_default();
         match values[..] {
             [x, y, z] => Ok(Vec3::new(x, y, z)),
@@ -85,27 +264,281 @@ fn read_inputs(export: &Path, scene: &Path) -> Result<Inputs, String> {
         translation: vec3("translation")?,
         scale: vec3("scale")?,
         intensity: doc["intensity"].as_f64().ok_or("no intensity")? as f32,
+        view: None,
     })
 }
 
-fn setup(mut commands: Commands, assets: Res<AssetServer>, inputs: Res<Inputs>) {
-    commands.spawn(WorldAssetRoot(
-        assets.load(GltfAssetLabel::Scene(0).from_asset(inputs.scene.clone())),
-    ));
+/// The scene and the volume; the capture keeps their handles to wait for them.
+fn setup(
+    mut commands: Commands,
+    assets: Res<AssetServer>,
+    inputs: Res<Inputs>,
+    capture: Option<ResMut<Capture>>,
+) {
+    let scene: Handle<WorldAsset> =
+        assets.load(GltfAssetLabel::Scene(0).from_asset(inputs.scene.clone()));
+    let volume: Handle<Image> = assets.load(inputs.volume.clone());
+    commands.spawn(WorldAssetRoot(scene.clone()));
     // Bevy's light probes are the unit cube [-0.5, 0.5]³ under their transform.
     commands.spawn((
         LightProbe::default(),
         IrradianceVolume {
-            voxels: assets.load(inputs.volume.clone()),
+            voxels: volume.clone(),
             intensity: inputs.intensity,
             ..default()
         },
         Transform::from_translation(inputs.translation).with_scale(inputs.scale),
     ));
-    let eye = inputs.translation + inputs.scale * Vec3::new(0.0, 0.1, 0.45);
-    commands.spawn((
-        Camera3d::default(),
-        Exposure { ev100: 0.0 },
-        Transform::from_translation(eye).looking_at(inputs.translation, Vec3::Y),
+    if let Some(mut capture) = capture {
+        capture.scene = scene;
+        capture.volume = volume;
+    }
+}
+
+/// The camera's placement and projection: `--view`, else near the volume's +Z face.
+fn camera_pose(inputs: &Inputs) -> (Transform, Projection) {
+    let (eye, target, fov) = inputs.view.unwrap_or((
+        inputs.translation + inputs.scale * Vec3::new(0.0, 0.1, 0.45),
+        inputs.translation,
+        PerspectiveProjection::default().fov,
     ));
+    (
+        Transform::from_translation(eye).looking_at(target, Vec3::Y),
+        Projection::Perspective(PerspectiveProjection { fov, ..default() }),
+    )
+}
+
+/// The components every camera here has: no tone mapping, no dithering, unit exposure.
+fn linear_camera() -> impl Bundle {
+    (
+        Camera3d::default(),
+        Tonemapping::None,
+        DebandDither::Disabled,
+        unit_exposure(),
+    )
+}
+
+fn setup_window_camera(mut commands: Commands, inputs: Res<Inputs>) {
+    let (transform, projection) = camera_pose(&inputs);
+    commands.spawn((linear_camera(), transform, projection));
+}
+
+/// The offscreen camera: an `Rgba16Float` image, no MSAA (edges stay one surface or the other).
+fn setup_image_camera(
+    mut commands: Commands,
+    inputs: Res<Inputs>,
+    mut images: ResMut<Assets<Image>>,
+    mut capture: ResMut<Capture>,
+) {
+    let mut image = Image::new_target_texture(
+        capture.size.x,
+        capture.size.y,
+        TextureFormat::Rgba16Float,
+        None,
+    );
+    image.texture_descriptor.usage |= TextureUsages::COPY_SRC;
+    let target = images.add(image);
+    capture.target = target.clone();
+    let (transform, projection) = camera_pose(&inputs);
+    commands.spawn((
+        linear_camera(),
+        Camera {
+            clear_color: ClearColorConfig::Custom(Color::BLACK),
+            ..default()
+        },
+        RenderTarget::Image(target.into()),
+        Msaa::Off,
+        transform,
+        projection,
+    ));
+}
+
+/// The render world's count of pipelines still compiling (or waiting for shaders), shared with
+/// the main world.
+#[derive(Resource, Clone)]
+struct WaitingPipelines(Arc<AtomicUsize>);
+
+fn count_waiting_pipelines(cache: Res<PipelineCache>, waiting: Res<WaitingPipelines>) {
+    waiting
+        .0
+        .store(cache.waiting_pipelines().count(), Ordering::Relaxed);
+}
+
+enum CaptureState {
+    /// Waiting for the scene and the volume.
+    Loading,
+    /// Rendering frames (the count so far) until `--frames` and no pipeline waiting.
+    Settling(u32),
+    /// A screenshot is on its way.
+    Requested,
+}
+
+/// Linear RGB pixels, rows top to bottom.
+type Pixels = Vec<[f32; 3]>;
+
+#[derive(Resource)]
+struct Capture {
+    path: PathBuf,
+    size: UVec2,
+    frames: u32,
+    target: Handle<Image>,
+    scene: Handle<WorldAsset>,
+    volume: Handle<Image>,
+    waiting: WaitingPipelines,
+    state: CaptureState,
+    /// The last capture, to compare the next with.
+    previous: Option<Pixels>,
+    /// Set by the screenshot observer.
+    outcome: Arc<std::sync::Mutex<Option<Result<Pixels, String>>>>,
+}
+
+/// How many captures may differ from their predecessor before giving up.
+const MAX_CAPTURES: usize = 20;
+
+fn capture(
+    mut commands: Commands,
+    assets: Res<AssetServer>,
+    mut capture: ResMut<Capture>,
+    mut captures: Local<usize>,
+    mut exit: MessageWriter<AppExit>,
+) {
+    let capture = &mut *capture;
+    match capture.state {
+        CaptureState::Loading => {
+            for id in [capture.scene.id().untyped(), capture.volume.id().untyped()] {
+                if let RecursiveDependencyLoadState::Failed(e) =
+                    assets.recursive_dependency_load_state(id)
+                {
+                    eprintln!("error: cannot load an asset: {e}");
+                    exit.write(AppExit::error());
+                    return;
+                }
+            }
+            if assets.is_loaded_with_dependencies(&capture.scene)
+                && assets.is_loaded_with_dependencies(&capture.volume)
+            {
+                capture.state = CaptureState::Settling(0);
+            }
+        }
+        CaptureState::Settling(frames) => {
+            let idle = capture.waiting.0.load(Ordering::Relaxed) == 0;
+            if frames + 1 >= capture.frames && idle {
+                let outcome = capture.outcome.clone();
+                commands
+                    .spawn(Screenshot::image(capture.target.clone()))
+                    .observe(move |shot: On<ScreenshotCaptured>| {
+                        *outcome.lock().expect("lock") = Some(linear_rgb(&shot.image));
+                    });
+                capture.state = CaptureState::Requested;
+            } else {
+                capture.state = CaptureState::Settling(frames + 1);
+            }
+        }
+        CaptureState::Requested => {
+            let Some(outcome) = capture.outcome.lock().expect("lock").take() else {
+                return;
+            };
+            *captures += 1;
+            let pixels = match outcome {
+                Ok(pixels) => pixels,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    exit.write(AppExit::error());
+                    return;
+                }
+            };
+            let stable = capture.previous.as_ref() == Some(&pixels);
+            if !stable && *captures < MAX_CAPTURES {
+                capture.previous = Some(pixels);
+                capture.state = CaptureState::Settling(0);
+                return;
+            }
+            if !stable {
+                eprintln!("warning: {MAX_CAPTURES} captures in a row differed; saving the last");
+            }
+            match save(&capture.path, capture.size, &pixels) {
+                Ok(()) => {
+                    println!(
+                        "wrote {} after {} captures",
+                        capture.path.display(),
+                        *captures
+                    );
+                    exit.write(AppExit::Success);
+                }
+                Err(e) => {
+                    eprintln!("error: {}: {e}", capture.path.display());
+                    exit.write(AppExit::error());
+                }
+            }
+        }
+    }
+}
+
+/// The screenshot's pixels as linear RGB.
+fn linear_rgb(image: &Image) -> Result<Pixels, String> {
+    let format = image.texture_descriptor.format;
+    if format != TextureFormat::Rgba16Float {
+        return Err(format!("the screenshot is {format:?}, not Rgba16Float"));
+    }
+    let data = image.data.as_ref().ok_or("the screenshot has no data")?;
+    let texels = (image.width() * image.height()) as usize;
+    if data.len() != 8 * texels {
+        return Err(format!(
+            "the screenshot holds {} bytes for {texels} texels",
+            data.len()
+        ));
+    }
+    let half = |b: &[u8]| f16_to_f32(u16::from_le_bytes([b[0], b[1]]));
+    Ok(data
+        .chunks_exact(8)
+        .map(|t| [half(&t[0..2]), half(&t[2..4]), half(&t[4..6])])
+        .collect())
+}
+
+/// IEEE 754 binary16 to f32.
+fn f16_to_f32(h: u16) -> f32 {
+    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
+    let exponent = i32::from((h >> 10) & 0x1f);
+    let mantissa = f32::from(h & 0x3ff);
+    sign * match exponent {
+        0 => mantissa * 2f32.powi(-24),
+        31 if mantissa == 0.0 => f32::INFINITY,
+        31 => f32::NAN,
+        e => (1.0 + mantissa / 1024.0) * 2f32.powi(e - 15),
+    }
+}
+
+/// Writes `.pfm` (linear, bottom row first as the format has it) or `.png` (clamped, sRGB).
+fn save(path: &Path, size: UVec2, pixels: &[[f32; 3]]) -> Result<(), String> {
+    let (w, h) = (size.x as usize, size.y as usize);
+    let bytes = if extension(path) == "pfm" {
+        let mut out = format!("PF\n{w} {h}\n-1.0\n").into_bytes();
+        for row in pixels.chunks_exact(w).rev() {
+            for v in row.iter().flatten() {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        out
+    } else {
+        let encode = |v: f32| {
+            let v = v.clamp(0.0, 1.0);
+            let s = if v <= 0.003_130_8 {
+                12.92 * v
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
+            (s * 255.0).round() as u8
+        };
+        let rgb: Vec<u8> = pixels.iter().flatten().map(|&v| encode(v)).collect();
+        let mut out = Vec::new();
+        let mut encoder = png::Encoder::new(&mut out, w as u32, h as u32);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        let mut writer = encoder.write_header().map_err(|e| e.to_string())?;
+        writer.write_image_data(&rgb).map_err(|e| e.to_string())?;
+        writer.finish().map_err(|e| e.to_string())?;
+        out
+    };
+    std::fs::write(path, bytes).map_err(|e| e.to_string())
 }
