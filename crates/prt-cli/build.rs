@@ -2,11 +2,16 @@
 //! Without one the viewer's screenshot test compiles as `#[ignore]`d, so `cargo test` lists it
 //! as ignored with the reason instead of passing unchecked; `PRT_REQUIRE_CHROMIUM=1` (set by
 //! .ci/run after installing Debian's chromium) makes it run (and fail) anyway.
+//!
+//! Likewise for the Bevy test (tests/bevy.rs): it needs the built examples/bevy binary, named
+//! by PRT_BEVY_EXAMPLE, and ../shared/scenes; without either it compiles as ignored, unless
+//! PRT_REQUIRE_BEVY=1 (set by .ci/run after building the example) and PRT_REQUIRE_SHARED=1.
 
 use std::path::PathBuf;
 
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_chromium)");
+    println!("cargo::rustc-check-cfg=cfg(prt_skip_bevy)");
     println!("cargo::rerun-if-changed=build.rs");
     println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CHROMIUM");
     println!("cargo::rerun-if-env-changed=PRT_CHROMIUM");
@@ -27,4 +32,28 @@ fn main() {
             }
         }
     }
+    if skip_bevy() {
+        println!("cargo::rustc-cfg=prt_skip_bevy");
+    }
+}
+
+/// Whether tests/bevy.rs lacks the example binary or the shared scenes (and may skip them).
+fn skip_bevy() -> bool {
+    println!("cargo::rerun-if-env-changed=PRT_BEVY_EXAMPLE");
+    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_BEVY");
+    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SHARED");
+    let required = |name: &str| std::env::var_os(name).is_some_and(|v| v == "1");
+    let example = std::env::var_os("PRT_BEVY_EXAMPLE")
+        .map(PathBuf::from)
+        .filter(|p| p.is_file());
+    if let Some(binary) = &example {
+        println!("cargo::rerun-if-changed={}", binary.display());
+    }
+    let scenes = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("set by cargo"))
+        .join("../../../shared/scenes");
+    if scenes.is_dir() {
+        println!("cargo::rerun-if-changed={}", scenes.display());
+    }
+    (example.is_none() && !required("PRT_REQUIRE_BEVY"))
+        || (!scenes.is_dir() && !required("PRT_REQUIRE_SHARED"))
 }

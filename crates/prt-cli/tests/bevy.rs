@@ -1,0 +1,370 @@
+//! Bevy itself, on a software Vulkan driver (Mesa's lavapipe): a small bake of the Cornell box
+//! glTF, exported for Bevy (`--target bevy --format rgba16f`), rendered by the example of
+//! examples/bevy/ without a window into a linear `Rgba16Float` image, must show per surface the
+//! radiance that `prt render --lookup bevy` computes from the same export, and no surface may
+//! be black (issue 36: walls on the light probe's faces, where Bevy weighs the probe 0).
+//!
+//! The example binary is built by .ci/extra and named by `PRT_BEVY_EXAMPLE`; without it (at
+//! build time) the test is ignored unless `PRT_REQUIRE_BEVY=1`. With
+//! `PRT_BEVY_DOCS_DIR=DIR` it bakes finer (32³ voxels, 512 rays, for a less noisy picture) and
+//! also writes both images into DIR as `bevy-cornell.png` and
+//! `prt-render-bevy-lookup-cornell.png`, tone-mapped alike with prt render's tone map (the
+//! exposure that maps prt's log-average luminance to 0.18, Narkowicz's ACES fit, sRGB).
+//!
+//! Measured (Mesa 22.3.6 lavapipe, 16³ bake, 256² pixels): per-surface median relative error
+//! 0.03–0.04 %, 90th percentile ≤ 0.07 %, no pixel below 0.999 × prt's (the `Rgba16Float`
+//! texture and image round to 2⁻¹¹); with the placement box shrunk to the bake bounds (the
+//! bug) the ceiling, floor and back wall have black pixels and medians of 5–14 %. Pixels are
+//! classified by the surface prt's ray hits (material and facing axis), and only those whose
+//! 8 neighbours see the same surface are judged (the rasteriser and the rays may differ on
+//! edges).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::Vec3;
+use prt_render::{Rendered, ToneMap, luminance, read_mesh, views};
+use prt_texture::Limits;
+use prt_trace::RayTracer;
+
+/// Image side in pixels.
+const SIZE: usize = 256;
+/// Largest per-surface median relative error (luminance) between Bevy and `prt render`
+/// (measured: 0.04 %).
+const MAX_MEDIAN_ERROR: f64 = 0.002;
+/// Largest per-surface 90th percentile of it (measured: 0.07 %).
+const MAX_P90_ERROR: f64 = 0.005;
+/// Smallest ratio of Bevy's to prt's luminance at any surface pixel (measured: 0.999; the old
+/// bug gave 0).
+const MIN_RATIO: f64 = 0.9;
+/// Surfaces with fewer interior pixels than this are reported but not judged.
+const MIN_PIXELS: usize = 40;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("prt-bevy-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn run(command: &mut Command) -> String {
+    let out = command.output().expect("the command runs");
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{command:?} failed:\n{text}");
+    text
+}
+
+fn prt() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_prt"))
+}
+
+/// The Cornell box of ../shared/scenes (beside the workspace).
+fn cornell_gltf() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/scenes/cornell_box/CornellBox-Original.gltf")
+}
+
+fn bevy_example() -> PathBuf {
+    let path = PathBuf::from(std::env::var_os("PRT_BEVY_EXAMPLE").expect(
+        "PRT_BEVY_EXAMPLE names the built examples/bevy binary (the test runs because \
+         PRT_REQUIRE_BEVY=1 or because it was set when the test was built)",
+    ));
+    assert!(
+        path.is_file(),
+        "PRT_BEVY_EXAMPLE={} is not a file",
+        path.display()
+    );
+    path
+}
+
+/// A Portable Float Map (`PF`, RGB, bottom row first) as rows from the top.
+fn read_pfm(path: &Path) -> Rendered {
+    let bytes = std::fs::read(path).expect("read the screenshot");
+    let mut fields = Vec::new();
+    let mut start = 0;
+    let mut at = 0;
+    while fields.len() < 4 {
+        if bytes[at].is_ascii_whitespace() {
+            if at > start {
+                fields.push(String::from_utf8_lossy(&bytes[start..at]).into_owned());
+            }
+            start = at + 1;
+        }
+        at += 1;
+    }
+    assert_eq!(fields[0], "PF", "not an RGB PFM");
+    let width: usize = fields[1].parse().expect("width");
+    let height: usize = fields[2].parse().expect("height");
+    let scale: f32 = fields[3].parse().expect("scale");
+    let data = &bytes[at..];
+    assert_eq!(data.len(), 12 * width * height, "PFM data size");
+    let value = |i: usize| {
+        let b: [u8; 4] = data[4 * i..4 * i + 4].try_into().expect("4 bytes");
+        if scale < 0.0 {
+            f32::from_le_bytes(b)
+        } else {
+            f32::from_be_bytes(b)
+        }
+    };
+    let mut pixels = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let row = height - 1 - y;
+        for x in 0..width {
+            let i = 3 * (row * width + x);
+            pixels.push([value(i), value(i + 1), value(i + 2)]);
+        }
+    }
+    Rendered {
+        width,
+        height,
+        hit: vec![true; pixels.len()],
+        pixels,
+        unlit: 0,
+    }
+}
+
+fn read_exr(path: &Path) -> Rendered {
+    let image = image::open(path).expect("read the EXR").to_rgb32f();
+    let (width, height) = (image.width() as usize, image.height() as usize);
+    let pixels: Vec<[f32; 3]> = image.pixels().map(|p| p.0).collect();
+    Rendered {
+        width,
+        height,
+        hit: vec![true; pixels.len()],
+        pixels,
+        unlit: 0,
+    }
+}
+
+fn save_png(path: &Path, image: &Rendered, tone: &ToneMap) {
+    image::RgbImage::from_raw(image.width as u32, image.height as u32, tone.apply(image))
+        .expect("size")
+        .save(path)
+        .expect("write PNG");
+}
+
+/// The surface each pixel of `view` sees: `material name` and the sign and axis of the
+/// geometric normal facing the camera (`floor +y`), or `None` for a miss or an emitter.
+fn surfaces(bake: &Path, camera: usize) -> (Vec<Option<String>>, [f32; 7]) {
+    let scene = read_mesh(&bake.join("scene.mesh"), &Limits::default()).expect("scene mesh");
+    let view = views(&scene)[camera].view;
+    let tracer = RayTracer::new(scene.triangles());
+    let mut out = Vec::with_capacity(SIZE * SIZE);
+    for y in 0..SIZE {
+        for x in 0..SIZE {
+            let dir = view.ray(x, y, SIZE, SIZE);
+            out.push(
+                tracer
+                    .closest_hit(view.position, dir, 0.0, f32::INFINITY)
+                    .and_then(|hit| {
+                        let material = scene.material_of(hit.triangle as usize);
+                        if material.emissive != Vec3::ZERO {
+                            return None;
+                        }
+                        let n = if hit.normal.dot(dir) > 0.0 {
+                            -hit.normal
+                        } else {
+                            hit.normal
+                        };
+                        let axis = n.abs().max_position();
+                        let sign = if n[axis] > 0.0 { '+' } else { '-' };
+                        Some(format!("{} {sign}{}", material.name, ["x", "y", "z"][axis]))
+                    }),
+            );
+        }
+    }
+    let target = view.position + view.forward;
+    let e = view.position;
+    (
+        out,
+        [
+            e.x,
+            e.y,
+            e.z,
+            target.x,
+            target.y,
+            target.z,
+            view.yfov.to_degrees(),
+        ],
+    )
+}
+
+/// Pixels whose 8 neighbours see the same surface (rasterisation and ray casting may disagree
+/// along edges).
+fn interior(surface: &[Option<String>]) -> Vec<bool> {
+    let s = SIZE as isize;
+    (0..SIZE * SIZE)
+        .map(|i| {
+            let (x, y) = ((i % SIZE) as isize, (i / SIZE) as isize);
+            surface[i].is_some()
+                && (-1..=1).all(|dy| {
+                    (-1..=1).all(|dx| {
+                        let (u, v) = (x + dx, y + dy);
+                        (0..s).contains(&u)
+                            && (0..s).contains(&v)
+                            && surface[(v * s + u) as usize] == surface[i]
+                    })
+                })
+        })
+        .collect()
+}
+
+#[test]
+#[cfg_attr(
+    prt_skip_bevy,
+    ignore = "needs the examples/bevy binary (PRT_BEVY_EXAMPLE) and ../shared/scenes, absent at \
+              build time (PRT_REQUIRE_BEVY=1 and PRT_REQUIRE_SHARED=1 require them)"
+)]
+fn bevy_on_lavapipe_shows_what_prt_render_shows_and_no_black_walls() {
+    let gltf = cornell_gltf();
+    assert!(
+        gltf.is_file(),
+        "{} is missing (the test runs because PRT_REQUIRE_SHARED=1 or because it was there at \
+         build time)",
+        gltf.display()
+    );
+    let example = bevy_example();
+    let dir = scratch("cornell");
+    let bake = dir.join("bake");
+    let docs = std::env::var_os("PRT_BEVY_DOCS_DIR").map(PathBuf::from);
+    let quality: &[&str] = if docs.is_some() {
+        &["--res", "32", "--rays", "512"]
+    } else {
+        &[
+            "--res",
+            "16",
+            "--rays",
+            "64",
+            "--cache-rays",
+            "16",
+            "--rank",
+            "4",
+        ]
+    };
+    run(prt()
+        .arg("bake")
+        .arg(&gltf)
+        .args(quality)
+        .args(["--basis-nodes", "3", "--iterations", "8", "--no-baselines"])
+        .arg("--out")
+        .arg(&bake));
+    let export = dir.join("bevy");
+    run(prt()
+        .arg("export")
+        .arg(&bake)
+        .args(["--target", "bevy", "--format", "rgba16f", "--out"])
+        .arg(&export));
+
+    let camera = 0;
+    let (surface, view) = surfaces(&bake, camera);
+    let view_arg: Vec<String> = view.iter().map(|v| format!("{v}")).collect();
+    let shot = dir.join("bevy.pfm");
+    let started = std::time::Instant::now();
+    let mut bevy_command = Command::new(example);
+    bevy_command
+        .arg(&export)
+        .arg(&gltf)
+        .args(["--view", &view_arg.join(",")])
+        .args(["--size", &SIZE.to_string(), "--frames", "3", "--screenshot"])
+        .arg(&shot)
+        .env("WGPU_BACKEND", "vulkan")
+        .env("RUST_LOG", "warn");
+    eprintln!("{bevy_command:?}");
+    let log = run(&mut bevy_command);
+    eprintln!(
+        "Bevy rendered in {:.1} s: {}",
+        started.elapsed().as_secs_f64(),
+        log.lines()
+            .filter(|l| l.starts_with("wrote"))
+            .collect::<String>()
+    );
+    let bevy = read_pfm(&shot);
+    assert_eq!((bevy.width, bevy.height), (SIZE, SIZE));
+
+    let reference = dir.join("prt.exr");
+    run(prt()
+        .arg("render")
+        .arg(&bake)
+        .args(["--camera", &camera.to_string(), "--size", &SIZE.to_string()])
+        .args(["--lookup", "bevy", "--out"])
+        .arg(&reference));
+    let cpu = read_exr(&reference);
+
+    if let Some(docs) = &docs {
+        // Both with the exposure prt render picks for its own image.
+        let mut lit = cpu.clone();
+        lit.hit = surface.iter().map(Option::is_some).collect();
+        let tone = ToneMap::auto(&lit);
+        save_png(&docs.join("bevy-cornell.png"), &bevy, &tone);
+        save_png(
+            &docs.join("prt-render-bevy-lookup-cornell.png"),
+            &cpu,
+            &tone,
+        );
+    }
+
+    let inside = interior(&surface);
+    let mut by_surface: BTreeMap<&str, Vec<(f64, f64)>> = BTreeMap::new();
+    for i in 0..SIZE * SIZE {
+        if let (true, Some(name)) = (inside[i], &surface[i]) {
+            by_surface.entry(name.as_str()).or_default().push((
+                f64::from(luminance(bevy.pixels[i])),
+                f64::from(luminance(cpu.pixels[i])),
+            ));
+        }
+    }
+    let mut failures = Vec::new();
+    for (name, pairs) in &by_surface {
+        let mut errors: Vec<f64> = pairs
+            .iter()
+            .map(|&(b, c)| (b - c).abs() / c.max(1e-12))
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        let p90 = errors[errors.len() * 9 / 10];
+        let darkest = pairs
+            .iter()
+            .map(|&(b, c)| b / c.max(1e-12))
+            .fold(f64::INFINITY, f64::min);
+        let mean_bevy = pairs.iter().map(|p| p.0).sum::<f64>() / pairs.len() as f64;
+        let mean_cpu = pairs.iter().map(|p| p.1).sum::<f64>() / pairs.len() as f64;
+        eprintln!(
+            "{name:>14}: {:5} px, mean luminance Bevy {mean_bevy:.4} / prt {mean_cpu:.4}, \
+             relative error median {:.2} % p90 {:.2} %, darkest ratio {darkest:.3}",
+            pairs.len(),
+            100.0 * median,
+            100.0 * p90
+        );
+        if darkest < MIN_RATIO {
+            failures.push(format!(
+                "{name}: a pixel at {darkest:.3} × prt's luminance (black walls, issue 36?)"
+            ));
+        }
+        if pairs.len() >= MIN_PIXELS && (median > MAX_MEDIAN_ERROR || p90 > MAX_P90_ERROR) {
+            failures.push(format!(
+                "{name}: relative error median {:.2} % p90 {:.2} % (at most {:.2} % / {:.2} %)",
+                100.0 * median,
+                100.0 * p90,
+                100.0 * MAX_MEDIAN_ERROR,
+                100.0 * MAX_P90_ERROR
+            ));
+        }
+    }
+    let judged = by_surface
+        .values()
+        .filter(|p| p.len() >= MIN_PIXELS)
+        .count();
+    assert!(
+        judged >= 5,
+        "only {judged} surfaces with {MIN_PIXELS}+ pixels in view"
+    );
+    assert!(
+        failures.is_empty(),
+        "{} (images in {})",
+        failures.join("; "),
+        dir.display()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
