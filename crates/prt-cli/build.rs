@@ -3,6 +3,8 @@
 //! as ignored with the reason instead of passing unchecked; `PRT_REQUIRE_CHROMIUM=1` (set by
 //! .ci/run after installing Debian's chromium) makes it run (and fail) anyway.
 //!
+//! The three.js test (tests/threejs.rs) also needs examples/threejs/node_modules (`npm ci`).
+//!
 //! Likewise for the Bevy test (tests/bevy.rs): it needs the built examples/bevy binary, named
 //! by PRT_BEVY_EXAMPLE, and ../shared/scenes; without either it compiles as ignored, unless
 //! PRT_REQUIRE_BEVY=1 (set by .ci/run after building the example) and PRT_REQUIRE_SHARED=1.
@@ -12,6 +14,7 @@ use std::path::PathBuf;
 fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_chromium)");
     println!("cargo::rustc-check-cfg=cfg(prt_skip_bevy)");
+    println!("cargo::rustc-check-cfg=cfg(prt_skip_threejs)");
     println!("cargo::rerun-if-changed=build.rs");
     println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CHROMIUM");
     println!("cargo::rerun-if-env-changed=PRT_CHROMIUM");
@@ -35,6 +38,20 @@ fn main() {
     if skip_bevy() {
         println!("cargo::rustc-cfg=prt_skip_bevy");
     }
+    if skip_threejs() {
+        println!("cargo::rustc-cfg=prt_skip_threejs");
+    }
+}
+
+/// Whether tests/threejs.rs lacks three.js (`npm ci` in examples/threejs installs the pinned
+/// version) and may skip; PRT_REQUIRE_CHROMIUM=1 requires it too.
+fn skip_threejs() -> bool {
+    let example = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("set by cargo"))
+        .join("../../examples/threejs");
+    // The folder's time changes when `npm ci` creates or removes node_modules in it.
+    println!("cargo::rerun-if-changed={}", example.display());
+    !example.join("node_modules/three/package.json").is_file()
+        && std::env::var_os("PRT_REQUIRE_CHROMIUM").is_none_or(|v| v != "1")
 }
 
 /// Whether tests/bevy.rs lacks the example binary or the shared scenes (and may skip them).

@@ -796,20 +796,17 @@ fn the_readme_shows_the_tested_loader_verbatim() {
     prt_skip_chromium,
     ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
 )]
+#[cfg_attr(
+    prt_skip_threejs,
+    ignore = "needs examples/threejs/node_modules (`npm ci` there), absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
 fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
-    let required = std::env::var_os("PRT_REQUIRE_CHROMIUM").is_some_and(|v| v == "1");
     let example = example_dir();
-    if !example.join("node_modules/three/package.json").is_file() {
-        assert!(
-            !required,
-            "examples/threejs/node_modules/three is missing: run `npm ci` in examples/threejs \
-             (.ci/extra does) before this test"
-        );
-        eprintln!(
-            "SKIPPED: examples/threejs/node_modules is missing (run `npm ci` in examples/threejs)"
-        );
-        return;
-    }
+    assert!(
+        example.join("node_modules/three/package.json").is_file(),
+        "examples/threejs/node_modules/three is missing: run `npm ci` in examples/threejs \
+         (.ci/extra does) before this test"
+    );
     let dir = scratch("cornell");
     let bake = dir.join("bake");
     let started = Instant::now();

@@ -75,14 +75,18 @@ pub fn export_bevy(
             format!("{} (must be finite and >= 0)", config.intensity),
         ));
     }
-    let mut clamped = 0;
+    // Counted on the bake's own voxels, not on the padding's copies of them.
+    let clamped = unpadded
+        .radiance
+        .iter()
+        .flat_map(|l| ambient_cube(l, config.fit))
+        .flatten()
+        .filter(|&v| v < 0.0)
+        .count();
     let mut data = Vec::with_capacity(18 * volume.voxels());
     for l in &volume.radiance {
         for side in ambient_cube(l, config.fit) {
-            for v in side {
-                clamped += usize::from(v < 0.0);
-                data.push(v.max(0.0));
-            }
+            data.extend(side.map(|v| v.max(0.0)));
         }
     }
     let cubes = AmbientCubeVolume {

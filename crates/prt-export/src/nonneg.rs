@@ -42,7 +42,7 @@ pub fn test_directions() -> Vec<Vec3> {
 /// Makes every voxel's irradiance non-negative (a windowing of the SH, as deringing does):
 /// per voxel and colour channel, `E(n) = E₀ + r(n)` splits into the constant band-0 term and
 /// the rest; where `min r < −E₀` over [`test_directions`], bands 1 and 2 are scaled by
-/// `E₀ / −min r`, which keeps the mean and the dominant direction and lifts the minimum to 0;
+/// `E₀ / −min r` (less 10⁻⁵ of it), which keeps the mean and the dominant direction and lifts the minimum to 0;
 /// a channel with `E₀ ≤ 0` has no light to keep and is zeroed. Validity is unchanged.
 pub fn remove_negative_light(volume: &LitVolume) -> Result<NonNegative, ExportError> {
     volume.check()?;
@@ -81,7 +81,8 @@ pub fn remove_negative_light(volume: &LitVolume) -> Result<NonNegative, ExportEr
                     zeroed += 1;
                 }
             } else if rest_min < -e0 {
-                let s = e0 / -rest_min;
+                // A hair below the exact factor, so that rounding leaves no tiny negatives.
+                let s = e0 / -rest_min * (1.0 - 1e-5);
                 channel[1..].iter_mut().for_each(|c| *c *= s);
                 scaled += 1;
             }
