@@ -1,14 +1,15 @@
 //! The viewer in a real headless browser: `prt view` serves a small Cornell bake, Debian's
 //! chromium (WebGL2 on SwiftShader) screenshots fixed frames of it, and `prt render` renders the
-//! same frames on the CPU. They must agree (PSNR ≥ 30 dB on the 8-bit images), and turning the
-//! sky must move the browser's image the way it moves the CPU's.
+//! same frames on the CPU. They must agree (PSNR within about 6 dB of what is measured, i.e. at
+//! most about four times the measured squared error, on the 8-bit images), and turning the sky
+//! must move the browser's image the way it moves the CPU's. A bake whose grid is 10 voxels
+//! wide (rows of one-byte texels not a multiple of 4 bytes) must draw too, and a load error
+//! must show on the page.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 
-/// The smallest PSNR (dB) between a screenshot and the CPU render of the same frame.
-const MIN_PSNR: f64 = 30.0;
 /// Image side in pixels.
 const SIZE: u32 = 256;
 
@@ -21,6 +22,16 @@ fn scratch(name: &str) -> PathBuf {
 
 fn prt() -> Command {
     Command::new(env!("CARGO_BIN_EXE_prt"))
+}
+
+/// A small Cornell bake (the default 32³ one takes minutes in a debug build) with `res` voxels
+/// along each axis, its volumes kept.
+fn bake_cornell(res: u32, out: &Path) {
+    run(prt()
+        .args(["bake", "--res", &res.to_string(), "--rays", "96"])
+        .args(["--cache-rays", "32", "--rank", "4", "--basis-nodes", "3"])
+        .args(["--iterations", "24", "--keep-volumes", "always", "--out"])
+        .arg(out));
 }
 
 fn run(command: &mut Command) -> String {
@@ -111,7 +122,7 @@ fn screenshot(server: &Server, query: &str, out: &Path) -> image::RgbImage {
         dom.contains("<title>ready</title>"),
         "the page did not get ready for {url}:\n{}",
         dom.lines()
-            .filter(|l| l.contains("error") || l.contains("title"))
+            .filter(|l| l.contains("id=\"error\"") || l.contains("<title>"))
             .collect::<Vec<_>>()
             .join("\n")
     );
@@ -227,41 +238,22 @@ fn write_lobe_sky(path: &Path) {
 fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
     let dir = scratch("cornell");
     let bake = dir.join("bake");
-    // A small Cornell bake (the default 32³ one takes minutes in a debug build).
-    run(prt()
-        .args([
-            "bake",
-            "--res",
-            "16",
-            "--rays",
-            "96",
-            "--cache-rays",
-            "32",
-            "--rank",
-            "4",
-        ])
-        .args([
-            "--basis-nodes",
-            "3",
-            "--iterations",
-            "24",
-            "--keep-volumes",
-            "always",
-        ])
-        .arg("--out")
-        .arg(&bake));
+    bake_cornell(16, &bake);
     let sky = dir.join("lobe.hdr");
     write_lobe_sky(&sky);
     let sky_arg = sky.to_str().expect("utf-8");
     let server = Server::start(&bake, &sky);
 
-    // (query, render flags, name): the default sky with MBD, the lobe sky with the reference
-    // volume, and MBD under the lobe sky at two rotations.
-    let cases: [(&str, Vec<&str>, &str); 4] = [
+    // (query, render flags, name, least PSNR): the default sky with MBD, the lobe sky with the
+    // reference volume, and MBD under the lobe sky at two rotations. Measured (SwiftShader,
+    // chromium 156): 47.1, 46.1, 46.4 and 50.9 dB; each bound is about 6 dB below (four times
+    // the squared error).
+    let cases: [(&str, Vec<&str>, &str, f64); 4] = [
         (
             "camera=0&rotate=0&method=mbd",
             vec!["--camera", "0", "--rotate", "0", "--method", "mbd"],
             "mbd",
+            41.0,
         ),
         (
             "camera=0&rotate=0&method=reference&sky=1",
@@ -276,6 +268,7 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
                 sky_arg,
             ],
             "reference-lobe",
+            40.0,
         ),
         (
             "camera=0&rotate=0&method=mbd&sky=1&exposure=1",
@@ -292,6 +285,7 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
                 "1",
             ],
             "mbd-lobe-0",
+            40.0,
         ),
         (
             "camera=0&rotate=120&method=mbd&sky=1&exposure=1",
@@ -308,17 +302,18 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
                 "1",
             ],
             "mbd-lobe-120",
+            45.0,
         ),
     ];
     let mut pairs = Vec::new();
-    for (query, flags, name) in &cases {
+    for (query, flags, name, min_db) in &cases {
         let shot = screenshot(&server, query, &dir.join(format!("{name}-view.png")));
         let cpu = render(&bake, flags, &dir.join(format!("{name}-render.png")));
         let db = psnr(&shot, &cpu);
         eprintln!("{name}: PSNR {db:.2} dB between the viewer and prt render");
         assert!(
-            db >= MIN_PSNR,
-            "{name}: PSNR {db:.2} dB < {MIN_PSNR} dB (images in {})",
+            db >= *min_db,
+            "{name}: PSNR {db:.2} dB < {min_db} dB (images in {})",
             dir.display()
         );
         pairs.push((shot, cpu));
@@ -330,20 +325,22 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
     write_in_bricks(&bake, &bricked);
     drop(server);
     let server = Server::start(&bricked, &sky);
-    let (query, _, name) = &cases[0];
+    let (query, _, name, min_db) = &cases[0];
     let shot = screenshot(&server, query, &dir.join(format!("{name}-bricks-view.png")));
     let (dense_shot, cpu) = &pairs[0];
     let (db_cpu, db_dense) = (psnr(&shot, cpu), psnr(&shot, dense_shot));
     eprintln!(
         "{name} in bricks: PSNR {db_cpu:.2} dB against prt render, {db_dense:.2} dB against the dense volume's view"
     );
+    // Measured 47.1 dB against prt render (as from the dense volume) and 92.0 dB against the
+    // dense volume's view (a few values 1 apart).
     assert!(
-        db_cpu >= MIN_PSNR,
-        "bricks: PSNR {db_cpu:.2} dB < {MIN_PSNR} dB"
+        db_cpu >= *min_db,
+        "bricks: PSNR {db_cpu:.2} dB < {min_db} dB"
     );
     assert!(
-        db_dense >= 45.0,
-        "bricks against dense: PSNR {db_dense:.2} dB"
+        db_dense >= 85.0,
+        "bricks against dense: PSNR {db_dense:.2} dB < 85 dB"
     );
 
     // Turning the sky by 120° changes the image a lot, and the same way in both.
@@ -358,9 +355,78 @@ fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
         rms > 10.0,
         "turning the sky barely changed the CPU render (RMS {rms:.2})"
     );
+    // Measured: RMS 49.0, correlation 0.9997 (1 − r about 3e-4).
     assert!(
-        r > 0.95,
+        r > 0.999,
         "the viewer's change correlates {r:.4} with the CPU's"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+#[cfg_attr(
+    prt_skip_chromium,
+    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
+fn a_grid_not_a_multiple_of_4_wide_draws_and_load_errors_show_on_the_page() {
+    let dir = scratch("odd");
+    let bake = dir.join("bake");
+    // 10 voxels along x: the one-byte validity rows (10 bytes) are not a multiple of WebGL's
+    // default 4-byte unpack alignment, which once left the canvas black.
+    bake_cornell(10, &bake);
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(bake.join("mbd/manifest.json")).expect("manifest"))
+            .expect("json");
+    let validity = manifest["arrays"]
+        .as_array()
+        .and_then(|a| a.iter().find(|e| e["name"] == "validity"))
+        .expect("a validity array");
+    assert_eq!(validity["dims"][0], 10, "{validity}");
+    assert_eq!(validity["single_channel"], true, "{validity}");
+    let sky = dir.join("lobe.hdr");
+    write_lobe_sky(&sky);
+    let server = Server::start(&bake, &sky);
+    let shot = screenshot(
+        &server,
+        "camera=0&rotate=0&method=mbd",
+        &dir.join("view.png"),
+    );
+    let cpu = render(
+        &bake,
+        &["--camera", "0", "--rotate", "0", "--method", "mbd"],
+        &dir.join("render.png"),
+    );
+    let mean =
+        shot.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / shot.as_raw().len() as f64;
+    let db = psnr(&shot, &cpu);
+    eprintln!(
+        "10-voxel grid: mean {mean:.1} (8-bit), PSNR {db:.2} dB between the viewer and prt render"
+    );
+    assert!(
+        mean > 40.0,
+        "the viewer drew black (mean {mean:.1}; images in {})",
+        dir.display()
+    );
+    // Measured: 46.4 dB (mean 136).
+    assert!(
+        db >= 40.0,
+        "PSNR {db:.2} dB < 40 dB (images in {})",
+        dir.display()
+    );
+
+    // A file that cannot be loaded: the page says so, in its error box and title.
+    std::fs::remove_file(bake.join("mbd/validity.ktx2")).expect("remove");
+    let url = format!("{}?camera=0&size={SIZE}", server.url);
+    let dom = run(browser(&dir.join("error.profile"), SIZE)
+        .arg("--dump-dom")
+        .arg(&url));
+    assert!(dom.contains("<title>error</title>"), "{dom}");
+    assert!(
+        dom.contains(
+            "<div id=\"error\">prt view: cannot load bake/mbd/validity.ktx2: HTTP 404</div>"
+        ),
+        "{dom}"
+    );
+    drop(server);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -15,14 +15,41 @@ const RELIT_GROUPS = 7;
 const BASIS_GROUPS = 81;
 const MIDDLE_GREY = 0.18;
 
-function fail(message) {
-  document.getElementById('error').textContent = 'prt view: ' + message;
+// Shows `message` on the page (the first one stays: later ones are usually its consequences).
+function showError(message) {
+  const box = document.getElementById('error');
+  if (!box.textContent) box.textContent = `prt view: ${message}`;
   document.title = 'error';
+}
+
+function fail(message) {
+  showError(message);
   throw new Error(message);
 }
 
+// Errors outside main's promise chain (event handlers, the redraw loop) reach the page too.
+window.addEventListener('error', (e) => showError(e.message || e));
+window.addEventListener('unhandledrejection', (e) =>
+  showError(e.reason && e.reason.message ? e.reason.message : e.reason));
+
+// WebGL reports a failed call only through getError (and the console): fail on the page instead
+// of drawing black.
+function checkGl(gl, what) {
+  const error = gl.getError();
+  if (error === gl.NO_ERROR) return;
+  const names = ['INVALID_ENUM', 'INVALID_VALUE', 'INVALID_OPERATION', 'OUT_OF_MEMORY',
+    'INVALID_FRAMEBUFFER_OPERATION', 'CONTEXT_LOST_WEBGL'];
+  const name = names.find((n) => gl[n] === error) || 'error';
+  fail(`${what}: WebGL ${name} (0x${error.toString(16)}; the browser's console may say more)`);
+}
+
 async function fetchOk(url) {
-  const response = await fetch(url);
+  let response;
+  try {
+    response = await fetch(url);
+  } catch (e) {
+    fail(`cannot load ${url}: ${e && e.message ? e.message : e}`);
+  }
   if (!response.ok) fail(`cannot load ${url}: HTTP ${response.status}`);
   return response;
 }
@@ -180,6 +207,7 @@ function arrayTexture(gl, entry, data) {
       break;
     }
   }
+  checkGl(gl, `uploading ${entry.file} (${w}×${h}×${d} texels)`);
   const floatTexels = entry.encoding === 'f32' || entry.encoding.endsWith('16') && entry.encoding !== 'f16';
   const filter = floatTexels && !gl.getExtension('OES_texture_float_linear') ? gl.NEAREST : gl.LINEAR;
   setSampling(gl, gl.TEXTURE_3D, filter);
@@ -201,6 +229,7 @@ async function indirectionTexture(gl, folder, bricks) {
   const texture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_3D, texture);
   gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGBA8, ...bricks.grid, 0, gl.RGBA, gl.UNSIGNED_BYTE, new Uint8Array(texels));
+  checkGl(gl, `uploading ${bricks.indirection}`);
   setSampling(gl, gl.TEXTURE_3D, gl.NEAREST);
   return texture;
 }
@@ -234,6 +263,7 @@ function rangesTexture(gl, scale, bias) {
   const texture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_2D, texture);
   gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, groups, 2, 0, gl.RGBA, gl.FLOAT, data);
+  checkGl(gl, 'uploading the scale and bias');
   setSampling(gl, gl.TEXTURE_2D, gl.NEAREST);
   return texture;
 }
@@ -585,6 +615,9 @@ async function main() {
   if (!gl) fail('this browser has no WebGL2');
   if (!gl.getExtension('EXT_color_buffer_float')) fail('WebGL2 without EXT_color_buffer_float: cannot render to float textures');
   if (gl.getParameter(gl.MAX_DRAW_BUFFERS) < RELIT_GROUPS) fail(`the voxel pass needs ${RELIT_GROUPS} draw buffers; this WebGL2 has ${gl.getParameter(gl.MAX_DRAW_BUFFERS)}`);
+  // The volumes are tightly packed: a one-channel row (R8: x bytes, R16F: 2x) is not a multiple
+  // of WebGL's default 4-byte row alignment when the grid's x size is not a multiple of 4.
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
 
   const [mesh, views, skies, manifest] = await Promise.all([
     fetchBytes('bake/scene.mesh').then(parseMesh), fetchJson('views.json'), fetchJson('skies.json'),
@@ -680,6 +713,7 @@ async function main() {
           gl.texSubImage3D(gl.TEXTURE_3D, 0, j * voxels[0], part * voxels[1], 0, voxels[0], voxels[1], voxels[2],
             gl.RGBA, gl.HALF_FLOAT, texels.subarray(j * slab, (j + 1) * slab));
         }
+        checkGl(gl, `uploading volumes/${entry.file}`);
         scale.fill(1, 36 * part, 36 * (part + 1));
       }
       methods.set(name, {
@@ -963,6 +997,7 @@ async function main() {
       state.relitFor.clear();
       frame();
     }
+    checkGl(gl, 'drawing the frame');
     document.title = 'ready';
     return;
   }
@@ -1028,15 +1063,17 @@ async function main() {
     redraw();
   }, { passive: false });
 
+  let checked = false;
   const loop = () => {
-    if (dirty) { dirty = false; frame(); }
+    if (dirty) {
+      dirty = false;
+      frame();
+      // Once: getError waits for the GPU.
+      if (!checked) { checked = true; checkGl(gl, 'drawing the frame'); }
+    }
     requestAnimationFrame(loop);
   };
   loop();
 }
 
-main().catch((e) => {
-  const box = document.getElementById('error');
-  if (!box.textContent) box.textContent = `prt view: ${e && e.message ? e.message : e}`;
-  document.title = 'error';
-});
+main().catch((e) => showError(e && e.message ? e.message : e));
