@@ -402,7 +402,7 @@ pub(crate) fn write_outputs(
         total_seconds: total.elapsed().as_secs_f64(),
     };
     report::write_report(out_dir, &report, &images, renders.as_ref())?;
-    print_summary(&report, out_dir, baked);
+    print_summary(&report, out_dir, baked, renders.as_ref());
     Ok(())
 }
 
@@ -480,8 +480,24 @@ fn check_writable(dir: &Path) -> Result<()> {
     Ok(())
 }
 
-fn print_summary(report: &Report<'_>, out_dir: &Path, baked: &Bake) {
+fn print_summary(
+    report: &Report<'_>,
+    out_dir: &Path,
+    baked: &Bake,
+    renders: Option<&report::RenderSummary>,
+) {
     let solve = &baked.mbd.report;
+    if let Some(renders) = renders {
+        let ranked: Vec<String> = report::rank_by_flip(&renders.views)
+            .iter()
+            .map(|(key, flip)| format!("{} {flip:.4}", key.to_uppercase()))
+            .collect();
+        println!(
+            "\nImage error (mean ꟻLIP over {} views, best first): {}",
+            renders.views.len(),
+            ranked.join(", ")
+        );
+    }
     println!("\n{}", report::table_markdown(&baked.comparison));
     println!(
         "MBD: {} iterations{}; stages: {}; total {:.1} s",

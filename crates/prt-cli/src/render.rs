@@ -267,7 +267,6 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     let config = RenderConfig {
         width: args.size,
         height: args.size,
-        ..RenderConfig::default()
     };
     let stage = Stage::start("render");
     let start = Instant::now();

@@ -76,6 +76,53 @@ fn small_cornell_bake_writes_a_consistent_report() {
         denoised(mbd)
     );
     assert!(written["bytes_per_voxel"].as_f64().expect("bytes") > 0.0);
+    // Image metrics head the report, per view, and the ranking it prints follows ꟻLIP.
+    let images = &report["image_metrics"];
+    let views = images["views"].as_array().expect("image metric views");
+    assert!(views.len() >= 2, "the automatic views at least");
+    let mut means: Vec<(String, f64)> = views[0]["methods"]
+        .as_array()
+        .expect("methods")
+        .iter()
+        .map(|m| {
+            let key = m["method"].as_str().expect("key").to_string();
+            let flips: Vec<f64> = views
+                .iter()
+                .flat_map(|v| v["methods"].as_array().expect("methods"))
+                .filter(|n| n["method"] == m["method"])
+                .map(|n| n["flip"].as_f64().expect("flip"))
+                .collect();
+            assert!(flips.iter().all(|f| (0.0..=1.0).contains(f)), "{flips:?}");
+            (key, flips.iter().sum::<f64>() / flips.len() as f64)
+        })
+        .collect();
+    means.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let ranking: Vec<&str> = images["ranking_by_flip"]
+        .as_array()
+        .expect("ranking")
+        .iter()
+        .map(|r| r["method"].as_str().expect("method"))
+        .collect();
+    let expected: Vec<&str> = means.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(ranking, expected);
+    let md = std::fs::read_to_string(out_dir.join("report.md")).expect("report.md");
+    let eye = md
+        .find("## What the eye sees")
+        .expect("image metrics section");
+    assert!(eye < md.find("## Compression").expect("compression section"));
+    let sentence = md[eye..]
+        .lines()
+        .find(|l| l.contains("Ranked by mean"))
+        .expect("ranking sentence");
+    let positions: Vec<usize> = expected
+        .iter()
+        .map(|k| {
+            sentence
+                .find(&format!("{} (", k.to_uppercase()))
+                .unwrap_or_else(|| panic!("{k} not ranked in {sentence}"))
+        })
+        .collect();
+    assert!(positions.windows(2).all(|w| w[0] < w[1]), "{sentence}");
     let losses = report["mbd"]["loss"].as_array().expect("loss history");
     assert!(!losses.is_empty());
     // The inspect command reads back what bake wrote.

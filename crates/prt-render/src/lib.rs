@@ -14,6 +14,7 @@
 //! | [`render`], [`RenderConfig`], [`Rendered`] | the image: linear RGB radiance per pixel, sky where rays miss |
 //! | [`SurfaceLight`] | what lights a surface point: a [`RelitVolume`] by prt's lookup, or an engine's lookup (prt-export) |
 //! | [`voxels_read`] | which voxels a render reads, to limit per-voxel work to them |
+//! | [`image_metrics`], [`ImageMetrics`] | a render against a reference as a person sees them: ꟻLIP and tone-mapped grey-level errors |
 //! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
 //! | [`views`], [`NamedView`] | the scene's glTF cameras, then the automatic `front` and `inside` views |
 //! | [`encode_mesh`], [`write_mesh`], [`decode_mesh`], [`read_mesh`] | the scene mesh file (`scene.mesh`, docs/formats.md): triangles, materials, cameras |
@@ -52,6 +53,7 @@
 
 mod error;
 mod mesh;
+mod metrics;
 mod render;
 mod tonemap;
 mod views;
@@ -59,6 +61,7 @@ mod volume;
 
 pub use error::{MeshError, RenderError};
 pub use mesh::{MESH_MAGIC, MESH_VERSION, decode_mesh, encode_mesh, read_mesh, write_mesh};
+pub use metrics::{ImageMetrics, VISIBLE_LEVELS, image_metrics};
 pub use render::{RenderConfig, Rendered, SurfaceLight, render, voxels_read};
 pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};
 pub use views::{NamedView, views};

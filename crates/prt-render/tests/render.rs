@@ -2,7 +2,9 @@
 
 use glam::{Mat4, Vec3};
 use prt_core::{Aabb, AtomicProgress, GridField, NoProgress};
-use prt_render::{RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, render, views};
+use prt_render::{
+    RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, image_metrics, render, views,
+};
 use prt_sphere::Sky;
 use prt_trace::{BakeOptions, Camera, PinholeView, RayTracer, Scene, TRANSFER_DIM, TransferBaker};
 
@@ -27,11 +29,7 @@ fn looking_down() -> PinholeView {
 }
 
 fn small(width: usize, height: usize) -> RenderConfig {
-    RenderConfig {
-        width,
-        height,
-        ..RenderConfig::default()
-    }
+    RenderConfig { width, height }
 }
 
 fn draw(
@@ -363,4 +361,57 @@ fn the_voxels_read_are_those_around_the_lookup_points() {
     // A voxel of that layer under the view (which sees x, z within about ±0.62) is read.
     let centre = grid.index(1, 2, 1);
     assert!(read[centre]);
+}
+
+/// A flat test image: `value` on every surface pixel, the top row a miss showing `sky`.
+fn flat(width: usize, height: usize, value: f32, sky: f32) -> Rendered {
+    let hit: Vec<bool> = (0..width * height).map(|i| i >= width).collect();
+    Rendered {
+        width,
+        height,
+        pixels: hit
+            .iter()
+            .map(|&h| if h { [value; 3] } else { [sky; 3] })
+            .collect(),
+        hit,
+        unlit: 0,
+    }
+}
+
+#[test]
+fn image_metrics_are_zero_for_the_same_image_and_grow_with_the_difference() {
+    let reference = flat(32, 32, 0.2, 5.0);
+    let tone = ToneMap { exposure: 1.0 };
+    let same = image_metrics(&reference, &reference, &tone).expect("metrics");
+    assert_eq!(same.pixels, 32 * 31, "only the surface pixels count");
+    assert_eq!(
+        (
+            same.flip,
+            same.mean_levels,
+            same.share_off,
+            same.dark_levels,
+            same.median_relative
+        ),
+        (0.0, 0.0, 0.0, 0.0, 0.0)
+    );
+    // The sky differs but is not a surface: nothing changes.
+    let other_sky = flat(32, 32, 0.2, 0.0);
+    assert_eq!(
+        image_metrics(&reference, &other_sky, &tone)
+            .expect("metrics")
+            .mean_levels,
+        0.0
+    );
+    let mut last = same;
+    for value in [0.21f32, 0.25, 0.4] {
+        let m = image_metrics(&reference, &flat(32, 32, value, 5.0), &tone).expect("metrics");
+        assert!(
+            m.flip > last.flip && m.mean_levels > last.mean_levels,
+            "{value}: {m:?}"
+        );
+        assert!((m.median_relative - f64::from(value / 0.2 - 1.0)).abs() < 1e-5);
+        last = m;
+    }
+    assert_eq!(last.share_off, 1.0, "0.2 → 0.4 is far more than 10 levels");
+    assert!(image_metrics(&reference, &flat(16, 32, 0.2, 5.0), &tone).is_err());
 }

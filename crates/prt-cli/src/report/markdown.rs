@@ -10,7 +10,7 @@ use serde_json::json;
 
 use crate::report::images::ImageSummary;
 use crate::report::plots::loss_plot_png;
-use crate::report::renders::RenderSummary;
+use crate::report::renders::{RenderSummary, ViewMetrics, rank_by_flip};
 
 /// Everything the report shows.
 pub struct Report<'a> {
@@ -57,6 +57,44 @@ pub fn table_markdown(rows: &[MethodScores]) -> String {
     s
 }
 
+/// The image metrics' section of `report.md`: what a person sees, per view and method.
+pub fn image_metrics_markdown(views: &[ViewMetrics]) -> String {
+    let ranked = rank_by_flip(views);
+    let order: Vec<String> = ranked
+        .iter()
+        .map(|(key, flip)| format!("{} ({flip:.4})", key.to_uppercase()))
+        .collect();
+    let mut md = format!(
+        "## What the eye sees\n\nEvery view rendered at {size} × {size} under the default sky \
+         with each method's volume and with the traced reference, both tone-mapped with the \
+         reference's exposure (ACES filmic, sRGB), and compared over the pixels that show the \
+         scene: **ꟻLIP** (NVIDIA's perceptual difference, 0 = identical), the mean difference \
+         in grey levels of 255, the share of pixels more than {levels:.0} levels off, the mean \
+         difference over the reference's darkest quartile, and the median relative luminance \
+         error. Ranked by mean ꟻLIP over the views: **{order}**.\n\n\
+         | view | method | ꟻLIP | mean levels | > {levels:.0} levels | darkest quartile | median relative |\n\
+         |---|---|---|---|---|---|---|\n",
+        size = super::renders::RENDER_SIZE,
+        levels = prt_render::VISIBLE_LEVELS,
+        order = order.join(", "),
+    );
+    for v in views {
+        for (key, m) in &v.methods {
+            md += &format!(
+                "| {} | {} | {:.4} | {:.2} | {:.1} % | {:.2} | {:.1} % |\n",
+                v.view,
+                key.to_uppercase(),
+                m.flip,
+                m.mean_levels,
+                100.0 * m.share_off,
+                m.dark_levels,
+                100.0 * m.median_relative
+            );
+        }
+    }
+    md + "\n"
+}
+
 /// The rendered views' section of `report.md`.
 fn renders_markdown(renders: &RenderSummary) -> String {
     let mut md = format!(
@@ -67,7 +105,7 @@ fn renders_markdown(renders: &RenderSummary) -> String {
          reference's), ACES filmic curve, sRGB.\n\n\
          - **Middle row**: each render's difference from the reference render, in grey levels of \
          the images (red = brighter, blue = darker, full colour at ±{top:.1} of 255, a gain of \
-         {gain:.0}×). At this ray count it is mostly the reference's own Monte Carlo noise.\n\
+         {gain:.0}×); the mean difference of each method in this view: {means}.\n\
          - **Bottom row, the seam view rendered**: each method's basis applied to the denoised \
          reference (blurred with σ = {sigma} voxel over valid voxels), rendered, minus the \
          render of the denoised reference, relative to it (full colour at ±{seam:.2} %). \
@@ -84,6 +122,17 @@ fn renders_markdown(renders: &RenderSummary) -> String {
         gain = 255.0 / renders.difference_top,
         sigma = BLUR_SIGMA,
         seam = 100.0 * renders.seam_top,
+        means = renders
+            .views
+            .first()
+            .map(|v| {
+                v.methods
+                    .iter()
+                    .map(|(key, m)| format!("{} {:.2} levels", key.to_uppercase(), m.mean_levels))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .unwrap_or_default(),
     );
     for (key, rmse) in &renders.rmse {
         md += &format!("| {} | {rmse:.4e} |\n", key.to_uppercase());
@@ -119,6 +168,9 @@ pub fn write_report(
          basis per block or cluster).\n\n",
         report.scene, rank, basis_nodes[0], basis_nodes[1], basis_nodes[2], rank
     );
+    if let Some(renders) = renders {
+        md += &image_metrics_markdown(&renders.views);
+    }
     md += "## Compression\n\n";
     md += &table_markdown(&baked.comparison);
     md += "\n*Relative MSE*: Σ‖f̂ − f‖² / Σ‖f‖² over jittered samples (f = trilinear input). \
@@ -229,6 +281,23 @@ pub fn write_report(
             "size": super::renders::RENDER_SIZE,
             "exposure": r.exposure,
             "rmse_vs_reference": r.rmse.iter().cloned().collect::<BTreeMap<_, _>>(),
+        })),
+        "image_metrics": renders.map(|r| json!({
+            "definition": "per view, each method's render against the reference render, both tone-mapped with the reference's exposure (ACES, sRGB), over the pixels that hit the scene",
+            "ranking_by_flip": rank_by_flip(&r.views).into_iter().map(|(k, f)| json!({"method": k, "mean_flip": f})).collect::<Vec<_>>(),
+            "views": r.views.iter().map(|v| json!({
+                "view": v.view,
+                "methods": v.methods.iter().map(|(k, m)| json!({
+                    "method": k,
+                    "flip": m.flip,
+                    "mean_levels": m.mean_levels,
+                    "share_over_levels": m.share_off,
+                    "levels_threshold": prt_render::VISIBLE_LEVELS,
+                    "darkest_quartile_levels": m.dark_levels,
+                    "median_relative_luminance": m.median_relative,
+                    "pixels": m.pixels,
+                })).collect::<Vec<_>>(),
+            })).collect::<Vec<_>>(),
         })),
         "stage_seconds": report.stage_seconds.iter().cloned().collect::<BTreeMap<_, _>>(),
         "total_seconds": report.total_seconds,

@@ -9,4 +9,4 @@ mod renders;
 pub use images::{save_png, write_images};
 pub use markdown::{Report, table_markdown, write_report};
 pub use plots::register_font;
-pub use renders::write_renders;
+pub use renders::{RenderSummary, rank_by_flip, write_renders};

@@ -9,7 +9,10 @@ use prt_bake::{BLUR_SIGMA, Bake, read_container};
 use prt_core::{GridField, NoProgress};
 use prt_mbd::LocalBasis;
 use prt_mbd::expert::{blur_valid, projection_residuals};
-use prt_render::{RelitVolume, RenderConfig, Rendered, ToneMap, render, views, voxels_read};
+use prt_render::{
+    ImageMetrics, RelitVolume, RenderConfig, Rendered, ToneMap, image_metrics, render, views,
+    voxels_read,
+};
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_trace::{RayTracer, Scene};
@@ -32,8 +35,45 @@ pub struct RenderSummary {
     pub seam_top: f32,
     /// Each method's key and the RMSE of its render's radiance against the reference render.
     pub rmse: Vec<(String, f64)>,
+    /// Every view of the scene (glTF cameras, then `front` and `inside`): each method's image
+    /// error against the reference render of that view.
+    pub views: Vec<ViewMetrics>,
     /// Files written, in display order.
     pub files: Vec<String>,
+}
+
+/// One view's image errors.
+pub struct ViewMetrics {
+    /// The view's name.
+    pub view: String,
+    /// Each method's key (MBD as written first, then the baselines) and its image error.
+    pub methods: Vec<(String, ImageMetrics)>,
+}
+
+/// The methods ranked by their mean ꟻLIP over `views`, best first, with that mean.
+pub fn rank_by_flip(views: &[ViewMetrics]) -> Vec<(String, f64)> {
+    let mut ranked: Vec<(String, f64)> = views
+        .first()
+        .map(|v| {
+            v.methods
+                .iter()
+                .map(|(key, _)| key.clone())
+                .collect::<Vec<_>>()
+        })
+        .unwrap_or_default()
+        .into_iter()
+        .map(|key| {
+            let scores: Vec<f64> = views
+                .iter()
+                .flat_map(|v| v.methods.iter().filter(|(k, _)| *k == key))
+                .map(|(_, m)| m.flip)
+                .collect();
+            let mean = scores.iter().sum::<f64>() / scores.len().max(1) as f64;
+            (key, mean)
+        })
+        .collect();
+    ranked.sort_by(|a, b| a.1.total_cmp(&b.1));
+    ranked
 }
 
 /// Renders the bake's scene from its first view under the default sky, lit by the traced
@@ -74,7 +114,6 @@ pub fn write_renders(
     let config = RenderConfig {
         width: RENDER_SIZE,
         height: RENDER_SIZE,
-        ..RenderConfig::default()
     };
     let images: Vec<(String, Rendered)> = volumes
         .iter()
@@ -93,6 +132,38 @@ pub fn write_renders(
         .collect::<Result<_>>()?;
     let reference = &images[0].1;
     let tone = ToneMap::auto(reference);
+    let mut view_metrics = Vec::new();
+    for (index, other) in views(scene).into_iter().enumerate() {
+        let rendered: Vec<(String, Rendered)> = if index == 0 {
+            images.clone()
+        } else {
+            volumes
+                .iter()
+                .map(|(key, volume)| {
+                    let image = render(
+                        scene,
+                        &tracer,
+                        &other.view,
+                        volume,
+                        &sky,
+                        &config,
+                        &NoProgress,
+                    )?;
+                    Ok((key.clone(), image))
+                })
+                .collect::<Result<_>>()?
+        };
+        let base = &rendered[0].1;
+        let view_tone = ToneMap::auto(base);
+        let methods = rendered[1..]
+            .iter()
+            .map(|(key, image)| Ok((key.clone(), image_metrics(base, image, &view_tone)?)))
+            .collect::<Result<_>>()?;
+        view_metrics.push(ViewMetrics {
+            view: other.name,
+            methods,
+        });
+    }
     let display = |image: &Rendered| -> Vec<f32> {
         image
             .pixels
@@ -229,8 +300,8 @@ pub fn write_renders(
                 "red = brighter, blue = darker,".into(),
                 format!("full colour at ±{difference_top:.1} of 255"),
                 format!("(gain {:.0}x).", 255.0 / difference_top),
-                "Mostly the reference's own".into(),
-                "Monte Carlo noise.".into(),
+                "Mean |difference| (grey".into(),
+                "levels), this view:".into(),
             ],
         ),
         (
@@ -248,6 +319,14 @@ pub fn write_renders(
             ],
         ),
     ];
+    let mut row_text = row_text;
+    if let Some(first) = view_metrics.first() {
+        for (key, m) in &first.methods {
+            row_text[0]
+                .1
+                .push(format!("{} {:.1}", key.to_uppercase(), m.mean_levels));
+        }
+    }
     for (row, lines) in row_text {
         let (x, y) = at(0, row);
         for (k, line) in lines.into_iter().enumerate() {
@@ -267,6 +346,7 @@ pub fn write_renders(
         difference_top,
         seam_top,
         rmse,
+        views: view_metrics,
         files,
     }))
 }
@@ -278,5 +358,40 @@ fn diverging(t: f32) -> [u8; 3] {
         [a, a / 4, 0]
     } else {
         [0, a / 2, a]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn metrics(flip: f64) -> ImageMetrics {
+        ImageMetrics {
+            flip,
+            mean_levels: 0.0,
+            share_off: 0.0,
+            dark_levels: 0.0,
+            median_relative: 0.0,
+            pixels: 1,
+        }
+    }
+
+    #[test]
+    fn the_ranking_follows_the_mean_flip_over_views() {
+        let view = |name: &str, flips: [f64; 3]| ViewMetrics {
+            view: name.into(),
+            methods: ["mbd", "bpca", "cpca"]
+                .iter()
+                .zip(flips)
+                .map(|(k, f)| (k.to_string(), metrics(f)))
+                .collect(),
+        };
+        // MBD wins one view by a little and loses the other by a lot: it ranks last.
+        let views = [view("a", [0.10, 0.11, 0.12]), view("b", [0.40, 0.20, 0.10])];
+        let ranked = rank_by_flip(&views);
+        let keys: Vec<&str> = ranked.iter().map(|(k, _)| k.as_str()).collect();
+        assert_eq!(keys, ["cpca", "bpca", "mbd"]);
+        assert!((ranked[2].1 - 0.25).abs() < 1e-12);
+        assert!(rank_by_flip(&[]).is_empty());
     }
 }
