@@ -39,6 +39,11 @@ pub struct BakeConfig {
     pub full_iterations: usize,
     /// MBD ridge weight λ on the coefficients.
     pub lambda: f32,
+    /// MBD's per-voxel loss weighting ([`prt_mbd::Mbd::loss_weighting`]; default: relative
+    /// error, exponent 1, floor 0.05, which the rendered images favour); `None`: the paper's
+    /// loss. In a plan file: `[exponent, floor]` or null (absent in older plans: null).
+    #[serde(default, with = "loss_weighting_serde")]
+    pub loss_weighting: Option<prt_mbd::LossWeighting>,
     /// Storage encoding of the container's coefficient and basis volumes.
     pub encoding: Encoding,
     /// Whether to fit and score the blockwise and clustered PCA baselines.
@@ -92,7 +97,8 @@ impl Layout {
 impl Default for BakeConfig {
     /// 32 voxels along the longest axis, 256 rays per voxel, 64 cache rays, no margin, rank 8
     /// on 5 basis nodes per axis, 64 iterations (a coarse start from 64³ voxels up, then 16 at
-    /// full resolution), λ = 1e-4, f16 storage, baselines on, seed 0,
+    /// full resolution), λ = 1e-4, the relative-error loss weighting, f16 storage, baselines
+    /// on, seed 0,
     /// no memory budget, no container, [`Layout::Auto`] keeping every brick with a valid voxel.
     fn default() -> Self {
         BakeConfig {
@@ -106,6 +112,7 @@ impl Default for BakeConfig {
             coarse_levels: None,
             full_iterations: 16,
             lambda: 1e-4,
+            loss_weighting: Some(prt_mbd::LossWeighting::default()),
             encoding: Encoding::F16,
             baselines: true,
             seed: 0,
@@ -171,6 +178,16 @@ impl BakeConfig {
             "resolution",
             format!("must be at least 2 voxels (got {})", self.resolution),
         )?;
+        if let Some(w) = self.loss_weighting {
+            check(
+                (0.0..=4.0).contains(&w.exponent) && w.floor > 0.0 && w.floor <= 1.0,
+                "loss_weighting",
+                format!(
+                    "exponent {} must be in [0, 4] and floor {} in (0, 1]",
+                    w.exponent, w.floor
+                ),
+            )?;
+        }
         check(
             self.rays_per_voxel >= 1,
             "rays_per_voxel",
@@ -288,5 +305,25 @@ mod tests {
             other => panic!("{other:?}"),
         }
         assert!(BakeConfig::default().validate().is_ok());
+    }
+}
+
+/// [`BakeConfig::loss_weighting`] in JSON as `[exponent, floor]` or null (prt-mbd has no serde).
+mod loss_weighting_serde {
+    use prt_mbd::LossWeighting;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<S: Serializer>(
+        value: &Option<LossWeighting>,
+        serializer: S,
+    ) -> Result<S::Ok, S::Error> {
+        value.map(|w| [w.exponent, w.floor]).serialize(serializer)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(
+        deserializer: D,
+    ) -> Result<Option<LossWeighting>, D::Error> {
+        Ok(Option::<[f32; 2]>::deserialize(deserializer)?
+            .map(|[exponent, floor]| LossWeighting { exponent, floor }))
     }
 }

@@ -35,6 +35,7 @@ pub(crate) fn fit_mbd(
             levels,
             iterations: config.max_iterations,
         }),
+        loss_weighting: config.loss_weighting,
         ..Mbd::new(config.rank, Basis::HatGrid { nodes: basis_nodes })
     };
     let fit = match valid {

@@ -6,6 +6,7 @@ use prt_kernels::HatGrid;
 
 use crate::clustered::{LabelKernels, LabelSmoothing, align_to};
 use crate::coarse::{CoarseStart, can_halve, halve};
+use crate::loss_weights::{LossWeighting, unweight_coefficients, weighted_field};
 use crate::polish::{self, BasisLayout, PolishBasis, PolishOptions, PolishReport};
 use crate::solver::{Start, check_mask, solve_with};
 use crate::subspace::principal_subspace;
@@ -35,6 +36,9 @@ pub struct Mbd {
     /// opt-in, [`Basis::HatGrid`] only; `None`: the paper's start, the global principal
     /// subspace). For large volumes, where each full-resolution iteration is costly.
     pub coarse_start: Option<CoarseStart>,
+    /// A per-voxel weighting of the loss, undone exactly after the fit (beyond the paper,
+    /// opt-in; `None`: the paper's loss, where the brightest voxels dominate).
+    pub loss_weighting: Option<LossWeighting>,
 }
 
 impl Default for Mbd {
@@ -96,6 +100,7 @@ impl Mbd {
             solver: SolverOptions::default(),
             polish: None,
             coarse_start: None,
+            loss_weighting: None,
         }
     }
 
@@ -109,6 +114,15 @@ impl Mbd {
     /// options, checked before any work), non-finite field values, cancellation, and
     /// [`MbdError::Diverged`].
     pub fn fit(&self, field: &GridField, progress: &dyn Progress) -> Result<MbdFit, MbdError> {
+        if let Some(weighting) = self.loss_weighting {
+            let weights = weighting.weights(field, None)?;
+            let unweighted = Mbd {
+                loss_weighting: None,
+                ..self.clone()
+            };
+            let fit = unweighted.fit(&weighted_field(field, &weights)?, progress)?;
+            return unweight(fit, &weights);
+        }
         match self.basis {
             Basis::HatGrid { nodes } => {
                 self.check_polish(hat_basis(field, nodes)?.len())?;
@@ -157,6 +171,15 @@ impl Mbd {
             });
         }
         check_mask(field, valid)?;
+        if let Some(weighting) = self.loss_weighting {
+            let weights = weighting.weights(field, Some(valid))?;
+            let unweighted = Mbd {
+                loss_weighting: None,
+                ..self.clone()
+            };
+            let fit = unweighted.fit_masked(&weighted_field(field, &weights)?, valid, progress)?;
+            return unweight(fit, &weights);
+        }
         let (model, solve) = self.solve_hat_grid(field, Some(valid), nodes, progress)?;
         Ok(MbdFit {
             model,
@@ -251,6 +274,16 @@ impl Mbd {
             polish,
         })
     }
+}
+
+/// A fit to the weighted field with each voxel's coefficients divided by its weight.
+fn unweight(fit: MbdFit, weights: &[f32]) -> Result<MbdFit, MbdError> {
+    let (coefficient_kernels, basis_kernels, mut coefficients, basis) = fit.model.into_parts();
+    unweight_coefficients(&mut coefficients, weights)?;
+    Ok(MbdFit {
+        model: MbdModel::new(coefficient_kernels, basis_kernels, coefficients, basis)?,
+        ..fit
+    })
 }
 
 impl Compressor for Mbd {

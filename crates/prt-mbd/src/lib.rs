@@ -17,7 +17,9 @@
 //! [`Mbd`] is the one way to fit: a rank, a [`Basis`] (the paper's hat grid, or kernels
 //! derived from clustered PCA's clusters), [`SolverOptions`] for the paper's stochastic
 //! quasi-Newton solver, an optional exact [`PolishOptions`] polish and an optional
-//! [`CoarseStart`] (fit the volume at half resolution first: for large volumes). [`Mbd::fit`]
+//! [`CoarseStart`] (fit the volume at half resolution first: for large volumes) and an optional
+//! [`LossWeighting`] (each voxel's relative error counts alike: for fields whose magnitude
+//! spans orders, like dim interiors beside sunlit voxels). [`Mbd::fit`]
 //! returns an [`MbdFit`]: the [`MbdModel`] (a [`prt_core::FieldModel`], tensors laid out for
 //! volume textures: coefficients `M × L`, basis `N × L × D`) and the solver's and polish's
 //! reports.
@@ -68,6 +70,7 @@ mod coarse;
 mod error;
 mod eval;
 mod fit;
+mod loss_weights;
 mod model;
 mod objective;
 mod polish;
@@ -84,6 +87,7 @@ pub use coarse::CoarseStart;
 pub use error::MbdError;
 pub use eval::{ErrorSeams, EvalOptions, Evaluation, SeamOptions, error_seams, evaluate};
 pub use fit::{Basis, BasisKernels, Mbd, MbdFit};
+pub use loss_weights::LossWeighting;
 pub use model::MbdModel;
 pub use objective::Preconditioner;
 pub use polish::{PolishOptions, PolishReport};
