@@ -168,6 +168,11 @@ pub struct BakeArgs {
         |c| c.lambda.to_string(),
     ))]
     pub lambda: Option<f32>,
+    /// MBD's per-voxel loss weighting: `none` (the paper's loss) or `relative[:EXPONENT[,FLOOR]]`
+    /// (each voxel weighted by its magnitude^−EXPONENT, default 1 and floor 0.05 of the mean,
+    /// undone exactly after the fit).
+    #[arg(long, value_name = "none|relative[:EXPONENT[,FLOOR]]", value_parser = parse_loss_weighting)]
+    pub loss_weighting: Option<LossWeightingArg>,
     #[arg(long, value_enum, help = knob_help("Storage encoding of the written volumes", encoding_name))]
     pub encoding: Option<EncodingArg>,
     /// Skip the blockwise / clustered PCA baselines (faster; the report then has MBD only).
@@ -246,6 +251,38 @@ const LOW_VALID_FRACTION: f64 = 0.05;
 /// box traces on this project's machine (larger scenes trace slower).
 const ASSUMED_RAYS_PER_SECOND_PER_THREAD: f64 = 6.0e6;
 
+/// `--loss-weighting`: `none`, or `relative[:EXPONENT[,FLOOR]]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LossWeightingArg(Option<prt_mbd::LossWeighting>);
+
+fn parse_loss_weighting(spec: &str) -> Result<LossWeightingArg, String> {
+    if spec == "none" {
+        return Ok(LossWeightingArg(None));
+    }
+    let Some(rest) = spec.strip_prefix("relative") else {
+        return Err(format!(
+            "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
+        ));
+    };
+    let mut weighting = prt_mbd::LossWeighting::default();
+    if let Some(values) = rest.strip_prefix(':') {
+        let numbers: Vec<f32> = values
+            .split(',')
+            .map(|v| v.trim().parse::<f32>().map_err(|e| format!("{spec}: {e}")))
+            .collect::<Result<_, _>>()?;
+        match numbers[..] {
+            [exponent] => weighting.exponent = exponent,
+            [exponent, floor] => weighting = prt_mbd::LossWeighting { exponent, floor },
+            _ => return Err(format!("{spec}: expected relative[:EXPONENT[,FLOOR]]")),
+        }
+    } else if !rest.is_empty() {
+        return Err(format!(
+            "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
+        ));
+    }
+    Ok(LossWeightingArg(Some(weighting)))
+}
+
 impl BakeArgs {
     /// The pipeline's configuration: the preset, each explicit knob over it, writing the
     /// container into `container`.
@@ -262,6 +299,9 @@ impl BakeArgs {
             coarse_levels: self.coarse_levels.or(preset.coarse_levels),
             full_iterations: self.full_iterations.unwrap_or(preset.full_iterations),
             lambda: self.lambda.unwrap_or(preset.lambda),
+            loss_weighting: self
+                .loss_weighting
+                .map_or(preset.loss_weighting, |arg| arg.0),
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,
@@ -536,6 +576,31 @@ mod tests {
     struct Bake {
         #[command(flatten)]
         args: BakeArgs,
+    }
+
+    #[test]
+    fn the_loss_weighting_flag_parses_and_defaults_to_relative() {
+        use prt_mbd::LossWeighting;
+        assert_eq!(config(&[]).loss_weighting, Some(LossWeighting::default()));
+        assert_eq!(config(&["--loss-weighting", "none"]).loss_weighting, None);
+        assert_eq!(
+            config(&["--loss-weighting", "relative:0.5"]).loss_weighting,
+            Some(LossWeighting {
+                exponent: 0.5,
+                ..LossWeighting::default()
+            })
+        );
+        assert_eq!(
+            config(&["--loss-weighting", "relative:1.5,0.2"]).loss_weighting,
+            Some(LossWeighting {
+                exponent: 1.5,
+                floor: 0.2
+            })
+        );
+        for bad in ["relativ", "relative:", "relative:1,2,3", "absolute"] {
+            let argv = ["bake", "--loss-weighting", bad];
+            assert!(Bake::try_parse_from(argv).is_err(), "{bad}");
+        }
     }
 
     /// The configuration the flags give, without the memory budget (the machine's).
