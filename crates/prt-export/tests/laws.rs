@@ -34,7 +34,7 @@ fn on_face(bounds: Aabb, face: usize, u: f32, v: f32) -> (Vec3, Vec3) {
     p[a] = bounds.min[a] + u * bounds.size()[a];
     p[b] = bounds.min[b] + v * bounds.size()[b];
     let mut n = Vec3::ZERO;
-    if face % 2 == 0 {
+    if face.is_multiple_of(2) {
         p[axis] = bounds.min[axis];
         n[axis] = 1.0;
     } else {

@@ -250,6 +250,7 @@ fn cluster_basis_follows_stripes_the_hat_grid_cannot() {
         },
         polish: None,
         coarse_start: None,
+        loss_weighting: None,
     };
     let fit = clustered.fit(&field, &NoProgress).unwrap();
     assert!(fit.polish.is_none());

@@ -62,6 +62,7 @@ proptest! {
             solver: SolverOptions { max_iterations: 8, seed, ..SolverOptions::default() },
             polish: None,
             coarse_start: None,
+            loss_weighting: None,
         };
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
         let options = PolishOptions { iterations: 4, tolerance: 0.0, ..PolishOptions::default() };
