@@ -34,8 +34,13 @@ struct Cli {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let cli = Cli::parse();
-    let plan = TilePlan::read(&cli.plan)?;
-    let volume = assemble(&plan, &cli.plan)?.volume;
+    let plan = TilePlan::read(&cli.plan, &Limits::default())?;
+    // Our own tiles: any size this machine holds.
+    let tiles = Limits {
+        max_bytes: u64::MAX,
+        ..Limits::default()
+    };
+    let volume = assemble(&plan, &cli.plan, &tiles)?.volume;
     let (field, valid) = (&volume.field, &volume.valid);
     let mut table = Table::new(&[
         "bake",

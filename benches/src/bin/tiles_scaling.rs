@@ -209,7 +209,7 @@ fn main() {
         let log = cli.work.join("time.log");
         timed(&cli.prt, &args, &log);
         let load = load_average();
-        let plan_data = prt_bake::TilePlan::read(&plan).unwrap();
+        let plan_data = prt_bake::TilePlan::read(&plan, &Limits::default()).unwrap();
         let runs: Vec<Measured> = (0..tiles)
             .map(|i| {
                 let index = i.to_string();
@@ -275,7 +275,7 @@ fn main() {
             dirs.push((format!("single process, seed {seed}"), out, Some(m)));
         }
         let plan = cli.work.join(format!("plan-{}", cli.tiles.last().unwrap()));
-        let labels = tile_labels(&prt_bake::TilePlan::read(&plan).unwrap());
+        let labels = tile_labels(&prt_bake::TilePlan::read(&plan, &Limits::default()).unwrap());
         dirs.push(("tiled (last row above)".into(), tiled, None));
         let reference = traced(&dirs[0].1);
         for (name, dir, m) in &dirs {

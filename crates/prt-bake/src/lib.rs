@@ -85,10 +85,11 @@ pub use scene::SceneInput;
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
 pub use tiles::{
-    AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION,
-    PlannedScene, StreamedMerge, TileError, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats,
-    VoxelRange, assemble, bake_tile, merge_streamed, plan_tiles, scene_hash, tile_dir,
-    tile_is_done, tile_options, tile_seams,
+    AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten,
+    PlannedScene, StreamedMerge, TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileError,
+    TileFingerprint, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats, TileStatus, VoxelRange,
+    assemble, bake_tile, decode_tile, merge_streamed, plan_tiles, scene_hash, tile_dir,
+    tile_is_done, tile_options, tile_seams, tile_status, write_plan,
 };
 pub use volumes::{
     KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,

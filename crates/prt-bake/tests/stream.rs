@@ -60,8 +60,16 @@ fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory
     };
     let merge = |threads| {
         on_threads(threads, || {
-            merge_streamed(&plan, &dir, "cornell", &streamed_config, 3, &NoProgress)
-                .expect("streamed merge")
+            merge_streamed(
+                &plan,
+                &dir,
+                "cornell",
+                &streamed_config,
+                3,
+                &Limits::default(),
+                &NoProgress,
+            )
+            .expect("streamed merge")
         })
     };
     let (one, three) = (merge(1), merge(3));
@@ -77,7 +85,7 @@ fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory
     }
 
     // Against the in-memory merge of the same tiles, on the same voxels.
-    let assembled = assemble(&plan, &dir).expect("assembled");
+    let assembled = assemble(&plan, &dir, &Limits::default()).expect("assembled");
     let field = assembled.volume.field.clone();
     let valid = assembled.volume.valid.clone();
     assert_eq!(valid, one.valid);

@@ -9,7 +9,7 @@ use prt_bake::TileSeams;
 use serde_json::json;
 
 use crate::bake::{KeepVolumes, cli_error, default_memory_budget, write_outputs};
-use crate::plan::{load_scene, read_plan};
+use crate::plan::{limits, load_scene, read_plan};
 use crate::progress::{Stage, StageBars};
 
 /// File of the merge's tile measures inside the bake folder.
@@ -77,7 +77,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         );
     }
     let stage = Stage::start("assemble");
-    let assembled = prt_bake::assemble(&plan, &args.plan_dir)?;
+    let assembled = prt_bake::assemble(&plan, &args.plan_dir, &limits())?;
     stage.finish();
     let config = prt_bake::BakeConfig {
         container: Some(args.out.join("mbd")),
@@ -137,6 +137,7 @@ fn run_streamed(
         &scene.name,
         &config,
         args.sweeps,
+        &limits(),
         &stage,
     )?;
     stage.finish();

@@ -4,9 +4,10 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use prt_bake::{MemoryEstimate, SceneInput, TilePlan};
+use prt_bake::{MemoryEstimate, PlanWritten, SceneInput, TilePlan};
+use prt_texture::Limits;
 
-use crate::bake::{BakeArgs, KeepVolumes, cli_error};
+use crate::bake::{BakeArgs, KeepVolumes, cli_error, default_memory_budget};
 
 /// Options of `prt plan`: the scene and every knob of `prt bake`, the tiling and the halo.
 #[derive(Debug, clap::Args)]
@@ -21,6 +22,11 @@ pub struct PlanArgs {
     /// the Monte Carlo noise at tile borders; 0 traces no voxel twice.
     #[arg(long, default_value_t = 0)]
     pub halo: usize,
+    /// Replace the plan the output folder holds when it differs from this one, removing its
+    /// tiles and worker logs (without it such a folder is refused; the same plan again is left
+    /// as it is, with its finished tiles).
+    #[arg(long)]
+    pub replace: bool,
 }
 
 /// `X,Y,Z` of positive integers.
@@ -47,9 +53,20 @@ pub fn load_scene(plan: &TilePlan, over: Option<&Path>) -> Result<SceneInput> {
     }
 }
 
+/// The limits the plan and tile readers of `prt plan`, `bake-tile` and `merge` apply: the
+/// default dimensions, and as many bytes as the larger of the default (1 GiB) and this
+/// machine's memory budget (a tile is read whole).
+pub fn limits() -> Limits {
+    let limits = Limits::default();
+    Limits {
+        max_bytes: limits.max_bytes.max(default_memory_budget()),
+        ..limits
+    }
+}
+
 /// Reads the plan in `plan_dir`, with the folder in the message when it cannot.
 pub fn read_plan(plan_dir: &Path) -> Result<TilePlan> {
-    TilePlan::read(plan_dir).with_context(|| {
+    TilePlan::read(plan_dir, &limits()).with_context(|| {
         format!(
             "cannot read the plan in {} (write one with `prt plan`)",
             plan_dir.display()
@@ -102,7 +119,8 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| Path::new("prt-out").join(&scene.name));
-    let path = plan.write(&out)?;
+    let written = prt_bake::write_plan(&plan, &out, args.replace, &limits())?;
+    let path = out.join(prt_bake::PLAN_FILE);
     let largest = plan.tiles.iter().map(|t| t.traced.len()).max().unwrap_or(0);
     println!(
         "planned {} tiles ({}×{}×{}) of the {}×{}×{} lattice of {}, halo {}, largest tile {} \
@@ -118,7 +136,25 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         plan.halo,
         largest
     );
-    println!("wrote {}", path.display());
+    match written {
+        PlanWritten::New => println!("wrote {}", path.display()),
+        PlanWritten::Unchanged => {
+            let done = (0..plan.tiles.len())
+                .filter(|&i| {
+                    prt_bake::tile_status(&plan, &out, i)
+                        .is_ok_and(|s| s == prt_bake::TileStatus::Done)
+                })
+                .count();
+            println!(
+                "{} already holds this plan: left as it is, with its {done} finished tiles",
+                out.display()
+            );
+        }
+        PlanWritten::Replaced { removed_tiles } => println!(
+            "wrote {}, replacing the plan it held and removing its {removed_tiles} tile folders",
+            path.display()
+        ),
+    }
     if let Some(note) = merge_note {
         println!("{note}");
     }

@@ -6,7 +6,7 @@ use std::process::{Command, Stdio};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, bail};
-use prt_bake::TileOutcome;
+use prt_bake::{TileOutcome, TileStatus};
 use prt_core::Progress;
 
 use crate::plan::{load_scene, read_plan};
@@ -64,10 +64,17 @@ pub fn run(args: &TileArgs) -> Result<()> {
     }
     let index = tile_index(args.tile, |name| std::env::var(name).ok())?;
     let plan = read_plan(&args.plan_dir)?;
-    plan.tile(index)?;
-    if !args.force && prt_bake::tile_is_done(&args.plan_dir, index) {
-        println!("tile {index}: already done (--force bakes it again)");
-        return Ok(());
+    match prt_bake::tile_status(&plan, &args.plan_dir, index)? {
+        TileStatus::Done if !args.force => {
+            println!("tile {index}: already done (--force bakes it again)");
+            return Ok(());
+        }
+        TileStatus::Stale(differences) => println!(
+            "tile {index}: its files were traced for another plan ({}; tile → plan): tracing it \
+             again",
+            differences.join("; ")
+        ),
+        _ => {}
     }
     let scene = load_scene(&plan, args.scene.as_deref())?;
     let stage = Stage::start("trace");
@@ -79,12 +86,13 @@ pub fn run(args: &TileArgs) -> Result<()> {
             stats,
             trace,
             write,
+            ..
         } => println!(
             "tile {index}: {} voxels ({} inside geometry), {:.2e} rays, traced in {:.2} s, \
              written in {:.2} s to {}",
             stats.voxels,
             stats.invalid_voxels,
-            stats.rays as f64,
+            stats.rays() as f64,
             trace.as_secs_f64(),
             write.as_secs_f64(),
             prt_bake::tile_dir(&args.plan_dir, index).display()
@@ -139,17 +147,31 @@ fn run_all(args: &TileArgs) -> Result<()> {
         bail!("--workers must be at least 1");
     }
     let plan = read_plan(&args.plan_dir)?;
-    let todo: Vec<usize> = (0..plan.tiles.len())
-        .filter(|&i| args.force || !prt_bake::tile_is_done(&args.plan_dir, i))
-        .collect();
+    let mut stale = 0;
+    let mut todo = Vec::new();
+    for i in 0..plan.tiles.len() {
+        match prt_bake::tile_status(&plan, &args.plan_dir, i)? {
+            TileStatus::Done if !args.force => {}
+            TileStatus::Stale(_) => {
+                stale += 1;
+                todo.push(i);
+            }
+            _ => todo.push(i),
+        }
+    }
     let logs = args.plan_dir.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let threads = (cores / args.workers).max(1);
     println!(
-        "{} of {} tiles to bake, {} workers of {threads} threads",
+        "{} of {} tiles to bake{}, {} workers of {threads} threads",
         todo.len(),
         plan.tiles.len(),
+        if stale > 0 {
+            format!(" ({stale} traced for another plan: traced again)")
+        } else {
+            String::new()
+        },
         args.workers
     );
     let stage = Stage::start("tiles");

@@ -8,8 +8,10 @@ use prt_core::{GridField, resample_to_grid};
 use prt_mbd::{LocalBasis, SeamOptions};
 use prt_trace::{BakeStats, TransferVolume};
 
-use super::plan::{TileError, TilePlan, TileSpec, flat, voxels};
-use super::worker::{TILE_FILE, TRANSFER_FILE, TileStats, VALID_FILE, tile_dir, tile_is_done};
+use prt_texture::Limits;
+
+use super::file::{TileData, read_tile, read_timing};
+use super::plan::{TileError, TilePlan, flat, voxels};
 use crate::{BLUR_SIGMA, Bake, BakeError, TRANSFER_DIM};
 
 /// How well two tiles agree on the voxels both traced (a tile's halo lies in its neighbours'
@@ -25,8 +27,9 @@ pub struct HaloAgreement {
 /// The global volume assembled from the tiles' cores.
 #[derive(Debug, Clone)]
 pub struct AssembledVolume {
-    /// The transfer volume on the plan's lattice; its statistics are the tiles' sums (the
-    /// timings are zero: each worker records its own).
+    /// The transfer volume on the plan's lattice; its statistics are the tiles' sums (rays,
+    /// surface-cache points, and the workers' times from their `timing.json`, so its rays per
+    /// second are a worker's), but the invalid voxels, counted over the assembled cores.
     pub volume: TransferVolume,
     /// The tile owning each voxel (x fastest): the labels of the seam measures across tile
     /// borders.
@@ -57,86 +60,17 @@ fn malformed(path: &Path, why: impl Into<String>) -> TileError {
     }
 }
 
-fn read(path: &Path) -> Result<Vec<u8>, TileError> {
-    std::fs::read(path).map_err(|source| TileError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
-/// One finished tile's files, checked against the plan.
-pub(crate) struct TileRead {
-    /// What the worker recorded.
-    pub info: TileStats,
-    /// The traced vectors of the tile's voxels (core and halo, x fastest), 324 each.
-    pub transfer: Vec<f32>,
-    /// Whether each of those voxels is valid.
-    pub valid: Vec<bool>,
-}
-
-/// Reads tile `tile` of `plan` from `plan_dir`. Errors when it has not finished, or its files do
-/// not match the plan (size, seed, scene) or hold a non-finite value (named by voxel).
-pub(crate) fn read_tile(
+/// Reads every finished tile of `plan` from `plan_dir` and assembles the cores into the volume
+/// on the plan's lattice. Errors, naming the tile, when a tile has not finished
+/// ([`TileError::NotDone`]), was traced for another plan ([`TileError::StaleTile`]), has a file
+/// whose checksum is not the recorded one ([`TileError::Damaged`]), is over `limits`
+/// ([`TileError::TooLarge`]), or has a file of the wrong size or a non-finite value (named by
+/// voxel; [`TileError::Malformed`]).
+pub fn assemble(
     plan: &TilePlan,
     plan_dir: &Path,
-    tile: &TileSpec,
-) -> Result<TileRead, TileError> {
-    if !tile_is_done(plan_dir, tile.index) {
-        return Err(TileError::NotDone(tile.index));
-    }
-    let dir = tile_dir(plan_dir, tile.index);
-    let info_path = dir.join(TILE_FILE);
-    let info: TileStats = serde_json::from_slice(&read(&info_path)?)
-        .map_err(|e| malformed(&info_path, e.to_string()))?;
-    let tdims = tile.traced.dims();
-    if info.dims != tdims || info.seed != tile.seed || info.scene_hash != plan.scene.hash {
-        return Err(malformed(
-            &info_path,
-            format!("tile {} was traced for another plan", tile.index),
-        ));
-    }
-    let n = tile.traced.len();
-    let transfer_path = dir.join(TRANSFER_FILE);
-    let bytes = read(&transfer_path)?;
-    if bytes.len() != n * TRANSFER_DIM * 4 {
-        return Err(malformed(
-            &transfer_path,
-            format!(
-                "{} bytes, the tile's {n} voxels need {}",
-                bytes.len(),
-                n * TRANSFER_DIM * 4
-            ),
-        ));
-    }
-    let valid_path = dir.join(VALID_FILE);
-    let tile_valid = read(&valid_path)?;
-    if tile_valid.len() != n || tile_valid.iter().any(|&b| b > 1) {
-        return Err(malformed(&valid_path, format!("not {n} bytes of 0 or 1")));
-    }
-    let transfer: Vec<f32> = bytes
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
-    if let Some(i) = transfer.iter().position(|x| !x.is_finite()) {
-        let v = voxels(&tile.traced)
-            .nth(i / TRANSFER_DIM)
-            .unwrap_or_default();
-        return Err(malformed(
-            &transfer_path,
-            format!("non-finite value at voxel {v:?} of the lattice"),
-        ));
-    }
-    Ok(TileRead {
-        info,
-        transfer,
-        valid: tile_valid.iter().map(|&b| b == 1).collect(),
-    })
-}
-
-/// Reads every finished tile of `plan` from `plan_dir` and assembles the cores into the volume
-/// on the plan's lattice. Errors when a tile has not finished, or a tile's files do not match
-/// the plan (size, seed, scene) or hold a non-finite value (named by tile and voxel).
-pub fn assemble(plan: &TilePlan, plan_dir: &Path) -> Result<AssembledVolume, TileError> {
+    limits: &Limits,
+) -> Result<AssembledVolume, TileError> {
     let dims = plan.lattice_dims;
     let total: usize = dims.iter().product();
     let mut data = vec![0.0f32; total * TRANSFER_DIM];
@@ -146,11 +80,11 @@ pub fn assemble(plan: &TilePlan, plan_dir: &Path) -> Result<AssembledVolume, Til
     // (global voxel, the halo trace's vector): compared once every core is in place.
     let mut halo: Vec<(usize, Vec<f32>)> = Vec::new();
     for tile in &plan.tiles {
-        let TileRead {
-            info,
+        let TileData {
+            stats: info,
             transfer,
             valid: tile_valid,
-        } = read_tile(plan, plan_dir, tile)?;
+        } = read_tile(plan, plan_dir, tile, limits)?;
         for (local, v) in voxels(&tile.traced).enumerate() {
             let vector = &transfer[local * TRANSFER_DIM..(local + 1) * TRANSFER_DIM];
             let g = flat(dims, v);
@@ -165,8 +99,15 @@ pub fn assemble(plan: &TilePlan, plan_dir: &Path) -> Result<AssembledVolume, Til
         stats.voxels += tile.core.len();
         stats.invalid_voxels += info.invalid_voxels;
         stats.skipped_voxels += info.skipped_voxels;
-        stats.voxel_rays += info.rays;
+        stats.voxel_rays += info.voxel_rays;
+        stats.cache_rays += info.cache_rays;
+        stats.cache_points += info.cache_points;
+        stats.cache_evaluated += info.cache_evaluated;
         stats.rays_per_voxel = plan.config.rays_per_voxel.div_ceil(12) * 12;
+        let [bvh, cache, voxel] = read_timing(plan_dir, tile.index);
+        stats.bvh_time += bvh;
+        stats.cache_time += cache;
+        stats.voxel_time += voxel;
     }
     // The tiles counted their halos too; recount over the assembled cores.
     stats.invalid_voxels = valid.iter().filter(|&&v| !v).count();

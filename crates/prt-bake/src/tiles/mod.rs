@@ -12,26 +12,31 @@
 //!
 //! The plan (`plan.json`) and a tile's files are described in docs/formats.md.
 
+mod checksum;
+mod file;
 mod merge;
 mod plan;
 mod stream;
 mod worker;
 
+pub use file::{
+    TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileFingerprint, TileStats, TileStatus,
+    decode_tile, tile_status,
+};
 pub use merge::{AssembledVolume, HaloAgreement, TileSeams, assemble, tile_seams};
 pub use plan::{
-    PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlannedScene, TileError, TilePlan, TileSpec, VoxelRange,
-    plan_tiles, scene_hash,
+    PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten, PlannedScene, TileError, TilePlan, TileSpec,
+    VoxelRange, plan_tiles, scene_hash, write_plan,
 };
 pub use stream::{StreamedMerge, merge_streamed};
-pub use worker::{
-    DONE_MARKER, TileOutcome, TileStats, bake_tile, tile_dir, tile_is_done, tile_options,
-};
+pub use worker::{DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options};
 
 #[cfg(test)]
 mod tests {
     use glam::Vec3;
     use proptest::prelude::*;
     use prt_core::NoProgress;
+    use prt_texture::Limits;
 
     use super::*;
     use crate::{BakeConfig, SceneInput};
@@ -63,7 +68,7 @@ mod tests {
             let dir = scratch(&format!("prop-{tx}{ty}{tz}{halo}"));
             plan.write(&dir).unwrap();
             // `read` checks the cover (each voxel in one core, cores inside traced boxes).
-            prop_assert_eq!(TilePlan::read(&dir).unwrap(), plan.clone());
+            prop_assert_eq!(TilePlan::read(&dir, &Limits::default()).unwrap(), plan.clone());
             for tile in &plan.tiles {
                 for k in 0..3 {
                     let grown = tile.core.max[k] + halo;
@@ -113,6 +118,218 @@ mod tests {
         let got = bounds.min
             + 0.5 * bounds.size() / Vec3::from_array(options.resolution.map(|n| n as f32));
         assert!((want - got).abs().max_element() < 1e-5, "{want} vs {got}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// `plan.json`'s bytes with `lattice_dims` replaced.
+    fn with_dims(plan: &TilePlan, dims: serde_json::Value) -> Vec<u8> {
+        let mut value = serde_json::to_value(plan).unwrap();
+        value["lattice_dims"] = dims;
+        serde_json::to_vec(&value).unwrap()
+    }
+
+    /// The JSON pointers of a plan's numbers that size or place something.
+    const PLAN_NUMBERS: [&str; 12] = [
+        "/lattice_dims/0",
+        "/lattice_dims/2",
+        "/counts/0",
+        "/counts/1",
+        "/halo",
+        "/tiles/0/index",
+        "/tiles/0/core/max/0",
+        "/tiles/1/core/min/0",
+        "/tiles/1/traced/max/2",
+        "/config/resolution",
+        "/config/rays_per_voxel",
+        "/config/rank",
+    ];
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Any number anywhere that sizes or places something: a typed error or a plan that
+        /// holds together, never a panic.
+        #[test]
+        fn any_number_in_a_plan_is_refused_or_consistent(
+            field in 0..PLAN_NUMBERS.len(),
+            value in prop_oneof![0u64..20, any::<u64>(), (1u64 << 31)..(1u64 << 33)],
+            tile_field in 0..4usize,
+        ) {
+            let scene = SceneInput::cornell_box();
+            let plan = plan_tiles(&scene, None, &config(6), [2, 1, 1], 1).unwrap();
+            let mut json = serde_json::to_value(&plan).unwrap();
+            *json.pointer_mut(PLAN_NUMBERS[field]).unwrap() = value.into();
+            let bytes = serde_json::to_vec(&json).unwrap();
+            if let Ok(read) = TilePlan::decode(&bytes, &Limits::small()) {
+                let cores: usize = read.tiles.iter().map(|t| t.core.len()).sum();
+                prop_assert_eq!(cores, read.lattice_dims.iter().product::<usize>());
+            }
+            // A tile.json with the number in its fingerprint: refused, never a panic.
+            let mut stats = serde_json::json!({
+                "format": TILE_FORMAT, "version": TILE_VERSION, "index": 0,
+                "fingerprint": TileFingerprint::of(&plan, 0).unwrap(),
+            });
+            let pointer = ["/index", "/fingerprint/traced/max/0", "/fingerprint/seed", "/version"];
+            *stats.pointer_mut(pointer[tile_field]).unwrap() = value.into();
+            let stats = serde_json::to_vec(&stats).unwrap();
+            prop_assert!(decode_tile(&plan, 0, &stats, &[], &[], &Limits::small()).is_err());
+        }
+    }
+
+    #[test]
+    fn a_damaged_plan_is_a_typed_error_before_any_allocation() {
+        let scene = SceneInput::cornell_box();
+        let plan = plan_tiles(&scene, None, &config(6), [2, 1, 1], 1).unwrap();
+        let limits = Limits::default();
+        let bytes = serde_json::to_vec(&plan).unwrap();
+        assert_eq!(TilePlan::decode(&bytes, &limits).unwrap(), plan);
+        let huge = serde_json::json!([1u64 << 32, 6, 6]);
+        let error = TilePlan::decode(&with_dims(&plan, huge), &limits).unwrap_err();
+        assert!(
+            matches!(error, TileError::TooLarge { value, .. } if value == 1 << 32),
+            "{error}"
+        );
+        let error =
+            TilePlan::decode(&with_dims(&plan, serde_json::json!([0, 6, 6])), &limits).unwrap_err();
+        assert!(matches!(error, TileError::Malformed { .. }), "{error}");
+        // Every dimension allowed, their product overflows.
+        let open = Limits {
+            max_dimension: u32::MAX,
+            max_bytes: u64::MAX - 1,
+            ..limits
+        };
+        let overflow = serde_json::json!([1u64 << 31, 1u64 << 31, 1u64 << 31]);
+        let error = TilePlan::decode(&with_dims(&plan, overflow), &open).unwrap_err();
+        assert!(
+            matches!(
+                error,
+                TileError::TooLarge {
+                    value: u64::MAX,
+                    ..
+                }
+            ),
+            "{error}"
+        );
+        // Dimensions that fit the limits but not the tiles.
+        let error =
+            TilePlan::decode(&with_dims(&plan, serde_json::json!([9, 6, 6])), &limits).unwrap_err();
+        assert!(matches!(error, TileError::Malformed { .. }), "{error}");
+        let error = TilePlan::decode(
+            &bytes,
+            &Limits {
+                max_bytes: 100,
+                ..limits
+            },
+        )
+        .unwrap_err();
+        assert!(matches!(error, TileError::TooLarge { .. }), "{error}");
+        // A seed that is not the plan's derivation, an extra tile.
+        let mut value = serde_json::to_value(&plan).unwrap();
+        value["tiles"][1]["seed"] = serde_json::json!(7);
+        let error = TilePlan::decode(&serde_json::to_vec(&value).unwrap(), &limits).unwrap_err();
+        assert!(matches!(error, TileError::Malformed { .. }), "{error}");
+        let mut value = serde_json::to_value(&plan).unwrap();
+        let first = value["tiles"][0].clone();
+        value["tiles"].as_array_mut().unwrap().push(first);
+        let error = TilePlan::decode(&serde_json::to_vec(&value).unwrap(), &limits).unwrap_err();
+        assert!(matches!(error, TileError::Malformed { .. }), "{error}");
+    }
+
+    #[test]
+    fn a_tile_is_checked_against_its_fingerprint_checksums_and_limits() {
+        let scene = SceneInput::cornell_box();
+        let plan = plan_tiles(&scene, None, &config(4), [2, 1, 1], 1).unwrap();
+        let dir = scratch("checked");
+        assert_eq!(
+            write_plan(&plan, &dir, false, &Limits::default()).unwrap(),
+            PlanWritten::New
+        );
+        bake_tile(&plan, &dir, &scene, 0, false, &NoProgress).unwrap();
+        assert_eq!(tile_status(&plan, &dir, 0).unwrap(), TileStatus::Done);
+        assert_eq!(tile_status(&plan, &dir, 1).unwrap(), TileStatus::NotDone);
+        let files = tile_dir(&dir, 0);
+        let read = |name: &str| std::fs::read(files.join(name)).unwrap();
+        let (info, transfer, valid) = (read("tile.json"), read("transfer.f32"), read("valid.u8"));
+        let limits = Limits::default();
+        let tile = decode_tile(&plan, 0, &info, &transfer, &valid, &limits).unwrap();
+        assert_eq!(tile.transfer.len(), plan.tiles[0].traced.len() * 324);
+        assert_eq!(
+            tile.stats.fingerprint,
+            TileFingerprint::of(&plan, 0).unwrap()
+        );
+
+        // A finite float altered: the checksum names the file.
+        let mut altered = transfer.clone();
+        altered[40] ^= 1;
+        let error = decode_tile(&plan, 0, &info, &altered, &valid, &limits).unwrap_err();
+        assert!(
+            matches!(&error, TileError::Damaged { index: 0, path, .. }
+                if path.ends_with("transfer.f32")),
+            "{error}"
+        );
+        // Over the limits: refused before the payload is looked at.
+        let small = Limits {
+            max_bytes: 1024,
+            ..limits
+        };
+        let error = decode_tile(&plan, 0, &info, &[], &[], &small).unwrap_err();
+        assert!(matches!(error, TileError::TooLarge { .. }), "{error}");
+
+        // The same tile under a plan with other rays is stale, naming the knob.
+        let other = plan_tiles(
+            &scene,
+            None,
+            &BakeConfig {
+                rays_per_voxel: 24,
+                ..config(4)
+            },
+            [2, 1, 1],
+            1,
+        )
+        .unwrap();
+        let error = decode_tile(&other, 0, &info, &transfer, &valid, &limits).unwrap_err();
+        assert!(
+            matches!(&error, TileError::StaleTile { index: 0, differences, .. }
+                if differences == &["rays_per_voxel: 12 → 24"]),
+            "{error}"
+        );
+        assert!(matches!(
+            tile_status(&other, &dir, 0).unwrap(),
+            TileStatus::Stale(_)
+        ));
+        // Writing that plan over the first is refused, naming the knob; replacing removes the
+        // tiles.
+        let error = write_plan(&other, &dir, false, &limits).unwrap_err();
+        assert!(
+            matches!(&error, TileError::PlanExists { differences, .. }
+                if differences == &["config.rays_per_voxel: 12 → 24"]),
+            "{error}"
+        );
+        assert_eq!(
+            write_plan(&plan, &dir, false, &limits).unwrap(),
+            PlanWritten::Unchanged
+        );
+        // A tile.json of the first tile format (no fingerprint) is stale.
+        let mut old: serde_json::Value = serde_json::from_slice(&info).unwrap();
+        let object = old.as_object_mut().unwrap();
+        object.remove("format");
+        object.remove("version");
+        let old = serde_json::to_vec(&old).unwrap();
+        let error = decode_tile(&plan, 0, &old, &transfer, &valid, &limits).unwrap_err();
+        assert!(matches!(error, TileError::StaleTile { .. }), "{error}");
+        // The stale tile is traced again, to the same bytes.
+        std::fs::write(files.join("tile.json"), &old).unwrap();
+        let outcome = bake_tile(&plan, &dir, &scene, 0, false, &NoProgress).unwrap();
+        assert!(
+            matches!(&outcome, TileOutcome::Baked { stale, .. } if !stale.is_empty()),
+            "{outcome:?}"
+        );
+        assert_eq!(read("tile.json"), info);
+        assert_eq!(read("transfer.f32"), transfer);
+        assert_eq!(
+            write_plan(&other, &dir, true, &limits).unwrap(),
+            PlanWritten::Replaced { removed_tiles: 1 }
+        );
+        assert!(!tile_is_done(&dir, 0));
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -5,10 +5,12 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 use prt_core::Aabb;
+use prt_texture::Limits;
 use prt_trace::{BakeOptions, Scene, TransferBaker};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use super::checksum::Fnv1a64;
 use crate::{BakeConfig, BakeError, SceneInput};
 
 /// File name of the plan inside a plan folder.
@@ -59,6 +61,65 @@ pub enum TileError {
         path: PathBuf,
         /// What is wrong.
         why: String,
+    },
+    /// A size a file announces (or the file itself) is over the reader's
+    /// [`prt_texture::Limits`]; nothing was allocated for it.
+    #[error("{}: {what} is {value}, over the limit of {limit}", path.display())]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// What is too large.
+        what: &'static str,
+        /// Its value (`u64::MAX` when it overflows).
+        value: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// A finished tile was traced for another plan: its fingerprint (everything that determines
+    /// its bytes) differs from what the plan asks of it.
+    #[error(
+        "tile {index} ({}) was traced for another plan: {} (tile → plan); trace it again with \
+         `prt bake-tile PLAN_DIR --tile {index}`",
+        path.display(),
+        differences.join("; ")
+    )]
+    StaleTile {
+        /// The tile.
+        index: usize,
+        /// Its `tile.json`.
+        path: PathBuf,
+        /// What differs, as `field: tile's value → plan's value`.
+        differences: Vec<String>,
+    },
+    /// A tile file's bytes are not those its worker wrote: their checksum differs from the one
+    /// its `tile.json` records.
+    #[error(
+        "tile {index}: {} is damaged: its checksum is {found}, its tile.json records {recorded}; \
+         trace it again with `prt bake-tile PLAN_DIR --tile {index} --force`",
+        path.display()
+    )]
+    Damaged {
+        /// The tile.
+        index: usize,
+        /// The damaged file.
+        path: PathBuf,
+        /// The checksum `tile.json` records.
+        recorded: String,
+        /// The checksum of the file's bytes.
+        found: String,
+    },
+    /// The plan folder already holds a different plan (see [`write_plan`]).
+    #[error(
+        "{} already holds a different plan ({}); replace it and remove its tiles with \
+         `prt plan --replace`, or plan into another folder",
+        folder.display(),
+        differences.join("; ")
+    )]
+    PlanExists {
+        /// The plan folder.
+        folder: PathBuf,
+        /// What differs, as `field: old value → new value`.
+        differences: Vec<String>,
     },
     /// A tile the merge needs has not finished.
     #[error("tile {0} has not finished (no done marker); run `prt bake-tile` for it first")]
@@ -187,7 +248,8 @@ impl TilePlan {
         })
     }
 
-    /// Writes the plan as `folder/plan.json` (atomically; the folder is created).
+    /// Writes the plan as `folder/plan.json` (atomically; the folder is created), whatever the
+    /// folder held; [`write_plan`] refuses to overwrite a different plan.
     pub fn write(&self, folder: &Path) -> Result<PathBuf, TileError> {
         std::fs::create_dir_all(folder).map_err(|source| TileError::Io {
             path: folder.to_path_buf(),
@@ -205,56 +267,259 @@ impl TilePlan {
         Ok(path)
     }
 
-    /// Reads `folder/plan.json`, checking its format, version and consistency.
-    pub fn read(folder: &Path) -> Result<TilePlan, TileError> {
+    /// Reads `folder/plan.json`, checking its format, version and consistency (see
+    /// [`TilePlan::decode`]); a file over `limits.max_bytes` is refused before it is read.
+    pub fn read(folder: &Path, limits: &Limits) -> Result<TilePlan, TileError> {
         let path = folder.join(PLAN_FILE);
-        let text = std::fs::read_to_string(&path).map_err(|source| TileError::Io {
+        let io = |source| TileError::Io {
             path: path.clone(),
             source,
-        })?;
-        let malformed = |why: String| TileError::Malformed {
-            path: path.clone(),
-            why,
         };
-        let plan: TilePlan = serde_json::from_str(&text).map_err(|e| malformed(e.to_string()))?;
-        if plan.format != PLAN_FORMAT || plan.version != PLAN_VERSION {
-            return Err(malformed(format!(
-                "format {:?} version {}, this prt reads {PLAN_FORMAT:?} version {PLAN_VERSION}",
-                plan.format, plan.version
-            )));
-        }
-        if !plan.lattice_bounds().is_valid()
-            || (0..3).any(|k| plan.lattice_min[k] >= plan.lattice_max[k])
-        {
-            return Err(malformed(format!(
-                "the lattice box {:?}..{:?} is not a finite box",
-                plan.lattice_min, plan.lattice_max
-            )));
-        }
-        // Every voxel in exactly one core, every core inside its traced box.
-        let mut owners = vec![0u8; plan.lattice_dims.iter().product()];
-        for (i, tile) in plan.tiles.iter().enumerate() {
-            let inside = (0..3).all(|k| {
-                tile.traced.min[k] <= tile.core.min[k]
-                    && tile.core.min[k] < tile.core.max[k]
-                    && tile.core.max[k] <= tile.traced.max[k]
-                    && tile.traced.max[k] <= plan.lattice_dims[k]
-            });
-            if tile.index != i || !inside {
-                return Err(malformed(format!("tile {i} is not a box of the lattice")));
-            }
-            for v in voxels(&tile.core) {
-                let g = flat(plan.lattice_dims, v);
-                owners[g] = owners[g].saturating_add(1);
-            }
-        }
-        if owners.iter().any(|&n| n != 1) {
-            return Err(malformed(
-                "the tiles' cores do not cover the lattice exactly once".into(),
+        let size = std::fs::metadata(&path).map_err(io)?.len();
+        if size > limits.max_bytes {
+            return Err(too_large(
+                &path,
+                "the plan file's size",
+                size,
+                limits.max_bytes,
             ));
         }
-        Ok(plan)
+        let bytes = std::fs::read(&path).map_err(io)?;
+        decode_plan(&bytes, &path, limits)
     }
+
+    /// A plan from the bytes of a `plan.json`, checked before anything is allocated for its
+    /// lattice: the format and version; every lattice dimension from 1 to
+    /// `limits.max_dimension` and the lattice's voxels at most `limits.max_bytes` (one byte
+    /// each in the merge's validity mask), without overflow; a finite box; valid knobs; and the
+    /// tiles exactly the cut of the lattice into `counts` tiles with `halo` that [`plan_tiles`]
+    /// makes (so every voxel is in exactly one core), with their seeds. Errors are
+    /// [`TileError::Malformed`] or [`TileError::TooLarge`], never a panic.
+    pub fn decode(bytes: &[u8], limits: &Limits) -> Result<TilePlan, TileError> {
+        decode_plan(bytes, Path::new(PLAN_FILE), limits)
+    }
+
+    /// What differs between this plan and `newer`, as `field: this value → newer value` (nested
+    /// fields joined by dots, e.g. `config.rays_per_voxel: 48 → 96`); empty when they are equal.
+    pub fn differences(&self, newer: &TilePlan) -> Vec<String> {
+        json_differences(&as_json(self), &as_json(newer))
+    }
+}
+
+fn too_large(path: &Path, what: &'static str, value: u64, limit: u64) -> TileError {
+    TileError::TooLarge {
+        path: path.to_path_buf(),
+        what,
+        value,
+        limit,
+    }
+}
+
+fn decode_plan(bytes: &[u8], path: &Path, limits: &Limits) -> Result<TilePlan, TileError> {
+    let malformed = |why: String| TileError::Malformed {
+        path: path.to_path_buf(),
+        why,
+    };
+    if bytes.len() as u64 > limits.max_bytes {
+        return Err(too_large(
+            path,
+            "the plan file's size",
+            bytes.len() as u64,
+            limits.max_bytes,
+        ));
+    }
+    let plan: TilePlan = serde_json::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
+    if plan.format != PLAN_FORMAT || plan.version != PLAN_VERSION {
+        return Err(malformed(format!(
+            "format {:?} version {}, this prt reads {PLAN_FORMAT:?} version {PLAN_VERSION}",
+            plan.format, plan.version
+        )));
+    }
+    let dims = plan.lattice_dims;
+    if dims.contains(&0) {
+        return Err(malformed(format!(
+            "the lattice {dims:?} has no voxel along an axis"
+        )));
+    }
+    for n in dims {
+        if n as u64 > u64::from(limits.max_dimension) {
+            return Err(too_large(
+                path,
+                "a lattice dimension",
+                n as u64,
+                u64::from(limits.max_dimension),
+            ));
+        }
+    }
+    let voxels = dims
+        .iter()
+        .try_fold(1u64, |a, &n| a.checked_mul(n as u64))
+        .unwrap_or(u64::MAX);
+    if voxels > limits.max_bytes {
+        return Err(too_large(
+            path,
+            "the lattice's voxel count",
+            voxels,
+            limits.max_bytes,
+        ));
+    }
+    if !plan.lattice_bounds().is_valid()
+        || (0..3).any(|k| plan.lattice_min[k] >= plan.lattice_max[k])
+    {
+        return Err(malformed(format!(
+            "the lattice box {:?}..{:?} is not a finite box",
+            plan.lattice_min, plan.lattice_max
+        )));
+    }
+    plan.config
+        .validate()
+        .map_err(|e| malformed(format!("config: {e}")))?;
+    let counts = plan.counts;
+    if (0..3).any(|k| counts[k] == 0 || counts[k] > dims[k]) {
+        return Err(malformed(format!(
+            "{counts:?} tiles do not fit the {dims:?} lattice (1 to its voxels along each axis)"
+        )));
+    }
+    // At most the voxel count, checked above: no overflow.
+    let tiles: usize = counts.iter().product();
+    if plan.tiles.len() != tiles {
+        return Err(malformed(format!(
+            "{} tiles listed, {counts:?} tiles make {tiles}",
+            plan.tiles.len()
+        )));
+    }
+    // Every tile exactly the one `plan_tiles` lays there: the cores partition the lattice,
+    // the traced boxes are the cores grown by the halo, the seeds derive from the bake's.
+    for (i, tile) in plan.tiles.iter().enumerate() {
+        if *tile != layout_tile(dims, counts, plan.halo, plan.config.seed, i) {
+            return Err(malformed(format!(
+                "tile {i} is not tile {i} of {counts:?} tiles with halo {} on the {dims:?} \
+                 lattice (its index, core, traced box or seed differs)",
+                plan.halo
+            )));
+        }
+    }
+    Ok(plan)
+}
+
+/// What [`write_plan`] did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum PlanWritten {
+    /// The folder held no plan: the plan was written.
+    New,
+    /// The folder held this same plan: nothing was written and its finished tiles are kept.
+    Unchanged,
+    /// The folder held another plan (or one that cannot be read): it was replaced, and its
+    /// tiles (this many tile folders, done markers included) and worker logs were removed.
+    Replaced {
+        /// Tile folders removed.
+        removed_tiles: usize,
+    },
+}
+
+/// Writes `plan` into the plan folder `folder`, never next to another plan's tiles: a folder
+/// holding the same plan is left as it is (its finished tiles stay valid); one holding a
+/// different plan, or a `plan.json` that cannot be read with `limits`, is refused with
+/// [`TileError::PlanExists`] unless `replace`, which first removes its `tiles/` and `logs/`.
+pub fn write_plan(
+    plan: &TilePlan,
+    folder: &Path,
+    replace: bool,
+    limits: &Limits,
+) -> Result<PlanWritten, TileError> {
+    let path = folder.join(PLAN_FILE);
+    let differences = match std::fs::symlink_metadata(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(source) => return Err(TileError::Io { path, source }),
+        Ok(_) => match TilePlan::read(folder, limits) {
+            Ok(old) if old == *plan => return Ok(PlanWritten::Unchanged),
+            Ok(old) => Some(old.differences(plan)),
+            Err(e) => Some(vec![format!("its plan.json cannot be read: {e}")]),
+        },
+    };
+    let Some(differences) = differences else {
+        plan.write(folder)?;
+        return Ok(PlanWritten::New);
+    };
+    if !replace {
+        return Err(TileError::PlanExists {
+            folder: folder.to_path_buf(),
+            differences,
+        });
+    }
+    let tiles = folder.join("tiles");
+    let removed_tiles = match std::fs::read_dir(&tiles) {
+        Ok(entries) => entries.count(),
+        Err(_) => 0,
+    };
+    for dir in [tiles, folder.join("logs")] {
+        match std::fs::remove_dir_all(&dir) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(TileError::Io {
+                    path: dir,
+                    source: e,
+                });
+            }
+            _ => {}
+        }
+    }
+    plan.write(folder)?;
+    Ok(PlanWritten::Replaced { removed_tiles })
+}
+
+/// `value` as JSON the way it reads back from its file (floats through their text form, so a
+/// value serialised here equals the same value parsed from a file).
+pub(crate) fn as_json<T: Serialize>(value: &T) -> serde_json::Value {
+    serde_json::to_string(value)
+        .ok()
+        .and_then(|text| serde_json::from_str(&text).ok())
+        .unwrap_or(serde_json::Value::Null)
+}
+
+/// The fields where `found` and `expected` differ, as `field: found → expected` (nested
+/// objects walked, fields joined by dots; a long value shown as `differs`).
+pub(crate) fn json_differences(
+    found: &serde_json::Value,
+    expected: &serde_json::Value,
+) -> Vec<String> {
+    fn walk(
+        field: &str,
+        a: Option<&serde_json::Value>,
+        b: Option<&serde_json::Value>,
+        out: &mut Vec<String>,
+    ) {
+        use serde_json::Value;
+        if let (Some(Value::Object(x)), Some(Value::Object(y))) = (a, b) {
+            let keys = x.keys().chain(y.keys().filter(|k| !x.contains_key(*k)));
+            for key in keys {
+                let name = if field.is_empty() {
+                    key.clone()
+                } else {
+                    format!("{field}.{key}")
+                };
+                walk(&name, x.get(key), y.get(key), out);
+            }
+            return;
+        }
+        if a == b {
+            return;
+        }
+        let show = |v: Option<&Value>| v.map_or_else(|| "(absent)".to_string(), Value::to_string);
+        let (a, b) = (show(a), show(b));
+        let name = if field.is_empty() {
+            "(the whole)"
+        } else {
+            field
+        };
+        if a.len() + b.len() > 80 {
+            out.push(format!("{name} differs"));
+        } else {
+            out.push(format!("{name}: {a} → {b}"));
+        }
+    }
+    let mut out = Vec::new();
+    walk("", Some(found), Some(expected), &mut out);
+    out
 }
 
 /// The voxels of `range`, x fastest.
@@ -273,21 +538,16 @@ pub(crate) fn flat(dims: [usize; 3], v: [usize; 3]) -> usize {
 /// A 64-bit FNV-1a hash of the loaded scene (triangles, materials, lights' count), as
 /// `fnv1a64:HEX`: what a worker compares to refuse a scene edited since the plan.
 pub fn scene_hash(scene: &Scene) -> String {
-    let mut hash = 0xcbf2_9ce4_8422_2325u64;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
-            hash = (hash ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
-        }
-    };
+    let mut hash = Fnv1a64::default();
     for triangle in scene.triangles() {
         for vertex in triangle {
             for c in vertex.to_array() {
-                eat(&c.to_le_bytes());
+                hash.update(&c.to_le_bytes());
             }
         }
     }
     for id in scene.material_ids() {
-        eat(&id.to_le_bytes());
+        hash.update(&id.to_le_bytes());
     }
     for material in scene.materials() {
         for c in material
@@ -296,12 +556,12 @@ pub fn scene_hash(scene: &Scene) -> String {
             .into_iter()
             .chain(material.emissive.to_array())
         {
-            eat(&c.to_le_bytes());
+            hash.update(&c.to_le_bytes());
         }
-        eat(&[u8::from(material.double_sided)]);
+        hash.update(&[u8::from(material.double_sided)]);
     }
-    eat(&(scene.lights().len() as u64).to_le_bytes());
-    format!("fnv1a64:{hash:016x}")
+    hash.update(&(scene.lights().len() as u64).to_le_bytes());
+    hash.label()
 }
 
 /// SplitMix64: a tile's seed from the bake's seed and the tile index.
@@ -310,6 +570,38 @@ fn tile_seed(seed: u64, index: usize) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+/// Tile `index` (x fastest) of the `dims` lattice cut into `counts` tiles per axis (as equal
+/// as the voxel counts allow), traced with `halo` extra voxels on every side, seeded from
+/// `seed`. `counts` must be at least 1 and at most `dims` along every axis.
+fn layout_tile(
+    dims: [usize; 3],
+    counts: [usize; 3],
+    halo: usize,
+    seed: u64,
+    index: usize,
+) -> TileSpec {
+    let t = [
+        index % counts[0],
+        index / counts[0] % counts[1],
+        index / (counts[0] * counts[1]),
+    ];
+    let cut = |k: usize, i: usize| (i as u128 * dims[k] as u128 / counts[k] as u128) as usize;
+    let core = VoxelRange {
+        min: [0, 1, 2].map(|k| cut(k, t[k])),
+        max: [0, 1, 2].map(|k| cut(k, t[k] + 1)),
+    };
+    let traced = VoxelRange {
+        min: core.min.map(|m| m.saturating_sub(halo)),
+        max: [0, 1, 2].map(|k| core.max[k].saturating_add(halo).min(dims[k])),
+    };
+    TileSpec {
+        index,
+        core,
+        traced,
+        seed: tile_seed(seed, index),
+    }
 }
 
 /// Plans a tiled bake of `scene` (loaded from `scene_path`, `None` for the built-in Cornell
@@ -342,30 +634,9 @@ pub fn plan_tiles(
     let lattice = TransferBaker::new(&scene.scene, options)
         .map_err(BakeError::TracerSetup)?
         .grid_bounds();
-    let cut = |k: usize, i: usize| i * dims[k] / counts[k];
-    let mut tiles = Vec::new();
-    for tz in 0..counts[2] {
-        for ty in 0..counts[1] {
-            for tx in 0..counts[0] {
-                let t = [tx, ty, tz];
-                let core = VoxelRange {
-                    min: [0, 1, 2].map(|k| cut(k, t[k])),
-                    max: [0, 1, 2].map(|k| cut(k, t[k] + 1)),
-                };
-                let traced = VoxelRange {
-                    min: core.min.map(|m| m.saturating_sub(halo)),
-                    max: [0, 1, 2].map(|k| (core.max[k] + halo).min(dims[k])),
-                };
-                let index = tiles.len();
-                tiles.push(TileSpec {
-                    index,
-                    core,
-                    traced,
-                    seed: tile_seed(config.seed, index),
-                });
-            }
-        }
-    }
+    let tiles = (0..counts.iter().product())
+        .map(|index| layout_tile(dims, counts, halo, config.seed, index))
+        .collect();
     let path = match scene_path {
         Some(p) => Some(std::fs::canonicalize(p).map_err(|source| TileError::Io {
             path: p.to_path_buf(),

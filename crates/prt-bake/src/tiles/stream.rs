@@ -15,10 +15,11 @@ use prt_mbd::{
     Basis, BasisNormals, Mbd, MbdError, MbdModel, ProjectScratch, SolveReport, SolverOptions,
     StreamedMbd,
 };
+use prt_texture::Limits;
 use prt_texture::container::WriteReport;
 use rayon::prelude::*;
 
-use super::merge::{TileRead, read_tile};
+use super::file::{TileData, read_tile};
 use super::plan::{TileError, TilePlan, TileSpec, flat, voxels};
 use crate::container::{ContainerContents, write_container};
 use crate::{BakeConfig, BakeError, TRANSFER_DIM};
@@ -55,7 +56,7 @@ fn mbd_error(source: MbdError) -> TileError {
 }
 
 /// The core voxels of `tile` that are valid, with their index into the tile's trace.
-fn valid_core_voxels(tile: &TileSpec, read: &TileRead) -> Vec<([usize; 3], usize)> {
+fn valid_core_voxels(tile: &TileSpec, read: &TileData) -> Vec<([usize; 3], usize)> {
     voxels(&tile.traced)
         .enumerate()
         .filter(|&(local, v)| tile.core.contains(v) && read.valid[local])
@@ -70,7 +71,8 @@ fn valid_core_voxels(tile: &TileSpec, read: &TileRead) -> Vec<([usize; 3], usize
 /// any number of threads.
 ///
 /// # Errors
-/// Those of reading the tiles ([`TileError`]); a lattice too small to halve with its basis grid
+/// Those of reading the tiles, each checked against the plan and `limits` as
+/// [`super::assemble`] does ([`TileError`]); a lattice too small to halve with its basis grid
 /// ([`TileError::InvalidTiling`]); the fit's and the container's.
 pub fn merge_streamed(
     plan: &TilePlan,
@@ -78,6 +80,7 @@ pub fn merge_streamed(
     scene_name: &str,
     config: &BakeConfig,
     sweeps: usize,
+    limits: &Limits,
     progress: &dyn Progress,
 ) -> Result<StreamedMerge, TileError> {
     config.validate()?;
@@ -117,7 +120,7 @@ pub fn merge_streamed(
         progress
             .check()
             .map_err(|e| TileError::Bake(BakeError::Cancelled(e)))?;
-        let read = read_tile(plan, plan_dir, tile)?;
+        let read = read_tile(plan, plan_dir, tile, limits)?;
         for (v, local) in valid_core_voxels(tile, &read) {
             valid[flat(dims, v)] = true;
             let c = coarse_of(v);
@@ -191,7 +194,7 @@ pub fn merge_streamed(
             progress
                 .check()
                 .map_err(|e| TileError::Bake(BakeError::Cancelled(e)))?;
-            let read = read_tile(plan, plan_dir, tile)?;
+            let read = read_tile(plan, plan_dir, tile, limits)?;
             let voxels = valid_core_voxels(tile, &read);
             let parts = voxels
                 .par_chunks(CHUNK)
@@ -268,7 +271,7 @@ struct ChunkPart {
 
 fn project_chunk(
     model: &StreamedMbd,
-    read: &TileRead,
+    read: &TileData,
     chunk: &[([usize; 3], usize)],
     accumulate: bool,
 ) -> Result<ChunkPart, MbdError> {
