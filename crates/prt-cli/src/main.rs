@@ -81,6 +81,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    end_quietly_on_closed_stdout();
     let cli = Cli::parse();
     progress::install_ctrlc_handler();
     let result = match cli.command {
@@ -97,9 +98,80 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of our output went away (`prt inspect FILE | head`): nothing to report.
+        Err(e) if is_closed_stdout(&e) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Whether `error` is a write into a pipe whose reader has gone.
+fn is_closed_stdout(error: &anyhow::Error) -> bool {
+    error.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
+/// A closed stdout (`prt inspect FILE | head`) ends any subcommand quietly with success, as a
+/// pipe's reader that stopped reading asks: `println!` panics on a write error ("failed printing
+/// to stdout: Broken pipe"), and this hook ends the process with status 0 instead for that panic
+/// only (every other panic is reported as before). Rust ignores SIGPIPE, so such a write
+/// returns an error rather than killing the process.
+fn end_quietly_on_closed_stdout() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or_default();
+        if is_closed_stdout_panic(message) {
+            std::process::exit(0);
+        }
+        report(info)
+    }));
+}
+
+/// Whether `message` is std's panic of a `print!` into a pipe without a reader.
+fn is_closed_stdout_panic(message: &str) -> bool {
+    let Some(error) = message.strip_prefix("failed printing to stdout: ") else {
+        return false;
+    };
+    // EPIPE on Linux, macOS and the BSDs; ERROR_BROKEN_PIPE and ERROR_NO_DATA on Windows.
+    let codes: &[i32] = if cfg!(windows) { &[109, 232] } else { &[32] };
+    codes.iter().any(|&code| {
+        let broken = std::io::Error::from_raw_os_error(code);
+        broken.kind() == std::io::ErrorKind::BrokenPipe && error == broken.to_string()
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_print_into_a_closed_pipe_is_quiet() {
+        let broken = std::io::Error::from(std::io::ErrorKind::BrokenPipe);
+        assert!(is_closed_stdout(
+            &anyhow::Error::new(broken).context("writing")
+        ));
+        assert!(!is_closed_stdout(&anyhow::anyhow!("Broken pipe")));
+        let code = if cfg!(windows) { 232 } else { 32 };
+        let epipe = std::io::Error::from_raw_os_error(code);
+        assert!(is_closed_stdout_panic(&format!(
+            "failed printing to stdout: {epipe}"
+        )));
+        let full = std::io::Error::from(std::io::ErrorKind::StorageFull);
+        assert!(!is_closed_stdout_panic(&format!(
+            "failed printing to stdout: {full}"
+        )));
+        assert!(!is_closed_stdout_panic(&format!(
+            "failed printing to stderr: {epipe}"
+        )));
     }
 }
