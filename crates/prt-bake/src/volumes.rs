@@ -9,7 +9,7 @@ use glam::Vec3;
 use ndarray::Array2;
 use prt_core::{Aabb, GridField};
 use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer, WriteReport};
-use prt_texture::{Encoding, Limits};
+use prt_texture::{Encoding, Limits, TextureError};
 use serde_json::json;
 
 use crate::{Bake, ContainerError, TRANSFER_DIM, VALIDITY};
@@ -195,6 +195,34 @@ pub fn read_volumes(folder: &Path, limits: &Limits) -> Result<KeptVolumes, Conta
         )));
     }
     let voxels = validity.nodes();
+    // The manifest's list is checked against the arrays before anything is allocated: each name
+    // once, each with all its parts, and the volumes together within the reader's limits.
+    for (i, name) in names.iter().enumerate() {
+        if names[..i].contains(name) {
+            return Err(ContainerError::Inconsistent(format!(
+                "volume {name} is listed twice"
+            )));
+        }
+        for part in 0..PARTS {
+            let part_name = format!("{name}.{part}");
+            if loaded.array(&part_name).is_none() {
+                return Err(ContainerError::Inconsistent(format!(
+                    "array {part_name} is missing"
+                )));
+            }
+        }
+    }
+    let bytes = (names.len() as u64)
+        .saturating_mul(voxels as u64)
+        .saturating_mul((TRANSFER_DIM * std::mem::size_of::<f32>()) as u64);
+    if bytes > limits.max_bytes {
+        return Err(TextureError::TooLarge {
+            what: "kept volumes in memory (bytes)",
+            value: bytes,
+            limit: limits.max_bytes,
+        }
+        .into());
+    }
     let mut volumes = Vec::with_capacity(names.len());
     for name in names {
         let mut data = Array2::<f32>::zeros((voxels, TRANSFER_DIM));

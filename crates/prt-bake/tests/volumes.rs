@@ -63,5 +63,32 @@ fn the_reference_and_the_baselines_round_trip_within_f16_rounding() {
         Err(ContainerError::Inconsistent(why)) => assert!(why.contains("lost.0"), "{why}"),
         other => panic!("expected an inconsistency, got {other:?}"),
     }
+
+    // A name listed many times would allocate a volume each time: refused before allocating.
+    let volumes = json["attributes"]["volumes"].as_array_mut().unwrap();
+    volumes.pop();
+    volumes.extend(std::iter::repeat_n(REFERENCE.into(), 1000));
+    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
+    match read_volumes(&dir, &Limits::default()) {
+        Err(ContainerError::Inconsistent(why)) => assert!(why.contains("twice"), "{why}"),
+        other => panic!("expected an inconsistency, got {other:?}"),
+    }
+
+    // The volumes together must fit the reader's limits.
+    let volumes = json["attributes"]["volumes"].as_array_mut().unwrap();
+    volumes.truncate(3);
+    std::fs::write(&manifest, serde_json::to_vec(&json).unwrap()).unwrap();
+    assert!(read_volumes(&dir, &Limits::default()).is_ok());
+    let need = 3 * baked.volume.field.num_voxels() as u64 * 324 * 4;
+    let tight = Limits {
+        max_bytes: need - 1,
+        ..Limits::default()
+    };
+    match read_volumes(&dir, &tight) {
+        Err(ContainerError::Texture(prt_texture::TextureError::TooLarge { value, .. })) => {
+            assert_eq!(value, need)
+        }
+        other => panic!("expected the limit, got {other:?}"),
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
