@@ -137,7 +137,7 @@ pub fn run(args: &RelightArgs) -> Result<()> {
     };
     std::fs::create_dir_all(args.out.join("frames"))
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    let transport = transport(&scene, &tracer, view, options, args)?;
+    let transport = transport(&scene, &tracer, view, options, &args.out, args.max_memory)?;
     eprintln!(
         "transport: {} pixels × {} coefficients × {} channel(s), {} entries ({:.1} MB)",
         transport.pixels(),
@@ -296,26 +296,38 @@ fn parse_methods(specs: &[String], terms: usize) -> Result<Vec<RelightMethod>> {
     Ok(out)
 }
 
-/// The transport of OUT/transport.prtpx when it was baked with these options and view, else a
-/// fresh bake (estimated, checked against --max-memory, then written there).
+/// The scene key written beside the transport: a hash of the scene's triangles and materials.
+const TRANSPORT_SCENE: &str = "transport.scene";
+
+/// The transport of OUT/transport.prtpx when it was baked from this scene (its hash in
+/// OUT/transport.scene) with these options and view, else a fresh bake (estimated, checked
+/// against `max_memory` GiB, then written there with the scene's hash).
 fn transport(
     scene: &prt_trace::Scene,
     tracer: &RayTracer,
     view: PinholeView,
     options: PixelTransportOptions,
-    args: &RelightArgs,
+    out: &Path,
+    max_memory: f64,
 ) -> Result<PixelTransport> {
-    let path = args.out.join("transport.prtpx");
+    let path = out.join("transport.prtpx");
+    let key_path = out.join(TRANSPORT_SCENE);
+    let key = prt_bake::scene_hash(scene);
     let limits = Limits {
         max_bytes: 16 << 30,
         ..Limits::default()
     };
     if path.is_file() {
+        let same_scene = std::fs::read_to_string(&key_path).is_ok_and(|k| k.trim() == key);
         match PixelTransport::read(&path, &limits) {
-            Ok(t) if t.options == options && t.view == view => {
+            Ok(t) if same_scene && t.options == options && t.view == view => {
                 eprintln!("reusing {}", path.display());
                 return Ok(t);
             }
+            Ok(_) if !same_scene => eprintln!(
+                "{} was baked from another scene (or an edited one): baking again",
+                path.display()
+            ),
             Ok(_) => eprintln!(
                 "{} was baked with other options: baking again",
                 path.display()
@@ -334,16 +346,17 @@ fn transport(
         estimate.seconds
     );
     let gib = estimate.peak_bytes as f64 / (1u64 << 30) as f64;
-    if gib > args.max_memory {
+    if gib > max_memory {
         bail!(
-            "the bake may need {gib:.2} GiB, more than --max-memory {}; lower --size, --cube or --max-terms",
-            args.max_memory
+            "the bake may need {gib:.2} GiB, more than --max-memory {max_memory}; lower --size, --cube or --max-terms"
         );
     }
     let stage = Stage::start("transport");
     let transport = baker.bake(&stage)?;
     stage.finish();
     transport.write(&path)?;
+    write_atomic(&key_path, key.as_bytes())
+        .with_context(|| format!("cannot write {}", key_path.display()))?;
     Ok(transport)
 }
 
@@ -549,6 +562,46 @@ mod tests {
         );
         assert!(parse_methods(&["nwa:0".to_string()], 30).is_err());
         assert!(parse_methods(&["svd".to_string()], 30).is_err());
+    }
+
+    #[test]
+    fn the_transport_is_reused_only_for_the_same_scene_options_and_view() {
+        let out = std::env::temp_dir().join(format!("prt-relight-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        let options = PixelTransportOptions {
+            width: 6,
+            height: 6,
+            cube_size: 4,
+            ..Default::default()
+        };
+        let bake = |scene: &prt_trace::Scene| {
+            let tracer = RayTracer::new(scene.triangles());
+            let view = PinholeView::for_scene(scene).unwrap();
+            transport(scene, &tracer, view, options, &out, 4.0).unwrap()
+        };
+        let scene = prt_trace::Scene::cornell_box();
+        let first = bake(&scene);
+        let written = std::fs::metadata(out.join("transport.prtpx"))
+            .unwrap()
+            .modified()
+            .unwrap();
+        let again = bake(&scene);
+        assert_eq!(again.view, first.view);
+        let reused = std::fs::metadata(out.join("transport.prtpx"))
+            .unwrap()
+            .modified()
+            .unwrap();
+        assert_eq!(reused, written, "the same scene reuses the file");
+        // The same view and options over an edited scene (one albedo changed) bake again.
+        let mut edited = scene.clone();
+        edited.set_uniform_albedo(prt_core::glam::Vec3::splat(0.25));
+        assert_ne!(prt_bake::scene_hash(&edited), prt_bake::scene_hash(&scene));
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        bake(&edited);
+        let key = std::fs::read_to_string(out.join(TRANSPORT_SCENE)).unwrap();
+        assert_eq!(key, prt_bake::scene_hash(&edited));
+        let _ = std::fs::remove_dir_all(&out);
     }
 
     #[test]
