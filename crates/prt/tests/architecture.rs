@@ -1,6 +1,8 @@
 //! The workspace's architectural invariants (docs/architecture.md, "Invariants"), checked on the
 //! source text of every crate under `crates/`:
 //!
+//! * the crates depend only downwards through the layers of docs/architecture.md ("Dependency
+//!   direction"), and every crate has a layer;
 //! * no crate's top-level modules import each other in a cycle;
 //! * only prt-cli prints (library code returns data and reports through `Progress`);
 //! * files are written only through prt-texture's atomic writer (write to a temporary file in
@@ -258,10 +260,97 @@ fn files_are_written_only_through_the_atomic_writer() {
     );
 }
 
-/// The checks themselves: a cycle, a print and a write are found where they are, and test
-/// code is left out.
+/// The crates' layers, lowest first (docs/architecture.md, "Dependency direction"): a crate may
+/// depend only on crates of lower layers.
+const LAYERS: &[&[&str]] = &[
+    &["prt-core", "prt-texture", "prt-shaders"],
+    &["prt-linalg", "prt-kernels", "prt-sphere"],
+    &["prt-mbd", "prt-plsq", "prt-wavelet", "prt-manylight"],
+    &["prt-trace"],
+    &["prt-bake", "prt-render"],
+    &["prt-export"],
+    &["prt-cli", "prt"],
+];
+
+/// The `prt*` crates named in the `[dependencies]` table of a Cargo.toml.
+fn prt_dependencies(manifest: &str) -> BTreeSet<String> {
+    let mut out = BTreeSet::new();
+    let mut in_dependencies = false;
+    for line in manifest.lines().map(str::trim) {
+        if line.starts_with('[') {
+            in_dependencies = line == "[dependencies]";
+            continue;
+        }
+        let name = line.split(['=', ' ', '.']).next().unwrap_or_default();
+        if in_dependencies && (name == "prt" || name.starts_with("prt-")) {
+            out.insert(name.to_string());
+        }
+    }
+    out
+}
+
+/// Every dependency that does not run to a lower layer, and every crate without a layer.
+fn layer_violations(dependencies: &BTreeMap<String, BTreeSet<String>>) -> Vec<String> {
+    let layer = |name: &str| LAYERS.iter().position(|l| l.contains(&name));
+    let mut out = Vec::new();
+    for (krate, deps) in dependencies {
+        let Some(own) = layer(krate) else {
+            out.push(format!("{krate} has no layer in LAYERS"));
+            continue;
+        };
+        for dep in deps {
+            match layer(dep) {
+                Some(l) if l < own => {}
+                Some(l) => out.push(format!(
+                    "{krate} (layer {own}) depends on {dep} (layer {l})"
+                )),
+                None => out.push(format!("{krate} depends on {dep}, which has no layer")),
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn the_crates_depend_only_downwards() {
+    let dependencies: BTreeMap<String, BTreeSet<String>> = crate_sources()
+        .into_iter()
+        .map(|(name, src)| {
+            let manifest = std::fs::read_to_string(src.join("../Cargo.toml")).expect("Cargo.toml");
+            (name, prt_dependencies(&manifest))
+        })
+        .collect();
+    assert!(
+        dependencies["prt-bake"].contains("prt-mbd"),
+        "{dependencies:?}"
+    );
+    let violations = layer_violations(&dependencies);
+    assert!(violations.is_empty(), "{violations:#?}");
+}
+
+/// The checks themselves: a cycle, a print, a write and an upward dependency are found where
+/// they are, and test code is left out.
 #[test]
 fn the_checks_find_what_they_look_for() {
+    let manifest = "[package]\nname = \"x\"\n[dependencies]\nprt-core = { workspace = true }\n\
+                    prt-mbd.workspace = true\nserde = \"1\"\n[dev-dependencies]\nprt-cli = \"0\"\n";
+    assert_eq!(
+        prt_dependencies(manifest),
+        BTreeSet::from(["prt-core".to_string(), "prt-mbd".to_string()])
+    );
+    let upward = BTreeMap::from([
+        (
+            "prt-mbd".to_string(),
+            BTreeSet::from(["prt-bake".to_string()]),
+        ),
+        ("prt-new".to_string(), BTreeSet::new()),
+    ]);
+    assert_eq!(
+        layer_violations(&upward).len(),
+        2,
+        "{:?}",
+        layer_violations(&upward)
+    );
     let mut graph = BTreeMap::new();
     graph.insert("a".to_string(), BTreeSet::from(["b".to_string()]));
     graph.insert("b".to_string(), BTreeSet::from(["a".to_string()]));
