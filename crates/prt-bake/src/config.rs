@@ -7,8 +7,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::BakeError;
 
-/// Dimension of the transfer vectors the tracer produces (four 9 × 9 operators).
-pub const TRANSFER_DIM: usize = 324;
+/// Dimension of the transfer vectors the tracer produces (four 9 × 9 operators): prt-trace's,
+/// re-exported so that users of the pipeline need not name the tracer.
+pub use prt_trace::TRANSFER_DIM;
 
 /// Every knob of a bake; `Default` gives the defaults of `prt bake`. Serialised (a tiled bake's
 /// plan records it) without the memory budget and the container folder, which belong to the
