@@ -10,8 +10,8 @@ use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
 use prt_render::{
-    NamedView, RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds, read_mesh,
-    render, views,
+    NamedView, RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds,
+    image_metrics, read_mesh, render, views,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
@@ -101,6 +101,10 @@ pub struct RenderArgs {
     /// negative light removed, padded; without the texture format's rounding).
     #[arg(long, value_enum, default_value_t = LookupArg::Prt)]
     pub lookup: LookupArg,
+    /// Also score the render against the reference render of the same view, both tone-mapped
+    /// with the reference's exposure: ꟻLIP and grey-level errors (needs the kept volumes).
+    #[arg(long)]
+    pub compare: bool,
     /// Width and height of the image, in pixels.
     #[arg(long, default_value_t = 512)]
     pub size: usize,
@@ -299,7 +303,14 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             String::new()
         }
     );
-    if args.method != MethodArg::Reference && args.bake_dir.join("volumes").is_dir() {
+    let kept = args.bake_dir.join("volumes").is_dir();
+    if args.compare && !kept {
+        bail!(
+            "--compare needs the reference volume, which this bake did not keep (bake with \
+             --keep-volumes always)"
+        );
+    }
+    if args.method != MethodArg::Reference && kept {
         let reference = load_light(&args.bake_dir, MethodArg::Reference, args.lookup, &sky)?;
         let base = render(
             &scene,
@@ -321,6 +332,21 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             println!(
                 "RMSE against the reference render: {rmse:.4e} ({:.2} % of its mean radiance {mean:.4e})",
                 100.0 * rmse / mean.max(f64::MIN_POSITIVE)
+            );
+        }
+        if args.compare {
+            let m = image_metrics(&base, &image, &ToneMap::auto(&base))?;
+            println!(
+                "against the reference render (its exposure, {} surface pixels): FLIP {:.4}, \
+                 mean {:.2} grey levels, {:.1} % of pixels more than {:.0} levels off, darkest \
+                 quartile {:.2} levels, median relative luminance error {:.1} %",
+                m.pixels,
+                m.flip,
+                m.mean_levels,
+                100.0 * m.share_off,
+                prt_render::VISIBLE_LEVELS,
+                m.dark_levels,
+                100.0 * m.median_relative
             );
         }
     }

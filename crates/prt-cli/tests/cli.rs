@@ -410,6 +410,17 @@ fn every_method_of_a_cornell_bake_renders() {
             assert!(percent > 0.0 && percent < 15.0, "{method}: {percent} %");
         }
     }
+    // --compare scores the render as the report does: ꟻLIP in (0, 1) against the reference.
+    let out = prt_render(&dir, &["--compare"], &dir.join("compared.png"), None);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let text = stdout(&out);
+    let flip: f64 = text
+        .split("FLIP ")
+        .nth(1)
+        .and_then(|s| s.split(',').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no FLIP in {text:?}"));
+    assert!(flip > 0.0 && flip < 0.5, "FLIP {flip}");
 
     // Linear radiance in EXR: finite, non-negative, above 1 only where the light (emission 1)
     // or the sky (radiance about 1 to 1.6) shows.
