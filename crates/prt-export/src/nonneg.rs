@@ -1,10 +1,8 @@
 //! Irradiance that is never negative: SH ringing and reconstruction error removed per voxel
 //! before an engine sees it.
 
-use std::f32::consts::PI;
-
 use glam::Vec3;
-use prt_trace::{SH9, sh9};
+use prt_trace::{CLAMPED_COSINE, SH9, sh9};
 
 use crate::{ExportError, LitVolume};
 
@@ -48,22 +46,11 @@ pub fn remove_negative_light(volume: &LitVolume) -> Result<NonNegative, ExportEr
     volume.check()?;
     // Irradiance is Σ_j A_j Y_j(n) c_j (Ramamoorthi & Hanrahan): one row of A_j Y_j per
     // direction, so each check is a dot product.
-    let bands = [
-        PI,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-    ];
     let rows: Vec<[f32; SH9]> = test_directions()
         .into_iter()
         .map(|n| {
             let y = sh9(n);
-            std::array::from_fn(|j| bands[j] * y[j])
+            std::array::from_fn(|j| CLAMPED_COSINE[j] * y[j])
         })
         .collect();
     let mut out = volume.clone();

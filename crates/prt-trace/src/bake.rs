@@ -218,22 +218,25 @@ pub fn incident_radiance(t: &[f32], sky: &prt_sphere::Sky) -> [[f32; SH9]; 3] {
     out
 }
 
+/// The clamped cosine's zonal factors per SH9 coefficient (A0 = π, A1 = 2π/3, A2 = π/4;
+/// Ramamoorthi & Hanrahan 2001): irradiance is `Σ_i A_i l_i Y_i(n)`.
+pub const CLAMPED_COSINE: [f32; SH9] = [
+    PI,
+    2.0 * PI / 3.0,
+    2.0 * PI / 3.0,
+    2.0 * PI / 3.0,
+    PI / 4.0,
+    PI / 4.0,
+    PI / 4.0,
+    PI / 4.0,
+    PI / 4.0,
+];
+
 /// Irradiance `E(n) = ∫ L(ω) max(0, n·ω) dω` on a surface of unit normal `n` from radiance SH
-/// `l`, by zonal convolution with the clamped cosine (A0 = π, A1 = 2π/3, A2 = π/4).
+/// `l`, by zonal convolution with the clamped cosine ([`CLAMPED_COSINE`]).
 pub fn irradiance(l: &[f32; SH9], n: Vec3) -> f32 {
     let y = sh9(n);
-    let a = [
-        PI,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-    ];
-    (0..SH9).map(|i| a[i] * l[i] * y[i]).sum()
+    (0..SH9).map(|i| CLAMPED_COSINE[i] * l[i] * y[i]).sum()
 }
 
 impl TransferVolume {

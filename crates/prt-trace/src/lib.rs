@@ -131,8 +131,8 @@ mod sh;
 mod vpl;
 
 pub use bake::{
-    BakeOptions, BakeStats, IndirectMode, TRANSFER_DIM, TransferBaker, TransferVolume, block,
-    constant_sky, incident_radiance, irradiance,
+    BakeOptions, BakeStats, CLAMPED_COSINE, IndirectMode, TRANSFER_DIM, TransferBaker,
+    TransferVolume, block, constant_sky, incident_radiance, irradiance,
 };
 pub use brdf_transport::{
     HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,

@@ -115,43 +115,25 @@ pub fn write_renders(
         width: RENDER_SIZE,
         height: RENDER_SIZE,
     };
-    let images: Vec<(String, Rendered)> = volumes
-        .iter()
-        .map(|(key, volume)| {
-            let image = render(
-                scene,
-                &tracer,
-                &view.view,
-                volume,
-                &sky,
-                &config,
-                &NoProgress,
-            )?;
-            Ok((key.clone(), image))
-        })
-        .collect::<Result<_>>()?;
+    // Every method's render of one view, the reference first.
+    let render_all = |view: &prt_trace::PinholeView| -> Result<Vec<(String, Rendered)>> {
+        volumes
+            .iter()
+            .map(|(key, volume)| {
+                let image = render(scene, &tracer, view, volume, &sky, &config, &NoProgress)?;
+                Ok((key.clone(), image))
+            })
+            .collect()
+    };
+    let images = render_all(&view.view)?;
     let reference = &images[0].1;
     let tone = ToneMap::auto(reference);
     let mut view_metrics = Vec::new();
     for (index, other) in views(scene).into_iter().enumerate() {
-        let rendered: Vec<(String, Rendered)> = if index == 0 {
+        let rendered = if index == 0 {
             images.clone()
         } else {
-            volumes
-                .iter()
-                .map(|(key, volume)| {
-                    let image = render(
-                        scene,
-                        &tracer,
-                        &other.view,
-                        volume,
-                        &sky,
-                        &config,
-                        &NoProgress,
-                    )?;
-                    Ok((key.clone(), image))
-                })
-                .collect::<Result<_>>()?
+            render_all(&other.view)?
         };
         let base = &rendered[0].1;
         let view_tone = ToneMap::auto(base);
