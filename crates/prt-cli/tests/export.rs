@@ -2,31 +2,18 @@
 //! its one-line errors.
 
 mod common;
-use common::{assert_clean_failure, prt, scratch, stderr};
+use common::{TINY_BAKE, assert_clean_failure, prt, scratch, stderr};
 
 #[test]
 fn a_small_bake_exports_for_every_target_and_sky() {
     let dir = scratch("bake");
     let bake = dir.join("bake");
     let bake_s = bake.to_str().expect("utf-8");
-    let out = prt(&[
-        "bake",
-        "--res",
-        "8",
-        "--rays",
-        "48",
-        "--cache-rays",
-        "16",
-        "--rank",
-        "4",
-        "--basis-nodes",
-        "3",
-        "--iterations",
-        "8",
-        "--no-baselines",
-        "--out",
-        bake_s,
-    ]);
+    let args: Vec<&str> = std::iter::once("bake")
+        .chain(TINY_BAKE.iter().copied())
+        .chain(["--out", bake_s])
+        .collect();
+    let out = prt(&args);
     assert!(out.status.success(), "bake failed: {}", stderr(&out));
     let sky_json = dir.join("sky.json");
     std::fs::write(

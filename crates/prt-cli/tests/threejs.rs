@@ -42,6 +42,9 @@ use std::sync::{Arc, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+mod common;
+use common::{chromium, run, scratch};
+
 use serde_json::{Value, json};
 
 /// The sky of both exports and of `prt render`.
@@ -67,36 +70,8 @@ const MAX_LOOKUP_DIFFERENCE: f64 = 0.05;
 /// How long a page may take.
 const PAGE_TIMEOUT: Duration = Duration::from_secs(180);
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prt-threejs-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
-
 fn prt() -> Command {
     Command::new(env!("CARGO_BIN_EXE_prt"))
-}
-
-fn run(command: &mut Command) -> String {
-    let out = command.output().expect("the command runs");
-    assert!(
-        out.status.success(),
-        "{command:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
-}
-
-fn chromium() -> PathBuf {
-    if let Some(path) = std::env::var_os("PRT_CHROMIUM") {
-        return path.into();
-    }
-    let path = std::env::var_os("PATH").unwrap_or_default();
-    std::env::split_paths(&path)
-        .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
-        .find(|candidate| candidate.is_file())
-        .expect("chromium on PATH (the test runs because PRT_REQUIRE_CHROMIUM=1 or because it was there when it was built)")
 }
 
 fn example_dir() -> PathBuf {
@@ -811,25 +786,9 @@ fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
     let bake = dir.join("bake");
     let started = Instant::now();
     run(prt()
-        .args([
-            "bake",
-            "--res",
-            "8",
-            "--rays",
-            "48",
-            "--cache-rays",
-            "16",
-            "--rank",
-            "4",
-        ])
-        .args([
-            "--basis-nodes",
-            "3",
-            "--iterations",
-            "8",
-            "--no-baselines",
-            "--out",
-        ])
+        .arg("bake")
+        .args(common::TINY_BAKE)
+        .arg("--out")
         .arg(&bake));
     let out = dir.join("out");
     for target in ["threejs", "sh"] {

@@ -7,18 +7,14 @@
 //! must show on the page.
 
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Child, Command, Stdio};
+
+mod common;
+use common::{chromium, run, scratch};
 
 /// Image side in pixels.
 const SIZE: u32 = 256;
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("prt-viewer-test-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
-}
 
 fn prt() -> Command {
     Command::new(env!("CARGO_BIN_EXE_prt"))
@@ -32,27 +28,6 @@ fn bake_cornell(res: u32, out: &Path) {
         .args(["--cache-rays", "32", "--rank", "4", "--basis-nodes", "3"])
         .args(["--iterations", "24", "--keep-volumes", "always", "--out"])
         .arg(out));
-}
-
-fn run(command: &mut Command) -> String {
-    let out = command.output().expect("the command runs");
-    assert!(
-        out.status.success(),
-        "{command:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
-}
-
-fn chromium() -> PathBuf {
-    if let Some(path) = std::env::var_os("PRT_CHROMIUM") {
-        return path.into();
-    }
-    let path = std::env::var_os("PATH").unwrap_or_default();
-    std::env::split_paths(&path)
-        .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
-        .find(|candidate| candidate.is_file())
-        .expect("chromium on PATH (the test runs because PRT_REQUIRE_CHROMIUM=1 or because it was there when it was built)")
 }
 
 /// `prt view` on a free port, stopped when dropped.

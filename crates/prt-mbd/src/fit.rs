@@ -120,7 +120,7 @@ impl Mbd {
                 loss_weighting: None,
                 ..self.clone()
             };
-            let fit = unweighted.fit(&weighted_field(field, &weights)?, progress)?;
+            let fit = unweighted.fit(&weighted_field(field, &weights), progress)?;
             return unweight(fit, &weights);
         }
         match self.basis {
@@ -177,7 +177,7 @@ impl Mbd {
                 loss_weighting: None,
                 ..self.clone()
             };
-            let fit = unweighted.fit_masked(&weighted_field(field, &weights)?, valid, progress)?;
+            let fit = unweighted.fit_masked(&weighted_field(field, &weights), valid, progress)?;
             return unweight(fit, &weights);
         }
         let (model, solve) = self.solve_hat_grid(field, Some(valid), nodes, progress)?;

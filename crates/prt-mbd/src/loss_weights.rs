@@ -92,12 +92,12 @@ impl LossWeighting {
 }
 
 /// `field` with each voxel's vector multiplied by its weight.
-pub(crate) fn weighted_field(field: &GridField, weights: &[f32]) -> Result<GridField, MbdError> {
+pub(crate) fn weighted_field(field: &GridField, weights: &[f32]) -> GridField {
     let mut out = field.clone();
     for (v, &w) in weights.iter().enumerate() {
         out.voxel_mut(v).iter_mut().for_each(|x| *x *= w);
     }
-    Ok(out)
+    out
 }
 
 /// Divides the coefficients of node `v` (one per voxel) by `weights[v]`.

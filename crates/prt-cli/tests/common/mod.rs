@@ -4,6 +4,47 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
+/// The knobs of the smallest bake the export and engine tests use: a Cornell box of 8 voxels
+/// per axis, 48 rays, rank 4 on 3³ basis nodes, 8 iterations, no baselines.
+pub const TINY_BAKE: &[&str] = &[
+    "--res",
+    "8",
+    "--rays",
+    "48",
+    "--cache-rays",
+    "16",
+    "--rank",
+    "4",
+    "--basis-nodes",
+    "3",
+    "--iterations",
+    "8",
+    "--no-baselines",
+];
+
+/// Runs `command`, requires success, and returns its stdout followed by its stderr.
+pub fn run(command: &mut Command) -> String {
+    let out = command.output().expect("the command runs");
+    assert!(
+        out.status.success(),
+        "{command:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr)
+}
+
+/// Debian's chromium: PRT_CHROMIUM, else `chromium` or `chromium-browser` on PATH.
+pub fn chromium() -> PathBuf {
+    if let Some(path) = std::env::var_os("PRT_CHROMIUM") {
+        return path.into();
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    std::env::split_paths(&path)
+        .flat_map(|dir| ["chromium", "chromium-browser"].map(|name| dir.join(name)))
+        .find(|candidate| candidate.is_file())
+        .expect("chromium on PATH (the test runs because PRT_REQUIRE_CHROMIUM=1 or because it was there when it was built)")
+}
+
 /// Runs the `prt` binary with `args`.
 pub fn prt(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_prt"))

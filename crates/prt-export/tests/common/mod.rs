@@ -2,8 +2,6 @@
 //! written from their shaders' descriptions, f16 and RGB9E5 rounding bounds.
 #![allow(dead_code)]
 
-use std::f32::consts::PI;
-
 use glam::Vec3;
 use prt_export::RadianceSh;
 use rand::{Rng, SeedableRng};
@@ -136,19 +134,8 @@ pub fn threejs_sample(
 /// Bound on the irradiance error from storing each coefficient of `l` as f16 (relative 2⁻¹¹,
 /// plus the smallest subnormal step): `Σ_j A_l |Y_j|_max |c_j| 2⁻¹¹`, with `|Y_j| ≤ 1.1`.
 pub fn f16_irradiance_bound(l: &[f32; 9]) -> f32 {
-    let a = [
-        PI,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        2.0 * PI / 3.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-        PI / 4.0,
-    ];
     (0..9)
-        .map(|j| a[j] * 1.1 * (l[j].abs() * 2f32.powi(-11) + 6e-8))
+        .map(|j| prt_trace::CLAMPED_COSINE[j] * 1.1 * (l[j].abs() * 2f32.powi(-11) + 6e-8))
         .sum()
 }
 
