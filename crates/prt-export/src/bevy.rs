@@ -6,8 +6,10 @@ use prt_texture::PixelFormat;
 use prt_texture::engine::{AmbientCubeVolume, bevy_irradiance_volume_as};
 use serde_json::json;
 
+use crate::ambient::ambient_cube;
+use crate::threejs::ENGINE_PADDING;
 use crate::write::{grid_json, prepare, write_json, write_ktx2, write_validity};
-use crate::{AmbientCubeFit, ENGINE_PADDING, ExportError, LitVolume, WrittenFile, ambient_cube};
+use crate::{AmbientCubeFit, ExportError, LitVolume, WrittenFile};
 
 /// File name of the Bevy irradiance-volume texture.
 pub const BEVY_TEXTURE: &str = "irradiance_volume.ktx2";

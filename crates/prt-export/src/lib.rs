@@ -9,18 +9,19 @@
 //! | [`light_container`] | light an MBD container (each basis vector relit once) → [`LitVolume`] |
 //! | [`light_field`] | light a full 324-D transfer field (the traced volume) → [`LitVolume`] |
 //! | [`dilate`], [`DilateConfig`], [`Dilated`] | fill invalid voxels from valid neighbours before export |
-//! | [`remove_negative_light`], [`NonNegative`], [`test_directions`] | make every voxel's irradiance non-negative before export |
+//! | [`remove_negative_light`], [`NonNegative`] | make every voxel's irradiance non-negative before export |
 //! | [`EngineLookup`], [`Engine`] | what Bevy's or three.js's shader computes from an export, on the CPU (previews) |
 //! | [`export_bevy`], [`BevyConfig`], [`BevyExport`] | Bevy's `IrradianceVolume`: ambient-cube KTX2 (RGB9E5 / RGBA16F) + placement JSON |
 //! | [`export_threejs`], [`ThreejsConfig`], [`ThreejsExport`] | three.js `LightProbeGrid`: RGBA16F 3D atlas KTX2 + placement JSON |
 //! | [`export_sh`], [`ShConfig`], [`ShExport`] | L1 and L2 SH volumes (KTX2 + EXR) + manifest, for custom engines and importers |
-//! | [`ambient_cube`], [`AmbientCubeFit`], [`ambient_cube_blend`], [`ambient_cube_error_bound`] | ambient cubes from SH, Bevy's blend, its error bound |
-//! | [`sh_to_threejs`], [`threejs_atlas`], [`threejs_atlas_probe`] | three.js's SH basis and atlas packing |
+//! | [`AmbientCubeFit`] | how Bevy's ambient cubes are fitted to the SH |
+//! | [`layout`] | the layouts behind the exports: file names, padding, ambient cubes, three.js's SH basis and atlas, SH textures |
 //! | [`sky_from_json`] | a sky from SH coefficients in JSON |
 //! | [`ExportError`] | what can go wrong |
 //!
-//! Bevy and three.js exports are padded by [`ENGINE_PADDING`] copied voxel layers so that every
-//! surface of the baked box is lit with full weight in both engines. Every writer writes atomically through prt-texture and also writes the bake's validity mask
+//! Bevy and three.js exports are padded by [`layout::ENGINE_PADDING`] copied voxel layers so
+//! that every surface of the baked box is lit with full weight in both engines. Every writer
+//! writes atomically through prt-texture and also writes the bake's validity mask
 //! (`validity.ktx2`, R8, 1 = valid). File layouts are documented in docs/formats.md. This
 //! crate never prints; long work reports through a [`prt_core::Progress`] handle.
 //!
@@ -58,25 +59,36 @@ mod skyjson;
 mod threejs;
 mod write;
 
-pub use ambient::{
-    AmbientCube, AmbientCubeFit, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
-};
-pub use bevy::{BEVY_PLACEMENT, BEVY_TEXTURE, BevyConfig, BevyExport, BevyFormat, export_bevy};
+pub use ambient::AmbientCubeFit;
+pub use bevy::{BevyConfig, BevyExport, BevyFormat, export_bevy};
 pub use dilate::{DilateConfig, Dilated, dilate};
 pub use error::ExportError;
 pub use lit::{LitVolume, RadianceSh, light_container, light_field};
-pub use nonneg::{NonNegative, remove_negative_light, test_directions};
+pub use nonneg::{NonNegative, remove_negative_light};
 pub use preview::{Engine, EngineLookup};
-pub use sh::{
-    SH_EXR_FILE, SH_L1_FILES, SH_L2_FILE, SH_LAYER_NAMES, SH_MANIFEST, ShConfig, ShExport,
-    export_sh, sh_l1, sh_l2_texture,
-};
+pub use sh::{ShConfig, ShExport, export_sh};
 pub use skyjson::sky_from_json;
-pub use threejs::{
-    ATLAS_SUBVOLUMES, ENGINE_PADDING, THREEJS_PLACEMENT, THREEJS_TEXTURE, ThreejsConfig,
-    ThreejsExport, export_threejs, sh_to_threejs, threejs_atlas, threejs_atlas_probe,
-};
-pub use write::{VALIDITY_FILE, WrittenFile};
+pub use threejs::{ThreejsConfig, ThreejsExport, export_threejs};
+pub use write::WrittenFile;
+
+/// The engines' layouts behind the exports: file names, the padding, Bevy's ambient cubes,
+/// three.js's SH basis and atlas, the SH volumes' textures. For tests, importers and code that
+/// reads an export back.
+pub mod layout {
+    pub use crate::ambient::{
+        AmbientCube, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
+    };
+    pub use crate::bevy::{BEVY_PLACEMENT, BEVY_TEXTURE};
+    pub use crate::nonneg::test_directions;
+    pub use crate::sh::{
+        SH_EXR_FILE, SH_L1_FILES, SH_L2_FILE, SH_LAYER_NAMES, SH_MANIFEST, sh_l1, sh_l2_texture,
+    };
+    pub use crate::threejs::{
+        ATLAS_SUBVOLUMES, ENGINE_PADDING, THREEJS_PLACEMENT, THREEJS_TEXTURE, sh_to_threejs,
+        threejs_atlas, threejs_atlas_probe,
+    };
+    pub use crate::write::VALIDITY_FILE;
+}
 
 /// The README's Rust snippet, compiled as a doc test so it stays true.
 #[doc = include_str!("../README.md")]

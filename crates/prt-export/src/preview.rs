@@ -6,7 +6,9 @@ use std::f32::consts::PI;
 use glam::Vec3;
 use prt_trace::irradiance;
 
-use crate::{AmbientCubeFit, ENGINE_PADDING, ExportError, LitVolume, ambient_cube};
+use crate::ambient::ambient_cube;
+use crate::threejs::ENGINE_PADDING;
+use crate::{AmbientCubeFit, ExportError, LitVolume};
 
 /// An engine whose probe lookup [`EngineLookup`] reproduces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

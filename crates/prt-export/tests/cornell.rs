@@ -8,6 +8,7 @@ use common::*;
 use glam::Vec3;
 use prt_bake::{BakeConfig, SceneInput, bake, read_container};
 use prt_core::{FieldModel, NoProgress};
+use prt_export::layout::*;
 use prt_export::*;
 use prt_sphere::{Sky, SunSky};
 use prt_texture::quant::rgb9e5_error_bound;

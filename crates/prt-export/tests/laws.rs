@@ -9,9 +9,10 @@ use common::random_radiance;
 use glam::{Mat3, Vec3};
 use proptest::prelude::*;
 use prt_core::{Aabb, GridField, NoProgress};
+use prt_export::layout::{ambient_cube, ambient_cube_blend, test_directions};
 use prt_export::{
-    AmbientCubeFit, DilateConfig, Engine, EngineLookup, LitVolume, ambient_cube,
-    ambient_cube_blend, dilate, light_field, remove_negative_light, test_directions,
+    AmbientCubeFit, DilateConfig, Engine, EngineLookup, LitVolume, dilate, light_field,
+    remove_negative_light,
 };
 use prt_sphere::Sky;
 

@@ -9,6 +9,7 @@ use common::*;
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::Aabb;
+use prt_export::layout::*;
 use prt_export::*;
 use prt_sphere::eval_sh;
 use prt_texture::exr_io::read_exr;

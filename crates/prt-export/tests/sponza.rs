@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use glam::Vec3;
 use prt_bake::{BakeConfig, SceneInput, bake, read_container};
 use prt_core::NoProgress;
-use prt_export::{DilateConfig, LitVolume, SIDES, dilate, light_container};
+use prt_export::layout::SIDES;
+use prt_export::{DilateConfig, LitVolume, dilate, light_container};
 use prt_sphere::Sky;
 use prt_texture::Limits;
 
