@@ -19,6 +19,7 @@
 //! | [`write_container_with`], [`LayoutConfig`], [`CoefficientLayout`], [`node_liveness`], [`layout_bytes`] | the same with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
+//! | [`BakeFolder`], [`FolderVolume`], [`FolderError`] | a bake folder's layout (container, kept volumes, scene mesh, reports) and the volume a later tool lights |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
@@ -53,6 +54,7 @@
 mod config;
 mod container;
 mod error;
+mod folder;
 mod memory;
 mod methods;
 mod pipeline;
@@ -71,6 +73,7 @@ pub use container::{
     write_container_with,
 };
 pub use error::{BakeError, ContainerError};
+pub use folder::{BakeFolder, FolderError, FolderVolume};
 pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{
     Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,

@@ -5,7 +5,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use prt_bake::{Bake, BakeConfig, BakeError, Layout, MemoryEstimate, Quality, SceneInput};
+use prt_bake::{
+    Bake, BakeConfig, BakeError, BakeFolder, Layout, MemoryEstimate, Quality, SceneInput,
+};
 use prt_texture::Encoding;
 
 use crate::progress::{Stage, StageBars};
@@ -376,7 +378,7 @@ pub fn run(args: &BakeArgs) -> Result<()> {
         scene.scene.degenerate_dropped()
     );
 
-    let config = args.config(Some(out_dir.join("mbd")));
+    let config = args.config(Some(BakeFolder::new(&out_dir).container_dir()));
     let baked = prt_bake::bake(&scene, &config, &StageBars).map_err(cli_error)?;
     if let Some(bricks) = &baked.bricks {
         let s = &bricks.stats;
@@ -416,14 +418,19 @@ pub(crate) fn write_outputs(
         );
     }
 
-    keep_volumes(keep, &out_dir.join("volumes"), baked)?;
-    let mesh = out_dir.join(crate::render::SCENE_MESH);
+    keep_volumes(keep, &BakeFolder::new(out_dir).volumes_dir(), baked)?;
+    let mesh = BakeFolder::new(out_dir).scene_mesh();
     prt_render::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
 
     let stage = Stage::start("report");
     let images = report::write_images(out_dir, baked)?;
-    let renders = report::write_renders(out_dir, baked, &scene.scene, &out_dir.join("mbd"))?;
+    let renders = report::write_renders(
+        out_dir,
+        baked,
+        &scene.scene,
+        &BakeFolder::new(out_dir).container_dir(),
+    )?;
     let report_time = stage.finish();
     let stage_seconds = std::iter::once(("load".to_string(), load))
         .chain(
@@ -452,7 +459,7 @@ fn check_size(args: &BakeArgs, scene: &SceneInput) -> Result<()> {
     let Some(bounds) = scene.scene.bounds() else {
         return Ok(()); // the pipeline reports the empty scene
     };
-    let config = args.config(Some(PathBuf::from("mbd")));
+    let config = args.config(Some(PathBuf::from(BakeFolder::CONTAINER)));
     let (size, triangles) = (bounds.size().to_array(), scene.scene.triangles().len());
     let estimate = MemoryEstimate::new(&config, size, triangles);
     let budget = config.max_memory.unwrap_or(u64::MAX);

@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
+use prt_bake::{BakeFolder, FolderVolume};
 use prt_export::{
     AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, LitVolume, ShConfig, ThreejsConfig,
     WrittenFile, dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
@@ -106,46 +107,12 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
 /// The bake in `bake_dir` lit by `sky`: the MBD container (`from` = `mbd`) or a kept volume
 /// (`reference`, `bpca`, `cpca`).
 pub fn light_bake(bake_dir: &Path, from: &str, sky: &Sky) -> Result<LitVolume> {
-    if from == "mbd" {
-        let container_dir = bake_dir.join("mbd");
-        if !container_dir.join("manifest.json").is_file() {
-            bail!(
-                "{} holds no MBD container (expected {}/manifest.json, written by `prt bake --out {}`)",
-                bake_dir.display(),
-                container_dir.display(),
-                bake_dir.display()
-            );
-        }
-        let container =
-            prt_bake::read_container(&container_dir, &Limits::default()).with_context(|| {
-                format!(
-                    "cannot read the MBD container in {}",
-                    container_dir.display()
-                )
-            })?;
-        let stage = Stage::start("light");
-        let lit = light_container(&container, sky, &stage)?;
-        stage.finish();
-        return Ok(lit);
-    }
-    let folder = bake_dir.join("volumes");
-    if !folder.join("manifest.json").is_file() {
-        bail!(
-            "{from}: {} holds no kept volumes (`prt bake --keep-volumes always` writes them)",
-            folder.display()
-        );
-    }
-    let kept = prt_bake::read_volumes(&folder, &Limits::default())
-        .with_context(|| format!("cannot read the kept volumes in {}", folder.display()))?;
-    let Some(field) = kept.get(from) else {
-        let names: Vec<&str> = kept.volumes.iter().map(|(n, _)| n.as_str()).collect();
-        bail!(
-            "{from}: not among the kept volumes ({}) nor `mbd`",
-            names.join(", ")
-        );
-    };
+    let volume = BakeFolder::new(bake_dir).read_volume(from, &Limits::default())?;
     let stage = Stage::start("light");
-    let lit = light_field(field, &kept.valid, sky, &stage)?;
+    let lit = match volume {
+        FolderVolume::Mbd(container) => light_container(&container, sky, &stage)?,
+        FolderVolume::Kept { field, valid, .. } => light_field(&field, &valid, sky, &stage)?,
+    };
     stage.finish();
     Ok(lit)
 }

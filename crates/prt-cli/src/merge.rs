@@ -5,15 +5,12 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use prt_bake::TileSeams;
+use prt_bake::{BakeFolder, TileSeams};
 use serde_json::json;
 
 use crate::bake::{KeepVolumes, cli_error, default_memory_budget, write_outputs};
 use crate::plan::{limits, load_scene, read_plan};
 use crate::progress::{Stage, StageBars};
-
-/// File of the merge's tile measures inside the bake folder.
-pub const TILES_REPORT: &str = "tiles.json";
 
 /// Options of `prt merge`.
 #[derive(Debug, clap::Args)]
@@ -80,7 +77,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     let assembled = prt_bake::assemble(&plan, &args.plan_dir, &limits())?;
     stage.finish();
     let config = prt_bake::BakeConfig {
-        container: Some(args.out.join("mbd")),
+        container: Some(BakeFolder::new(&args.out).container_dir()),
         ..plan.config.clone()
     };
     let prt_bake::AssembledVolume {
@@ -97,7 +94,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     write_outputs(&args.out, &scene, &baked, args.keep_volumes, load, total)?;
 
     let report = tiles_report(&plan, halo, &seams);
-    let path = args.out.join(TILES_REPORT);
+    let path = BakeFolder::new(&args.out).tiles_report();
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     println!(
@@ -127,7 +124,7 @@ fn run_streamed(
     total: Instant,
 ) -> Result<()> {
     let config = prt_bake::BakeConfig {
-        container: Some(args.out.join("mbd")),
+        container: Some(BakeFolder::new(&args.out).container_dir()),
         ..plan.config.clone()
     };
     let stage = Stage::start("streamed merge");
@@ -141,7 +138,7 @@ fn run_streamed(
         &stage,
     )?;
     stage.finish();
-    let mesh = args.out.join(crate::render::SCENE_MESH);
+    let mesh = BakeFolder::new(&args.out).scene_mesh();
     prt_render::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
     let valid = merged.valid.iter().filter(|&&v| v).count();
@@ -167,7 +164,7 @@ fn run_streamed(
             "total_seconds": total.elapsed().as_secs_f64(),
         },
     });
-    let path = args.out.join(TILES_REPORT);
+    let path = BakeFolder::new(&args.out).tiles_report();
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     let errors: Vec<String> = merged

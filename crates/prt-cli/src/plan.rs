@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use prt_bake::{MemoryEstimate, PlanWritten, SceneInput, TilePlan};
+use prt_bake::{BakeFolder, MemoryEstimate, PlanWritten, SceneInput, TilePlan};
 use prt_texture::Limits;
 
 use crate::bake::{BakeArgs, KeepVolumes, cli_error, default_memory_budget};
@@ -82,7 +82,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
     if args.bake.keep_volumes != KeepVolumes::Auto {
         bail!("--keep-volumes is a flag of `prt merge`, which writes the bake folder");
     }
-    let config = args.bake.config(Some(PathBuf::from("mbd")));
+    let config = args.bake.config(Some(PathBuf::from(BakeFolder::CONTAINER)));
     config.validate().map_err(cli_error)?;
     let scene = match &args.bake.scene {
         Some(path) => SceneInput::load_gltf(path).map_err(cli_error)?,

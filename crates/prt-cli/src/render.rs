@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use prt_bake::{REFERENCE, read_container, read_volumes};
+use prt_bake::{BakeFolder, FolderVolume, REFERENCE};
 use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
@@ -20,9 +20,6 @@ use prt_trace::{RayTracer, Scene};
 
 use crate::progress::Stage;
 use crate::sky::SkyArgs;
-
-/// The scene mesh `prt bake` writes into its output folder.
-pub const SCENE_MESH: &str = "scene.mesh";
 
 /// Which volume lights the render.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -41,7 +38,7 @@ impl MethodArg {
     fn key(self) -> &'static str {
         match self {
             MethodArg::Reference => REFERENCE,
-            MethodArg::Mbd => "mbd",
+            MethodArg::Mbd => BakeFolder::CONTAINER,
             MethodArg::Bpca => "bpca",
             MethodArg::Cpca => "cpca",
         }
@@ -141,55 +138,32 @@ fn format_of(path: &Path) -> Result<Format> {
 
 /// The scene of a bake folder, from its scene mesh.
 pub fn load_scene(bake_dir: &Path) -> Result<Scene> {
-    let path = bake_dir.join(SCENE_MESH);
-    if !path.is_file() {
-        bail!(
-            "{} has no {SCENE_MESH}: is it a folder written by `prt bake --out`?",
-            bake_dir.display()
-        );
-    }
+    let path = BakeFolder::new(bake_dir).existing_scene_mesh()?;
     read_mesh(&path, &Limits::default()).with_context(|| format!("cannot read {}", path.display()))
 }
 
 /// The volume of `method` in a bake folder, relit by `sky`.
 fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<RelitVolume> {
-    let limits = Limits::default();
-    if method == MethodArg::Mbd {
-        let folder = bake_dir.join("mbd");
-        let container = read_container(&folder, &limits)
-            .with_context(|| format!("cannot read the MBD container {}", folder.display()))?;
-        let bounds = grid_bounds(
-            container.model.coefficient_kernels().domain(),
-            container.grid,
-        );
-        return RelitVolume::from_model(
-            &container.model,
-            container.grid,
-            bounds,
-            &container.valid,
-            sky,
-        )
-        .context("cannot relight the MBD container");
-    }
-    let folder = bake_dir.join("volumes");
-    if !folder.is_dir() {
-        bail!(
-            "--method {} needs the kept volumes ({}), which this bake did not write (bake with \
-             --keep-volumes always)",
-            method.key(),
-            folder.display()
-        );
-    }
-    let kept = read_volumes(&folder, &limits)
-        .with_context(|| format!("cannot read the kept volumes {}", folder.display()))?;
-    let field = kept.get(method.key()).with_context(|| {
-        format!(
-            "the kept volumes hold no {} volume (the bake ran without baselines?)",
-            method.key()
-        )
-    })?;
-    RelitVolume::from_transfer(field, &kept.valid, sky)
-        .with_context(|| format!("cannot relight the {} volume", method.key()))
+    let volume = BakeFolder::new(bake_dir)
+        .read_volume(method.key(), &Limits::default())
+        .with_context(|| format!("--method {}", method.key()))?;
+    let relit = match volume {
+        FolderVolume::Mbd(container) => {
+            let bounds = grid_bounds(
+                container.model.coefficient_kernels().domain(),
+                container.grid,
+            );
+            RelitVolume::from_model(
+                &container.model,
+                container.grid,
+                bounds,
+                &container.valid,
+                sky,
+            )
+        }
+        FolderVolume::Kept { field, valid, .. } => RelitVolume::from_transfer(&field, &valid, sky),
+    };
+    relit.with_context(|| format!("cannot relight the {} volume", method.key()))
 }
 
 /// What lights the render: the volume of `method` read by `lookup`.
@@ -303,7 +277,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             String::new()
         }
     );
-    let kept = args.bake_dir.join("volumes").is_dir();
+    let kept = BakeFolder::new(&args.bake_dir).has_volumes();
     if args.compare && !kept {
         bail!(
             "--compare needs the reference volume, which this bake did not keep (bake with \

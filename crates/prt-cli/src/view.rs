@@ -18,6 +18,7 @@ use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use prt_bake::BakeFolder;
 use prt_render::{read_mesh, views};
 use prt_sphere::Sky;
 use prt_texture::Limits;
@@ -29,8 +30,6 @@ use crate::sky::parse_sky;
 const INDEX_HTML: &str = include_str!("../viewer/index.html");
 const VIEWER_JS: &str = include_str!("../viewer/viewer.js");
 
-/// The scene mesh `prt bake` writes into its output folder (`prt render` reads the same file).
-const SCENE_MESH: &str = "scene.mesh";
 /// Largest request head we read; browsers send well under 2 KiB.
 const MAX_REQUEST_BYTES: usize = 8192;
 /// Buffer of a streamed answer: files are sent in writes of at most this many bytes.
@@ -157,7 +156,7 @@ fn skies_json(skies: &[(String, Sky)]) -> String {
 
 /// The scene's views in `prt render --camera` order, as JSON.
 fn views_json(bake_dir: &Path) -> Result<String> {
-    let path = bake_dir.join(SCENE_MESH);
+    let path = BakeFolder::new(bake_dir).existing_scene_mesh()?;
     let scene = read_mesh(&path, &Limits::default())
         .with_context(|| format!("cannot read {}", path.display()))?;
     let list: Vec<_> = views(&scene)
@@ -180,10 +179,12 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         .bake_dir
         .canonicalize()
         .with_context(|| format!("cannot open the bake folder {}", args.bake_dir.display()))?;
-    if !root.join("mbd").join("manifest.json").is_file() {
+    let folder = BakeFolder::new(&root);
+    if !folder.has_container() {
         bail!(
-            "{} has no mbd/manifest.json: is it a folder written by `prt bake --out`?",
-            root.display()
+            "{} has no {}/manifest.json: is it a folder written by `prt bake --out`?",
+            root.display(),
+            BakeFolder::CONTAINER
         );
     }
     let mut skies = vec![("default".to_string(), Sky::default())];

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Result;
-use prt_bake::{BLUR_SIGMA, Bake, MethodScores};
+use prt_bake::{BLUR_SIGMA, Bake, BakeFolder, MethodScores};
 use prt_texture::write_atomic;
 use serde_json::json;
 
@@ -238,7 +238,7 @@ pub fn write_report(
         md += &format!("| {stage} | {s:.2} |\n");
     }
     md += &format!("| total | {:.2} |\n", report.total_seconds);
-    write_atomic(&out_dir.join("report.md"), md.as_bytes())?;
+    write_atomic(&BakeFolder::new(out_dir).report_md(), md.as_bytes())?;
 
     let rows: Vec<_> = baked
         .comparison
@@ -303,7 +303,7 @@ pub fn write_report(
         "total_seconds": report.total_seconds,
     });
     write_atomic(
-        &out_dir.join("report.json"),
+        &BakeFolder::new(out_dir).report_json(),
         serde_json::to_string_pretty(&doc)?.as_bytes(),
     )?;
     Ok(())
