@@ -75,7 +75,7 @@ pub enum ProductionError {
 /// (divide by π for the exit radiance of a white Lambertian surface). Layout `d = 4c + k`:
 /// colour c = R, G, B major, then k = L0, L1 m = −1 (y), m = 0 (z), m = +1 (x) in prt's SH
 /// convention: one RGBA texel per colour, the order of
-/// [`ShL1Layout::PerChannel`](prt_texture::engine::ShL1Layout::PerChannel).
+/// `prt_export::layout::ShL1Layout::PerChannel`.
 ///
 /// # Errors
 /// [`ProductionError::InvalidInput`] if the field is not 324-D.

@@ -2,8 +2,8 @@
 
 use std::path::Path;
 
+use crate::textures::{AmbientCubeVolume, bevy_irradiance_volume_as};
 use prt_texture::PixelFormat;
-use prt_texture::engine::{AmbientCubeVolume, bevy_irradiance_volume_as};
 use serde_json::json;
 
 use crate::ambient::ambient_cube;

@@ -56,6 +56,7 @@ mod nonneg;
 mod preview;
 mod sh;
 mod skyjson;
+mod textures;
 mod threejs;
 mod write;
 
@@ -71,8 +72,8 @@ pub use skyjson::sky_from_json;
 pub use threejs::{ThreejsConfig, ThreejsExport, export_threejs};
 pub use write::WrittenFile;
 
-/// The engines' layouts behind the exports: file names, the padding, Bevy's ambient cubes,
-/// three.js's SH basis and atlas, the SH volumes' textures. For tests, importers and code that
+/// The engines' layouts behind the exports: file names, the padding, Bevy's ambient cubes and
+/// irradiance-volume texture, three.js's SH basis and atlas, the SH volumes' textures. For tests, importers and code that
 /// reads an export back.
 pub mod layout {
     pub use crate::ambient::{
@@ -82,6 +83,11 @@ pub mod layout {
     pub use crate::nonneg::test_directions;
     pub use crate::sh::{
         SH_EXR_FILE, SH_L1_FILES, SH_L2_FILE, SH_LAYER_NAMES, SH_MANIFEST, sh_l1, sh_l2_texture,
+    };
+    pub use crate::textures::{
+        AMBIENT_CUBE_SIDES, AmbientCubeVolume, ShL1Layout, ShL1Volume, bevy_irradiance_volume,
+        bevy_irradiance_volume_as, bevy_irradiance_volume_decode, sh_l1_volume,
+        sh_l1_volume_decode,
     };
     pub use crate::threejs::{
         ATLAS_SUBVOLUMES, ENGINE_PADDING, THREEJS_PLACEMENT, THREEJS_TEXTURE, sh_to_threejs,

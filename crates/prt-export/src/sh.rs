@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use prt_texture::engine::{ShL1Layout, ShL1Volume, sh_l1_volume};
+use crate::textures::{ShL1Layout, ShL1Volume, sh_l1_volume};
 use prt_texture::exr_io::{ExrLayer, ExrSample, encode_exr};
 use prt_texture::{Ktx2Texture, PixelFormat, Shape};
 use serde_json::json;

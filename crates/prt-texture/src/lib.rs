@@ -11,7 +11,6 @@
 //! | [`exr_io`] | OpenEXR through the `exr` crate (RGB/RGBA, f16/f32, layers) |
 //! | [`hdr`] | Radiance RGBE (`.hdr`) read (flat, old and new RLE) and write (new RLE) |
 //! | [`dds`] | DDS output through `ddsfile` (DXGI RGBA32F, RGBA16F, RGB9E5) |
-//! | [`engine`] | Bevy's irradiance volume and L1 SH probe-volume textures |
 //! | [`container`] | the prt container: versioned JSON manifest + one KTX2 texture per array (MBD models) |
 //!
 //! ## Method
@@ -65,7 +64,6 @@ mod atomic;
 mod bricks;
 pub mod container;
 pub mod dds;
-pub mod engine;
 mod error;
 pub mod exr_io;
 pub mod format;

@@ -1,4 +1,4 @@
-//! Probe-volume layouts that engines load directly.
+//! The probe-volume textures engines load directly.
 //!
 //! * [`bevy_irradiance_volume`]: Bevy's irradiance volume (bevy_pbr's `irradiance_volume`): an
 //!   ambient-cube volume of resolution (Rx, Ry, Rz) as one RGB9E5 (or RGBA16F,
@@ -13,8 +13,10 @@
 //! Volumes are node-major, x fastest, then y, then z; texture texel (x, y, z) is voxel
 //! (x, y, z).
 
-use crate::ktx2::{Ktx2Texture, Shape};
-use crate::{PixelFormat, TextureError};
+use prt_texture::ktx2::Shape;
+use prt_texture::{Ktx2Texture, PixelFormat};
+
+use crate::ExportError;
 
 /// Ambient-cube sides in the order of [`AmbientCubeVolume::data`]: +X, -X, +Y, -Y, +Z, -Z.
 pub const AMBIENT_CUBE_SIDES: [&str; 6] = ["+X", "-X", "+Y", "-Y", "+Z", "-Z"];
@@ -28,23 +30,25 @@ pub struct AmbientCubeVolume {
     pub data: Vec<f32>,
 }
 
-fn voxel_count(dims: [u32; 3]) -> Result<usize, TextureError> {
+fn voxel_count(dims: [u32; 3]) -> Result<usize, ExportError> {
     if dims.contains(&0) {
-        return Err(TextureError::invalid("volume dimensions", "zero size"));
+        return Err(ExportError::invalid("volume dimensions", "zero size"));
     }
-    let n = crate::limits::checked_product("voxel count", &dims.map(u64::from))?;
-    usize::try_from(n).map_err(|_| TextureError::TooLarge {
-        what: "voxel count",
-        value: n,
-        limit: usize::MAX as u64,
-    })
+    dims.iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d as usize))
+        .ok_or_else(|| ExportError::invalid("volume dimensions", format!("{dims:?} overflow")))
+}
+
+/// The error of `got` values where `expected` were needed.
+fn length_mismatch(what: &'static str, expected: usize, got: usize) -> ExportError {
+    ExportError::invalid(what, format!("{got} values, expected {expected}"))
 }
 
 /// Bevy's irradiance-volume texture: (Rx, 2Ry, 3Rz), `E5B9G9R9_UFLOAT_PACK32`.
 ///
-/// Values must be finite, non-negative and at most [`crate::quant::RGB9E5_MAX`] (typed errors
-/// otherwise); each channel is then stored within [`crate::quant::rgb9e5_error_bound`].
-pub fn bevy_irradiance_volume(volume: &AmbientCubeVolume) -> Result<Ktx2Texture, TextureError> {
+/// Values must be finite, non-negative and at most [`prt_texture::quant::RGB9E5_MAX`] (typed errors
+/// otherwise); each channel is then stored within [`prt_texture::quant::rgb9e5_error_bound`].
+pub fn bevy_irradiance_volume(volume: &AmbientCubeVolume) -> Result<Ktx2Texture, ExportError> {
     bevy_irradiance_volume_as(volume, PixelFormat::E5B9G9R9UfloatPack32)
 }
 
@@ -54,12 +58,12 @@ pub fn bevy_irradiance_volume(volume: &AmbientCubeVolume) -> Result<Ktx2Texture,
 pub fn bevy_irradiance_volume_as(
     volume: &AmbientCubeVolume,
     format: PixelFormat,
-) -> Result<Ktx2Texture, TextureError> {
+) -> Result<Ktx2Texture, ExportError> {
     let channels = match format {
         PixelFormat::E5B9G9R9UfloatPack32 => 3,
         PixelFormat::R16G16B16A16Sfloat => 4,
         other => {
-            return Err(TextureError::invalid(
+            return Err(ExportError::invalid(
                 "Bevy volume format",
                 format!("{other:?} (must be RGB9E5 or RGBA16F)"),
             ));
@@ -68,14 +72,19 @@ pub fn bevy_irradiance_volume_as(
     let [rx, ry, rz] = volume.dims;
     let voxels = voxel_count(volume.dims)?;
     if volume.data.len() != 18 * voxels {
-        return Err(TextureError::LengthMismatch {
-            what: "ambient cube data",
-            expected: 18 * voxels,
-            got: volume.data.len(),
-        });
+        return Err(length_mismatch(
+            "ambient cube data",
+            18 * voxels,
+            volume.data.len(),
+        ));
     }
     for d in [2 * u64::from(ry), 3 * u64::from(rz)] {
-        crate::limits::check_at_most("Bevy volume texture dimension", d, u64::from(u32::MAX))?;
+        if d > u64::from(u32::MAX) {
+            return Err(ExportError::invalid(
+                "Bevy volume texture dimension",
+                format!("{d} over {}", u32::MAX),
+            ));
+        }
     }
     let (w, h) = (rx as usize, 2 * ry as usize);
     let mut texels = vec![1f32; channels * voxels * 6];
@@ -95,13 +104,17 @@ pub fn bevy_irradiance_volume_as(
             }
         }
     }
-    Ktx2Texture::from_f32(format, Shape::d3(rx, 2 * ry, 3 * rz), &[texels])
+    Ok(Ktx2Texture::from_f32(
+        format,
+        Shape::d3(rx, 2 * ry, 3 * rz),
+        &[texels],
+    )?)
 }
 
 /// Reads an ambient-cube volume back from a Bevy irradiance-volume texture.
 pub fn bevy_irradiance_volume_decode(
     texture: &Ktx2Texture,
-) -> Result<AmbientCubeVolume, TextureError> {
+) -> Result<AmbientCubeVolume, ExportError> {
     let s = texture.shape();
     if !s.height.is_multiple_of(2)
         || !s.depth.is_multiple_of(3)
@@ -109,7 +122,7 @@ pub fn bevy_irradiance_volume_decode(
         || s.layers != 0
         || s.faces != 1
     {
-        return Err(TextureError::malformed(
+        return Err(ExportError::invalid(
             "Bevy irradiance volume",
             "texture is not (Rx, 2Ry, 3Rz)",
         ));
@@ -119,7 +132,7 @@ pub fn bevy_irradiance_volume_decode(
     let texels = texture.level_f32(0)?;
     let channels = texture.format().channels();
     if channels < 3 {
-        return Err(TextureError::malformed(
+        return Err(ExportError::invalid(
             "Bevy irradiance volume",
             "fewer than 3 channels",
         ));
@@ -164,23 +177,23 @@ pub fn sh_l1_volume(
     volume: &ShL1Volume,
     layout: ShL1Layout,
     format: PixelFormat,
-) -> Result<Vec<Ktx2Texture>, TextureError> {
+) -> Result<Vec<Ktx2Texture>, ExportError> {
     if !matches!(
         format,
         PixelFormat::R16G16B16A16Sfloat | PixelFormat::R32G32B32A32Sfloat
     ) {
-        return Err(TextureError::invalid(
+        return Err(ExportError::invalid(
             "SH volume format",
             format!("{format:?} (must be RGBA16F or RGBA32F)"),
         ));
     }
     let voxels = voxel_count(volume.dims)?;
     if volume.data.len() != 12 * voxels {
-        return Err(TextureError::LengthMismatch {
-            what: "SH L1 data",
-            expected: 12 * voxels,
-            got: volume.data.len(),
-        });
+        return Err(length_mismatch(
+            "SH L1 data",
+            12 * voxels,
+            volume.data.len(),
+        ));
     }
     let count = match layout {
         ShL1Layout::PerChannel => 3,
@@ -199,7 +212,7 @@ pub fn sh_l1_volume(
                     }
                 }
             }
-            Ktx2Texture::from_f32(format, shape, &[texels])
+            Ok(Ktx2Texture::from_f32(format, shape, &[texels])?)
         })
         .collect()
 }
@@ -208,17 +221,13 @@ pub fn sh_l1_volume(
 pub fn sh_l1_volume_decode(
     textures: &[Ktx2Texture],
     layout: ShL1Layout,
-) -> Result<ShL1Volume, TextureError> {
+) -> Result<ShL1Volume, ExportError> {
     let count = match layout {
         ShL1Layout::PerChannel => 3,
         ShL1Layout::PerCoefficient => 4,
     };
     let Some(first) = textures.first().filter(|_| textures.len() == count) else {
-        return Err(TextureError::LengthMismatch {
-            what: "SH L1 textures",
-            expected: count,
-            got: textures.len(),
-        });
+        return Err(length_mismatch("SH L1 textures", count, textures.len()));
     };
     let s = first.shape();
     if s.depth == 0
@@ -226,7 +235,7 @@ pub fn sh_l1_volume_decode(
             .iter()
             .any(|t| t.shape() != s || t.format().channels() != 4)
     {
-        return Err(TextureError::malformed(
+        return Err(ExportError::invalid(
             "SH L1 volume",
             "textures of different shapes or formats",
         ));

@@ -2,7 +2,8 @@
 //! bevy_pbr's shader) and L1 SH probe textures.
 
 use proptest::prelude::*;
-use prt_texture::engine::{
+use prt_export::ExportError;
+use prt_export::layout::{
     AmbientCubeVolume, ShL1Layout, ShL1Volume, bevy_irradiance_volume,
     bevy_irradiance_volume_decode, sh_l1_volume, sh_l1_volume_decode,
 };
@@ -85,12 +86,12 @@ fn bevy_volume_rejects_negative_and_wrongly_sized_input() {
     volume.data[7] = -0.5;
     assert!(matches!(
         bevy_irradiance_volume(&volume),
-        Err(TextureError::OutOfRange { .. })
+        Err(ExportError::Texture(TextureError::OutOfRange { .. }))
     ));
     volume.data.pop();
     assert!(matches!(
         bevy_irradiance_volume(&volume),
-        Err(TextureError::LengthMismatch { .. })
+        Err(ExportError::Invalid { .. })
     ));
     let empty = AmbientCubeVolume {
         dims: [0, 1, 1],
@@ -168,7 +169,7 @@ fn sh_l1_texel_contents_follow_the_layout() {
 
 #[test]
 fn bevy_volume_in_rgba16f_keeps_the_layout_and_decodes_to_f16_rounding() {
-    use prt_texture::engine::bevy_irradiance_volume_as;
+    use prt_export::layout::bevy_irradiance_volume_as;
     let dims = [2u32, 3, 2];
     let data: Vec<f32> = (0..18 * 12).map(|i| 0.1 + i as f32 * 0.37).collect();
     let volume = AmbientCubeVolume { dims, data };
