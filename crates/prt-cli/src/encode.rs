@@ -18,7 +18,7 @@ use serde_json::json;
 
 /// How the coefficients are fitted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum Method {
+pub enum EncodeMethod {
     /// Least squares over the samples (normal equations in f64).
     Ls,
     /// Non-negative least squares over the samples (Lawson-Hanson).
@@ -54,8 +54,8 @@ pub struct EncodeArgs {
     #[arg(long, default_value_t = 6.0)]
     pub lambda: f32,
     /// Fitting method.
-    #[arg(long, value_enum, default_value_t = Method::Progressive)]
-    pub method: Method,
+    #[arg(long, value_enum, default_value_t = EncodeMethod::Progressive)]
+    pub method: EncodeMethod,
     /// Fit samples (Halton(2,3) directions, nearest texel).
     #[arg(long, default_value_t = 20000)]
     pub samples: usize,
@@ -75,7 +75,7 @@ pub fn run(args: &EncodeArgs) -> Result<()> {
         Frame::Conventions => LatLongFrame::Conventions,
         Frame::Probulator => LatLongFrame::Probulator,
     };
-    let coefficients = if args.method == Method::MapLs {
+    let coefficients = if args.method == EncodeMethod::MapLs {
         reference::least_squares_map(basis.as_ref(), &map, frame)?
     } else {
         let dirs = sampling::halton_sphere(args.samples);
@@ -126,18 +126,18 @@ fn parse_basis(spec: &str, lambda: f32) -> Result<(Box<dyn SphericalBasis>, bool
 
 fn fit(
     basis: &dyn SphericalBasis,
-    method: Method,
+    method: EncodeMethod,
     dirs: &[Vec3],
     values: &[f32],
 ) -> Result<Vec<f32>> {
     Ok(match method {
-        Method::Ls => reference::least_squares_samples(basis, dirs, values, 3)?,
-        Method::Nnls => reference::nnls_samples(basis, dirs, values, 3)?,
-        Method::Projection => {
+        EncodeMethod::Ls => reference::least_squares_samples(basis, dirs, values, 3)?,
+        EncodeMethod::Nnls => reference::nnls_samples(basis, dirs, values, 3)?,
+        EncodeMethod::Projection => {
             reference::naive_projection(basis, dirs, values, 3, 4.0 * std::f64::consts::PI)?
         }
-        Method::MapLs => bail!("map least squares does not use samples"),
-        Method::Progressive => {
+        EncodeMethod::MapLs => bail!("map least squares does not use samples"),
+        EncodeMethod::Progressive => {
             let mut encoder = ProgressiveEncoder::new(basis, 3, EncoderConfig::paper())?;
             for (d, v) in dirs.iter().zip(values.chunks_exact(3)) {
                 encoder.add_sample(*d, v, 1.0)?;

@@ -593,9 +593,9 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
                 "/shaders/reconstruct.glsl" => {
                     // The coefficient volume's layout: dense unless `layout=bricks`.
                     let layout = if query.split('&').any(|kv| kv == "layout=bricks") {
-                        prt_shaders::CoefficientLayout::Bricks
+                        prt_shaders::CoefficientStorage::Bricks
                     } else {
-                        prt_shaders::CoefficientLayout::Dense
+                        prt_shaders::CoefficientStorage::Dense
                     };
                     prt_shaders::glsl_reconstruct_for(rank, layout)
                 }

@@ -18,7 +18,7 @@ pub const SIDES: [Vec3; 6] = [
 ];
 
 /// Six RGB values, one per side in the order of [`SIDES`].
-pub type AmbientCube = [[f32; 3]; 6];
+pub type AmbientCubeColours = [[f32; 3]; 6];
 
 /// How the six sides of an ambient cube are chosen to reproduce `E(n) / π` (irradiance over π,
 /// the radiance a white Lambertian surface reflects: what Bevy multiplies by the diffuse colour).
@@ -53,7 +53,7 @@ fn irradiance_over_pi(l: &RadianceSh, n: Vec3) -> [f64; 3] {
 
 /// The ambient cube of radiance SH `l` by `fit`. Sides can come out negative where the SH
 /// itself rings below zero; writers clamp them.
-pub fn ambient_cube(l: &RadianceSh, fit: AmbientCubeFit) -> AmbientCube {
+pub fn ambient_cube(l: &RadianceSh, fit: AmbientCubeFit) -> AmbientCubeColours {
     match fit {
         AmbientCubeFit::Axes => SIDES.map(|d| irradiance_over_pi(l, d).map(|v| v as f32)),
         AmbientCubeFit::LeastSquares => {
@@ -69,7 +69,7 @@ pub fn ambient_cube(l: &RadianceSh, fit: AmbientCubeFit) -> AmbientCube {
 
 /// Bevy's ambient-cube blend (bevy_pbr's `irradiance_volume_light`, without the intensity):
 /// `Σ_a n_a² · side(a, sign n_a)`, the negative side where `n_a < 0`.
-pub fn ambient_cube_blend(cube: &AmbientCube, n: Vec3) -> Vec3 {
+pub fn ambient_cube_blend(cube: &AmbientCubeColours, n: Vec3) -> Vec3 {
     let side = |axis: usize| {
         let s = if n[axis] < 0.0 {
             2 * axis + 1

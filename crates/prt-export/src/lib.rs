@@ -77,7 +77,7 @@ pub use write::WrittenFile;
 /// reads an export back.
 pub mod layout {
     pub use crate::ambient::{
-        AmbientCube, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
+        AmbientCubeColours, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
     };
     pub use crate::bevy::{BEVY_PLACEMENT, BEVY_TEXTURE};
     pub use crate::nonneg::test_directions;

@@ -21,7 +21,7 @@
 //! |---|---|
 //! | [`wgsl_reconstruct`], [`wgsl_relight`] | complete WGSL modules for a rank (reconstruction functions with their bindings; the relighting compute shader) |
 //! | [`glsl_reconstruct`], [`glsl_relight`] | GLSL ES 3.00 sources for a rank: the reconstruction functions (append your `main`), the relighting fragment shader |
-//! | [`wgsl_reconstruct_for`], [`glsl_reconstruct_for`], [`CoefficientLayout`] | the reconstruction for a coefficient volume dense or in bricks (one indirection fetch per pixel) |
+//! | [`wgsl_reconstruct_for`], [`glsl_reconstruct_for`], [`CoefficientStorage`] | the reconstruction for a coefficient volume dense or in bricks (one indirection fetch per pixel) |
 //! | [`wgsl`], [`glsl`] | the source files as strings, for a page or an engine that assembles them itself |
 //! | [`RELIT_GROUPS`], [`BASIS_GROUPS`], [`coefficient_groups`] | texels per relit basis vector, per raw basis vector, per coefficient node |
 //!
@@ -34,9 +34,10 @@ pub const RELIT_GROUPS: usize = 7;
 /// Texels (RGBA) per raw basis vector: 324 values.
 pub const BASIS_GROUPS: usize = 81;
 
-/// How the container stores the coefficient volume (its `coefficients` array's `layout`).
+/// How a container stores its coefficient volume (its `coefficients` array's `layout`), as the
+/// shaders read it; `prt_bake::CoefficientLayout` is the writer's choice, which may be `Auto`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum CoefficientLayout {
+pub enum CoefficientStorage {
     /// `volume`: ⌈L/4⌉ tiles stacked along z.
     #[default]
     Dense,
@@ -99,15 +100,15 @@ fn glsl_header(rank: usize) -> String {
 /// `mbd_incident_radiance(x)` and `mbd_irradiance(sh, normal)` with the bindings of
 /// `reconstruct.wgsl`; add your entry points.
 pub fn wgsl_reconstruct(rank: usize) -> String {
-    wgsl_reconstruct_for(rank, CoefficientLayout::Dense)
+    wgsl_reconstruct_for(rank, CoefficientStorage::Dense)
 }
 
 /// [`wgsl_reconstruct`] for a coefficient volume in `layout` (bricks add binding 4, the
 /// indirection texture).
-pub fn wgsl_reconstruct_for(rank: usize, layout: CoefficientLayout) -> String {
+pub fn wgsl_reconstruct_for(rank: usize, layout: CoefficientStorage) -> String {
     let coefficients = match layout {
-        CoefficientLayout::Dense => wgsl::COEFFICIENTS_DENSE,
-        CoefficientLayout::Bricks => wgsl::COEFFICIENTS_BRICKS,
+        CoefficientStorage::Dense => wgsl::COEFFICIENTS_DENSE,
+        CoefficientStorage::Bricks => wgsl::COEFFICIENTS_BRICKS,
     };
     [
         &wgsl_header(rank),
@@ -128,22 +129,22 @@ pub fn wgsl_relight(rank: usize) -> String {
 /// (header, declarations, `mbd_incident_radiance`, `mbd_irradiance`): append your fragment
 /// shader's `main`.
 pub fn glsl_reconstruct(rank: usize) -> String {
-    glsl_reconstruct_for(rank, CoefficientLayout::Dense)
+    glsl_reconstruct_for(rank, CoefficientStorage::Dense)
 }
 
 /// [`glsl_reconstruct`] for a coefficient volume in `layout` (bricks add `u_mbd_bricks` and the
 /// indirection sampler `u_mbd_coefficient_indirection`).
-pub fn glsl_reconstruct_for(rank: usize, layout: CoefficientLayout) -> String {
+pub fn glsl_reconstruct_for(rank: usize, layout: CoefficientStorage) -> String {
     let header = glsl_header(rank);
     let parts: &[&str] = match layout {
-        CoefficientLayout::Dense => &[
+        CoefficientStorage::Dense => &[
             &header,
             glsl::COMMON,
             glsl::RECONSTRUCT_ES,
             glsl::COEFFICIENTS_DENSE,
             glsl::RECONSTRUCT,
         ],
-        CoefficientLayout::Bricks => &[
+        CoefficientStorage::Bricks => &[
             &header,
             glsl::COMMON,
             glsl::RECONSTRUCT_ES,

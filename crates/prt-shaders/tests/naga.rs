@@ -3,7 +3,7 @@
 //! GLSL front end reads Vulkan GLSL 4.40+ only.
 
 use naga::valid::{Capabilities, ValidationFlags, Validator};
-use prt_shaders::CoefficientLayout;
+use prt_shaders::CoefficientStorage;
 
 const RANKS: [usize; 4] = [1, 3, 4, 8];
 
@@ -36,7 +36,7 @@ fn fs_main(@location(0) world: vec3<f32>, @location(1) normal: vec3<f32>) -> @lo
 #[test]
 fn the_wgsl_modules_validate() {
     for rank in RANKS {
-        for layout in [CoefficientLayout::Dense, CoefficientLayout::Bricks] {
+        for layout in [CoefficientStorage::Dense, CoefficientStorage::Bricks] {
             let reconstruct = prt_shaders::wgsl_reconstruct_for(rank, layout) + WGSL_FRAGMENT;
             let what = format!("reconstruct.wgsl rank {rank}, {layout:?}");
             let module = parse_wgsl(&reconstruct, &what);
@@ -192,7 +192,7 @@ fn the_glsl_es_sources_are_complete() {
         );
         assert!(GLSL_BRICKS_450.contains(name));
     }
-    let bricks = prt_shaders::glsl_reconstruct_for(8, CoefficientLayout::Bricks);
+    let bricks = prt_shaders::glsl_reconstruct_for(8, CoefficientStorage::Bricks);
     assert!(
         bricks.starts_with("#version 300 es\n") && bricks.contains("u_mbd_coefficient_indirection")
     );
@@ -241,7 +241,7 @@ void main() {
             ("reconstruct", prt_shaders::glsl_reconstruct(rank) + main),
             (
                 "reconstruct_bricks",
-                prt_shaders::glsl_reconstruct_for(rank, CoefficientLayout::Bricks) + main,
+                prt_shaders::glsl_reconstruct_for(rank, CoefficientStorage::Bricks) + main,
             ),
             ("relight", prt_shaders::glsl_relight(rank)),
         ] {
