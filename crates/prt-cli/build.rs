@@ -8,6 +8,10 @@
 //! Likewise for the Bevy test (tests/bevy.rs): it needs the built examples/bevy binary, named
 //! by PRT_BEVY_EXAMPLE, and ../shared/scenes; without either it compiles as ignored, unless
 //! PRT_REQUIRE_BEVY=1 (set by .ci/run after building the example) and PRT_REQUIRE_SHARED=1.
+//!
+//! And for the Slurm test (tests/slurm.rs): it starts munged, slurmctld and slurmd (Debian's
+//! munge and slurm-wlm) as root; without them, or not as root, it compiles as ignored, unless
+//! PRT_REQUIRE_SLURM=1 (set by .ci/run after installing them).
 
 use std::path::PathBuf;
 
@@ -15,6 +19,7 @@ fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_chromium)");
     println!("cargo::rustc-check-cfg=cfg(prt_skip_bevy)");
     println!("cargo::rustc-check-cfg=cfg(prt_skip_threejs)");
+    println!("cargo::rustc-check-cfg=cfg(prt_skip_slurm)");
     println!("cargo::rerun-if-changed=build.rs");
     println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CHROMIUM");
     println!("cargo::rerun-if-env-changed=PRT_CHROMIUM");
@@ -41,6 +46,40 @@ fn main() {
     if skip_threejs() {
         println!("cargo::rustc-cfg=prt_skip_threejs");
     }
+    if skip_slurm() {
+        println!("cargo::rustc-cfg=prt_skip_slurm");
+    }
+}
+
+/// Whether tests/slurm.rs lacks Slurm's and munge's programs, or root, and may skip.
+fn skip_slurm() -> bool {
+    use std::os::unix::fs::MetadataExt;
+    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SLURM");
+    if std::env::var_os("PRT_REQUIRE_SLURM").is_some_and(|v| v == "1") {
+        return false;
+    }
+    // The daemons live in sbin, which a user's PATH may lack.
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    let dirs: Vec<PathBuf> = std::env::split_paths(&path)
+        .chain(["/usr/sbin", "/usr/local/sbin"].map(PathBuf::from))
+        .collect();
+    let mut missing = false;
+    for name in [
+        "munged",
+        "slurmctld",
+        "slurmd",
+        "sbatch",
+        "squeue",
+        "sinfo",
+        "scontrol",
+    ] {
+        match dirs.iter().map(|d| d.join(name)).find(|c| c.is_file()) {
+            Some(binary) => println!("cargo::rerun-if-changed={}", binary.display()),
+            None => missing = true,
+        }
+    }
+    let root = std::fs::metadata("/proc/self").is_ok_and(|m| m.uid() == 0);
+    missing || !root
 }
 
 /// Whether tests/threejs.rs lacks three.js (`npm ci` in examples/threejs installs the pinned

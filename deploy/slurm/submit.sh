@@ -1,19 +1,131 @@
 #!/bin/bash
-# Plans a tiled bake, submits one array task per tile and the merge after all of them.
-# Usage: deploy/slurm/submit.sh SCENE PLAN_DIR BAKE_DIR X,Y,Z [prt plan flags...]
-# e.g.   deploy/slurm/submit.sh /shared/Sponza.gltf /shared/plan /shared/out 4,4,1 --res 256
+# Submits a planned tiled bake to Slurm: one array task per tile not yet finished
+# (prt-bake.sbatch), then the merge (prt-merge.sbatch) once that array has ended.
+#
+#   prt plan SCENE --tiles X,Y,Z [prt bake's knobs] --out PLAN_DIR
+#   deploy/slurm/submit.sh PLAN_DIR BAKE_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
+#   deploy/slurm/submit.sh --resume PLAN_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
+#
+# Options after `--` go to both jobs' sbatch, those after `--merge` to the merge's only (a later
+# option wins). Without -c/--cpus-per-task a job asks for the CPUs of the partition's largest
+# node, at most 8, so that it never pends on a node too small. Logs: PLAN_DIR/logs/
+# slurm-tile-INDEX.log and slurm-merge.log, appended by every attempt. The submission (BAKE_DIR,
+# options) and the job ids are kept in PLAN_DIR/slurm/: --resume submits, with them and any new
+# options after them, the tiles not finished for the plan (failed, cancelled, never run) and the
+# merge again. Both refuse while a job they submitted for this plan is queued or running.
 set -euo pipefail
-if [ "$#" -lt 4 ]; then
-    echo "usage: $0 SCENE PLAN_DIR BAKE_DIR X,Y,Z [prt plan flags...]" >&2
+usage() {
+    echo "usage: $0 PLAN_DIR BAKE_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]" >&2
+    echo "       $0 --resume PLAN_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]" >&2
     exit 2
-fi
-scene=$1 plan=$2 out=$3 tiles=$4
-shift 4
+}
+fail() {
+    echo "error: $*" >&2
+    exit 1
+}
 here=$(cd "$(dirname "$0")" && pwd)
-prt plan "$scene" --tiles "$tiles" --out "$plan" "$@"
-IFS=, read -r tx ty tz <<<"$tiles"
-count=$((tx * ty * tz))
-export PLAN_DIR=$plan BAKE_DIR=$out
-array=$(sbatch --parsable --export=ALL --array=0-$((count - 1)) "$here/prt-bake.sbatch")
-merge=$(sbatch --parsable --export=ALL --dependency=afterok:"$array" "$here/prt-merge.sbatch")
-echo "tiles: job $array (array 0-$((count - 1))), merge: job $merge"
+resume=false
+if [ "${1:-}" = --resume ]; then
+    resume=true
+    shift
+fi
+[ "$#" -ge 1 ] || usage
+[ -f "$1/plan.json" ] || fail "$1 holds no plan.json: write the plan with prt plan first"
+plan=$(cd "$1" && pwd)
+shift
+state=$plan/slurm
+args_file=$state/submit.args
+jobs_file=$state/jobs
+
+# The options: both=(for both jobs) merge=(for the merge only), from `-- ... [--merge ...]`.
+both=() merge=()
+take_options() {
+    [ "$#" -eq 0 ] && return
+    [ "$1" = -- ] || usage
+    shift
+    local into=both opt
+    for opt in "$@"; do
+        if [ "$opt" = --merge ]; then
+            into=merge
+        elif [ "$into" = both ]; then
+            both+=("$opt")
+        else
+            merge+=("$opt")
+        fi
+    done
+}
+if $resume; then
+    [ -f "$args_file" ] || fail "nothing was submitted for $plan ($args_file is missing): run $0 PLAN_DIR BAKE_DIR"
+    mapfile -d '' -t saved <"$args_file"
+    bake=${saved[0]}
+    take_options "${saved[@]:1}"
+else
+    [ "$#" -ge 1 ] || usage
+    bake=$1
+    shift
+    case $bake in /*) ;; *) bake=$PWD/$bake ;; esac
+fi
+take_options "$@"
+
+# A second submission while the first runs would trace tiles twice and merge twice.
+if [ -f "$jobs_file" ]; then
+    ours=$({ grep -oE "(tiles|merge)=[0-9]+" "$jobs_file" || true; } | cut -d= -f2 | sort -u)
+    queued=$(squeue -h -o '%F' | sort -u)
+    active=$(comm -12 <(echo "$ours") <(echo "$queued") | paste -sd, -)
+    [ -z "$active" ] || fail "jobs $active of this plan are still queued or running: wait for them, or scancel them, then run $0 --resume $plan"
+fi
+
+# `--cpus-per-task=N` with N the CPUs of the largest node of the job's partition, at most 8;
+# nothing when the options or the sbatch file already ask for CPUs.
+cpus_for() {
+    local file=$1 partition=${SBATCH_PARTITION:-} next=false opt most
+    shift
+    grep -qE '^#SBATCH[[:space:]]+(-c|--cpus-per-task)' "$file" && return
+    for opt in "$@"; do
+        if $next; then
+            partition=$opt next=false
+            continue
+        fi
+        case $opt in
+            -c | -c* | --cpus-per-task | --cpus-per-task=*) return ;;
+            -p | --partition) next=true ;;
+            -p*) partition=${opt#-p} ;;
+            --partition=*) partition=${opt#--partition=} ;;
+        esac
+    done
+    if [ -n "$partition" ]; then
+        most=$(sinfo -h -N -p "$partition" -o '%c' | sort -n | tail -1)
+    else # the default partition, which sinfo marks with a *
+        most=$(sinfo -h -N -o '%c %P' | awk '$2 ~ /\*$/ { print $1 }' | sort -n | tail -1)
+    fi
+    [ -n "$most" ] || fail "sinfo lists no node in ${partition:-the default partition}: pass -p PARTITION or -c CPUS after --"
+    echo "--cpus-per-task=$((most < 8 ? most : 8))"
+}
+
+unfinished=$(prt bake-tile "$plan" --unfinished)
+mkdir -p "$plan/logs" "$state"
+printf '%s\0' "$bake" -- "${both[@]}" --merge "${merge[@]}" >"$args_file"
+export PLAN_DIR=$plan BAKE_DIR=$bake
+dependency=()
+if [ -n "$unfinished" ]; then
+    cpus=$(cpus_for "$here/prt-bake.sbatch" "${both[@]}")
+    tiles=$(sbatch --parsable --export=ALL --array="$unfinished" \
+        --output="$plan/logs/slurm-tile-%a.log" --open-mode=append \
+        ${cpus:+"$cpus"} "${both[@]}" "$here/prt-bake.sbatch")
+    tiles=${tiles%%;*}
+    echo "$(date -u +%FT%TZ) tiles=$tiles array=$unfinished" >>"$jobs_file"
+    # afterany, not afterok: after a failed tile the merge runs, finds the tile unfinished and
+    # fails naming it, instead of pending forever (DependencyNeverSatisfied).
+    dependency=(--dependency=afterany:"$tiles")
+    echo "tiles $unfinished: job $tiles"
+else
+    echo "every tile is finished"
+fi
+cpus=$(cpus_for "$here/prt-merge.sbatch" "${both[@]}" "${merge[@]}")
+job=$(sbatch --parsable --export=ALL "${dependency[@]}" \
+    --output="$plan/logs/slurm-merge.log" --open-mode=append \
+    ${cpus:+"$cpus"} "${both[@]}" "${merge[@]}" "$here/prt-merge.sbatch")
+job=${job%%;*}
+echo "$(date -u +%FT%TZ) merge=$job" >>"$jobs_file"
+echo "merge: job $job${dependency:+ once job ${tiles} has ended}, writing $bake"
+echo "logs: $plan/logs/slurm-*.log; after a failure: $0 --resume $plan"

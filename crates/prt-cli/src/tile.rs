@@ -34,6 +34,11 @@ pub struct TileArgs {
     /// Bake the tile again even if it finished (the same seed gives the same bytes).
     #[arg(long)]
     pub force: bool,
+    /// Print the tiles not finished for this plan (no done marker, or traced for another plan)
+    /// as a Slurm array list like `0-2,5`, an empty line when none, and bake nothing
+    /// (deploy/slurm/submit.sh submits these).
+    #[arg(long, conflicts_with_all = ["tile", "all", "force"])]
+    pub unfinished: bool,
     /// The scene file, when it lives at another path on this machine than in the plan (its
     /// content must hash as the plan's).
     #[arg(long)]
@@ -59,6 +64,17 @@ fn tile_index(explicit: Option<usize>, var: impl Fn(&str) -> Option<String>) -> 
 }
 
 pub fn run(args: &TileArgs) -> Result<()> {
+    if args.unfinished {
+        let plan = read_plan(&args.plan_dir)?;
+        let mut unfinished = Vec::new();
+        for i in 0..plan.tiles.len() {
+            if prt_bake::tile_status(&plan, &args.plan_dir, i)? != TileStatus::Done {
+                unfinished.push(i);
+            }
+        }
+        println!("{}", index_ranges(&unfinished));
+        return Ok(());
+    }
     if args.all {
         return run_all(args);
     }
@@ -99,6 +115,29 @@ pub fn run(args: &TileArgs) -> Result<()> {
         ),
     }
     Ok(())
+}
+
+/// Increasing indices as a Slurm `--array` list: runs of consecutive indices as `FIRST-LAST`,
+/// joined by commas (`0-2,5`).
+fn index_ranges(indices: &[usize]) -> String {
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for &i in indices {
+        match runs.last_mut() {
+            Some((_, last)) if *last + 1 == i => *last = i,
+            _ => runs.push((i, i)),
+        }
+    }
+    let text: Vec<String> = runs
+        .iter()
+        .map(|&(first, last)| {
+            if first == last {
+                first.to_string()
+            } else {
+                format!("{first}-{last}")
+            }
+        })
+        .collect();
+    text.join(",")
 }
 
 /// Runs one worker process (this binary) for tile `index` on a thread, and writes its output
@@ -232,6 +271,13 @@ mod tests {
             .map(|(k, v)| (k.to_string(), v.to_string()))
             .collect();
         move |name| vars.iter().find(|(k, _)| k == name).map(|(_, v)| v.clone())
+    }
+
+    #[test]
+    fn unfinished_tiles_print_as_a_slurm_array_list() {
+        assert_eq!(index_ranges(&[]), "");
+        assert_eq!(index_ranges(&[4]), "4");
+        assert_eq!(index_ranges(&[0, 1, 2, 5, 7, 8]), "0-2,5,7-8");
     }
 
     #[test]
