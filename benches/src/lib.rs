@@ -10,6 +10,7 @@
 
 mod cli;
 mod data;
+mod error;
 mod measure;
 mod plot;
 mod table;
@@ -19,6 +20,7 @@ pub mod mbd;
 
 pub use cli::BvhQuality;
 pub use data::{cache_dir, envmap_names, load_envmap, load_scene, save_png, shared_dir};
+pub use error::{RelativeError, relative_mse_at_centres};
 pub use measure::{
     Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, read_bandwidth,
     resident_bytes, thread_cpu_ns,

@@ -22,7 +22,7 @@ use clap::{Parser, ValueEnum};
 use glam::Vec3;
 use prt_bake::{BakeConfig, Method, Quality, SceneInput, Stage, bake, read_container};
 use prt_benches::mbd::{read_cached, write_cached};
-use prt_benches::{Stopwatch, Table, cache_dir, load_average, load_scene};
+use prt_benches::{RelativeError, Stopwatch, Table, cache_dir, load_average, load_scene};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_mbd::{EvalOptions, evaluate};
 use prt_texture::{Encoding, Limits};
@@ -276,12 +276,12 @@ fn cached_reference(
 /// `Σ‖a − b‖² / Σ‖a‖²` over the voxels of two fields on the same grid.
 fn voxel_relative_mse(a: &GridField, b: &GridField) -> f64 {
     assert_eq!(a.dims(), b.dims(), "the references share a grid");
-    let (mut error, mut energy) = (0.0f64, 0.0f64);
-    for (&x, &y) in a.data().iter().zip(b.data().iter()) {
-        error += (x as f64 - y as f64).powi(2);
-        energy += (x as f64).powi(2);
-    }
-    error / energy.max(f64::MIN_POSITIVE)
+    let mut sum = RelativeError::default();
+    sum.add(
+        b.data().as_slice().expect("standard layout"),
+        a.data().as_slice().expect("standard layout"),
+    );
+    sum.relative_mse()
 }
 
 /// Bakes `scene` with `config` (baselines off, container into `folder`), reads the container
@@ -372,30 +372,27 @@ fn interior_relative_mse(model: &dyn FieldModel, reference: &Reference, seed: u6
     let field = &reference.field;
     let size = field.voxel_size();
     let dim = field.dim();
-    let sums: Vec<(f64, f64)> = (0..field.num_voxels())
+    let sums: Vec<RelativeError> = (0..field.num_voxels())
         .into_par_iter()
         .filter(|&v| reference.interior[v])
         .map(|v| {
             let mut rng = Pcg64Mcg::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9));
             let (mut f, mut g) = (vec![0.0f32; dim], vec![0.0f32; dim]);
-            let (mut error, mut energy) = (0.0, 0.0);
+            let mut sum = RelativeError::default();
             for _ in 0..SAMPLES {
                 let u = Vec3::new(rng.random(), rng.random(), rng.random());
                 let x = field.centre_of(v) + (u - 0.5) * size;
                 field.sample(x, &mut f).expect("inside the box");
                 model.eval(x, &mut g).expect("the model clamps");
-                for (&a, &b) in f.iter().zip(&g) {
-                    error += (b as f64 - a as f64).powi(2);
-                    energy += (a as f64).powi(2);
-                }
+                sum.add(&g, &f);
             }
-            (error, energy)
+            sum
         })
         .collect();
-    let (error, energy) = sums
-        .iter()
-        .fold((0.0, 0.0), |(e, n), &(a, b)| (e + a, n + b));
-    error / energy.max(f64::MIN_POSITIVE)
+    // Summed in voxel order, so the figure does not depend on the thread count.
+    sums.into_iter()
+        .fold(RelativeError::default(), RelativeError::merged)
+        .relative_mse()
 }
 
 /// A temporary folder for the containers, removed on drop.

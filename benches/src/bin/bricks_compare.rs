@@ -17,8 +17,8 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use prt_bake::{REFERENCE, read_container, read_volumes};
-use prt_benches::Table;
-use prt_core::{FieldModel, GridField};
+use prt_benches::{Table, relative_mse_at_centres};
+use prt_core::FieldModel;
 use prt_texture::Limits;
 use prt_trace::BrickMap;
 
@@ -31,19 +31,6 @@ struct Cli {
     /// Output folder of the sparse `prt bake` (with kept volumes).
     #[arg(long)]
     sparse: PathBuf,
-}
-
-fn relative_error(f: &GridField, valid: &[bool], mut value: impl FnMut(usize, &mut [f32])) -> f64 {
-    let mut out = vec![0.0f32; f.dim()];
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for v in (0..valid.len()).filter(|&v| valid[v]) {
-        value(v, &mut out);
-        for (&a, &b) in f.voxel(v).iter().zip(&out) {
-            num += f64::from(a - b).powi(2);
-            den += f64::from(a).powi(2);
-        }
-    }
-    num / den
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -103,7 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for folder in [&cli.dense, &cli.sparse] {
         let container = read_container(&folder.join("mbd"), &limits)?;
         let centres: Vec<_> = (0..valid.len()).map(|v| reference.centre_of(v)).collect();
-        written.push(relative_error(reference, valid, |v, out| {
+        written.push(relative_mse_at_centres(reference, valid, |v, out| {
             container
                 .model
                 .eval(centres[v], out)
@@ -113,8 +100,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     row("MBD as written", written[0], written[1]);
     for name in ["cpca", "bpca"] {
         if let (Some(a), Some(b)) = (dense.get(name), sparse.get(name)) {
-            let ea = relative_error(reference, valid, |v, out| out.copy_from_slice(a.voxel(v)));
-            let eb = relative_error(reference, valid, |v, out| out.copy_from_slice(b.voxel(v)));
+            let ea =
+                relative_mse_at_centres(reference, valid, |v, out| out.copy_from_slice(a.voxel(v)));
+            let eb =
+                relative_mse_at_centres(reference, valid, |v, out| out.copy_from_slice(b.voxel(v)));
             row(name, ea, eb);
         }
     }

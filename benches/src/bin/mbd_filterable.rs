@@ -24,7 +24,7 @@ use std::time::Duration;
 use clap::Parser;
 use prt_bake::{ContainerContents, RelightConfig, read_container, relight, write_container};
 use prt_benches::mbd::traced_field;
-use prt_benches::{Table, cache_dir, fmt_duration, median_time};
+use prt_benches::{RelativeError, Table, cache_dir, fmt_duration, median_time};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress};
 use prt_kernels::HatGrid;
 use prt_mbd::{Basis, BasisKernels, BlockPca, ClusteredPca, Mbd, MbdModel, SolverOptions};
@@ -85,24 +85,18 @@ fn errors(
     mut raw: impl FnMut(usize, &mut [f32]),
     mut relit: impl FnMut(usize, &[f32], &mut [f32; 27]),
 ) -> (f64, f64) {
-    let (mut raw_error, mut raw_energy, mut relit_error, mut relit_energy) = (0.0, 0.0, 0.0, 0.0);
+    let (mut raw_sum, mut relit_sum) = (RelativeError::default(), RelativeError::default());
     let mut values = vec![0.0f32; field.dim()];
     let mut lit = [0.0f32; 27];
     for v in 0..field.num_voxels() {
         let reference = field.voxel(v);
         raw(v, &mut values);
-        for (&a, &b) in values.iter().zip(reference) {
-            raw_error += f64::from(a - b).powi(2);
-            raw_energy += f64::from(b).powi(2);
-        }
+        raw_sum.add(&values, reference);
         relit(v, &values, &mut lit);
         let target = prt_trace::incident_radiance(reference, sky);
-        for (a, b) in lit.iter().zip(target.as_flattened()) {
-            relit_error += f64::from(a - b).powi(2);
-            relit_energy += f64::from(*b).powi(2);
-        }
+        relit_sum.add(&lit, target.as_flattened());
     }
-    (raw_error / raw_energy, relit_error / relit_energy)
+    (raw_sum.relative_mse(), relit_sum.relative_mse())
 }
 
 /// The relit value of a 324-D vector.

@@ -37,7 +37,7 @@ use prt_bake::{
     irradiance_l1, read_production, texel_bytes, write_production,
 };
 use prt_benches::mbd::{read_cached, write_cached};
-use prt_benches::{Stopwatch, Table, cache_dir, load_average, load_scene};
+use prt_benches::{Stopwatch, Table, cache_dir, load_average, load_scene, relative_mse_at_centres};
 use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::{BlockPca, ClusteredPca, KMeansVq, MbdModel, PiecewisePcaModel, SolverOptions};
@@ -178,20 +178,6 @@ fn traced_target(cli: &Cli, sky: &Sky) -> GridField {
     target
 }
 
-/// `Σ‖f̂ − f‖² / Σ‖f‖²` over the centres of the valid voxels.
-fn relative_mse(target: &GridField, valid: &[bool], value: impl Fn(usize, &mut [f32])) -> f64 {
-    let mut out = vec![0.0f32; target.dim()];
-    let (mut error, mut energy) = (0.0f64, 0.0f64);
-    for v in (0..target.num_voxels()).filter(|&v| valid[v]) {
-        value(v, &mut out);
-        for (&a, &b) in out.iter().zip(target.voxel(v)) {
-            error += f64::from(a - b).powi(2);
-            energy += f64::from(b).powi(2);
-        }
-    }
-    error / energy.max(f64::MIN_POSITIVE)
-}
-
 /// `values` (`channels` per row) through 8-bit unorm with per-channel scale and bias.
 fn as_unorm8(values: &[f32], channels: usize) -> Vec<f32> {
     let q = quantize(values, channels, Encoding::Unorm8).expect("quantise");
@@ -296,7 +282,7 @@ fn main() {
         let watch = Stopwatch::start();
         let fit = fit_production(&target, &config, &NoProgress).expect("fit");
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
-        let error = relative_mse(&raw, &valid, model_at(&fit.model, &target));
+        let error = relative_mse_at_centres(&raw, &valid, model_at(&fit.model, &target));
         let folder = out.join(key);
         let contents = ProductionContents {
             model: &fit.model,
@@ -308,7 +294,7 @@ fn main() {
         let report = write_production(&folder, &contents).expect("write");
         let back = read_production(&folder, &Limits::default()).expect("read back");
         let written: &ProductionModel = &back.model;
-        let error_8bit = relative_mse(&raw, &valid, model_at(written, &target));
+        let error_8bit = relative_mse_at_centres(&raw, &valid, model_at(written, &target));
         let [cx, cy, cz] = config.coefficient_nodes;
         let [bx, bz] = config.basis_nodes;
         rows.push(Row {
@@ -351,7 +337,7 @@ fn main() {
         )
         .expect("fit");
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
-        let error = relative_mse(&raw, &valid, model_at(&model, &target));
+        let error = relative_mse_at_centres(&raw, &valid, model_at(&model, &target));
         let rank = production.rank;
         let (c, b) = (model.coefficients(), model.basis());
         let padded = rank.div_ceil(4) * 4;
@@ -371,7 +357,7 @@ fn main() {
             ndarray::Array3::from_shape_vec(b.dim(), b8).expect("shape"),
         )
         .expect("model");
-        let error_8bit = relative_mse(&raw, &valid, model_at(&quantised, &target));
+        let error_8bit = relative_mse_at_centres(&raw, &valid, model_at(&quantised, &target));
         let bytes = c.nrows() * padded + b.len();
         rows.push(Row {
             config: format!(
@@ -430,7 +416,7 @@ fn main() {
         let (config, model) = baseline(key);
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
         let reconstruction = model.reconstruct().expect("reconstruction");
-        let error = relative_mse(&raw, &valid, |v, out| {
+        let error = relative_mse_at_centres(&raw, &valid, |v, out| {
             out.copy_from_slice(reconstruction.voxel(v))
         });
         let (bases, coefficients, labels) = (model.bases(), model.coefficients(), model.labels());
@@ -443,7 +429,7 @@ fn main() {
         } else {
             as_unorm8(coefficients.as_slice().expect("standard layout"), rank)
         };
-        let error_8bit = relative_mse(&raw, &valid, |v, out| {
+        let error_8bit = relative_mse_at_centres(&raw, &valid, |v, out| {
             out.fill(0.0);
             let basis = &b8[labels[v] as usize * rank * d..][..rank * d];
             for (l, &c) in c8[v * rank..(v + 1) * rank].iter().enumerate() {

@@ -17,7 +17,7 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use prt_bake::{TilePlan, assemble, read_container};
-use prt_benches::Table;
+use prt_benches::{Table, relative_mse_at_centres};
 use prt_core::FieldModel;
 use prt_mbd::{EvalOptions, evaluate};
 use prt_texture::Limits;
@@ -52,14 +52,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for bake in &cli.bakes {
         let folder = bake.join("mbd");
         let container = read_container(&folder, &Limits::default())?;
-        let mut out = vec![0.0f32; field.dim()];
-        let (mut num, mut den) = (0.0f64, 0.0f64);
-        for v in (0..field.num_voxels()).filter(|&v| valid[v]) {
-            container.model.eval(field.centre_of(v), &mut out)?;
-            for (&a, &b) in field.voxel(v).iter().zip(&out) {
-                num += f64::from(a - b).powi(2);
-                den += f64::from(a).powi(2);
+        let mut failed = None;
+        let at_centres = relative_mse_at_centres(field, valid, |v, out| {
+            if let Err(e) = container.model.eval(field.centre_of(v), out) {
+                failed.get_or_insert(e);
             }
+        });
+        if let Some(e) = failed {
+            return Err(e.into());
         }
         let jittered = evaluate(&container.model, field, &EvalOptions::default())?;
         let bytes: u64 = std::fs::read_dir(&folder)?
@@ -69,7 +69,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .sum();
         table.row(vec![
             bake.display().to_string(),
-            format!("{:.4e}", num / den),
+            format!("{at_centres:.4e}"),
             format!("{:.4e}", jittered.relative_mse),
             format!("{:.2}", bytes as f64 / valid_count as f64),
         ]);

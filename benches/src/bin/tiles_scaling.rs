@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use clap::Parser;
-use prt_benches::{Table, load_average};
+use prt_benches::{RelativeError, Table, load_average};
 use prt_texture::Limits;
 
 #[derive(Debug, Parser)]
@@ -116,14 +116,11 @@ fn traced(dir: &Path) -> prt_bake::KeptVolumes {
 fn difference(a: &prt_bake::KeptVolumes, b: &prt_bake::KeptVolumes) -> f64 {
     assert_eq!(a.grid, b.grid);
     let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());
-    let (mut diff, mut norm) = (0.0f64, 0.0f64);
+    let mut sum = RelativeError::default();
     for v in (0..fa.num_voxels()).filter(|&v| a.valid[v] && b.valid[v]) {
-        for (&x, &y) in fa.voxel(v).iter().zip(fb.voxel(v)) {
-            diff += (f64::from(x) - f64::from(y)).powi(2);
-            norm += f64::from(y).powi(2);
-        }
+        sum.add(fa.voxel(v), fb.voxel(v));
     }
-    (diff / norm).sqrt()
+    sum.relative_rms()
 }
 
 /// The tile of every voxel of the plan's lattice (x fastest).

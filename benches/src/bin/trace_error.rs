@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Parser;
-use prt_benches::{Table, fmt_duration};
+use prt_benches::{RelativeError, Table, fmt_duration};
 use prt_core::NoProgress;
 use prt_trace::{BakeOptions, Scene, TransferBaker, TransferVolume, block};
 
@@ -21,24 +21,17 @@ fn bake(scene: &Scene, options: BakeOptions) -> (TransferVolume, std::time::Dura
 /// Relative Frobenius error `‖x - ref‖ / ‖ref‖` over voxels valid in both, for the direct block
 /// and the three indirect blocks.
 fn rel_error(x: &TransferVolume, reference: &TransferVolume) -> (f64, f64) {
-    let (mut dd, mut dr, mut id, mut ir) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let (mut direct, mut indirect) = (RelativeError::default(), RelativeError::default());
     for v in 0..x.field.num_voxels() {
         if !(x.valid[v] && reference.valid[v]) {
             continue;
         }
         let (a, b) = (x.field.voxel(v), reference.field.voxel(v));
-        for k in 0..a.len() {
-            let (e, r) = ((a[k] - b[k]) as f64, b[k] as f64);
-            if block(0).contains(&k) {
-                dd += e * e;
-                dr += r * r;
-            } else {
-                id += e * e;
-                ir += r * r;
-            }
-        }
+        let split = block(0).end;
+        direct.add(&a[..split], &b[..split]);
+        indirect.add(&a[split..], &b[split..]);
     }
-    ((dd / dr).sqrt(), (id / ir).sqrt())
+    (direct.relative_rms(), indirect.relative_rms())
 }
 
 #[derive(Debug, Parser)]
