@@ -30,7 +30,8 @@
 //!   scenes without emitters), a pinhole view ([`PinholeView`]: the glTF camera or a framing of
 //!   the bounds) with a G-buffer of gather points, and the pixel × VPL matrix with shadow rays as
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
-//!   its brute-force reference image.
+//!   its brute-force reference image. Lights files ([`read_lights_file`]) bring user-made
+//!   point lights in their place.
 //! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
 //!   wavelet transport, where a transport row has one entry per lighting texel.
@@ -123,6 +124,7 @@ mod bvh;
 mod cube;
 mod error;
 mod gltf_load;
+mod lights_file;
 mod outdoor;
 mod pixel;
 mod sampling;
@@ -142,6 +144,10 @@ pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
+pub use lights_file::{
+    LightsBudget, LightsFileError, MAX_LIGHTS_LINE_BYTES, format_lights, parse_lights,
+    read_lights_file, write_lights_file,
+};
 pub use pixel::{
     Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
     PixelTransportBaker, PixelTransportOptions, RelightMethod, RelitFrame, Sparsify,
