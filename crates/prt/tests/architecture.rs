@@ -267,7 +267,7 @@ const LAYERS: &[&[&str]] = &[
     &["prt-linalg", "prt-kernels", "prt-sphere"],
     &["prt-mbd", "prt-plsq", "prt-wavelet", "prt-manylight"],
     &["prt-trace"],
-    &["prt-bake", "prt-render"],
+    &["prt-bake", "prt-render", "prt-lightmap"],
     &["prt-export"],
     &["prt-cli", "prt"],
 ];

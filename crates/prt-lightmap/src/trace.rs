@@ -1,0 +1,321 @@
+//! Incident radiance at a texel: a path tracer over prt-trace's scene and ray tracer.
+
+use std::f32::consts::{PI, TAU};
+
+use glam::Vec3;
+use prt_trace::{Hit, LightKind, RayTracer, Scene, SunSky};
+
+/// Sobol' dimensions of the texel ray: direction (2), sun-or-hemisphere choice (1), point in the
+/// sun's disk (2).
+const TEXEL_DIMS: u32 = 5;
+/// Sobol' dimensions per bounce: emitter choice (1), point on it (2), cosine direction (2).
+const BOUNCE_DIMS: u32 = 5;
+/// Most diffuse bounces (the Sobol' tables have 256 dimensions).
+pub(crate) const MAX_BOUNCES: u32 = (256 - TEXEL_DIMS) / BOUNCE_DIMS;
+
+/// The light of a bake: the scene's emitters and punctual lights, and optionally a sun and sky.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lighting {
+    /// A sun (a disk of `sun_angular_radius_deg`) and a constant sky over the upper (+Y)
+    /// hemisphere; `None` for the scene's own lights only.
+    pub sun_sky: Option<SunSky>,
+    /// The sun's angular radius, degrees (the real sun: 0.27).
+    pub sun_angular_radius_deg: f32,
+    /// Fraction of texel rays aimed at the sun's disk when it is above a texel's horizon (the
+    /// rest are uniform over the hemisphere; the two are combined by their mixture density).
+    pub sun_ray_fraction: f32,
+}
+
+impl Lighting {
+    /// The scene's lights, plus [`SunSky::default`] when it has no emitter and no punctual
+    /// light (the rule of [`prt_trace::trace_vpls`]).
+    pub fn for_scene(scene: &Scene) -> Self {
+        let emits = (0..scene.triangles().len())
+            .any(|t| scene.material_of(t).emissive.max_element() > 0.0)
+            || !scene.lights().is_empty();
+        Self {
+            sun_sky: (!emits).then(SunSky::default),
+            sun_angular_radius_deg: 0.27,
+            sun_ray_fraction: 0.1,
+        }
+    }
+}
+
+/// One radiance sample of a texel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Sample {
+    /// Direction in the texel's tangent frame (+Y the normal).
+    pub local: Vec3,
+    /// Incident radiance (RGB).
+    pub radiance: Vec3,
+    /// Weight relative to a uniform hemisphere sample (1 unless the sun's disk was aimed at).
+    pub weight: f32,
+}
+
+pub(crate) struct Transport<'a> {
+    scene: &'a Scene,
+    tracer: &'a RayTracer,
+    lighting: Lighting,
+    bounces: u32,
+    eps: f32,
+    /// Emissive triangles and the cumulative distribution over their power.
+    emitters: Vec<(usize, f32)>,
+    emitter_total: f32,
+    sun_cos: f32,
+}
+
+fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
+}
+
+fn area(t: &[Vec3; 3]) -> f32 {
+    0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()
+}
+
+impl<'a> Transport<'a> {
+    pub fn new(scene: &'a Scene, tracer: &'a RayTracer, lighting: Lighting, bounces: u32) -> Self {
+        let mut emitters = Vec::new();
+        let mut acc = 0.0;
+        for (t, tri) in scene.triangles().iter().enumerate() {
+            let power = luminance(scene.material_of(t).emissive) * area(tri);
+            if power > 0.0 && power.is_finite() {
+                acc += power;
+                emitters.push((t, acc));
+            }
+        }
+        let extent = scene.bounds().map_or(1.0, |b| (b.max - b.min).length());
+        Self {
+            scene,
+            tracer,
+            lighting,
+            bounces,
+            eps: 1e-4 * extent.max(1e-3),
+            emitters,
+            emitter_total: acc,
+            sun_cos: lighting.sun_angular_radius_deg.to_radians().cos(),
+        }
+    }
+
+    /// The offset that keeps ray origins off surfaces (1e-4 of the scene's diagonal).
+    pub fn eps(&self) -> f32 {
+        self.eps
+    }
+
+    /// Sample `index` of the texel at `position` with unit `normal`; `u(dim)` gives the
+    /// sample's Sobol' coordinates.
+    pub fn sample(&self, position: Vec3, normal: Vec3, u: &dyn Fn(u32) -> f32) -> Sample {
+        let (tangent, bitangent) = normal.any_orthonormal_pair();
+        let to_world = |l: Vec3| tangent * l.x + normal * l.y + bitangent * l.z;
+        let to_local = |d: Vec3| Vec3::new(d.dot(tangent), d.dot(normal), d.dot(bitangent));
+        let hemisphere_pdf = 1.0 / TAU;
+        // The sun's disk, when above this texel's horizon, is aimed at by a share of the rays.
+        let sun = self.lighting.sun_sky.and_then(|s| {
+            let towards = -s.sun_direction.normalize_or(Vec3::NEG_Y);
+            let fraction = self.lighting.sun_ray_fraction;
+            (towards.dot(normal) > 0.0 && s.sun_irradiance.max_element() > 0.0 && fraction > 0.0)
+                .then_some((towards, s.sun_irradiance, fraction))
+        });
+        let cone_solid_angle = TAU * (1.0 - self.sun_cos);
+        let dir = match sun {
+            Some((towards, _, fraction)) if u(2) < fraction => {
+                let z = 1.0 - u(3) * (1.0 - self.sun_cos);
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let (a, b) = towards.any_orthonormal_pair();
+                let phi = TAU * u(4);
+                let d = (a * (r * phi.cos()) + b * (r * phi.sin()) + towards * z).normalize();
+                if d.dot(normal) <= 0.0 { towards } else { d }
+            }
+            _ => {
+                let cos_theta = u(0);
+                let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+                let phi = TAU * u(1);
+                to_world(Vec3::new(
+                    sin_theta * phi.cos(),
+                    cos_theta,
+                    sin_theta * phi.sin(),
+                ))
+            }
+        };
+        let (weight, sun_radiance) = match sun {
+            Some((towards, irradiance, fraction)) => {
+                let in_cone = dir.dot(towards) >= self.sun_cos;
+                let pdf = (1.0 - fraction) * hemisphere_pdf
+                    + if in_cone {
+                        fraction / cone_solid_angle
+                    } else {
+                        0.0
+                    };
+                let radiance = if in_cone {
+                    irradiance / cone_solid_angle
+                } else {
+                    Vec3::ZERO
+                };
+                (hemisphere_pdf / pdf, radiance)
+            }
+            None => (1.0, Vec3::ZERO),
+        };
+        let origin = position + normal * self.eps;
+        let radiance = self.radiance(origin, dir, sun_radiance, u);
+        Sample {
+            local: to_local(dir).normalize(),
+            radiance,
+            weight,
+        }
+    }
+
+    /// Radiance arriving at `origin` from `dir` (emission and sky seen directly, the sun's disk
+    /// radiance `sun_radiance` if the ray escapes, and up to `bounces` diffuse reflections with
+    /// next-event estimation).
+    fn radiance(
+        &self,
+        mut origin: Vec3,
+        mut dir: Vec3,
+        sun_radiance: Vec3,
+        u: &dyn Fn(u32) -> f32,
+    ) -> Vec3 {
+        let mut total = Vec3::ZERO;
+        let mut throughput = Vec3::ONE;
+        for depth in 0..=self.bounces {
+            let Some(hit) = self.tracer.closest_hit(origin, dir, 0.0, f32::INFINITY) else {
+                total += throughput * self.sky(dir);
+                if depth == 0 {
+                    total += sun_radiance;
+                }
+                break;
+            };
+            let material = self.scene.material_of(hit.triangle as usize);
+            if !hit.front_face && !material.double_sided {
+                break;
+            }
+            // Emitters hit after a bounce are counted by next-event estimation instead.
+            if depth == 0 && hit.front_face {
+                total += material.emissive;
+            }
+            if depth == self.bounces {
+                break;
+            }
+            throughput *= material.albedo;
+            if throughput.max_element() <= 0.0 {
+                break;
+            }
+            let normal = facing_normal(&hit);
+            let point = origin + dir * hit.t + normal * self.eps;
+            let base = TEXEL_DIMS + BOUNCE_DIMS * depth;
+            total += throughput * self.direct_irradiance(point, normal, |d| u(base + d)) / PI;
+            dir = cosine_hemisphere(normal, u(base + 3), u(base + 4));
+            origin = point;
+        }
+        total
+    }
+
+    fn sky(&self, dir: Vec3) -> Vec3 {
+        match self.lighting.sun_sky {
+            Some(s) if dir.y > 0.0 => s.sky_radiance,
+            _ => Vec3::ZERO,
+        }
+    }
+
+    /// Irradiance at `point` (normal `normal`) from the sun, one emissive triangle chosen by
+    /// power, and every punctual light, with shadow rays.
+    fn direct_irradiance(&self, point: Vec3, normal: Vec3, u: impl Fn(u32) -> f32) -> Vec3 {
+        let mut e = Vec3::ZERO;
+        let towards_infinity = |towards: Vec3, irradiance: Vec3| {
+            let cos = normal.dot(towards);
+            if cos > 0.0 && !self.tracer.occluded(point, towards, 0.0, f32::INFINITY) {
+                irradiance * cos
+            } else {
+                Vec3::ZERO
+            }
+        };
+        if let Some(s) = self.lighting.sun_sky {
+            e += towards_infinity(-s.sun_direction.normalize_or(Vec3::NEG_Y), s.sun_irradiance);
+        }
+        for light in self.scene.lights() {
+            let intensity = light.color * light.intensity;
+            if !intensity.is_finite() || intensity.max_element() <= 0.0 {
+                continue;
+            }
+            let spot = match light.kind {
+                LightKind::Directional => {
+                    e += towards_infinity(-light.direction.normalize_or(Vec3::NEG_Y), intensity);
+                    continue;
+                }
+                LightKind::Point => None,
+                LightKind::Spot {
+                    inner_cone_angle,
+                    outer_cone_angle,
+                } => Some((inner_cone_angle.cos(), outer_cone_angle.cos())),
+                _ => continue,
+            };
+            let d = light.position - point;
+            let dist2 = d.length_squared();
+            let towards = d / dist2.sqrt();
+            let cos = normal.dot(towards);
+            if cos <= 0.0 || dist2 <= 0.0 {
+                continue;
+            }
+            // glTF's spot falloff: linear in the cosine between the outer and inner cones.
+            let falloff = spot.map_or(1.0, |(inner, outer)| {
+                let c = (-towards).dot(light.direction.normalize_or(Vec3::NEG_Z));
+                ((c - outer) / (inner - outer).max(1e-4)).clamp(0.0, 1.0)
+            });
+            if falloff > 0.0
+                && !self
+                    .tracer
+                    .occluded(point, towards, 0.0, dist2.sqrt() * (1.0 - 1e-4))
+            {
+                e += intensity * (falloff * cos / dist2);
+            }
+        }
+        if self.emitter_total > 0.0 {
+            let pick = u(0) * self.emitter_total;
+            let k = self
+                .emitters
+                .partition_point(|&(_, c)| c <= pick)
+                .min(self.emitters.len() - 1);
+            let t = self.emitters[k].0;
+            let p_pick = (self.emitters[k].1 - if k > 0 { self.emitters[k - 1].1 } else { 0.0 })
+                / self.emitter_total;
+            let tri = &self.scene.triangles()[t];
+            let (mut b1, mut b2) = (u(1), u(2));
+            if b1 + b2 > 1.0 {
+                (b1, b2) = (1.0 - b1, 1.0 - b2);
+            }
+            let y = tri[0] + (tri[1] - tri[0]) * b1 + (tri[2] - tri[0]) * b2;
+            let light_normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+            let d = y - point;
+            let dist2 = d.length_squared();
+            if dist2 > 0.0 {
+                let dist = dist2.sqrt();
+                let towards = d / dist;
+                let (cos_x, cos_y) = (normal.dot(towards), -light_normal.dot(towards));
+                if cos_x > 0.0
+                    && cos_y > 0.0
+                    && !self
+                        .tracer
+                        .occluded(point, towards, 0.0, dist * (1.0 - 1e-3))
+                {
+                    let emission = self.scene.material_of(t).emissive;
+                    e += emission * (cos_x * cos_y / dist2 * area(tri) / p_pick);
+                }
+            }
+        }
+        e
+    }
+}
+
+fn facing_normal(hit: &Hit) -> Vec3 {
+    if hit.front_face {
+        hit.normal
+    } else {
+        -hit.normal
+    }
+}
+
+/// Cosine-weighted direction about `n` (pdf `cos θ / π`).
+fn cosine_hemisphere(n: Vec3, u1: f32, u2: f32) -> Vec3 {
+    let r = u1.sqrt();
+    let phi = TAU * u2;
+    let (t, b) = n.any_orthonormal_pair();
+    (t * (r * phi.cos()) + b * (r * phi.sin()) + n * (1.0 - u1).max(0.0).sqrt()).normalize()
+}
