@@ -23,6 +23,16 @@ pub struct BakeConfig {
     pub rays_per_voxel: usize,
     /// Hemisphere rays per surface-cache point (the one-bounce indirect part).
     pub cache_rays: usize,
+    /// Per-voxel adaptive sampling ([`prt_trace::AdaptiveSampling`]): a voxel stops once the
+    /// relative standard error of its transfer is at most this, `rays_per_voxel` being the cap
+    /// (`None`: every voxel traces `rays_per_voxel`).
+    pub adaptive_error: Option<f32>,
+    /// With adaptive sampling, the directions every valid voxel traces at least.
+    pub adaptive_min_rays: usize,
+    /// Strength of the geometry-aware denoiser ([`prt_trace::DenoiseOptions`]; `None`: off).
+    pub denoise: Option<f32>,
+    /// The denoiser's neighbourhood half-width in voxels.
+    pub denoise_radius: usize,
     /// Margin added around the scene bounds, in metres.
     pub margin: f32,
     /// MBD rank L: moving basis vectors per point.
@@ -106,6 +116,10 @@ impl Default for BakeConfig {
             resolution: 32,
             rays_per_voxel: 256,
             cache_rays: 64,
+            adaptive_error: None,
+            adaptive_min_rays: 96,
+            denoise: None,
+            denoise_radius: 2,
             margin: 0.0,
             rank: 8,
             basis_nodes: 5,
@@ -200,6 +214,33 @@ impl BakeConfig {
             "must be at least 1".into(),
         )?;
         check(
+            self.adaptive_error
+                .is_none_or(|e| e.is_finite() && e >= 0.0),
+            "adaptive_error",
+            format!(
+                "{:?} is not a finite non-negative error",
+                self.adaptive_error
+            ),
+        )?;
+        check(
+            self.adaptive_min_rays >= 1,
+            "adaptive_min_rays",
+            "must be at least 1".into(),
+        )?;
+        check(
+            self.denoise.is_none_or(|s| s.is_finite() && s > 0.0),
+            "denoise",
+            format!("{:?} is not a finite positive strength", self.denoise),
+        )?;
+        check(
+            (1..=8).contains(&self.denoise_radius),
+            "denoise_radius",
+            format!(
+                "must be between 1 and 8 voxels (got {})",
+                self.denoise_radius
+            ),
+        )?;
+        check(
             self.basis_nodes >= 2,
             "basis_nodes",
             format!("must be at least 2 (got {})", self.basis_nodes),
@@ -241,6 +282,23 @@ impl BakeConfig {
             "margin",
             "must be finite and >= 0".into(),
         )
+    }
+
+    /// The tracer's adaptive sampling, `None` when off.
+    pub fn adaptive_sampling(&self) -> Option<prt_trace::AdaptiveSampling> {
+        self.adaptive_error
+            .map(|target_error| prt_trace::AdaptiveSampling {
+                target_error,
+                min_rays: self.adaptive_min_rays,
+            })
+    }
+
+    /// The tracer's denoiser, `None` when off.
+    pub fn denoise_options(&self) -> Option<prt_trace::DenoiseOptions> {
+        self.denoise.map(|strength| prt_trace::DenoiseOptions {
+            radius: self.denoise_radius,
+            strength,
+        })
     }
 
     /// Voxels per axis for a scene box of `size`: `resolution` along the longest side, the

@@ -72,7 +72,8 @@ impl MemoryEstimate {
             voxels,
             field_bytes,
             field_copies,
-            trace_copies: 1 + u64::from(sparse),
+            // The denoiser writes a filtered copy next to the traced volume.
+            trace_copies: 1 + u64::from(sparse) + u64::from(config.denoise.is_some()),
             scene_bytes: (triangles as u64).saturating_mul(TRIANGLE_BYTES),
             cache_bytes: (triangles as u64).saturating_mul(CACHE_POINT_BYTES),
             process_bytes: PROCESS_BYTES,

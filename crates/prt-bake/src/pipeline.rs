@@ -195,6 +195,8 @@ pub fn bake(
         rays_per_voxel: config.rays_per_voxel,
         cache_rays: config.cache_rays,
         seed: config.seed,
+        adaptive: config.adaptive_sampling(),
+        denoise: config.denoise_options(),
         ..BakeOptions::default()
     };
     let (volume, bricks) = run_stage(progress, &mut times, Stage::Trace, |p| {

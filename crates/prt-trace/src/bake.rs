@@ -10,6 +10,7 @@ use prt_core::{Aabb, GridField, Progress};
 use rayon::prelude::*;
 
 use crate::bvh::{BuildQuality, RayTracer};
+use crate::denoise::{DenoiseOptions, denoise};
 use crate::sampling::{ICOSA, cosine_hemisphere, group_rotation, hash_seed, icosahedron};
 use crate::sh::{SH9, sh9};
 use crate::{Scene, TraceError};
@@ -25,6 +26,10 @@ pub const fn block(k: usize) -> std::ops::Range<usize> {
 const STREAM_VOXEL: u64 = 1;
 const STREAM_CACHE: u64 = 2;
 const STREAM_BRUTE: u64 = 3;
+const STREAM_REPLICATE: u64 = 4;
+/// Independently scrambled direction streams per voxel when the variance is measured: their
+/// means are independent, so their spread gives an unbiased estimate of the variance.
+pub const REPLICATES: usize = 4;
 const VOXEL_CHUNK: usize = 32;
 /// Lattice points are pulled this fraction towards the triangle's centroid so that no cache
 /// point sits exactly on an edge shared with a neighbouring wall.
@@ -84,11 +89,44 @@ pub struct BakeOptions {
     pub seed: u64,
     /// BVH build quality.
     pub build_quality: BuildQuality,
+    /// Opt-in: per-voxel adaptive sampling ([`AdaptiveSampling`]); `rays_per_voxel` is then the
+    /// cap. `None`: every valid voxel traces `rays_per_voxel` directions.
+    pub adaptive: Option<AdaptiveSampling>,
+    /// Opt-in: the geometry-aware denoiser ([`DenoiseOptions`]) applied to the traced volume.
+    pub denoise: Option<DenoiseOptions>,
+}
+
+/// Per-voxel adaptive sampling to a target standard error (an opt-in of [`BakeOptions`]).
+///
+/// A voxel's directions come from [`REPLICATES`] independently Owen-scrambled Sobol' streams of
+/// rotated icosahedra, traced in rounds of one icosahedron per stream (48 directions); each
+/// stream stays stratified, and the spread of the streams' means estimates the variance of the
+/// voxel's transfer without bias. After `min_rays` (and the validity probe) a voxel stops at
+/// the first round where that standard error, `sqrt(Σ_k Var(t̂_k))`, is at most
+/// `target_error · ‖t̂‖`, or at the cap `rays_per_voxel`. Deterministic for a seed: each voxel's
+/// rounds depend on its own rays only.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdaptiveSampling {
+    /// Relative standard error of the voxel's 324-D transfer vector at which it stops.
+    pub target_error: f32,
+    /// Directions every valid voxel traces at least (rounded up to whole rounds).
+    pub min_rays: usize,
+}
+
+/// 5 % relative standard error after at least 96 directions.
+impl Default for AdaptiveSampling {
+    fn default() -> Self {
+        Self {
+            target_error: 0.05,
+            min_rays: 96,
+        }
+    }
 }
 
 /// 32³ voxels over the scene bounds (no margin), 256 (→ 264) directions per voxel, 64 cache rays
 /// per surface point at a mean-voxel-edge spacing, validity from 48 probe rays with at most 25 %
-/// back faces, surface-cache indirect, seed 0, medium BVH.
+/// back faces, surface-cache indirect, seed 0, medium BVH; neither adaptive sampling nor the
+/// denoiser (the paper's estimator).
 impl Default for BakeOptions {
     fn default() -> Self {
         Self {
@@ -103,6 +141,8 @@ impl Default for BakeOptions {
             indirect: IndirectMode::SurfaceCache,
             seed: 0,
             build_quality: BuildQuality::Medium,
+            adaptive: None,
+            denoise: None,
         }
     }
 }
@@ -132,6 +172,8 @@ pub struct BakeStats {
     pub cache_time: Duration,
     /// Voxel tracing time, including the surface-cache rays.
     pub voxel_time: Duration,
+    /// Time of the denoiser (zero without it).
+    pub denoise_time: Duration,
 }
 
 impl BakeStats {
@@ -370,7 +412,7 @@ impl SurfaceCache {
 #[derive(Debug)]
 pub struct TransferBaker<'s> {
     scene: &'s Scene,
-    options: BakeOptions,
+    pub(crate) options: BakeOptions,
     tracer: RayTracer,
     materials: Vec<SlotMaterial>,
     grid: Aabb,
@@ -378,8 +420,13 @@ pub struct TransferBaker<'s> {
     trace_box: Option<Aabb>,
     /// Ray-origin offset off surfaces.
     eps: f32,
+    /// Icosahedra per voxel (the cap with adaptive sampling).
     groups: usize,
     probe_groups: usize,
+    /// Icosahedra every valid voxel traces before adaptive sampling may stop it.
+    min_groups: usize,
+    /// Whether directions come from [`REPLICATES`] streams (the variance is measured).
+    replicated: bool,
     pub(crate) bvh_time: Duration,
 }
 
@@ -433,6 +480,20 @@ impl<'s> TransferBaker<'s> {
                 format!("{s} is not a finite positive length"),
             );
         }
+        if let Some(a) = options.adaptive {
+            if !(a.target_error.is_finite() && a.target_error >= 0.0) {
+                return invalid(
+                    "adaptive.target_error",
+                    format!("{} is not a finite non-negative error", a.target_error),
+                );
+            }
+            if a.min_rays == 0 {
+                return invalid("adaptive.min_rays", "must be positive".into());
+            }
+        }
+        if let Some(d) = options.denoise {
+            d.validate()?;
+        }
         if !(0.0..=1.0).contains(&options.max_backface_fraction) {
             return invalid(
                 "max_backface_fraction",
@@ -454,8 +515,20 @@ impl<'s> TransferBaker<'s> {
             (None, None) => return Err(TraceError::EmptyScene),
         };
         let diag = scene_bounds.map_or(1.0, |b| b.size().length()).max(1e-6);
-        let groups = options.rays_per_voxel.div_ceil(ICOSA);
+        let replicated = options.adaptive.is_some() || options.denoise.is_some();
+        let round = if replicated { REPLICATES } else { 1 };
+        let groups = options
+            .rays_per_voxel
+            .div_ceil(ICOSA)
+            .next_multiple_of(round);
         let probe_groups = options.probe_rays.div_ceil(ICOSA).clamp(1, groups);
+        let min_groups = options.adaptive.map_or(groups, |a| {
+            a.min_rays
+                .div_ceil(ICOSA)
+                .max(probe_groups)
+                .next_multiple_of(round)
+                .min(groups)
+        });
         let t0 = Instant::now();
         let tracer = RayTracer::with_quality(scene.triangles(), options.build_quality);
         let bvh_time = t0.elapsed();
@@ -478,6 +551,8 @@ impl<'s> TransferBaker<'s> {
             eps: 1e-4 * diag,
             groups,
             probe_groups,
+            min_groups,
+            replicated,
             bvh_time,
         })
     }
@@ -497,7 +572,7 @@ impl<'s> TransferBaker<'s> {
         self.grid
     }
 
-    /// Effective directions per voxel (a multiple of 12).
+    /// Effective directions per voxel (a multiple of 12; with adaptive sampling, the cap).
     pub fn rays_per_voxel(&self) -> usize {
         self.groups * ICOSA
     }
@@ -600,11 +675,10 @@ impl<'s> TransferBaker<'s> {
     /// validity equals `voxel_transfer`'s bit for bit (same directions, same test).
     pub(crate) fn probe_voxel(&self, x: Vec3, voxel: usize) -> (bool, f32, u64) {
         let dirs = icosahedron();
-        let scramble = hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64);
         let mut backfaces = 0usize;
         let mut nearest = f32::INFINITY;
         for g in 0..self.probe_groups {
-            let q = group_rotation(g as u32, scramble);
+            let q = self.rotation(voxel, g);
             for &d in dirs.iter() {
                 let w = q * d;
                 if let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) {
@@ -644,7 +718,24 @@ impl<'s> TransferBaker<'s> {
         (cache, t0.elapsed())
     }
 
-    /// Transfer vector of one voxel into `out` (324 values); returns `(valid, rays traced)`.
+    /// The rotation of icosahedron `g` of voxel `voxel`: one Sobol' stream per voxel, or with
+    /// replicates, group `g` is number `g / REPLICATES` of stream `g % REPLICATES`.
+    fn rotation(&self, voxel: usize, g: usize) -> glam::Quat {
+        if self.replicated {
+            let stream = (voxel * REPLICATES + g % REPLICATES) as u64;
+            let scramble = hash_seed(self.options.seed, STREAM_REPLICATE, stream);
+            group_rotation((g / REPLICATES) as u32, scramble)
+        } else {
+            group_rotation(
+                g as u32,
+                hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64),
+            )
+        }
+    }
+
+    /// Transfer vector of one voxel into `out` (324 values) and, with replicates, the estimated
+    /// variance of its estimate (`Σ_k Var(t̂_k)`, else 0) into `variance`; returns `(valid, rays
+    /// traced)`.
     pub(crate) fn voxel_transfer(
         &self,
         x: Vec3,
@@ -652,87 +743,126 @@ impl<'s> TransferBaker<'s> {
         cache: Option<&SurfaceCache>,
         cache_rays: &AtomicU64,
         out: &mut [f32],
+        variance: &mut f32,
     ) -> (bool, u64) {
-        let dirs = icosahedron();
-        let scramble = hash_seed(self.options.seed, STREAM_VOXEL, voxel as u64);
-        let mut acc = [0.0f64; TRANSFER_DIM];
+        let streams = if self.replicated { REPLICATES } else { 1 };
+        let mut acc = [[0.0f64; TRANSFER_DIM]; REPLICATES];
         let mut group = [0.0f32; TRANSFER_DIM];
         let mut backfaces = 0usize;
         let mut rays = 0u64;
+        let mut traced = self.groups;
         for g in 0..self.groups {
-            let q = group_rotation(g as u32, scramble);
+            let q = self.rotation(voxel, g);
             group.fill(0.0);
-            for (k, &d) in dirs.iter().enumerate() {
-                let w = q * d;
-                let y = sh9(w);
-                rays += 1;
-                let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) else {
-                    for i in 0..SH9 {
-                        for j in 0..SH9 {
-                            group[i * SH9 + j] += y[i] * y[j];
-                        }
-                    }
-                    continue;
-                };
-                let ng = self.tracer.slot_normal(hit.slot);
-                let front = ng.dot(w) < 0.0;
-                if !front {
-                    backfaces += 1;
-                }
-                let mat = self.materials[hit.slot as usize];
-                if !(front || mat.double_sided) || self.options.indirect == IndirectMode::Off {
-                    continue;
-                }
-                let side = usize::from(!front);
-                let t = match cache {
-                    Some(c) => c.lookup(
-                        hit.slot,
-                        side,
-                        || self.tracer.slot_barycentrics(hit.slot, x, w),
-                        |point, side| {
-                            let (p, n) = c.points[point];
-                            let n = if side == 0 { n } else { -n };
-                            let scramble = hash_seed(
-                                self.options.seed,
-                                STREAM_CACHE,
-                                (2 * point + side) as u64,
-                            );
-                            cache_rays.fetch_add(self.options.cache_rays as u64, Ordering::Relaxed);
-                            self.hemisphere_transfer(p, n, scramble)
-                        },
-                    ),
-                    None => {
-                        let n = ng.normalize_or_zero() * if front { 1.0 } else { -1.0 };
-                        let ray_index = (g * ICOSA + k) as u64;
-                        let s =
-                            hash_seed(self.options.seed ^ voxel as u64, STREAM_BRUTE, ray_index);
-                        rays += self.options.cache_rays as u64;
-                        self.hemisphere_transfer(x + w * hit.t, n, s)
-                    }
-                };
-                for c in 0..3 {
-                    let rho_t = t.map(|tj| tj * mat.albedo[c]);
-                    let base = (c + 1) * SH9 * SH9;
-                    for i in 0..SH9 {
-                        for j in 0..SH9 {
-                            group[base + i * SH9 + j] += y[i] * rho_t[j];
-                        }
-                    }
-                }
-            }
-            for (a, &gv) in acc.iter_mut().zip(group.iter()) {
+            rays += self.trace_group(
+                x,
+                voxel,
+                g,
+                q,
+                cache,
+                cache_rays,
+                &mut group,
+                &mut backfaces,
+            );
+            for (a, &gv) in acc[g % streams].iter_mut().zip(group.iter()) {
                 *a += gv as f64;
             }
             if g + 1 == self.probe_groups && self.probe_rejects(backfaces) {
                 out.fill(0.0);
+                *variance = 0.0;
                 return (false, rays);
             }
+            if let Some(adaptive) = self.options.adaptive
+                && (g + 1) % REPLICATES == 0
+                && g + 1 >= self.min_groups
+                && g + 1 < self.groups
+            {
+                let (mean, var) = replicate_mean(&acc, (g + 1) / REPLICATES);
+                let norm2: f64 = mean.iter().map(|m| m * m).sum();
+                if var <= f64::from(adaptive.target_error).powi(2) * norm2 {
+                    traced = g + 1;
+                    break;
+                }
+            }
         }
-        let scale = 4.0 * std::f64::consts::PI / (self.groups * ICOSA) as f64;
-        for (o, a) in out.iter_mut().zip(acc.iter()) {
-            *o = (a * scale) as f32;
+        let (mean, var) = replicate_mean(&acc[..streams], traced / streams);
+        for (o, m) in out.iter_mut().zip(mean.iter()) {
+            *o = *m as f32;
         }
+        *variance = if self.replicated { var as f32 } else { 0.0 };
         (true, rays)
+    }
+
+    /// Traces icosahedron `g` (rotation `q`) of voxel `voxel` at `x`, adding its unnormalised
+    /// contributions into `group` and its back-face hits into `backfaces`; returns rays traced.
+    #[allow(clippy::too_many_arguments)]
+    fn trace_group(
+        &self,
+        x: Vec3,
+        voxel: usize,
+        g: usize,
+        q: glam::Quat,
+        cache: Option<&SurfaceCache>,
+        cache_rays: &AtomicU64,
+        group: &mut [f32; TRANSFER_DIM],
+        backfaces: &mut usize,
+    ) -> u64 {
+        let mut rays = 0u64;
+        for (k, &d) in icosahedron().iter().enumerate() {
+            let w = q * d;
+            let y = sh9(w);
+            rays += 1;
+            let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) else {
+                for i in 0..SH9 {
+                    for j in 0..SH9 {
+                        group[i * SH9 + j] += y[i] * y[j];
+                    }
+                }
+                continue;
+            };
+            let ng = self.tracer.slot_normal(hit.slot);
+            let front = ng.dot(w) < 0.0;
+            if !front {
+                *backfaces += 1;
+            }
+            let mat = self.materials[hit.slot as usize];
+            if !(front || mat.double_sided) || self.options.indirect == IndirectMode::Off {
+                continue;
+            }
+            let side = usize::from(!front);
+            let t = match cache {
+                Some(c) => c.lookup(
+                    hit.slot,
+                    side,
+                    || self.tracer.slot_barycentrics(hit.slot, x, w),
+                    |point, side| {
+                        let (p, n) = c.points[point];
+                        let n = if side == 0 { n } else { -n };
+                        let scramble =
+                            hash_seed(self.options.seed, STREAM_CACHE, (2 * point + side) as u64);
+                        cache_rays.fetch_add(self.options.cache_rays as u64, Ordering::Relaxed);
+                        self.hemisphere_transfer(p, n, scramble)
+                    },
+                ),
+                None => {
+                    let n = ng.normalize_or_zero() * if front { 1.0 } else { -1.0 };
+                    let ray_index = (g * ICOSA + k) as u64;
+                    let s = hash_seed(self.options.seed ^ voxel as u64, STREAM_BRUTE, ray_index);
+                    rays += self.options.cache_rays as u64;
+                    self.hemisphere_transfer(x + w * hit.t, n, s)
+                }
+            };
+            for c in 0..3 {
+                let rho_t = t.map(|tj| tj * mat.albedo[c]);
+                let base = (c + 1) * SH9 * SH9;
+                for i in 0..SH9 {
+                    for j in 0..SH9 {
+                        group[base + i * SH9 + j] += y[i] * rho_t[j];
+                    }
+                }
+            }
+        }
+        rays
     }
 
     /// Bakes the volume. Reports voxel directions traced to `progress` (its length is voxels x
@@ -755,6 +885,7 @@ impl<'s> TransferBaker<'s> {
         progress.message("tracing voxels");
         progress.set_len(voxels as u64 * per_voxel);
         let mut valid = vec![false; voxels];
+        let mut variance = vec![0.0f32; voxels];
         let mut field = field;
         let centres: Vec<Vec3> = (0..voxels).map(|v| field.centre_of(v)).collect();
         {
@@ -765,13 +896,15 @@ impl<'s> TransferBaker<'s> {
             slice
                 .par_chunks_mut(TRANSFER_DIM * VOXEL_CHUNK)
                 .zip(valid.par_chunks_mut(VOXEL_CHUNK))
+                .zip(variance.par_chunks_mut(VOXEL_CHUNK))
                 .enumerate()
-                .try_for_each(|(c, (out, ok))| {
+                .try_for_each(|(c, ((out, ok), var))| {
                     progress.check()?;
                     let mut rays = 0;
-                    for (k, (o, okv)) in out
+                    for (k, ((o, okv), var)) in out
                         .chunks_exact_mut(TRANSFER_DIM)
                         .zip(ok.iter_mut())
+                        .zip(var.iter_mut())
                         .enumerate()
                     {
                         let v = c * VOXEL_CHUNK + k;
@@ -781,7 +914,7 @@ impl<'s> TransferBaker<'s> {
                             continue;
                         }
                         let (is_valid, r) =
-                            self.voxel_transfer(x, v, cache.as_ref(), &cache_rays, o);
+                            self.voxel_transfer(x, v, cache.as_ref(), &cache_rays, o, var);
                         *okv = is_valid;
                         if !is_valid {
                             invalid.fetch_add(1, Ordering::Relaxed);
@@ -793,18 +926,47 @@ impl<'s> TransferBaker<'s> {
                     Ok::<(), TraceError>(())
                 })?;
         }
+        let voxel_time = t1.elapsed();
+        let cache_evaluated = cache.as_ref().map_or(0, SurfaceCache::evaluated);
+        drop(cache);
+        let t2 = Instant::now();
+        if let Some(options) = &self.options.denoise {
+            let traced = field;
+            field = self.empty_field(TRANSFER_DIM)?;
+            let targets: Vec<usize> = (0..voxels).collect();
+            let sample = |v: usize| valid[v].then(|| (traced.voxel(v), variance[v]));
+            let mut data = field.data_mut();
+            let Some(out) = data.as_slice_mut() else {
+                unreachable!("a fresh GridField is in standard layout")
+            };
+            progress.message("denoising");
+            denoise(
+                &traced,
+                &self.tracer,
+                options,
+                &sample,
+                &targets,
+                out,
+                progress,
+            )?;
+        }
         let stats = BakeStats {
             voxels,
             invalid_voxels: invalid.into_inner() as usize,
             skipped_voxels: skipped.into_inner() as usize,
             rays_per_voxel: self.rays_per_voxel(),
             cache_points,
-            cache_evaluated: cache.as_ref().map_or(0, SurfaceCache::evaluated),
+            cache_evaluated,
             cache_rays: cache_rays.into_inner(),
             voxel_rays: voxel_rays.into_inner(),
             bvh_time: self.bvh_time,
             cache_time,
-            voxel_time: t1.elapsed(),
+            voxel_time,
+            denoise_time: if self.options.denoise.is_some() {
+                t2.elapsed()
+            } else {
+                Duration::ZERO
+            },
         };
         if stats.valid_voxels() == 0 {
             return Err(TraceError::NoValidVoxels {
@@ -819,6 +981,37 @@ impl<'s> TransferBaker<'s> {
             stats,
         })
     }
+}
+
+/// The mean of the streams' transfer estimates, each the sum `acc[r]` of `groups` icosahedra,
+/// and the unbiased estimate of its variance summed over the components,
+/// `Σ_k Σ_r (m_rk − m̄_k)² / (R (R − 1))` (0 for a single stream).
+pub(crate) fn replicate_mean(
+    acc: &[[f64; TRANSFER_DIM]],
+    groups: usize,
+) -> ([f64; TRANSFER_DIM], f64) {
+    let streams = acc.len();
+    let scale = 4.0 * std::f64::consts::PI / (groups.max(1) * ICOSA) as f64;
+    let mut mean = [0.0f64; TRANSFER_DIM];
+    for a in acc {
+        for (m, &x) in mean.iter_mut().zip(a.iter()) {
+            *m += x * scale;
+        }
+    }
+    mean.iter_mut().for_each(|m| *m /= streams as f64);
+    if streams < 2 {
+        return (mean, 0.0);
+    }
+    let spread: f64 = acc
+        .iter()
+        .map(|a| {
+            a.iter()
+                .zip(&mean)
+                .map(|(&x, &m)| (x * scale - m).powi(2))
+                .sum::<f64>()
+        })
+        .sum();
+    (mean, spread / (streams * (streams - 1)) as f64)
 }
 
 /// Gives a box derived from a flat scene (all triangles in one axis-aligned plane, no margin)
@@ -893,6 +1086,91 @@ mod tests {
             prop_assert!((x[0] - (1.0 + 2.0 * u - 3.0 * v)).abs() < 1e-4, "{} vs {}", x[0], 1.0 + 2.0 * u - 3.0 * v);
             prop_assert!((x[1] - (u + v)).abs() < 1e-4);
         }
+    }
+
+    /// The replicate streams' variance estimate is unbiased: over many seeds, its mean equals
+    /// the spread of the estimates themselves, within a tolerance from the sampling variance of
+    /// both sides. Direct part only: the surface cache's noise is shared by a voxel's streams.
+    #[test]
+    fn the_variance_estimate_is_unbiased() {
+        let scene = Scene::cornell_box();
+        let seeds = 96u64;
+        // Voxels (x, y, z) of an 8³ grid in the open near walls and boxes, where visibility
+        // varies with the directions.
+        let voxels = [(1, 6, 6), (6, 1, 1), (4, 5, 2)].map(|(x, y, z)| x + 8 * (y + 8 * z));
+        let (mut estimated, mut spread) = (Vec::new(), Vec::new());
+        for &v in &voxels {
+            let mut means: Vec<[f64; TRANSFER_DIM]> = Vec::new();
+            let mut variances = Vec::new();
+            for seed in 0..seeds {
+                let options = BakeOptions {
+                    resolution: [8; 3],
+                    rays_per_voxel: 96,
+                    indirect: IndirectMode::Off,
+                    seed,
+                    adaptive: Some(AdaptiveSampling {
+                        target_error: 0.0,
+                        min_rays: 96,
+                    }),
+                    ..BakeOptions::default()
+                };
+                let baker = TransferBaker::new(&scene, options).unwrap();
+                let field = baker.empty_field(1).unwrap();
+                let (mut t, mut var) = (vec![0.0f32; TRANSFER_DIM], 0.0);
+                let rays = AtomicU64::new(0);
+                let (valid, _) =
+                    baker.voxel_transfer(field.centre_of(v), v, None, &rays, &mut t, &mut var);
+                assert!(valid, "voxel {v}");
+                means.push(std::array::from_fn(|k| f64::from(t[k])));
+                variances.push(f64::from(var));
+            }
+            let n = seeds as f64;
+            let grand: Vec<f64> = (0..TRANSFER_DIM)
+                .map(|k| means.iter().map(|m| m[k]).sum::<f64>() / n)
+                .collect();
+            // Per seed, an unbiased sample of the estimate's variance (summed over components).
+            let deviation: Vec<f64> = means
+                .iter()
+                .map(|m| {
+                    m.iter()
+                        .zip(&grand)
+                        .map(|(a, b)| (a - b).powi(2))
+                        .sum::<f64>()
+                        * n
+                        / (n - 1.0)
+                })
+                .collect();
+            estimated.push(variances);
+            spread.push(deviation);
+        }
+        let mean_and_se = |x: &[f64]| {
+            let n = x.len() as f64;
+            let m = x.iter().sum::<f64>() / n;
+            let var = x.iter().map(|a| (a - m).powi(2)).sum::<f64>() / (n - 1.0);
+            (m, (var / n).sqrt())
+        };
+        for (est, dev) in estimated.iter().zip(&spread) {
+            let ((e, se_e), (d, se_d)) = (mean_and_se(est), mean_and_se(dev));
+            assert!(d > 0.0, "the voxel has noise");
+            let tolerance = 4.0 * (se_e * se_e + se_d * se_d).sqrt();
+            assert!(
+                (e - d).abs() <= tolerance,
+                "estimated {e:.4e} ± {se_e:.1e}, observed {d:.4e} ± {se_d:.1e}"
+            );
+        }
+    }
+
+    #[test]
+    fn replicate_means_average_the_streams() {
+        let mut acc = [[0.0f64; TRANSFER_DIM]; 2];
+        acc[0][0] = 12.0;
+        acc[1][0] = 24.0;
+        let (mean, var) = replicate_mean(&acc, 1);
+        let unit = 4.0 * std::f64::consts::PI / 12.0;
+        assert!((mean[0] - 18.0 * unit).abs() < 1e-12);
+        // Two streams at ±6 units from the mean: s² = 72 unit², Var(mean) = s² / 2.
+        assert!((var - 36.0 * unit * unit).abs() < 1e-9, "{var}");
+        assert_eq!(replicate_mean(&acc[..1], 1).1, 0.0);
     }
 
     #[test]

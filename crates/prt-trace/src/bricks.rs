@@ -9,6 +9,7 @@ use prt_core::{Aabb, GridField, Progress};
 use rayon::prelude::*;
 
 use crate::bake::{TRANSFER_DIM, TransferBaker, TransferVolume};
+use crate::denoise::denoise;
 use crate::{BakeStats, TraceError};
 
 /// Marks an absent brick in [`BrickMap`]'s indirection.
@@ -315,6 +316,7 @@ impl TransferBaker<'_> {
         let t1 = Instant::now();
         let brick_len = options.edge.pow(3);
         let mut data = vec![0.0f32; bricks.stored_voxels() * TRANSFER_DIM];
+        let mut variance = vec![0.0f32; bricks.stored_voxels()];
         let traced: Vec<(usize, usize)> = bricks
             .kept()
             .flat_map(|b| (0..brick_len).map(move |k| (b, k)))
@@ -333,8 +335,9 @@ impl TransferBaker<'_> {
             // Rows are brick-contiguous, so a chunk of rows is a chunk of bricks.
             let rows_per_chunk = brick_len * BRICKS_PER_CHUNK;
             data.par_chunks_mut(TRANSFER_DIM * rows_per_chunk)
+                .zip(variance.par_chunks_mut(rows_per_chunk))
                 .enumerate()
-                .try_for_each(|(c, out)| {
+                .try_for_each(|(c, (out, var))| {
                     progress.check()?;
                     let base = c * rows_per_chunk;
                     let first = traced.partition_point(|&(row, _)| row < base);
@@ -348,6 +351,7 @@ impl TransferBaker<'_> {
                             cache.as_ref(),
                             &cache_rays,
                             o,
+                            &mut var[row - base],
                         );
                         debug_assert!(is_valid, "the probe pass found voxel {v} valid");
                         rays += r;
@@ -357,19 +361,56 @@ impl TransferBaker<'_> {
                     Ok::<(), TraceError>(())
                 })?;
         }
+        let voxel_time = t1.elapsed();
+        let cache_points = cache.as_ref().map_or(0, |c| c.points());
+        let cache_evaluated = cache.as_ref().map_or(0, |c| c.evaluated());
+        drop(cache);
+        let t2 = Instant::now();
+        if let Some(options) = &self.options.denoise {
+            // Row r of the bricks holds voxel targets[r] (usize::MAX: past the grid's edge).
+            let targets: Vec<usize> = bricks
+                .kept()
+                .flat_map(|b| (0..brick_len).map(move |k| (b, k)))
+                .map(|(b, k)| bricks.voxel_in_brick(b, k).unwrap_or(usize::MAX))
+                .collect();
+            let sample = |v: usize| {
+                if v >= voxels || !valid[v] {
+                    return None;
+                }
+                let row = bricks.row(v)?;
+                Some((&data[row * TRANSFER_DIM..][..TRANSFER_DIM], variance[row]))
+            };
+            let mut out = vec![0.0f32; data.len()];
+            progress.message("denoising");
+            denoise(
+                &grid,
+                self.tracer(),
+                options,
+                &sample,
+                &targets,
+                &mut out,
+                progress,
+            )?;
+            data = out;
+        }
         let kept_valid = traced.len();
         let stats = BakeStats {
             voxels,
             invalid_voxels: voxels - kept_valid - skipped,
             skipped_voxels: skipped,
             rays_per_voxel: self.rays_per_voxel(),
-            cache_points: cache.as_ref().map_or(0, |c| c.points()),
-            cache_evaluated: cache.as_ref().map_or(0, |c| c.evaluated()),
+            cache_points,
+            cache_evaluated,
             cache_rays: cache_rays.into_inner(),
             voxel_rays: voxel_rays.into_inner(),
             bvh_time: self.bvh_time,
             cache_time,
-            voxel_time: t1.elapsed(),
+            voxel_time,
+            denoise_time: if self.options.denoise.is_some() {
+                t2.elapsed()
+            } else {
+                Duration::ZERO
+            },
         };
         if kept_valid == 0 {
             return Err(TraceError::NoValidVoxels {

@@ -122,6 +122,7 @@ mod brdf_transport;
 mod bricks;
 mod bvh;
 mod cube;
+mod denoise;
 mod error;
 mod gltf_load;
 mod lights_file;
@@ -133,8 +134,9 @@ mod sh;
 mod vpl;
 
 pub use bake::{
-    BakeOptions, BakeStats, CLAMPED_COSINE, IndirectMode, TRANSFER_DIM, TransferBaker,
-    TransferVolume, block, constant_sky, incident_radiance, irradiance,
+    AdaptiveSampling, BakeOptions, BakeStats, CLAMPED_COSINE, IndirectMode, REPLICATES,
+    TRANSFER_DIM, TransferBaker, TransferVolume, block, constant_sky, incident_radiance,
+    irradiance,
 };
 pub use brdf_transport::{
     HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
@@ -142,6 +144,7 @@ pub use brdf_transport::{
 pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
 pub use cube::CubeRays;
+pub use denoise::DenoiseOptions;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
 pub use lights_file::{

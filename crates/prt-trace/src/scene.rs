@@ -291,6 +291,54 @@ impl Scene {
         scene
     }
 
+    /// Two 1 × 1 × 1 rooms side by side along x, `x ∈ [−1, −wall/2]` and `[wall/2, 1]` (y up
+    /// from the floor at 0, z in [0, 1]), separated by a solid wall of thickness `wall`
+    /// (`0 < wall < 1`) at x = 0. The room at x < 0 is open to the sky above; the one at x > 0
+    /// is roofed but for a skylight strip 0.2 wide along its far wall (x ∈ [0.8, 1]), so it is
+    /// dim. Single-sided grey (albedo 0.5) surfaces facing into the rooms, the wall a closed
+    /// box: the test scene for light leaking through a thin wall.
+    pub fn thin_wall_rooms(wall: f32) -> Self {
+        let mut scene = Self::default();
+        let m = scene.push_material(Material {
+            double_sided: false,
+            ..Material::diffuse("rooms", Vec3::splat(0.5))
+        });
+        let h = 0.5 * wall;
+        let mut k = 0;
+        // A rectangle spanned by `u` and `w` from `corner`, front face towards `facing`.
+        let mut quad = |scene: &mut Self, corner: Vec3, u: Vec3, w: Vec3, facing: Vec3| {
+            let q = [corner, corner + u, corner + u + w, corner + w];
+            for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {
+                let t = if (t[1] - t[0]).cross(t[2] - t[0]).dot(facing) > 0.0 {
+                    t
+                } else {
+                    [t[0], t[2], t[1]]
+                };
+                if scene.push_triangle(t, m, "rooms", k).is_err() {
+                    unreachable!("the built-in rooms have finite corners");
+                }
+                k += 1;
+            }
+        };
+        let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+        // Floor, the outer walls at x = ±1, and the long walls at z = 0 and z = 1.
+        quad(&mut scene, Vec3::new(-1.0, 0.0, 0.0), 2.0 * x, z, y);
+        quad(&mut scene, Vec3::new(-1.0, 0.0, 0.0), y, z, x);
+        quad(&mut scene, Vec3::new(1.0, 0.0, 0.0), y, z, -x);
+        quad(&mut scene, Vec3::new(-1.0, 0.0, 0.0), 2.0 * x, y, z);
+        quad(&mut scene, Vec3::new(-1.0, 0.0, 1.0), 2.0 * x, y, -z);
+        // The dark room's roof, short of the skylight.
+        quad(&mut scene, Vec3::new(h, 1.0, 0.0), (0.8 - h) * x, z, -y);
+        scene.push_box(
+            Vec3::new(-h, 0.0, 0.0),
+            Vec3::new(h, 1.0, 1.0),
+            false,
+            m,
+            "wall",
+        );
+        scene
+    }
+
     /// Adds the 12 triangles of the axis-aligned box `min`–`max` (finite, `min < max`), their
     /// winding normals pointing inwards or outwards.
     pub(crate) fn push_box(

@@ -474,3 +474,39 @@ fn a_flat_scene_gets_a_grid_one_voxel_thick() {
     .expect("accepted");
     assert!((with_margin.grid_bounds().size().y - 0.2).abs() < 1e-6);
 }
+
+/// Adaptive sampling and the denoiser give the same bits on 1 and 3 threads, and adaptive
+/// sampling spends fewer rays than its cap.
+#[test]
+fn adaptive_sampling_and_the_denoiser_are_deterministic_on_any_thread_count() {
+    let scene = Scene::cornell_box();
+    let options = BakeOptions {
+        resolution: [8, 8, 8],
+        rays_per_voxel: 480,
+        cache_rays: 16,
+        seed: 11,
+        adaptive: Some(prt_trace::AdaptiveSampling {
+            target_error: 0.2,
+            min_rays: 48,
+        }),
+        denoise: Some(prt_trace::DenoiseOptions::default()),
+        ..Default::default()
+    };
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("thread pool")
+            .install(|| bake(&scene, options.clone()))
+    };
+    let (one, three) = (on(1), on(3));
+    assert_eq!(one.valid, three.valid);
+    assert_eq!(one.field.data(), three.field.data());
+    assert_eq!(one.stats.voxel_rays, three.stats.voxel_rays);
+    let valid = one.stats.valid_voxels() as u64;
+    assert!(
+        one.stats.voxel_rays < valid * 480 * 3 / 4,
+        "{} rays for {valid} valid voxels",
+        one.stats.voxel_rays
+    );
+}
