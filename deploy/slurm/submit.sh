@@ -3,19 +3,21 @@
 # (prt-bake.sbatch), then the merge (prt-merge.sbatch) once that array has ended.
 #
 #   prt plan SCENE --tiles X,Y,Z [prt bake's knobs] --out PLAN_DIR
-#   deploy/slurm/submit.sh PLAN_DIR BAKE_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
+#   deploy/slurm/submit.sh PLAN_DIR BAKE_DIR [MERGE_FLAG...] [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
 #   deploy/slurm/submit.sh --resume PLAN_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
 #
-# Options after `--` go to both jobs' sbatch, those after `--merge` to the merge's only (a later
-# option wins). Without -c/--cpus-per-task a job asks for the CPUs of the partition's largest
-# node, at most 8, so that it never pends on a node too small. Logs: PLAN_DIR/logs/
-# slurm-tile-INDEX.log and slurm-merge.log, appended by every attempt. The submission (BAKE_DIR,
-# options) and the job ids are kept in PLAN_DIR/slurm/: --resume submits, with them and any new
-# options after them, the tiles not finished for the plan (failed, cancelled, never run) and the
-# merge again. Both refuse while a job they submitted for this plan is queued or running.
+# MERGE_FLAGs go to `prt merge` (e.g. --stream --sweeps 2). Options after `--` go to both jobs'
+# sbatch, those after `--merge` to the merge's only (a later option wins). Without
+# -c/--cpus-per-task a job asks for the CPUs of the partition's largest node, at most 8, so that
+# it never pends on a node too small. Logs: PLAN_DIR/logs/slurm-tile-INDEX.log and
+# slurm-merge.log, appended by every attempt. The submission (BAKE_DIR, flags, options) and the
+# job ids are kept in PLAN_DIR/slurm/: --resume submits, with them and any new options after
+# them, the tiles not finished for the plan (failed, cancelled, never run) and the merge again
+# (a new submission of the same plan does the same with new flags and options). Both refuse
+# while a job they submitted for this plan is queued or running.
 set -euo pipefail
 usage() {
-    echo "usage: $0 PLAN_DIR BAKE_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]" >&2
+    echo "usage: $0 PLAN_DIR BAKE_DIR [MERGE_FLAG...] [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]" >&2
     echo "       $0 --resume PLAN_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]" >&2
     exit 2
 }
@@ -37,15 +39,18 @@ state=$plan/slurm
 args_file=$state/submit.args
 jobs_file=$state/jobs
 
-# The options: both=(for both jobs) merge=(for the merge only), from `-- ... [--merge ...]`.
-both=() merge=()
+# flags=(prt merge's), then from `-- ... [--merge ...]` both=(sbatch options for both jobs)
+# merge=(for the merge only).
+flags=() both=() merge=()
 take_options() {
     [ "$#" -eq 0 ] && return
     [ "$1" = -- ] || usage
     shift
     local into=both opt
     for opt in "$@"; do
-        if [ "$opt" = --merge ]; then
+        if [ "$opt" = -- ]; then
+            into=both
+        elif [ "$opt" = --merge ]; then
             into=merge
         elif [ "$into" = both ]; then
             both+=("$opt")
@@ -56,15 +61,19 @@ take_options() {
 }
 if $resume; then
     [ -f "$args_file" ] || fail "nothing was submitted for $plan ($args_file is missing): run $0 PLAN_DIR BAKE_DIR"
+    [ "$#" -eq 0 ] || [ "$1" = -- ] || usage
     mapfile -d '' -t saved <"$args_file"
-    bake=${saved[0]}
-    take_options "${saved[@]:1}"
-else
-    [ "$#" -ge 1 ] || usage
-    bake=$1
-    shift
-    case $bake in /*) ;; *) bake=$PWD/$bake ;; esac
+    set -- "${saved[@]}" "$@"
 fi
+[ "$#" -ge 1 ] || usage
+bake=$1
+shift
+case $bake in /*) ;; *) bake=$PWD/$bake ;; esac
+while [ "$#" -gt 0 ] && [ "$1" != -- ]; do
+    flags+=("$1")
+    shift
+done
+# On --resume: the saved `-- ... --merge ...`, then the new one.
 take_options "$@"
 
 # A second submission while the first runs would trace tiles twice and merge twice.
@@ -104,7 +113,7 @@ cpus_for() {
 
 unfinished=$(prt bake-tile "$plan" --unfinished)
 mkdir -p "$plan/logs" "$state"
-printf '%s\0' "$bake" -- "${both[@]}" --merge "${merge[@]}" >"$args_file"
+printf '%s\0' "$bake" "${flags[@]}" -- "${both[@]}" --merge "${merge[@]}" >"$args_file"
 export PLAN_DIR=$plan BAKE_DIR=$bake
 dependency=()
 if [ -n "$unfinished" ]; then
@@ -124,7 +133,7 @@ fi
 cpus=$(cpus_for "$here/prt-merge.sbatch" "${both[@]}" "${merge[@]}")
 job=$(sbatch --parsable --export=ALL "${dependency[@]}" \
     --output="$plan/logs/slurm-merge.log" --open-mode=append \
-    ${cpus:+"$cpus"} "${both[@]}" "${merge[@]}" "$here/prt-merge.sbatch")
+    ${cpus:+"$cpus"} "${both[@]}" "${merge[@]}" "$here/prt-merge.sbatch" "${flags[@]}")
 job=${job%%;*}
 echo "$(date -u +%FT%TZ) merge=$job" >>"$jobs_file"
 echo "merge: job $job${dependency:+ once job ${tiles} has ended}, writing $bake"

@@ -1,9 +1,10 @@
 //! deploy/slurm end to end on a real one-node Slurm cluster: Debian's munged, slurmctld and
 //! slurmd started from a temp folder (their own munge key, slurm.conf, free ports, state and
 //! spool folders), stopped by PID when the test ends however it ends. A 2×2×1 Cornell plan goes
-//! through `submit.sh` with sbatch options, one tile fails (its folder is a file), the merge runs
-//! after the array anyway and names the tile, `submit.sh --resume` submits that tile and the
-//! merge again, and the bake folder is the bytes of a local `bake-tile --all` + `merge`.
+//! through `submit.sh` with a merge flag and sbatch options, one tile fails (its folder is a
+//! file), the merge runs after the array anyway and names the tile, `submit.sh --resume`
+//! submits that tile and the merge again, and the bake folder is the bytes of a local
+//! `bake-tile --all` + `merge`.
 //!
 //! Ignored when the programs or root are missing at build time (build.rs), unless
 //! `PRT_REQUIRE_SLURM=1` (set by .ci/run, which installs slurm-wlm and munge).
@@ -440,6 +441,8 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
         local_plan.to_str().unwrap(),
         "--out",
         local.to_str().unwrap(),
+        "--keep-volumes",
+        "never",
     ]));
 
     // The same plan through Slurm, with tile 1's folder a file: its task fails writing.
@@ -452,6 +455,8 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
         &[
             plan_s,
             baked.to_str().unwrap(),
+            "--keep-volumes",
+            "never",
             "--",
             "--time=5",
             "--merge",
@@ -547,7 +552,9 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
         }
     }
     let listed = files(&local);
+    // The merge flag went through: no kept volumes.
     assert_eq!(files(&baked), listed);
+    assert!(!listed.iter().any(|f| f.starts_with("volumes")));
     let mut compared = 0;
     for file in &listed {
         if ["report.md", "report.json"].contains(&file.to_str().unwrap()) {
