@@ -1,6 +1,7 @@
 //! deploy/slurm end to end on a real one-node Slurm cluster: Debian's munged, slurmctld and
-//! slurmd started from a temp folder (their own munge key, slurm.conf, free ports, state and
-//! spool folders), stopped by PID when the test ends however it ends. A 2×2×1 Cornell plan goes
+//! slurmd started from a temp folder configured by deploy/slurm/local-cluster.sh (their own
+//! munge key, slurm.conf, free ports, state and spool folders), stopped by PID when the test
+//! ends however it ends. A 2×2×1 Cornell plan goes
 //! through `submit.sh` with a merge flag and sbatch options, one tile fails (its folder is a
 //! file), the merge runs after the array anyway and names the tile, `submit.sh --resume`
 //! submits that tile and the merge again, and the bake folder is the bytes of a local
@@ -12,8 +13,6 @@
 mod common;
 
 use std::collections::BTreeMap;
-use std::io::Read;
-use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -52,12 +51,11 @@ fn program(name: &str) -> PathBuf {
         })
 }
 
-/// A port nobody listens on now.
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .expect("a free port")
-        .port()
+/// A file of deploy/slurm.
+fn deploy(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../deploy/slurm")
+        .join(name)
 }
 
 /// A one-node cluster whose daemons run in the foreground as this process's children; dropping
@@ -70,103 +68,45 @@ struct Cluster {
 }
 
 impl Cluster {
+    /// Configures `dir` with deploy/slurm/local-cluster.sh (`conf`: slurm.conf on two free
+    /// ports, a fresh munge key) and starts its three daemons as children (`run`, which execs
+    /// each in the foreground, so a child's PID is the daemon's).
     fn start(dir: &Path) -> Cluster {
         let dir = dir.to_path_buf();
-        let munge = dir.join("munge");
-        for sub in ["munge", "state", "spool/prtnode", "log"] {
-            std::fs::create_dir_all(dir.join(sub)).unwrap();
-        }
-        // munged refuses a key or a socket folder others can read.
-        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
-        std::fs::set_permissions(&munge, std::fs::Permissions::from_mode(0o700)).unwrap();
-        let key = munge.join("munge.key");
-        let mut bytes = vec![0u8; 1024];
-        std::fs::File::open("/dev/urandom")
-            .and_then(|mut f| f.read_exact(&mut bytes))
+        let script = deploy("local-cluster.sh");
+        let out = Command::new("bash")
+            .arg(&script)
+            .arg("conf")
+            .arg(&dir)
+            .output()
             .unwrap();
-        std::fs::write(&key, &bytes).unwrap();
-        std::fs::set_permissions(&key, std::fs::Permissions::from_mode(0o400)).unwrap();
-        let socket = munge.join("munge.socket");
-
-        // This machine's CPUs and sockets as slurmd sees them, under our node name.
-        let hardware = Command::new(program("slurmd")).arg("-C").output().unwrap();
-        let hardware = String::from_utf8_lossy(&hardware.stdout);
-        let node = hardware
-            .lines()
-            .find(|l| l.starts_with("NodeName="))
-            .and_then(|l| l.split_once(' '))
-            .map(|(_, rest)| rest.to_string())
-            .unwrap_or_else(|| panic!("slurmd -C printed no node line: {hardware}"));
-        let d = dir.display();
-        let conf_text = format!(
-            "ClusterName=prttest
-SlurmctldHost=localhost(127.0.0.1)
-SlurmctldPort={ctld}
-SlurmdPort={slurmd}
-SlurmUser=root
-SlurmdUser=root
-AuthType=auth/munge
-CredType=cred/munge
-AuthInfo=socket={socket}
-StateSaveLocation={d}/state
-SlurmdSpoolDir={d}/spool/%n
-SlurmctldPidFile={d}/slurmctld.pid
-SlurmdPidFile={d}/slurmd.pid
-SlurmctldLogFile={d}/log/slurmctld.log
-SlurmdLogFile={d}/log/slurmd.log
-ProctrackType=proctrack/linuxproc
-TaskPlugin=task/none
-JobAcctGatherType=jobacct_gather/none
-AccountingStorageType=accounting_storage/none
-SelectType=select/cons_tres
-SelectTypeParameters=CR_Core
-MpiDefault=none
-ReturnToService=2
-MinJobAge=600
-NodeName=prtnode NodeAddr=127.0.0.1 {node}
-PartitionName=prt Nodes=prtnode Default=YES MaxTime=INFINITE State=UP
-",
-            ctld = free_port(),
-            slurmd = free_port(),
-            socket = socket.display(),
+        assert!(
+            out.status.success(),
+            "local-cluster.sh conf: {}",
+            stderr(&out)
         );
-        let conf = dir.join("slurm.conf");
-        std::fs::write(&conf, conf_text).unwrap();
         let mut cluster = Cluster {
             dir: dir.clone(),
-            conf: conf.clone(),
+            conf: dir.join("slurm.conf"),
             daemons: Vec::new(),
         };
-        cluster.spawn(
-            "munged",
-            Command::new(program("munged"))
-                .arg("--foreground")
-                .arg("--force") // as root
-                .arg(format!("--socket={}", socket.display()))
-                .arg(format!("--key-file={}", key.display()))
-                .arg(format!("--pid-file={}/munged.pid", munge.display()))
-                .arg(format!("--log-file={}/munged.log", munge.display()))
-                .arg(format!("--seed-file={}/munged.seed", munge.display())),
-        );
         let deadline = Instant::now() + START_TIMEOUT;
-        while !socket.exists() {
-            assert!(Instant::now() < deadline, "munged did not start");
-            cluster.check_alive();
-            std::thread::sleep(Duration::from_millis(50));
+        for name in ["munged", "slurmctld", "slurmd"] {
+            cluster.spawn(
+                name,
+                Command::new("bash")
+                    .arg(&script)
+                    .arg("run")
+                    .arg(&dir)
+                    .arg(name),
+            );
+            // slurmctld and slurmd authenticate through munged's socket.
+            while name == "munged" && !dir.join("munge/munge.socket").exists() {
+                assert!(Instant::now() < deadline, "munged did not start");
+                cluster.check_alive();
+                std::thread::sleep(Duration::from_millis(50));
+            }
         }
-        cluster.spawn(
-            "slurmctld",
-            Command::new(program("slurmctld"))
-                .arg("-D")
-                .arg("-f")
-                .arg(&conf),
-        );
-        cluster.spawn(
-            "slurmd",
-            Command::new(program("slurmd"))
-                .args(["-D", "-N", "prtnode", "-f"])
-                .arg(&conf),
-        );
         // Up once the node reports idle.
         loop {
             cluster.check_alive();
@@ -348,7 +288,7 @@ fn submit(cluster: &Cluster, args: &[&str]) -> String {
 }
 
 fn submit_command(cluster: &Cluster, args: &[&str]) -> Command {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/slurm/submit.sh");
+    let script = deploy("submit.sh");
     let prt_dir = Path::new(env!("CARGO_BIN_EXE_prt")).parent().unwrap();
     let path = std::env::var_os("PATH").unwrap_or_default();
     let path = std::env::join_paths(
