@@ -244,6 +244,7 @@ fn main() {
             rank: l,
             blocks: nodes,
             window: 1.0,
+            loss_weighting: None,
         }
         .compress(f, &NoProgress)
         .expect("bpca")
@@ -366,6 +367,7 @@ fn main() {
                 rank: l,
                 blocks: nodes,
                 window: 2.0,
+                loss_weighting: None,
             }
             .compress(f, &NoProgress)
             .expect("wbpca")

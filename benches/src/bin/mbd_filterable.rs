@@ -200,6 +200,7 @@ fn main() {
             rank,
             blocks: nodes,
             window: 1.0,
+            loss_weighting: None,
         }
         .compress(&field, &NoProgress)
         .expect("BPCA");

@@ -386,6 +386,7 @@ fn main() {
                     rank,
                     blocks,
                     window: 1.0,
+                    loss_weighting: None,
                 }
                 .compress(&target, &NoProgress)
                 .expect("BPCA"),

@@ -187,6 +187,7 @@ fn baselines(l: usize, nodes: [usize; 3]) -> Vec<(&'static str, BaselineFit)> {
                 rank: l,
                 blocks: nodes,
                 window,
+                loss_weighting: None,
             }
             .compress(f, &NoProgress)
             .expect("blockwise PCA")

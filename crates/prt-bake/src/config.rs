@@ -50,9 +50,9 @@ pub struct BakeConfig {
     pub full_iterations: usize,
     /// MBD ridge weight λ on the coefficients.
     pub lambda: f32,
-    /// MBD's per-voxel loss weighting ([`prt_mbd::Mbd::loss_weighting`]; default: relative
-    /// error, exponent 1, floor 0.05, which the rendered images favour); `None`: the paper's
-    /// loss. In a plan file: `[exponent, floor]` or null (absent in older plans: null).
+    /// The per-voxel loss weighting of MBD and of the baselines alike
+    /// ([`prt_mbd::Mbd::loss_weighting`]; default: relative error, exponent 1, floor 0.05, which
+    /// the rendered images favour); `None`: the papers' loss. In a plan file: `[exponent, floor]` or null (absent in older plans: null).
     #[serde(default, with = "loss_weighting_serde")]
     pub loss_weighting: Option<prt_mbd::LossWeighting>,
     /// Storage encoding of the container's coefficient and basis volumes.

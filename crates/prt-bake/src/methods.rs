@@ -59,7 +59,8 @@ pub(crate) fn basis_cells(kernels: &HatGrid, field: &GridField) -> Result<Vec<u3
     prt_mbd::expert::kernel_labels(kernels, field)
 }
 
-/// Blockwise PCA with one rank-L basis per basis node of MBD (`blocks` per axis).
+/// Blockwise PCA with one rank-L basis per basis node of MBD (`blocks` per axis), under the
+/// config's loss weighting (as MBD).
 pub(crate) fn fit_bpca(
     field: &GridField,
     config: &BakeConfig,
@@ -70,11 +71,13 @@ pub(crate) fn fit_bpca(
         rank: config.rank,
         blocks,
         window: 1.0,
+        loss_weighting: config.loss_weighting,
     }
     .compress(field, progress)
 }
 
-/// Clustered PCA with `clusters` rank-L bases; with `valid`, of the valid voxels only.
+/// Clustered PCA with `clusters` rank-L bases, under the config's loss weighting (as MBD); with
+/// `valid`, of the valid voxels only.
 pub(crate) fn fit_cpca(
     field: &GridField,
     valid: Option<&[bool]>,
@@ -84,6 +87,7 @@ pub(crate) fn fit_cpca(
 ) -> Result<PiecewisePcaModel, MbdError> {
     let cpca = ClusteredPca {
         seed: config.seed,
+        loss_weighting: config.loss_weighting,
         ..ClusteredPca::new(config.rank, clusters)
     };
     match valid {

@@ -14,8 +14,9 @@ use prt_core::{Aabb, Compressor, CoreError, FieldModel, GridField, Progress, Tri
 use prt_linalg::{KMeansOptions, kmeans};
 use rayon::prelude::*;
 
-use crate::MbdError;
+use crate::loss_weights::{unweight_coefficients, weighted_field};
 use crate::subspace::{linalg_error, principal_subspace};
+use crate::{LossWeighting, MbdError};
 
 /// A clustered linear model on the voxels of a grid: voxel `v` belongs to cluster
 /// `labels[v]` and is `coefficients[v] · bases[labels[v]]`; between voxel centres the
@@ -215,6 +216,9 @@ pub struct BlockPca {
     pub blocks: [usize; 3],
     /// Fitting window relative to the block size (1 = BPCA, 2 = WBPCA).
     pub window: f32,
+    /// Beyond the paper (opt-in; `None` is its loss): the subspaces minimise the weighted loss
+    /// of [`LossWeighting`], as MBD's does with [`Mbd::loss_weighting`](crate::Mbd::loss_weighting).
+    pub loss_weighting: Option<LossWeighting>,
 }
 
 impl BlockPca {
@@ -236,6 +240,17 @@ impl Compressor for BlockPca {
     type Error = MbdError;
 
     fn compress(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<PiecewisePcaModel, MbdError> {
+        fit_weighted(field, None, self.loss_weighting, |f| self.fit(f, progress))
+    }
+}
+
+impl BlockPca {
+    /// The paper's BPCA of `field` (no weighting).
+    fn fit(
         &self,
         field: &GridField,
         progress: &dyn Progress,
@@ -318,16 +333,21 @@ pub struct ClusteredPca {
     pub iterations: usize,
     /// Seed of the k-means start.
     pub seed: u64,
+    /// Beyond the paper (opt-in; `None` is its loss): k-means start and subspaces minimise the
+    /// weighted loss of [`LossWeighting`]. Assignment is unchanged (a voxel's weight scales its
+    /// distance to every subspace alike).
+    pub loss_weighting: Option<LossWeighting>,
 }
 
 impl ClusteredPca {
-    /// Defaults: 8 rounds, seed 0.
+    /// Defaults: 8 rounds, seed 0, the paper's loss.
     pub fn new(rank: usize, clusters: usize) -> Self {
         Self {
             rank,
             clusters,
             iterations: 8,
             seed: 0,
+            loss_weighting: None,
         }
     }
 }
@@ -359,6 +379,25 @@ impl ClusteredPca {
         let bases = fit_clusters(field, &labels, clusters, rank, None, progress)?;
         PiecewisePcaModel::projected(format!("CPCA rank {rank}"), field, labels, bases)
     }
+}
+
+/// `fit` run on `field` with every voxel's vector scaled by its weight under `weighting`
+/// (computed over the voxels `valid` marks), its coefficients divided back: a piecewise PCA's
+/// reconstruction is linear in each voxel's vector, so the model reconstructs `field` itself
+/// while its subspaces minimise the weighted loss. Without a weighting, `fit(field)`.
+fn fit_weighted(
+    field: &GridField,
+    valid: Option<&[bool]>,
+    weighting: Option<LossWeighting>,
+    fit: impl FnOnce(&GridField) -> Result<PiecewisePcaModel, MbdError>,
+) -> Result<PiecewisePcaModel, MbdError> {
+    let Some(weighting) = weighting else {
+        return fit(field);
+    };
+    let weights = weighting.weights(field, valid)?;
+    let mut model = fit(&weighted_field(field, &weights))?;
+    unweight_coefficients(&mut model.coefficients, &weights)?;
+    Ok(model)
 }
 
 /// Rows per chunk of the distance-to-subspace assignment.
@@ -445,6 +484,17 @@ impl Compressor for ClusteredPca {
         field: &GridField,
         progress: &dyn Progress,
     ) -> Result<PiecewisePcaModel, MbdError> {
+        fit_weighted(field, None, self.loss_weighting, |f| self.fit(f, progress))
+    }
+}
+
+impl ClusteredPca {
+    /// The paper's CPCA of `field` (no weighting).
+    fn fit(
+        &self,
+        field: &GridField,
+        progress: &dyn Progress,
+    ) -> Result<PiecewisePcaModel, MbdError> {
         check_rank(self.rank, field)?;
         if self.clusters == 0 || self.clusters > field.num_voxels() {
             return Err(MbdError::InvalidOption {
@@ -507,6 +557,18 @@ impl ClusteredPca {
         valid: &[bool],
         progress: &dyn Progress,
     ) -> Result<PiecewisePcaModel, MbdError> {
+        fit_weighted(field, Some(valid), self.loss_weighting, |f| {
+            self.fit_masked(f, valid, progress)
+        })
+    }
+
+    /// [`compress_masked`](Self::compress_masked) without weighting.
+    fn fit_masked(
+        &self,
+        field: &GridField,
+        valid: &[bool],
+        progress: &dyn Progress,
+    ) -> Result<PiecewisePcaModel, MbdError> {
         if valid.len() != field.num_voxels() {
             return Err(MbdError::ShapeMismatch {
                 what: "validity mask",
@@ -521,7 +583,7 @@ impl ClusteredPca {
             Aabb::UNIT,
             field.data().select(Axis(0), &rows),
         )?;
-        let model = self.compress(&compact, progress)?;
+        let model = self.fit(&compact, progress)?;
         drop(compact);
         let mut labels = vec![0u32; field.num_voxels()];
         let mut coefficients = Array2::<f32>::zeros((field.num_voxels(), self.rank));

@@ -78,6 +78,7 @@ fn block_pca_is_exact_when_each_block_has_its_own_subspace() {
         rank: 2,
         blocks: [2, 2, 2],
         window: 1.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress)
     .unwrap();
@@ -88,6 +89,7 @@ fn block_pca_is_exact_when_each_block_has_its_own_subspace() {
         rank: 2,
         blocks: [2, 2, 2],
         window: 2.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress)
     .unwrap();
@@ -107,6 +109,7 @@ fn clustered_pca_separates_interleaved_subspaces() {
         rank: 2,
         blocks: [2, 1, 1],
         window: 1.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress)
     .unwrap();
@@ -185,6 +188,7 @@ fn baselines_reject_bad_input() {
         rank: 2,
         blocks: [5, 1, 1],
         window: 1.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress);
     assert!(matches!(
@@ -195,6 +199,7 @@ fn baselines_reject_bad_input() {
         rank: 2,
         blocks: [2, 2, 2],
         window: 0.5,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress);
     assert!(matches!(
@@ -267,6 +272,7 @@ fn error_seams_are_large_for_bpca_and_small_for_mbd() {
         rank: 2,
         blocks: [3, 3, 3],
         window: 1.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress)
     .unwrap();
@@ -338,6 +344,7 @@ fn denoised_seam_ratio_separates_bpca_from_mbd_on_a_noisy_field() {
         rank: 2,
         blocks: [3, 3, 3],
         window: 1.0,
+        loss_weighting: None,
     }
     .compress(&field, &NoProgress)
     .unwrap();
@@ -489,6 +496,7 @@ fn blocks_of_zero_voxels_are_handled() {
             rank: 2,
             blocks: [2, 2, 2],
             window: 1.0,
+            loss_weighting: None,
         }
         .compress(&field, &NoProgress)
         .unwrap();

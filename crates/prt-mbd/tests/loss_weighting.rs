@@ -1,10 +1,12 @@
 //! The loss weighting: its weights are scale-free and bounded, and undoing it is exact at the
 //! voxel centres (a weighted fit is the fit of the weighted field with each voxel's
-//! coefficients divided by its weight).
+//! coefficients divided by its weight), for MBD and for the PCA baselines; weighted BPCA
+//! minimises the weighted loss.
 
 use proptest::prelude::*;
+use prt_core::Compressor;
 use prt_core::{Aabb, FieldModel, GridField, NoProgress};
-use prt_mbd::{Basis, LossWeighting, Mbd, MbdError};
+use prt_mbd::{Basis, BlockPca, ClusteredPca, LossWeighting, Mbd, MbdError, PiecewisePcaModel};
 
 fn mbd(weighting: Option<LossWeighting>) -> Mbd {
     let mut mbd = Mbd::new(2, Basis::HatGrid { nodes: [2, 3, 2] });
@@ -89,6 +91,69 @@ proptest! {
                 prop_assert!((p - want).abs() <= 1e-4 * (1.0 + want.abs()), "voxel {v}: {p} vs {want}");
             }
         }
+    }
+}
+
+/// `Σ_v w_v² ‖f̂_v − f_v‖²` of a piecewise PCA model on `field`.
+fn weighted_loss(model: &PiecewisePcaModel, field: &GridField, weights: &[f32]) -> f64 {
+    let recon = model.reconstruct().unwrap();
+    (0..field.num_voxels())
+        .map(|v| {
+            let w = f64::from(weights[v]).powi(2);
+            field
+                .voxel(v)
+                .iter()
+                .zip(recon.voxel(v))
+                .map(|(&a, &b)| w * (f64::from(a) - f64::from(b)).powi(2))
+                .sum::<f64>()
+        })
+        .sum()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(12))]
+
+    /// Weighted BPCA and CPCA are the paper's methods on the weighted field, each voxel's
+    /// coefficients divided by its weight: their reconstruction is the weighted fit's divided back.
+    #[test]
+    fn weighted_baselines_undo_the_weighting_exactly(seed in 0u64..1000, exponent in 0.0f32..1.5) {
+        let f = field(seed);
+        let weighting = LossWeighting { exponent, floor: 0.05 };
+        let weights = weighting.weights(&f, None).unwrap();
+        let mut weighted = f.clone();
+        for (v, &w) in weights.iter().enumerate() {
+            weighted.voxel_mut(v).iter_mut().for_each(|x| *x *= w);
+        }
+        let bpca = |loss_weighting| BlockPca { rank: 2, blocks: [2, 2, 1], window: 1.0, loss_weighting };
+        let cpca = |loss_weighting| ClusteredPca { seed, loss_weighting, ..ClusteredPca::new(2, 3) };
+        let pairs = [
+            (bpca(Some(weighting)).compress(&f, &NoProgress).unwrap(), bpca(None).compress(&weighted, &NoProgress).unwrap()),
+            (cpca(Some(weighting)).compress(&f, &NoProgress).unwrap(), cpca(None).compress(&weighted, &NoProgress).unwrap()),
+        ];
+        for (direct, plain) in &pairs {
+            prop_assert_eq!(direct.labels(), plain.labels());
+            prop_assert_eq!(direct.bases(), plain.bases());
+            let (a, b) = (direct.reconstruct().unwrap(), plain.reconstruct().unwrap());
+            for v in 0..f.num_voxels() {
+                for (p, q) in a.voxel(v).iter().zip(b.voxel(v)) {
+                    let want = q / weights[v];
+                    prop_assert!((p - want).abs() <= 1e-4 * (1.0 + want.abs()), "voxel {v}: {p} vs {want}");
+                }
+            }
+        }
+    }
+
+    /// Each block's weighted subspace is the best rank-L subspace for the weighted loss, so
+    /// weighted BPCA's weighted loss is never above the paper's BPCA's.
+    #[test]
+    fn weighted_bpca_minimises_the_weighted_loss(seed in 0u64..1000, exponent in 0.2f32..1.5) {
+        let f = field(seed);
+        let weighting = LossWeighting { exponent, floor: 0.05 };
+        let weights = weighting.weights(&f, None).unwrap();
+        let bpca = |loss_weighting| BlockPca { rank: 2, blocks: [2, 1, 1], window: 1.0, loss_weighting };
+        let weighted = weighted_loss(&bpca(Some(weighting)).compress(&f, &NoProgress).unwrap(), &f, &weights);
+        let plain = weighted_loss(&bpca(None).compress(&f, &NoProgress).unwrap(), &f, &weights);
+        prop_assert!(weighted <= plain * (1.0 + 1e-4) + 1e-9, "{weighted} > {plain}");
     }
 }
 
