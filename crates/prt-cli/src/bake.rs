@@ -136,6 +136,28 @@ pub struct BakeArgs {
         |c| c.cache_rays.to_string(),
     ))]
     pub cache_rays: Option<usize>,
+    #[arg(long, value_name = "ERROR|off", value_parser = parse_off_or, help = knob_help(
+        "Per-voxel adaptive sampling: a voxel stops once the relative standard error of its \
+         transfer is at most ERROR (--rays is then the cap); off: every voxel traces --rays",
+        |c| off_or(c.adaptive_error),
+    ))]
+    pub adaptive_error: Option<OffOr>,
+    #[arg(long, help = knob_help(
+        "With adaptive sampling, the directions every valid voxel traces at least",
+        |c| c.adaptive_min_rays.to_string(),
+    ))]
+    pub adaptive_min_rays: Option<usize>,
+    #[arg(long, value_name = "STRENGTH|off", value_parser = parse_off_or, help = knob_help(
+        "The geometry-aware denoiser of the traced volume: how many noise standard deviations \
+         of difference between visible neighbours still average; off: none",
+        |c| off_or(c.denoise),
+    ))]
+    pub denoise: Option<OffOr>,
+    #[arg(long, help = knob_help(
+        "The denoiser's neighbourhood half-width in voxels (1 to 8)",
+        |c| c.denoise_radius.to_string(),
+    ))]
+    pub denoise_radius: Option<usize>,
     #[arg(long, help = knob_help(
         "Margin added around the scene bounds, in metres",
         |c| c.margin.to_string(),
@@ -285,6 +307,23 @@ fn parse_loss_weighting(spec: &str) -> Result<LossWeightingArg, String> {
     Ok(LossWeightingArg(Some(weighting)))
 }
 
+/// A number or `off` (`--adaptive-error`, `--denoise`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OffOr(Option<f32>);
+
+fn parse_off_or(spec: &str) -> Result<OffOr, String> {
+    if spec == "off" {
+        return Ok(OffOr(None));
+    }
+    spec.parse::<f32>()
+        .map(|v| OffOr(Some(v)))
+        .map_err(|e| format!("{spec}: expected a number or off ({e})"))
+}
+
+fn off_or(value: Option<f32>) -> String {
+    value.map_or("off".into(), |v| v.to_string())
+}
+
 impl BakeArgs {
     /// The pipeline's configuration: the preset, each explicit knob over it, writing the
     /// container into `container`.
@@ -294,6 +333,10 @@ impl BakeArgs {
             resolution: self.res.unwrap_or(preset.resolution),
             rays_per_voxel: self.rays.unwrap_or(preset.rays_per_voxel),
             cache_rays: self.cache_rays.unwrap_or(preset.cache_rays),
+            adaptive_error: self.adaptive_error.map_or(preset.adaptive_error, |a| a.0),
+            adaptive_min_rays: self.adaptive_min_rays.unwrap_or(preset.adaptive_min_rays),
+            denoise: self.denoise.map_or(preset.denoise, |d| d.0),
+            denoise_radius: self.denoise_radius.unwrap_or(preset.denoise_radius),
             margin: self.margin.unwrap_or(preset.margin),
             rank: self.rank.unwrap_or(preset.rank),
             basis_nodes: self.basis_nodes.unwrap_or(preset.basis_nodes),
@@ -321,6 +364,10 @@ fn flag(field: &str) -> &str {
         "resolution" => "--res",
         "rays_per_voxel" => "--rays",
         "cache_rays" => "--cache-rays",
+        "adaptive_error" => "--adaptive-error",
+        "adaptive_min_rays" => "--adaptive-min-rays",
+        "denoise" => "--denoise",
+        "denoise_radius" => "--denoise-radius",
         "margin" => "--margin",
         "rank" => "--rank",
         "basis_nodes" => "--basis-nodes",
@@ -583,6 +630,27 @@ mod tests {
     struct Bake {
         #[command(flatten)]
         args: BakeArgs,
+    }
+
+    #[test]
+    fn the_sampling_and_denoiser_flags_parse_and_switch_off() {
+        let tuned = config(&[
+            "--adaptive-error",
+            "0.1",
+            "--adaptive-min-rays",
+            "192",
+            "--denoise",
+            "2.5",
+            "--denoise-radius",
+            "2",
+        ]);
+        assert_eq!(tuned.adaptive_error, Some(0.1));
+        assert_eq!(tuned.adaptive_min_rays, 192);
+        assert_eq!(tuned.denoise, Some(2.5));
+        assert_eq!(tuned.denoise_radius, 2);
+        let off = config(&["--adaptive-error", "off", "--denoise", "off"]);
+        assert_eq!((off.adaptive_error, off.denoise), (None, None));
+        assert!(parse_off_or("of").is_err());
     }
 
     #[test]
