@@ -18,6 +18,9 @@
 //!   and `prt merge PLAN_DIR --out BAKE_DIR` split a bake into tiles traced by independent
 //!   workers (a Kubernetes Indexed Job, a Slurm job array, or local processes) and merge them
 //!   into the bake folder `prt bake` writes (deploy/ has the manifests).
+//! * `prt lightmap [SCENE] --out DIR` bakes a progressive lightmap: generated UV charts,
+//!   path-traced texels encoded with (non-negative) progressive least squares into SG, SH,
+//!   ambient dice or irradiance, previews every K samples, EXR + KTX2 + JSON manifest.
 //! * `prt inspect FILE` prints what a KTX2 / EXR / HDR file or an MBD container holds (for a
 //!   container, also the model read back: rank, dimension, kernels, validity).
 //!
@@ -28,6 +31,7 @@ mod bake;
 mod encode;
 mod export;
 mod inspect;
+mod lightmap;
 mod merge;
 mod plan;
 mod progress;
@@ -63,6 +67,9 @@ enum Command {
     Export(export::ExportArgs),
     /// Print what a KTX2 / EXR / HDR file or an MBD manifest holds.
     Inspect(inspect::InspectArgs),
+    /// Bake a progressive lightmap: UVs, path-traced texels encoded with (non-negative)
+    /// progressive least squares, previews, EXR + KTX2 + manifest.
+    Lightmap(lightmap::LightmapArgs),
     /// Relight a scene from a fixed camera under a turning environment map (per-pixel wavelet
     /// transport; NWA, BI, PBI against the exact product).
     Relight(relight::RelightArgs),
@@ -89,6 +96,7 @@ fn main() -> ExitCode {
         Command::Encode(args) => encode::run(&args),
         Command::Export(args) => export::run(&args),
         Command::Inspect(args) => inspect::run(&args),
+        Command::Lightmap(args) => lightmap::run(&args),
         Command::Relight(args) => relight::run(&args),
         Command::Render(args) => render::run(&args),
         Command::View(args) => view::run(&args),

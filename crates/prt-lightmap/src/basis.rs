@@ -19,10 +19,11 @@ pub enum LightmapBasis {
         /// Number of lobes.
         lobes: usize,
     },
-    /// Real spherical harmonics of bands `0..=max_band` (`(max_band + 1)²` functions).
+    /// Real spherical harmonics of order `order` (bands `0..order`, `order²` functions; the
+    /// `sh:N` of `prt encode`).
     Sh {
-        /// The highest band.
-        max_band: usize,
+        /// The order (number of bands).
+        order: usize,
     },
     /// Ambient dice, SRBF variant (12 functions; Iwanicki and Sloan 2017).
     AmbientDice,
@@ -32,20 +33,18 @@ pub enum LightmapBasis {
 }
 
 impl LightmapBasis {
-    /// Parses `sg:N`, `sh:L`, `ambient-dice` or `irradiance`.
+    /// Parses `sg:N`, `sh:N`, `ambient-dice` or `irradiance`.
     pub fn parse(text: &str) -> Result<Self, LightmapError> {
         let bad = || {
             LightmapError::invalid(
                 "basis",
-                format!("{text:?}: expected sg:N, sh:L, ambient-dice or irradiance"),
+                format!("{text:?}: expected sg:N, sh:N, ambient-dice or irradiance"),
             )
         };
         let number = |s: &str| s.parse::<usize>().map_err(|_| bad());
         let basis = match text.split_once(':') {
             Some(("sg", n)) => LightmapBasis::Sg { lobes: number(n)? },
-            Some(("sh", l)) => LightmapBasis::Sh {
-                max_band: number(l)?,
-            },
+            Some(("sh", n)) => LightmapBasis::Sh { order: number(n)? },
             None if text == "ambient-dice" => LightmapBasis::AmbientDice,
             None if text == "irradiance" => LightmapBasis::Irradiance,
             _ => return Err(bad()),
@@ -59,10 +58,9 @@ impl LightmapBasis {
             LightmapBasis::Sg { lobes } if !(1..=64).contains(&lobes) => Err(
                 LightmapError::invalid("SG lobes", format!("{lobes} (1..=64)")),
             ),
-            LightmapBasis::Sh { max_band } if max_band > 7 => Err(LightmapError::invalid(
-                "SH band",
-                format!("{max_band} (0..=7)"),
-            )),
+            LightmapBasis::Sh { order } if !(1..=8).contains(&order) => Err(
+                LightmapError::invalid("SH order", format!("{order} (1..=8)")),
+            ),
             _ => Ok(()),
         }
     }
@@ -71,7 +69,7 @@ impl LightmapBasis {
     pub fn len(&self) -> usize {
         match *self {
             LightmapBasis::Sg { lobes } => lobes,
-            LightmapBasis::Sh { max_band } => (max_band + 1) * (max_band + 1),
+            LightmapBasis::Sh { order } => order * order,
             LightmapBasis::AmbientDice => 12,
             LightmapBasis::Irradiance => 0,
         }
@@ -86,7 +84,7 @@ impl LightmapBasis {
     pub fn label(&self) -> String {
         match *self {
             LightmapBasis::Sg { lobes } => format!("sg:{lobes}"),
-            LightmapBasis::Sh { max_band } => format!("sh:{max_band}"),
+            LightmapBasis::Sh { order } => format!("sh:{order}"),
             LightmapBasis::AmbientDice => "ambient-dice".into(),
             LightmapBasis::Irradiance => "irradiance".into(),
         }
@@ -117,7 +115,7 @@ impl LightmapBasis {
                     self.label(),
                 )?))
             }
-            LightmapBasis::Sh { max_band } => Some(Box::new(ShBasis::new(max_band + 1)?)),
+            LightmapBasis::Sh { order } => Some(Box::new(ShBasis::new(order)?)),
             LightmapBasis::AmbientDice => Some(Box::new(AmbientDiceSrbf)),
             LightmapBasis::Irradiance => None,
         })
@@ -208,13 +206,14 @@ mod tests {
 
     #[test]
     fn names_round_trip() {
-        for text in ["sg:9", "sh:2", "ambient-dice", "irradiance"] {
+        for text in ["sg:9", "sh:3", "ambient-dice", "irradiance"] {
             assert_eq!(LightmapBasis::parse(text).unwrap().label(), text);
         }
         for text in ["plsq", "plsq-nonneg", "ls", "nnls", "naive"] {
             assert_eq!(Encoder::parse(text).unwrap().label(), text);
         }
         assert!(LightmapBasis::parse("sg:0").is_err());
+        assert!(LightmapBasis::parse("sh:0").is_err());
         assert!(LightmapBasis::parse("sh:x").is_err());
         assert!(Encoder::parse("fast").is_err());
     }
@@ -222,10 +221,7 @@ mod tests {
     /// The constant SH function's cosine weight is `π Y_0 = π / (2√π)`.
     #[test]
     fn cosine_weights_match_the_clamped_cosine() {
-        let basis = LightmapBasis::Sh { max_band: 1 }
-            .functions()
-            .unwrap()
-            .unwrap();
+        let basis = LightmapBasis::Sh { order: 2 }.functions().unwrap().unwrap();
         let w = cosine_weights(basis.as_ref());
         let expected = std::f32::consts::PI * 0.282_094_8;
         assert!((w[0] - expected).abs() < 1e-4 * expected, "{w:?}");

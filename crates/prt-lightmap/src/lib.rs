@@ -18,8 +18,11 @@
 //!   diffuse bounces), the paper's hemisphere rule (zero-radiance mirror samples), decorrelated
 //!   per-texel Sobol' sequences, and one of the encoders of [`Encoder`] (PLSQ, non-negative PLSQ
 //!   — the default, no negative light —, least squares, NNLS, naive projection) into a
-//!   [`LightmapBasis`] (`sg:N`, `sh:L`, `ambient-dice`, `irradiance`). Memory is estimated
+//!   [`LightmapBasis`] (`sg:N`, `sh:N`, `ambient-dice`, `irradiance`). Memory is estimated
 //!   before allocating ([`estimate_memory`]) and refused over a budget.
+//!
+//! * **Looking** — [`Lightmap::irradiance_at`] (bilinear, as a GPU filters) and
+//!   [`render_view`]: the scene from a pinhole view lit by its lightmap.
 //!
 //! The crate does no I/O; long work takes a [`prt_core::Progress`] handle (cancellation keeps
 //! the last completed pass). A seed gives bit-identical lightmaps on any thread count.
@@ -47,6 +50,7 @@ mod error;
 mod pack;
 mod raster;
 mod trace;
+mod view;
 
 pub use atlas::{Atlas, UnwrapConfig, UvSource, atlas_from_uvs, unwrap_charts};
 pub use bake::{Lightmap, LightmapBake, LightmapConfig, bake_lightmap, estimate_memory};
@@ -55,3 +59,4 @@ pub use error::LightmapError;
 pub use pack::{Packing, pack_shelves};
 pub use raster::{Seams, Texel, TexelMap, dilate};
 pub use trace::Lighting;
+pub use view::render_view;

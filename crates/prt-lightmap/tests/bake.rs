@@ -127,11 +127,7 @@ fn a_plane_under_a_constant_sky_receives_pi_l() {
             Encoder::Naive,
             5.0 * se / std::f32::consts::PI,
         ),
-        (
-            LightmapBasis::Sh { max_band: 2 },
-            Encoder::LeastSquares,
-            0.03,
-        ),
+        (LightmapBasis::Sh { order: 3 }, Encoder::LeastSquares, 0.03),
         (
             LightmapBasis::Sg { lobes: 9 },
             Encoder::PlsqNonNegative,

@@ -1,0 +1,115 @@
+//! `prt lightmap` on the Cornell box glTF of ../shared at a tiny size: the files it writes and
+//! the knobs it refuses with a one-line error.
+
+mod common;
+use std::path::PathBuf;
+
+use common::{assert_clean_failure, prt, scratch, stderr};
+use prt_texture::exr_io::read_exr;
+use prt_texture::{Ktx2Texture, Limits};
+
+/// The Cornell box glTF of ../shared/scenes, or `None` (with a message) when it is absent and
+/// PRT_REQUIRE_SHARED=1 does not require it.
+fn cornell() -> Option<PathBuf> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/scenes/cornell_box/CornellBox-Original.gltf");
+    if path.is_file() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1"),
+        "{} is missing and PRT_REQUIRE_SHARED=1",
+        path.display()
+    );
+    eprintln!(
+        "SKIPPED: {} is absent (PRT_REQUIRE_SHARED=1 requires it)",
+        path.display()
+    );
+    None
+}
+
+#[test]
+fn a_tiny_cornell_lightmap_writes_its_textures_previews_and_manifest() {
+    let Some(scene) = cornell() else { return };
+    let out = scratch("lightmap");
+    let scene = scene.to_str().unwrap();
+    let dir = out.to_str().unwrap();
+    let args = [
+        "lightmap",
+        scene,
+        "--samples",
+        "8",
+        "--pass",
+        "4",
+        "--preview-every",
+        "4",
+        "--texels-per-metre",
+        "4",
+        "--view-size",
+        "32",
+        "--out",
+        dir,
+    ];
+    let run = prt(&args);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["basis"], "sg:9");
+    assert_eq!(manifest["encoder"], "plsq-nonneg");
+    assert_eq!(manifest["samples_per_texel"], 8);
+    assert_eq!(manifest["cancelled"], false);
+    assert_eq!(manifest["overlapping_texels"], 0);
+    let (w, h) = (
+        manifest["width"].as_u64().unwrap() as u32,
+        manifest["height"].as_u64().unwrap() as u32,
+    );
+    let layers = read_exr(&out.join("lightmap.exr"), &Limits::default()).unwrap();
+    assert_eq!(layers.len(), 10);
+    assert_eq!(layers[0].name.as_deref(), Some("irradiance"));
+    assert!(layers.iter().all(|l| l.width == w && l.height == h));
+    // Non-negative PLSQ: nothing negative, and the box is lit.
+    assert!(layers.iter().flat_map(|l| &l.data).all(|&v| v >= 0.0));
+    assert!(layers[0].data.iter().any(|&v| v > 0.01));
+    let ktx = Ktx2Texture::read_file(&out.join("lightmap.ktx2"), &Limits::default()).unwrap();
+    let level = ktx.level_f32(0).unwrap();
+    assert_eq!(level.len(), 10 * (w * h) as usize * 4);
+    assert_eq!(
+        level[0..4 * (w * h) as usize]
+            .chunks(4)
+            .map(|t| t[1])
+            .collect::<Vec<_>>(),
+        layers[0].data.chunks(3).map(|t| t[1]).collect::<Vec<_>>()
+    );
+    let triangles = 32;
+    assert_eq!(
+        std::fs::metadata(out.join("lightmap_uvs.bin"))
+            .unwrap()
+            .len(),
+        triangles * 6 * 4
+    );
+    for file in [
+        "view.png",
+        "atlas.png",
+        "preview/view00004.png",
+        "preview/atlas00004.png",
+    ] {
+        assert!(out.join(file).is_file(), "{file} missing");
+    }
+}
+
+#[test]
+fn bad_knobs_are_one_line_errors() {
+    let Some(scene) = cornell() else { return };
+    let out = scratch("lightmap-bad");
+    let (scene, dir) = (scene.to_str().unwrap(), out.to_str().unwrap());
+    let run = |extra: &[&str]| {
+        let mut args = vec!["lightmap", scene, "--samples", "4", "--out", dir];
+        args.extend_from_slice(extra);
+        prt(&args)
+    };
+    assert_clean_failure(&run(&["--basis", "sg:0"]), "SG lobes");
+    assert_clean_failure(&run(&["--view-size", "0"]), "view-size");
+    assert_clean_failure(&run(&["--encoder", "fast"]), "encoder");
+    assert_clean_failure(&run(&["--max-memory", "0.00001"]), "budget");
+    assert_clean_failure(&run(&["--texels-per-metre", "0"]), "texels per metre");
+}
