@@ -18,6 +18,10 @@
 //!   and `prt merge PLAN_DIR --out BAKE_DIR` split a bake into tiles traced by independent
 //!   workers (a Kubernetes Indexed Job, a Slurm job array, or local processes) and merge them
 //!   into the bake folder `prt bake` writes (deploy/ has the manifests).
+//! * `prt manylight [SCENE] --out IMG` renders a scene lit by thousands of point lights (VPLs
+//!   traced from its sky, sun and emitters, or a lights file) with row-column sampling,
+//!   LightSlice, visibility clustering or tensor clustering over an animation, against brute
+//!   force (time, speed-up, relative L2 and ꟻLIP); `--compare` renders every method side by side.
 //! * `prt lightmap [SCENE] --out DIR` bakes a progressive lightmap: generated UV charts,
 //!   path-traced texels encoded with (non-negative) progressive least squares into SG, SH,
 //!   ambient dice or irradiance, previews every K samples, EXR + KTX2 + JSON manifest.
@@ -32,6 +36,7 @@ mod encode;
 mod export;
 mod inspect;
 mod lightmap;
+mod manylight;
 mod merge;
 mod plan;
 mod progress;
@@ -85,6 +90,9 @@ enum Command {
     /// Assemble a plan's finished tiles, solve MBD once and write the bake folder `prt bake`
     /// writes, with the seam measures across tile borders.
     Merge(merge::MergeArgs),
+    /// Render a scene lit by thousands of point lights with many-light matrix sampling, against
+    /// brute force.
+    Manylight(manylight::ManyLightArgs),
 }
 
 fn main() -> ExitCode {
@@ -103,6 +111,7 @@ fn main() -> ExitCode {
         Command::Plan(args) => plan::run(&args),
         Command::BakeTile(args) => tile::run(&args),
         Command::Merge(args) => merge::run(&args),
+        Command::Manylight(args) => manylight::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

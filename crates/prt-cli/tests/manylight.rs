@@ -1,0 +1,216 @@
+//! `prt manylight` on the Cornell box glTF of ../shared at a tiny size, and lights files it must
+//! refuse with a one-line error.
+
+mod common;
+use std::path::{Path, PathBuf};
+
+use common::{assert_clean_failure, prt, scratch, stderr};
+
+/// The Cornell box glTF of ../shared/scenes, or `None` (with a message) when it is absent and
+/// PRT_REQUIRE_SHARED=1 does not require it.
+fn cornell() -> Option<PathBuf> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/scenes/cornell_box/CornellBox-Original.gltf");
+    if path.is_file() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1"),
+        "{} is missing and PRT_REQUIRE_SHARED=1",
+        path.display()
+    );
+    eprintln!(
+        "SKIPPED: {} is absent (PRT_REQUIRE_SHARED=1 requires it)",
+        path.display()
+    );
+    None
+}
+
+/// 40 isotropic and downward lights in the Cornell box glTF (x in -1..1, y in 0..1.99, z in
+/// -1.04..0.99), above its two blocks and below its ceiling.
+fn write_lights(path: &Path) {
+    let mut text = String::from("# x y z  nx ny nz  r g b\n");
+    for k in 0..40 {
+        let (x, y, z) = (
+            -0.5 + 0.025 * k as f32,
+            1.3 + 0.015 * k as f32,
+            0.3 - 0.015 * k as f32,
+        );
+        let normal = if k % 2 == 0 { "0 0 0" } else { "0 -1 0" };
+        text.push_str(&format!(
+            "{x} {y} {z}  {normal}  0.5 0.4 {}\n",
+            0.1 + 0.01 * k as f32
+        ));
+    }
+    std::fs::write(path, text).expect("write the lights");
+}
+
+/// The relative L2 error (percent) the `--compare` table prints for `method`.
+fn table_error(stdout: &str, method: &str) -> f64 {
+    let row = stdout
+        .lines()
+        .find(|l| l.starts_with(&format!("| {method} |")))
+        .unwrap_or_else(|| panic!("no row for {method} in {stdout}"));
+    let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+    cells[5]
+        .trim_end_matches(" %")
+        .parse()
+        .unwrap_or_else(|_| panic!("no error in {row}"))
+}
+
+#[test]
+fn compare_on_the_cornell_gltf_is_exact_with_a_column_per_light() {
+    let Some(scene) = cornell() else { return };
+    let dir = scratch("manylight-compare");
+    let lights = dir.join("lights.txt");
+    write_lights(&lights);
+    let out = dir.join("cornell.png");
+    let run = prt(&[
+        "manylight",
+        scene.to_str().unwrap(),
+        "--lights-file",
+        lights.to_str().unwrap(),
+        "--size",
+        "24",
+        "--rows",
+        "32",
+        "--columns",
+        "40",
+        "--compare",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains("40 lights (40 VPLs from the lights file"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("(measured)"), "{stdout}");
+    // One cluster per light: row-column sampling and tensor clustering are exact.
+    for method in ["rowcol", "mrcs"] {
+        assert!(table_error(&stdout, method) < 0.01, "{method}: {stdout}");
+    }
+    for method in ["lightslice", "visibility"] {
+        assert!(table_error(&stdout, method) < 100.0, "{method}: {stdout}");
+    }
+    let image = image::open(&out).expect("the PNG reads back");
+    assert_eq!((image.width(), image.height()), (24, 24));
+    let strip = image::open(dir.join("cornell_compare.png")).expect("the strip reads back");
+    assert_eq!((strip.width(), strip.height()), (5 * 24, 2 * 24));
+    // The lit box is not black.
+    assert!(
+        image
+            .to_rgb8()
+            .pixels()
+            .any(|p| p.0.iter().any(|&c| c > 40))
+    );
+}
+
+#[test]
+fn traced_lights_on_a_light_path_with_estimated_brute_force_write_exr_frames() {
+    let Some(scene) = cornell() else { return };
+    let dir = scratch("manylight-frames");
+    let out = dir.join("frame.exr");
+    let saved = dir.join("saved.txt");
+    let run = prt(&[
+        "manylight",
+        scene.to_str().unwrap(),
+        "--lights",
+        "300",
+        "--size",
+        "16",
+        "--rows",
+        "16",
+        "--columns",
+        "32",
+        "--frames",
+        "3",
+        "--path",
+        "light",
+        "--method",
+        "mrcs",
+        "--max-brute-elements",
+        "0",
+        "--sample-pixels",
+        "8",
+        "--save-lights",
+        saved.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(stdout.contains("traced, one bounce"), "{stdout}");
+    assert!(
+        stdout.contains("estimated from 8 sampled pixels per frame"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("time splits"), "{stdout}");
+    for t in 0..3 {
+        let frame = dir.join(format!("frame_{t:04}.exr"));
+        assert!(frame.is_file(), "missing {}", frame.display());
+    }
+    // The saved lights read back as a lights file.
+    let again = prt(&[
+        "manylight",
+        scene.to_str().unwrap(),
+        "--lights-file",
+        saved.to_str().unwrap(),
+        "--size",
+        "8",
+        "--method",
+        "brute",
+        "--out",
+        dir.join("again.png").to_str().unwrap(),
+    ]);
+    assert!(again.status.success(), "{}", stderr(&again));
+}
+
+#[test]
+fn bad_lights_files_are_one_line_errors() {
+    let dir = scratch("manylight-bad");
+    let out = dir.join("out.png");
+    let run_with = |name: &str, text: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).expect("write the lights");
+        prt(&[
+            "manylight",
+            "--lights-file",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+    };
+    let good = "0 1 0  0 -1 0  1 1 1\n";
+    assert_clean_failure(
+        &run_with("nan.txt", &format!("{good}0 1 0  0 -1 0  NaN 1 1\n")),
+        "line 2: light 1: its power is not finite",
+    );
+    assert_clean_failure(
+        &run_with("inf.txt", &format!("{good}{good}0 inf 0  0 -1 0  1 1 1\n")),
+        "light 2: its position is not finite",
+    );
+    assert_clean_failure(&run_with("zero.txt", "0 1 0  0 -1 0  0 0 0\n"), "is zero");
+    assert_clean_failure(
+        &run_with("negative.txt", "0 1 0  0 -1 0  1 -0.5 1\n"),
+        "is negative",
+    );
+    assert_clean_failure(&run_with("short.txt", "0 1 0 0 -1 0 1 1\n"), "line 1");
+    assert_clean_failure(&run_with("empty.txt", "# no lights\n"), "no light");
+    // Two million lights of 300 sampled rows each exceed the default 4 GiB: refused after
+    // counting, before any is stored.
+    let many = run_with("many.txt", &"0 1 0 0 -1 0 1 1 1\n".repeat(2_000_000));
+    assert_clean_failure(&many, "2000000 lights need about");
+    assert_clean_failure(
+        &prt(&[
+            "manylight",
+            "--lights-file",
+            dir.join("absent.txt").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]),
+        "cannot read the lights file",
+    );
+    assert!(!out.exists());
+}
