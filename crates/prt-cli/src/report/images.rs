@@ -141,6 +141,9 @@ pub struct ImageSummary {
     pub jump_top: f32,
     /// The error maps' heat scale, in grey levels of the tone-mapped images.
     pub error_top: f32,
+    /// Per method (file-name key): the mean of its error map over the slice's valid voxels, in
+    /// grey levels.
+    pub error_means: Vec<(String, f32)>,
 }
 
 /// Writes the images of the bake's seam-view slice: irradiance (reference and every method), the
@@ -198,6 +201,15 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
         })
         .collect();
     let error_top = heat_scale(errors.iter().flatten(), 1.0);
+    let error_means: Vec<(String, f32)> = methods
+        .iter()
+        .zip(&errors)
+        .map(|(m, e)| {
+            let valid: Vec<f32> = e.iter().flatten().copied().collect();
+            let mean = valid.iter().sum::<f32>() / valid.len().max(1) as f32;
+            (m.key.to_string(), mean)
+        })
+        .collect();
     let jump_top = heat_scale(methods.iter().flat_map(|m| &m.view.jump), 1e-6);
 
     let irradiance_img = |s: &[Option<[f32; 3]>]| {
@@ -252,6 +264,17 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
         .enumerate()
         .map(|(i, (key, _))| (at(i as u32, 0).0 as i32 + 6, 6, key.to_uppercase(), 18))
         .collect();
+    let mut error_text = vec![
+        "ERROR vs the reference,".to_string(),
+        "in grey levels of the images".into(),
+        format!("above (white >= {error_top:.1} of 255)."),
+        "Mean over the valid voxels:".into(),
+    ];
+    error_text.extend(
+        error_means
+            .iter()
+            .map(|(key, mean)| format!("{} {mean:.2}", key.to_uppercase())),
+    );
     let row_text = [
         (
             1,
@@ -268,16 +291,7 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
                 "dark = seamless.".into(),
             ],
         ),
-        (
-            2,
-            vec![
-                "ERROR vs the reference,".to_string(),
-                "in grey levels of the images".into(),
-                format!("above (white >= {error_top:.1} of 255);"),
-                "mostly the reference's".into(),
-                "Monte Carlo noise.".into(),
-            ],
-        ),
+        (2, error_text),
     ];
     for (row, lines) in row_text {
         let (x, y) = at(0, row);
@@ -339,5 +353,6 @@ pub fn write_images(out_dir: &Path, bake: &Bake) -> Result<ImageSummary> {
         profile_row,
         jump_top,
         error_top,
+        error_means,
     })
 }

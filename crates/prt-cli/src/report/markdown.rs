@@ -200,17 +200,22 @@ pub fn write_report(
          plots the residual itself along row z = {row}, with the block / cluster edges as \
          vertical lines: BPCA and CPCA step at them, MBD does not.\n\
          - **Bottom row**: error of the irradiance against the reference, in grey levels of the \
-         tone-mapped images above (white ≥ {error:.1} of 255). At this ray count it is mostly \
-         the reference's own Monte Carlo noise, which is why the seam view exists. It is \
-         measured on the displayed values because an absolute radiometric error is dominated \
-         by the brightest voxels (e.g. a ring of voxels under the open sky outside a \
-         building's walls).\n\n\
+         tone-mapped images above (white ≥ {error:.1} of 255); mean over the slice's valid \
+         voxels: {means}. It is measured on the displayed values because an absolute \
+         radiometric error is dominated by the brightest voxels (e.g. a ring of voxels under \
+         the open sky outside a building's walls).\n\n\
          ![comparison](comparison.png)\n\n![seam profile](seam_profile.png)\n\n",
         slice_y = baked.seam_slice,
         sigma = BLUR_SIGMA,
         jump = 100.0 * images.jump_top,
         row = images.profile_row,
         error = images.error_top,
+        means = images
+            .error_means
+            .iter()
+            .map(|(key, mean)| format!("{} {mean:.2}", key.to_uppercase()))
+            .collect::<Vec<_>>()
+            .join(", "),
     );
     md += &images
         .files
