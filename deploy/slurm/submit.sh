@@ -111,6 +111,8 @@ cpus_for() {
     echo "--cpus-per-task=$((most < 8 ? most : 8))"
 }
 
+# The jobs run `prt` from the PATH exported with them (--export=ALL).
+command -v prt >/dev/null || fail "prt is not on PATH (the jobs get this shell's PATH)"
 unfinished=$(prt bake-tile "$plan" --unfinished)
 mkdir -p "$plan/logs" "$state"
 printf '%s\0' "$bake" "${flags[@]}" -- "${both[@]}" --merge "${merge[@]}" >"$args_file"
