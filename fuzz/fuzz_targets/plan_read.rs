@@ -1,10 +1,10 @@
-//! A tiled bake's `plan.json` from untrusted bytes (`prt_bake::TilePlan::decode`): any input
+//! A tiled bake's `plan.json` from untrusted bytes (`prt_bake::tiles::TilePlan::decode`): any input
 //! gives a typed error or a plan whose tiles partition its lattice, that every tile's
 //! fingerprint can be made for, and that reads back the same after writing.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use prt_bake::{TileFingerprint, TilePlan};
+use prt_bake::tiles::{TileFingerprint, TilePlan};
 use prt_texture::Limits;
 
 fuzz_target!(|data: &[u8]| {

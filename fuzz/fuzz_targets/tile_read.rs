@@ -1,4 +1,4 @@
-//! A finished tile's files from untrusted bytes (`prt_bake::decode_tile`) under a fixed plan of
+//! A finished tile's files from untrusted bytes (`prt_bake::tiles::decode_tile`) under a fixed plan of
 //! the built-in Cornell box (4³ voxels in two tiles with a halo of 1). The first byte picks the
 //! tile (low bits) and the mode (high bit): `tile.json`, `transfer.f32` and `valid.u8` as they
 //! come (`[u16 json length][json][u32 transfer length][transfer][valid]`), or a payload of the
@@ -10,10 +10,11 @@
 use std::sync::OnceLock;
 
 use libfuzzer_sys::fuzz_target;
-use prt_bake::{
-    BakeConfig, SceneInput, TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileError,
-    TileFingerprint, TilePlan, TileStats, decode_tile, plan_tiles,
+use prt_bake::tiles::{
+    TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileError, TileFingerprint, TilePlan,
+    TileStats, decode_tile, plan_tiles,
 };
+use prt_bake::{BakeConfig, SceneInput};
 use prt_texture::Limits;
 
 fn plan() -> &'static TilePlan {

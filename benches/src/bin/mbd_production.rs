@@ -11,11 +11,11 @@
 //!
 //! The target: the scene's transfer volume (`--rays` directions and `--cache-rays` per voxel,
 //! seed 0; cached in target/mbd_cache/) lit by `--sky` (`sun`: prt's default sky plus a sun, or
-//! `default`), as irradiance L1 SH (`prt_bake::irradiance_l1`); invalid voxels (under the
+//! `default`), as irradiance L1 SH (`prt_bake::production::irradiance_l1`); invalid voxels (under the
 //! terrain, inside buildings) filled from their valid neighbours before every fit
-//! (`prt_bake::fill_invalid`). Errors are relative MSE `Σ‖f̂ − f‖² / Σ‖f‖²` at the centres of
+//! (`prt_bake::production::fill_invalid`). Errors are relative MSE `Σ‖f̂ − f‖² / Σ‖f‖²` at the centres of
 //! the valid voxels against the traced target, in f32 and as written at 8 bits (unorm with
-//! per-channel scale and bias): MBD hybrid rows through `prt_bake::write_production` and
+//! per-channel scale and bias): MBD hybrid rows through `prt_bake::production::write_production` and
 //! `read_production`; the other rows quantised in memory with the same encoding. Bytes per
 //! voxel count texel payloads (coefficients padded to RGBA texels for MBD, one byte per
 //! coefficient and label for the baselines) and, for the rows written, every file.
@@ -32,7 +32,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Parser;
-use prt_bake::{
+use prt_bake::production::{
     ProductionConfig, ProductionContents, ProductionModel, fill_invalid, fit_production,
     irradiance_l1, read_production, texel_bytes, write_production,
 };
@@ -323,7 +323,7 @@ fn main() {
     if enabled(&cli, "hat3d") {
         // The same coefficients with a full 3D hat basis (3 nodes along y) for contrast.
         let (coefficients, _) =
-            prt_bake::production_kernels(&target, &production).expect("kernels");
+            prt_bake::production::production_kernels(&target, &production).expect("kernels");
         let [bx, bz] = production.basis_nodes;
         let basis = HatGrid::new([bx, 3, bz], coefficients.domain()).expect("basis");
         let watch = Stopwatch::start();

@@ -124,7 +124,7 @@ fn difference(a: &prt_bake::KeptVolumes, b: &prt_bake::KeptVolumes) -> f64 {
 }
 
 /// The tile of every voxel of the plan's lattice (x fastest).
-fn tile_labels(plan: &prt_bake::TilePlan) -> Vec<u32> {
+fn tile_labels(plan: &prt_bake::tiles::TilePlan) -> Vec<u32> {
     let [nx, ny, nz] = plan.lattice_dims;
     let mut labels = vec![0u32; nx * ny * nz];
     for tile in &plan.tiles {
@@ -206,7 +206,7 @@ fn main() {
         let log = cli.work.join("time.log");
         timed(&cli.prt, &args, &log);
         let load = load_average();
-        let plan_data = prt_bake::TilePlan::read(&plan, &Limits::default()).unwrap();
+        let plan_data = prt_bake::tiles::TilePlan::read(&plan, &Limits::default()).unwrap();
         let runs: Vec<Measured> = (0..tiles)
             .map(|i| {
                 let index = i.to_string();
@@ -272,7 +272,8 @@ fn main() {
             dirs.push((format!("single process, seed {seed}"), out, Some(m)));
         }
         let plan = cli.work.join(format!("plan-{}", cli.tiles.last().unwrap()));
-        let labels = tile_labels(&prt_bake::TilePlan::read(&plan, &Limits::default()).unwrap());
+        let labels =
+            tile_labels(&prt_bake::tiles::TilePlan::read(&plan, &Limits::default()).unwrap());
         dirs.push(("tiled (last row above)".into(), tiled, None));
         let reference = traced(&dirs[0].1);
         for (name, dir, m) in &dirs {

@@ -12,7 +12,7 @@
 //! | [`BakeConfig`] | every knob; `Default` is `prt bake`'s defaults |
 //! | [`Layout`], [`BrickSummary`] | dense or sparse-brick tracing and masked fitting, and what a sparse bake kept |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
-//! | [`SceneInput`] | the built-in Cornell box or a glTF file, with the name the container records |
+//! | [`SceneInput`], [`scene_hash`] | the built-in Cornell box or a glTF file, with the name the container records; the hash of a loaded scene |
 //! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
@@ -23,12 +23,8 @@
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
 //! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
-//! | [`plan_tiles`], [`TilePlan`] | a tiled bake's plan: the global lattice cut into tiles with a halo and per-tile seeds, for `prt plan` |
-//! | [`bake_tile`], [`TileOutcome`] | one worker's tile: trace it, write it atomically into the plan folder (`prt bake-tile`) |
-//! | [`assemble`] then [`bake_volume`], [`tile_seams`] | the merge: the tiles' cores as one volume, solved once; seam measures across tile borders (`prt merge`) |
-//! | [`merge_streamed`], [`StreamedMerge`] | the merge in memory bounded by a tile: basis fitted at half resolution, refined by sweeps over the tiles, per-voxel coefficients (`prt merge --stream`) |
-//! | [`TileError`] | what can stop a tiled bake |
-//! | [`irradiance_l1`], [`fill_invalid`], [`fit_production`], [`write_production`], [`read_production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients; [`ProductionConfig`]), 8-bit textures at node resolution, read back as a [`ProductionModel`] |
+//! | [`tiles`] | tiled bakes: the plan (`prt plan`), one worker's tile (`prt bake-tile`), the merge in memory or streamed (`prt merge`), their files and errors |
+//! | [`production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients), 8-bit textures at node resolution, read back |
 //!
 //! ```no_run
 //! use prt_bake::{BakeConfig, SceneInput, bake, read_container};
@@ -58,12 +54,12 @@ mod folder;
 mod memory;
 mod methods;
 mod pipeline;
-mod production;
+pub mod production;
 mod relight;
 mod scene;
 mod scores;
 mod seams;
-mod tiles;
+pub mod tiles;
 mod volumes;
 
 pub use config::{BakeConfig, Layout, Quality, SPARSE_FROM_VOXELS, TRANSFER_DIM};
@@ -78,22 +74,10 @@ pub use memory::{MemoryEstimate, largest_resolution};
 pub use pipeline::{
     Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,
 };
-pub use production::{
-    IRRADIANCE_L1_DIM, PRODUCTION_MODEL, ProductionConfig, ProductionContainer, ProductionContents,
-    ProductionError, ProductionFit, ProductionModel, fill_invalid, fit_production, irradiance_l1,
-    production_kernels, read_production, texel_bytes, write_production,
-};
 pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
-pub use scene::SceneInput;
+pub use scene::{SceneInput, scene_hash};
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};
-pub use tiles::{
-    AssembledVolume, DONE_MARKER, HaloAgreement, PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten,
-    PlannedScene, StreamedMerge, TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileError,
-    TileFingerprint, TileOutcome, TilePlan, TileSeams, TileSpec, TileStats, TileStatus, VoxelRange,
-    assemble, bake_tile, decode_tile, merge_streamed, plan_tiles, scene_hash, tile_dir,
-    tile_is_done, tile_options, tile_seams, tile_status, write_plan,
-};
 pub use volumes::{
     KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,
 };

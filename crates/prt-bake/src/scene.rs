@@ -5,6 +5,7 @@ use std::path::Path;
 use prt_trace::{LoadOptions, Scene};
 
 use crate::BakeError;
+use crate::tiles::Fnv1a64;
 
 /// A scene to bake and the name the container records for it.
 #[derive(Debug, Clone)]
@@ -47,4 +48,34 @@ impl SceneInput {
         }
         Ok(SceneInput { name, scene })
     }
+}
+
+/// A 64-bit FNV-1a hash of the loaded scene (triangles, materials, lights' count), as
+/// `fnv1a64:HEX`: what a tile worker compares to refuse a scene edited since its plan, and what a cache of
+/// traced data keys on.
+pub fn scene_hash(scene: &Scene) -> String {
+    let mut hash = Fnv1a64::default();
+    for triangle in scene.triangles() {
+        for vertex in triangle {
+            for c in vertex.to_array() {
+                hash.update(&c.to_le_bytes());
+            }
+        }
+    }
+    for id in scene.material_ids() {
+        hash.update(&id.to_le_bytes());
+    }
+    for material in scene.materials() {
+        for c in material
+            .albedo
+            .to_array()
+            .into_iter()
+            .chain(material.emissive.to_array())
+        {
+            hash.update(&c.to_le_bytes());
+        }
+        hash.update(&[u8::from(material.double_sided)]);
+    }
+    hash.update(&(scene.lights().len() as u64).to_le_bytes());
+    hash.label()
 }

@@ -6,9 +6,10 @@ mod common;
 
 use common::scratch;
 
-use prt_bake::{
-    ContainerError, IRRADIANCE_L1_DIM, ProductionConfig, ProductionContents, ProductionError,
-    fill_invalid, fit_production, irradiance_l1, read_production, write_production,
+use prt_bake::ContainerError;
+use prt_bake::production::{
+    IRRADIANCE_L1_DIM, ProductionConfig, ProductionContents, ProductionError, fill_invalid,
+    fit_production, irradiance_l1, read_production, write_production,
 };
 use prt_core::{Aabb, FieldModel, GridField, NoProgress, glam::Vec3};
 use prt_sphere::Sky;

@@ -2,10 +2,8 @@
 //! never raise its error, an error close to the in-memory merge's, and a container that reads
 //! back.
 
-use prt_bake::{
-    BakeConfig, SceneInput, assemble, bake_tile, bake_volume, merge_streamed, plan_tiles,
-    read_container,
-};
+use prt_bake::tiles::{assemble, bake_tile, merge_streamed, plan_tiles};
+use prt_bake::{BakeConfig, SceneInput, bake_volume, read_container};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_texture::Limits;
 

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use prt_bake::{BakeFolder, TileSeams};
+use prt_bake::BakeFolder;
+use prt_bake::tiles::TileSeams;
 use serde_json::json;
 
 use crate::bake::{KeepVolumes, cli_error, default_memory_budget, write_outputs};
@@ -46,7 +47,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     let load = load.elapsed();
     let found = prt_bake::scene_hash(&scene.scene);
     if found != plan.scene.hash {
-        return Err(prt_bake::TileError::SceneChanged {
+        return Err(prt_bake::tiles::TileError::SceneChanged {
             planned: plan.scene.hash.clone(),
             found,
         }
@@ -74,13 +75,13 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         );
     }
     let stage = Stage::start("assemble");
-    let assembled = prt_bake::assemble(&plan, &args.plan_dir, &limits())?;
+    let assembled = prt_bake::tiles::assemble(&plan, &args.plan_dir, &limits())?;
     stage.finish();
     let config = prt_bake::BakeConfig {
         container: Some(BakeFolder::new(&args.out).container_dir()),
         ..plan.config.clone()
     };
-    let prt_bake::AssembledVolume {
+    let prt_bake::tiles::AssembledVolume {
         volume,
         tile_of_voxel,
         halo,
@@ -89,7 +90,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     let baked =
         prt_bake::bake_volume(&scene.name, volume, None, &config, &StageBars).map_err(cli_error)?;
     let stage = Stage::start("tile seams");
-    let seams = prt_bake::tile_seams(&tile_of_voxel, &baked)?;
+    let seams = prt_bake::tiles::tile_seams(&tile_of_voxel, &baked)?;
     stage.finish();
     write_outputs(&args.out, &scene, &baked, args.keep_volumes, load, total)?;
 
@@ -119,7 +120,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
 /// `prt merge --stream`: the container, scene.mesh and tiles.json, in memory bounded by a tile.
 fn run_streamed(
     args: &MergeArgs,
-    plan: &prt_bake::TilePlan,
+    plan: &prt_bake::tiles::TilePlan,
     scene: &prt_bake::SceneInput,
     total: Instant,
 ) -> Result<()> {
@@ -128,7 +129,7 @@ fn run_streamed(
         ..plan.config.clone()
     };
     let stage = Stage::start("streamed merge");
-    let merged = prt_bake::merge_streamed(
+    let merged = prt_bake::tiles::merge_streamed(
         plan,
         &args.plan_dir,
         &scene.name,
@@ -189,8 +190,8 @@ fn run_streamed(
 
 /// The merge's record of the tiling and the seam measures.
 fn tiles_report(
-    plan: &prt_bake::TilePlan,
-    halo: Option<prt_bake::HaloAgreement>,
+    plan: &prt_bake::tiles::TilePlan,
+    halo: Option<prt_bake::tiles::HaloAgreement>,
     seams: &TileSeams,
 ) -> serde_json::Value {
     json!({

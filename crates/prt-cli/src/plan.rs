@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use prt_bake::{BakeFolder, MemoryEstimate, PlanWritten, SceneInput, TilePlan};
+use prt_bake::tiles::{PlanWritten, TilePlan};
+use prt_bake::{BakeFolder, MemoryEstimate, SceneInput};
 use prt_texture::Limits;
 
 use crate::bake::{BakeArgs, KeepVolumes, cli_error, default_memory_budget};
@@ -107,7 +108,7 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         }
         _ => None,
     };
-    let plan = prt_bake::plan_tiles(
+    let plan = prt_bake::tiles::plan_tiles(
         &scene,
         args.bake.scene.as_deref(),
         &config,
@@ -119,8 +120,8 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         .out
         .clone()
         .unwrap_or_else(|| Path::new("prt-out").join(&scene.name));
-    let written = prt_bake::write_plan(&plan, &out, args.replace, &limits())?;
-    let path = out.join(prt_bake::PLAN_FILE);
+    let written = prt_bake::tiles::write_plan(&plan, &out, args.replace, &limits())?;
+    let path = out.join(prt_bake::tiles::PLAN_FILE);
     let largest = plan.tiles.iter().map(|t| t.traced.len()).max().unwrap_or(0);
     println!(
         "planned {} tiles ({}×{}×{}) of the {}×{}×{} lattice of {}, halo {}, largest tile {} \
@@ -141,8 +142,8 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         PlanWritten::Unchanged => {
             let done = (0..plan.tiles.len())
                 .filter(|&i| {
-                    prt_bake::tile_status(&plan, &out, i)
-                        .is_ok_and(|s| s == prt_bake::TileStatus::Done)
+                    prt_bake::tiles::tile_status(&plan, &out, i)
+                        .is_ok_and(|s| s == prt_bake::tiles::TileStatus::Done)
                 })
                 .count();
             println!(

@@ -6,7 +6,7 @@ use std::process::{Command, Stdio};
 use std::thread::JoinHandle;
 
 use anyhow::{Context, Result, bail};
-use prt_bake::{TileOutcome, TileStatus};
+use prt_bake::tiles::{TileOutcome, TileStatus};
 use prt_core::Progress;
 
 use crate::plan::{load_scene, read_plan};
@@ -68,7 +68,7 @@ pub fn run(args: &TileArgs) -> Result<()> {
         let plan = read_plan(&args.plan_dir)?;
         let mut unfinished = Vec::new();
         for i in 0..plan.tiles.len() {
-            if prt_bake::tile_status(&plan, &args.plan_dir, i)? != TileStatus::Done {
+            if prt_bake::tiles::tile_status(&plan, &args.plan_dir, i)? != TileStatus::Done {
                 unfinished.push(i);
             }
         }
@@ -80,7 +80,7 @@ pub fn run(args: &TileArgs) -> Result<()> {
     }
     let index = tile_index(args.tile, |name| std::env::var(name).ok())?;
     let plan = read_plan(&args.plan_dir)?;
-    match prt_bake::tile_status(&plan, &args.plan_dir, index)? {
+    match prt_bake::tiles::tile_status(&plan, &args.plan_dir, index)? {
         TileStatus::Done if !args.force => {
             println!("tile {index}: already done (--force bakes it again)");
             return Ok(());
@@ -94,7 +94,8 @@ pub fn run(args: &TileArgs) -> Result<()> {
     }
     let scene = load_scene(&plan, args.scene.as_deref())?;
     let stage = Stage::start("trace");
-    let outcome = prt_bake::bake_tile(&plan, &args.plan_dir, &scene, index, args.force, &stage)?;
+    let outcome =
+        prt_bake::tiles::bake_tile(&plan, &args.plan_dir, &scene, index, args.force, &stage)?;
     stage.finish();
     match outcome {
         TileOutcome::Skipped => println!("tile {index}: already done"),
@@ -111,7 +112,7 @@ pub fn run(args: &TileArgs) -> Result<()> {
             stats.rays() as f64,
             trace.as_secs_f64(),
             write.as_secs_f64(),
-            prt_bake::tile_dir(&args.plan_dir, index).display()
+            prt_bake::tiles::tile_dir(&args.plan_dir, index).display()
         ),
     }
     Ok(())
@@ -189,7 +190,7 @@ fn run_all(args: &TileArgs) -> Result<()> {
     let mut stale = 0;
     let mut todo = Vec::new();
     for i in 0..plan.tiles.len() {
-        match prt_bake::tile_status(&plan, &args.plan_dir, i)? {
+        match prt_bake::tiles::tile_status(&plan, &args.plan_dir, i)? {
             TileStatus::Done if !args.force => {}
             TileStatus::Stale(_) => {
                 stale += 1;

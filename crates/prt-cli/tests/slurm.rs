@@ -389,7 +389,7 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
     let plan = plan_for("slurm-plan");
     let (plan_s, baked) = (plan.to_str().unwrap(), dir.join("slurm-bake"));
     std::fs::create_dir_all(plan.join("tiles")).unwrap();
-    std::fs::write(prt_bake::tile_dir(&plan, 1), b"not a folder").unwrap();
+    std::fs::write(prt_bake::tiles::tile_dir(&plan, 1), b"not a folder").unwrap();
     let first = submit(
         &cluster,
         &[
@@ -455,7 +455,7 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
     assert!(!baked.join("mbd").exists());
 
     // The recovery: the tile's folder mended, --resume submits tile 1 and the merge.
-    std::fs::remove_file(prt_bake::tile_dir(&plan, 1)).unwrap();
+    std::fs::remove_file(prt_bake::tiles::tile_dir(&plan, 1)).unwrap();
     let second = submit(&cluster, &["--resume", plan_s]);
     let (tiles, merge) = (job_id(&second, "tiles 1"), job_id(&second, "merge"));
     cluster.wait_for_empty_queue();
@@ -487,7 +487,8 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
     // (they hold timings).
     for i in 0..4 {
         for file in ["transfer.f32", "valid.u8", "tile.json"] {
-            let read = |p: &Path| std::fs::read(prt_bake::tile_dir(p, i).join(file)).unwrap();
+            let read =
+                |p: &Path| std::fs::read(prt_bake::tiles::tile_dir(p, i).join(file)).unwrap();
             assert!(read(&plan) == read(&local_plan), "tile {i}: {file} differs");
         }
     }

@@ -64,7 +64,7 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
 
     ok(&prt(&["bake-tile", plan_s, "--all", "--workers", "4"]));
     for i in 0..4 {
-        assert!(prt_bake::tile_is_done(&plan, i), "tile {i}");
+        assert!(prt_bake::tiles::tile_is_done(&plan, i), "tile {i}");
     }
     let tiled = dir.join("tiled");
     let merged = prt(&["merge", plan_s, "--out", tiled.to_str().unwrap()]);
@@ -139,7 +139,7 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
 
     // A finished tile is skipped; a forced retry gives the same bytes.
     let files = ["transfer.f32", "valid.u8", "tile.json"];
-    let tile2 = prt_bake::tile_dir(&plan, 2);
+    let tile2 = prt_bake::tiles::tile_dir(&plan, 2);
     let before: Vec<Vec<u8>> = files
         .iter()
         .map(|f| std::fs::read(tile2.join(f)).unwrap())

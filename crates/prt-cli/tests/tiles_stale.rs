@@ -89,14 +89,17 @@ fn a_stale_plan_is_refused_and_a_stale_tile_is_retraced_and_refused_by_the_merge
         );
         assert!(stderr(&out).contains("--replace"), "{}", stderr(&out));
     }
-    assert!(prt_bake::tile_is_done(&old, 0) && prt_bake::tile_is_done(&old, 1));
+    assert!(prt_bake::tiles::tile_is_done(&old, 0) && prt_bake::tiles::tile_is_done(&old, 1));
 
     // A tile of the old plan planted into a new plan's folder (another --rays): the merge
     // refuses it, naming the tile and what differs; bake-tile traces it again.
     let new = dir.join("new");
     let new_s = new.to_str().unwrap();
     ok(&plan(&new, "24", &[]));
-    copy_dir(&prt_bake::tile_dir(&old, 0), &prt_bake::tile_dir(&new, 0));
+    copy_dir(
+        &prt_bake::tiles::tile_dir(&old, 0),
+        &prt_bake::tiles::tile_dir(&new, 0),
+    );
     let merged = prt(&["merge", new_s, "--out", dir.join("bake").to_str().unwrap()]);
     assert_clean_failure(&merged, "tile 0");
     assert!(
@@ -114,16 +117,19 @@ fn a_stale_plan_is_refused_and_a_stale_tile_is_retraced_and_refused_by_the_merge
         "{}",
         stdout(&retraced)
     );
-    let plan_new = prt_bake::TilePlan::read(&new, &prt_texture::Limits::default()).unwrap();
+    let plan_new = prt_bake::tiles::TilePlan::read(&new, &prt_texture::Limits::default()).unwrap();
     assert_eq!(
-        prt_bake::tile_status(&plan_new, &new, 0).unwrap(),
-        prt_bake::TileStatus::Done
+        prt_bake::tiles::tile_status(&plan_new, &new, 0).unwrap(),
+        prt_bake::tiles::TileStatus::Done
     );
 
     // A tile of another resolution is traced again by the --all runner too.
     let res8 = dir.join("res8");
     ok(&plan(&res8, "12", &["--res", "8"]));
-    copy_dir(&prt_bake::tile_dir(&old, 1), &prt_bake::tile_dir(&res8, 1));
+    copy_dir(
+        &prt_bake::tiles::tile_dir(&old, 1),
+        &prt_bake::tiles::tile_dir(&res8, 1),
+    );
     let all = prt(&["bake-tile", res8.to_str().unwrap(), "--all"]);
     ok(&all);
     assert!(
@@ -131,10 +137,10 @@ fn a_stale_plan_is_refused_and_a_stale_tile_is_retraced_and_refused_by_the_merge
         "{}",
         stdout(&all)
     );
-    let plan8 = prt_bake::TilePlan::read(&res8, &prt_texture::Limits::default()).unwrap();
+    let plan8 = prt_bake::tiles::TilePlan::read(&res8, &prt_texture::Limits::default()).unwrap();
     assert_eq!(
-        prt_bake::tile_status(&plan8, &res8, 1).unwrap(),
-        prt_bake::TileStatus::Done
+        prt_bake::tiles::tile_status(&plan8, &res8, 1).unwrap(),
+        prt_bake::tiles::TileStatus::Done
     );
 
     // --replace writes the new plan and removes the old tiles and their markers.
@@ -145,7 +151,10 @@ fn a_stale_plan_is_refused_and_a_stale_tile_is_retraced_and_refused_by_the_merge
         "{}",
         stdout(&replaced)
     );
-    assert!(!prt_bake::tile_dir(&old, 0).exists() && !prt_bake::tile_dir(&old, 1).exists());
+    assert!(
+        !prt_bake::tiles::tile_dir(&old, 0).exists()
+            && !prt_bake::tiles::tile_dir(&old, 1).exists()
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -157,7 +166,7 @@ fn a_tile_with_altered_floats_is_refused_by_the_merge_naming_it() {
     ok(&plan(&plan_dir, "12", &[]));
     ok(&prt(&["bake-tile", plan_s, "--all", "--workers", "2"]));
     // One finite float changed in place, the file's size unchanged.
-    let transfer = prt_bake::tile_dir(&plan_dir, 1).join("transfer.f32");
+    let transfer = prt_bake::tiles::tile_dir(&plan_dir, 1).join("transfer.f32");
     let mut bytes = std::fs::read(&transfer).unwrap();
     let at = bytes.len() / 2 / 4 * 4;
     let x = f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());

@@ -35,7 +35,7 @@ const SMALL_FILE_MAX: u64 = 1 << 20;
 /// the merge refuses it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TileFingerprint {
-    /// The plan's scene hash ([`super::scene_hash`]).
+    /// The plan's scene hash ([`crate::scene_hash`]).
     pub scene_hash: String,
     /// The bake's resolution knob (voxels along the longest axis of the scene box).
     pub resolution: usize,

@@ -13,6 +13,7 @@
 //! The plan (`plan.json`) and a tile's files are described in docs/formats.md.
 
 mod checksum;
+pub(crate) use checksum::Fnv1a64;
 mod file;
 mod merge;
 mod plan;
@@ -26,7 +27,7 @@ pub use file::{
 pub use merge::{AssembledVolume, HaloAgreement, TileSeams, assemble, tile_seams};
 pub use plan::{
     PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten, PlannedScene, TileError, TilePlan, TileSpec,
-    VoxelRange, plan_tiles, scene_hash, write_plan,
+    VoxelRange, plan_tiles, write_plan,
 };
 pub use stream::{StreamedMerge, merge_streamed};
 pub use worker::{DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options};

@@ -6,12 +6,11 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 use prt_core::Aabb;
 use prt_texture::Limits;
-use prt_trace::{BakeOptions, Scene, TransferBaker};
+use prt_trace::{BakeOptions, TransferBaker};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use super::checksum::Fnv1a64;
-use crate::{BakeConfig, BakeError, SceneInput};
+use crate::{BakeConfig, BakeError, SceneInput, scene_hash};
 
 /// File name of the plan inside a plan folder.
 pub const PLAN_FILE: &str = "plan.json";
@@ -533,35 +532,6 @@ pub(crate) fn voxels(range: &VoxelRange) -> impl Iterator<Item = [usize; 3]> + '
 /// Flat index of voxel `v` on a grid of `dims` (x fastest).
 pub(crate) fn flat(dims: [usize; 3], v: [usize; 3]) -> usize {
     v[0] + dims[0] * (v[1] + dims[1] * v[2])
-}
-
-/// A 64-bit FNV-1a hash of the loaded scene (triangles, materials, lights' count), as
-/// `fnv1a64:HEX`: what a worker compares to refuse a scene edited since the plan.
-pub fn scene_hash(scene: &Scene) -> String {
-    let mut hash = Fnv1a64::default();
-    for triangle in scene.triangles() {
-        for vertex in triangle {
-            for c in vertex.to_array() {
-                hash.update(&c.to_le_bytes());
-            }
-        }
-    }
-    for id in scene.material_ids() {
-        hash.update(&id.to_le_bytes());
-    }
-    for material in scene.materials() {
-        for c in material
-            .albedo
-            .to_array()
-            .into_iter()
-            .chain(material.emissive.to_array())
-        {
-            hash.update(&c.to_le_bytes());
-        }
-        hash.update(&[u8::from(material.double_sided)]);
-    }
-    hash.update(&(scene.lights().len() as u64).to_le_bytes());
-    hash.label()
 }
 
 /// SplitMix64: a tile's seed from the bake's seed and the tile index.

@@ -12,7 +12,8 @@ use super::file::{
     TILE_FILE, TILE_FORMAT, TILE_VERSION, TIMING_FILE, TRANSFER_FILE, TileChecksums,
     TileFingerprint, TileStats, TileStatus, VALID_FILE, tile_status,
 };
-use super::plan::{TileError, TilePlan, scene_hash};
+use super::plan::{TileError, TilePlan};
+use crate::scene_hash;
 use crate::{BakeError, SceneInput, TRANSFER_DIM};
 
 /// Name of the file whose presence says a tile finished (written last).
