@@ -468,7 +468,8 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
     );
     if args.compare {
         println!(
-            "\n| method | time | speed-up vs brute force ({how}) | elements | relative L2 error | ꟻLIP | light / time splits |\n|---|---|---|---|---|---|---|"
+            "\n| method | time | speed-up vs brute force ({how}) | elements | relative L2 error \
+             | ꟻLIP | light / time splits |\n|---|---|---|---|---|---|---|"
         );
     }
     let tone = args.exposure.map(|exposure| ToneMap { exposure });
@@ -514,7 +515,7 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
             );
         } else {
             println!(
-                "{} {}/{}: {:.3} s, {speedup:.1}× faster than brute force ({how}), {:.3e} \
+                "{} {}/{}: {:.3} s, speed-up {speedup:.1}× against brute force ({how}), {:.3e} \
                  elements ({:.1}× fewer); relative L2 error {:.2} %{}, ꟻLIP {flip_text}{}",
                 run.method.name(),
                 args.rows,
