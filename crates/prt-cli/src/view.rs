@@ -26,9 +26,20 @@ use serde_json::json;
 
 use crate::sky::parse_sky;
 
-/// The viewer page and its script, compiled into the binary (no build step, no network).
+/// The viewer page, compiled into the binary (no build step, no network).
 const INDEX_HTML: &str = include_str!("../viewer/index.html");
-const VIEWER_JS: &str = include_str!("../viewer/viewer.js");
+/// The page's script, compiled in too: every ES module by the path it is served at (the page
+/// loads main.js, which imports the rest).
+const VIEWER_MODULES: [(&str, &str); 8] = [
+    ("/main.js", include_str!("../viewer/main.js")),
+    ("/page.js", include_str!("../viewer/page.js")),
+    ("/formats.js", include_str!("../viewer/formats.js")),
+    ("/gl.js", include_str!("../viewer/gl.js")),
+    ("/shaders.js", include_str!("../viewer/shaders.js")),
+    ("/math.js", include_str!("../viewer/math.js")),
+    ("/methods.js", include_str!("../viewer/methods.js")),
+    ("/draw.js", include_str!("../viewer/draw.js")),
+];
 
 /// Largest request head we read; browsers send well under 2 KiB.
 const MAX_REQUEST_BYTES: usize = 8192;
@@ -563,9 +574,11 @@ fn answer(request_line: &str, site: &Site) -> (bool, Response) {
 }
 
 fn route(path: &str, query: &str, site: &Site) -> Response {
+    if let Some((_, source)) = VIEWER_MODULES.iter().find(|(served, _)| *served == path) {
+        return Response::ok("text/javascript; charset=utf-8", *source);
+    }
     match path {
         "/" | "/index.html" => Response::ok("text/html; charset=utf-8", INDEX_HTML),
-        "/viewer.js" => Response::ok("text/javascript; charset=utf-8", VIEWER_JS),
         "/skies.json" => Response::ok("application/json", site.skies_json.clone()),
         "/views.json" => Response::ok("application/json", site.views_json.clone()),
         "/bench" => {
@@ -875,7 +888,7 @@ mod tests {
             assert_eq!(body.as_bytes(), data, "{host}");
         }
         let page = server.fetch(&format!(
-            "GET /viewer.js HTTP/1.0\r\nhOsT:127.0.0.1:{port}\r\n\r\n"
+            "GET /main.js HTTP/1.0\r\nhOsT:127.0.0.1:{port}\r\n\r\n"
         ));
         assert!(page.starts_with("HTTP/1.1 200 OK\r\n"), "{page}");
         assert!(page.contains("Content-Type: text/javascript"));
@@ -892,7 +905,11 @@ mod tests {
             "localhost".into(),
             String::new(),
         ] {
-            for target in ["/bake/data.bin", "/", "/viewer.js", "/skies.json"] {
+            let modules = VIEWER_MODULES.iter().map(|(path, _)| *path);
+            for target in ["/bake/data.bin", "/", "/skies.json"]
+                .into_iter()
+                .chain(modules)
+            {
                 let answer = server.get(target, &host);
                 assert!(
                     answer.starts_with("HTTP/1.1 403 Forbidden\r\n"),
@@ -927,6 +944,52 @@ mod tests {
             "a".repeat(MAX_REQUEST_BYTES)
         );
         assert!(server.fetch(&long).starts_with("HTTP/1.1 431 "));
+    }
+
+    #[test]
+    fn the_page_and_every_module_it_imports_are_served() {
+        let dir = scratch("modules");
+        let server = TestServer::start(&dir.join("bake"), ServerLimits::default());
+        let host = format!("127.0.0.1:{}", server.addr.port());
+        for (path, source) in VIEWER_MODULES {
+            let answer = server.get(path, &host);
+            let (head, body) = answer.split_once("\r\n\r\n").expect("a head");
+            assert!(head.starts_with("HTTP/1.1 200 OK\r\n"), "{path}: {head}");
+            // Browsers run a module only with a JavaScript MIME type (and the server says nosniff).
+            assert!(
+                head.contains("\r\nContent-Type: text/javascript; charset=utf-8\r\n"),
+                "{path}: {head}"
+            );
+            assert_eq!(body, source, "{path}");
+        }
+        // What the page and the modules name is in the table: a module left out of it would fail
+        // only in a browser.
+        let served: Vec<&str> = VIEWER_MODULES.iter().map(|(path, _)| *path).collect();
+        let named = |source: &str, before: &str, after: char| -> Vec<String> {
+            source
+                .split(before)
+                .skip(1)
+                .map(|rest| format!("/{}", rest.split(after).next().unwrap_or_default()))
+                .collect()
+        };
+        let scripts = named(INDEX_HTML, "<script type=\"module\" src=\"", '"');
+        assert_eq!(scripts, ["/main.js"]);
+        for (path, source) in VIEWER_MODULES {
+            let imports = named(source, " from './", '\'');
+            for import in imports {
+                assert!(served.contains(&import.as_str()), "{path} imports {import}");
+            }
+        }
+        let reached = VIEWER_MODULES
+            .iter()
+            .flat_map(|(_, source)| named(source, " from './", '\''))
+            .chain(scripts)
+            .collect::<std::collections::BTreeSet<_>>();
+        assert_eq!(
+            reached.len(),
+            served.len(),
+            "served but never imported: {reached:?}"
+        );
     }
 
     #[test]
