@@ -363,6 +363,9 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
         write_lights_file(path, &vpls)?;
         println!("wrote {}", path.display());
     }
+    if vpls.len() > MAX_LIGHTS {
+        bail!("{} lights: at most {MAX_LIGHTS} are supported", vpls.len());
+    }
     let lights_count = vpls.len() + directional.len();
     if args.columns > lights_count && needs_budget(args) {
         bail!(

@@ -212,5 +212,19 @@ fn bad_lights_files_are_one_line_errors() {
         ]),
         "cannot read the lights file",
     );
+    assert_clean_failure(
+        &prt(&[
+            "manylight",
+            "--camera",
+            "99",
+            "--out",
+            out.to_str().unwrap(),
+        ]),
+        "--camera 99 does not exist; the scene has 2 view(s): 0 = front, 1 = inside",
+    );
+    assert_clean_failure(
+        &prt(&["manylight", "--size", "8", "--out", out.to_str().unwrap()]),
+        "--rows 300 is more than the 64 pixels",
+    );
     assert!(!out.exists());
 }
