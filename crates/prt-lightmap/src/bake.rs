@@ -249,19 +249,14 @@ pub fn bake_lightmap(
         hemisphere: config.hemisphere_rule,
         ..EncoderConfig::paper()
     };
-    let mut state = match (&functions, config.encoder) {
+    let mut state = match (functions.as_deref(), config.encoder) {
         (None, _) => State::Sums {
             stride: 4,
             sums: vec![0.0; active.len() * 4],
         },
-        (Some(_), Encoder::Plsq | Encoder::PlsqNonNegative) => match &sg_basis {
+        (Some(f), Encoder::Plsq | Encoder::PlsqNonNegative) => match &sg_basis {
             Some(sg) => State::Sg(BatchEncoder::new_sg(sg, 3, active.len(), plsq_config)?),
-            None => State::Dyn(BatchEncoder::new(
-                functions.as_deref().ok_or(LightmapError::EmptyScene)?,
-                3,
-                active.len(),
-                plsq_config,
-            )?),
+            None => State::Dyn(BatchEncoder::new(f, 3, active.len(), plsq_config)?),
         },
         (Some(_), Encoder::LeastSquares | Encoder::Nnls) => {
             let stride = k * (k + 1) / 2 + 3 * k + 1;

@@ -101,8 +101,8 @@ impl<'a> Transport<'a> {
         self.eps
     }
 
-    /// Sample `index` of the texel at `position` with unit `normal`; `u(dim)` gives the
-    /// sample's Sobol' coordinates.
+    /// One sample of the texel at `position` with unit `normal`; `u(dim)` gives the sample's
+    /// Sobol' coordinates.
     pub fn sample(&self, position: Vec3, normal: Vec3, u: &dyn Fn(u32) -> f32) -> Sample {
         let (tangent, bitangent) = normal.any_orthonormal_pair();
         let to_world = |l: Vec3| tangent * l.x + normal * l.y + bitangent * l.z;
