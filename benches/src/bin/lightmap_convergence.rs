@@ -177,7 +177,7 @@ fn main() -> Result<(), String> {
             encoder: Encoder::parse(&args.reference_encoder).map_err(|e| e.to_string())?,
             samples: args.reference,
             pass_samples: 256,
-            seed: 0x5EED_0F_2EF,
+            seed: 0x0005_EED0_F2EF,
             hemisphere_rule: true,
             decorrelated: true,
             ..base
