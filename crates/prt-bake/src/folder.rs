@@ -7,7 +7,13 @@ use prt_core::GridField;
 use prt_texture::Limits;
 use thiserror::Error;
 
-use crate::{ContainerError, KeptVolumes, MbdContainer, read_container, read_volumes};
+use prt_texture::Encoding;
+use prt_texture::container::WriteReport;
+
+use crate::{
+    Bake, ContainerError, KeptVolumes, MbdContainer, kept_volume_bytes, read_container,
+    read_volumes, write_volumes,
+};
 
 /// A bake folder's layout. Only the paths: nothing is read until asked, so a folder being
 /// written can be named too.
@@ -22,6 +28,38 @@ use crate::{ContainerError, KeptVolumes, MbdContainer, read_container, read_volu
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct BakeFolder {
     root: PathBuf,
+}
+
+/// Whether a bake keeps its traced volume and the baselines' reconstructions (`volumes/`),
+/// which exports, renders and the viewer compare against.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum KeepVolumes {
+    /// Keep them when they take at most [`KeepVolumes::AUTO_BYTES`] (f16).
+    #[default]
+    Auto,
+    /// Always keep them.
+    Always,
+    /// Never keep them.
+    Never,
+}
+
+impl KeepVolumes {
+    /// The most bytes [`KeepVolumes::Auto`] keeps.
+    pub const AUTO_BYTES: u64 = 512 << 20;
+}
+
+/// What [`BakeFolder::keep_volumes`] did.
+#[derive(Debug)]
+pub enum KeptOutcome {
+    /// Written (f16).
+    Written(WriteReport),
+    /// Not written: [`KeepVolumes::Auto`] and over [`KeepVolumes::AUTO_BYTES`].
+    OverAutoLimit {
+        /// Bytes they would have taken.
+        bytes: u64,
+    },
+    /// Not written: [`KeepVolumes::Never`].
+    NotAsked,
 }
 
 /// One of a bake folder's transfer volumes, read back for lighting.
@@ -71,6 +109,15 @@ pub enum FolderError {
         name: String,
         /// The names kept.
         kept: Vec<String>,
+    },
+    /// A container in the folder cannot be written.
+    #[error("cannot write {}", .path.display())]
+    Write {
+        /// The container's folder.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: ContainerError,
     },
     /// A container in the folder cannot be read.
     #[error("cannot read {}", .path.display())]
@@ -178,6 +225,27 @@ impl BakeFolder {
             return Err(FolderError::NoVolumes { dir });
         }
         read_volumes(&dir, limits).map_err(|source| FolderError::Read { path: dir, source })
+    }
+
+    /// Writes the kept volumes of `bake` (f16) into [`volumes_dir`](Self::volumes_dir) as
+    /// `policy` says.
+    pub fn keep_volumes(
+        &self,
+        bake: &Bake,
+        policy: KeepVolumes,
+    ) -> Result<KeptOutcome, FolderError> {
+        let bytes = kept_volume_bytes(bake, Encoding::F16);
+        match policy {
+            KeepVolumes::Never => return Ok(KeptOutcome::NotAsked),
+            KeepVolumes::Auto if bytes > KeepVolumes::AUTO_BYTES => {
+                return Ok(KeptOutcome::OverAutoLimit { bytes });
+            }
+            KeepVolumes::Auto | KeepVolumes::Always => {}
+        }
+        let dir = self.volumes_dir();
+        write_volumes(&dir, bake, Encoding::F16)
+            .map(KeptOutcome::Written)
+            .map_err(|source| FolderError::Write { path: dir, source })
     }
 
     /// Reads the volume named `name`: [`CONTAINER`](Self::CONTAINER) (`mbd`) for the MBD

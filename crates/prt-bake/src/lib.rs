@@ -20,8 +20,9 @@
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
 //! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`BakeFolder`], [`FolderVolume`], [`FolderError`] | a bake folder's layout (container, kept volumes, scene mesh, reports) and the volume a later tool lights |
+//! | [`KeepVolumes`], [`KeptOutcome`] | whether a bake keeps its traced volume and the baselines beside the container ([`BakeFolder::keep_volumes`]) |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
-//! | [`MemoryEstimate`], [`largest_resolution`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
+//! | [`MemoryEstimate`], [`largest_resolution`], [`default_memory_budget`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
 //! | [`tiles`] | tiled bakes: the plan (`prt plan`), one worker's tile (`prt bake-tile`), the merge in memory or streamed (`prt merge`), their files and errors |
 //! | [`production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients), 8-bit textures at node resolution, read back |
@@ -69,8 +70,8 @@ pub use container::{
     write_container_with,
 };
 pub use error::{BakeError, ContainerError};
-pub use folder::{BakeFolder, FolderError, FolderVolume};
-pub use memory::{MemoryEstimate, largest_resolution};
+pub use folder::{BakeFolder, FolderError, FolderVolume, KeepVolumes, KeptOutcome};
+pub use memory::{MemoryEstimate, default_memory_budget, largest_resolution};
 pub use pipeline::{
     Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,
 };

@@ -114,6 +114,19 @@ impl MemoryEstimate {
     }
 }
 
+/// The memory budget a bake gets when none is given: four fifths of the machine's physical
+/// memory (`/proc/meminfo`), or 8 GiB where that cannot be read.
+pub fn default_memory_budget() -> u64 {
+    let total_kib = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            text.lines()
+                .find_map(|l| l.strip_prefix("MemTotal:"))
+                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
+        });
+    total_kib.map_or(8 << 30, |kib| kib * 1024 / 5 * 4)
+}
+
 /// The largest resolution (voxels along the longest axis, at least 2) whose bake fits `budget`
 /// bytes with `config`'s other knobs, or `None` if not even 2 does.
 pub fn largest_resolution(

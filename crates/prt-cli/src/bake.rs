@@ -6,7 +6,8 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::ValueEnum;
 use prt_bake::{
-    Bake, BakeConfig, BakeError, BakeFolder, Layout, MemoryEstimate, Quality, SceneInput,
+    Bake, BakeConfig, BakeError, BakeFolder, KeepVolumes, KeptOutcome, Layout, MemoryEstimate,
+    Quality, SceneInput,
 };
 use prt_texture::Encoding;
 
@@ -37,9 +38,9 @@ impl From<EncodingArg> for Encoding {
     }
 }
 
-/// Whether `prt bake` keeps the traced volume and the baselines' reconstructions (`--keep-volumes`).
+/// `--keep-volumes`: [`prt_bake::KeepVolumes`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
-pub enum KeepVolumes {
+pub enum KeepVolumesArg {
     /// Keep them when they take at most 512 MiB (f16).
     #[default]
     Auto,
@@ -49,8 +50,15 @@ pub enum KeepVolumes {
     Never,
 }
 
-/// Largest kept volumes `--keep-volumes auto` writes.
-const AUTO_KEEP_BYTES: u64 = 512 << 20;
+impl From<KeepVolumesArg> for KeepVolumes {
+    fn from(arg: KeepVolumesArg) -> Self {
+        match arg {
+            KeepVolumesArg::Auto => KeepVolumes::Auto,
+            KeepVolumesArg::Always => KeepVolumes::Always,
+            KeepVolumesArg::Never => KeepVolumes::Never,
+        }
+    }
+}
 
 /// `prt bake --layout`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
@@ -221,8 +229,8 @@ pub struct BakeArgs {
     /// Write the traced transfer volume and the baselines' reconstructions (f16) into
     /// OUT/volumes/, for `prt export --from reference`, `prt render --method reference|bpca|cpca`
     /// and the viewer's comparisons.
-    #[arg(long, value_enum, default_value_t = KeepVolumes::Auto)]
-    pub keep_volumes: KeepVolumes,
+    #[arg(long, value_enum, default_value_t = KeepVolumesArg::Auto)]
+    pub keep_volumes: KeepVolumesArg,
 }
 
 /// `12G`, `800M`, `64K`, `1T` or a plain number of bytes.
@@ -252,19 +260,6 @@ fn parse_bytes(text: &str) -> Result<u64, String> {
         return Err(format!("{text:?} is not a positive size"));
     }
     Ok((value * (1u64 << shift) as f64) as u64)
-}
-
-/// 80 % of the machine's physical memory (`MemTotal` in /proc/meminfo), or 8 GiB where it
-/// cannot be read.
-pub(crate) fn default_memory_budget() -> u64 {
-    let total_kib = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            text.lines()
-                .find_map(|l| l.strip_prefix("MemTotal:"))
-                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
-        });
-    total_kib.map_or(8 << 30, |kib| kib * 1024 / 5 * 4)
 }
 
 /// Below this share of valid voxels (outside geometry) a bake warns: its scores then describe
@@ -350,7 +345,7 @@ impl BakeArgs {
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,
-            max_memory: Some(self.max_memory.unwrap_or_else(default_memory_budget)),
+            max_memory: Some(self.max_memory.unwrap_or_else(prt_bake::default_memory_budget)),
             container,
             layout: self.layout.into(),
             brick_max_distance: self.brick_max_distance,
@@ -452,7 +447,7 @@ pub(crate) fn write_outputs(
     out_dir: &Path,
     scene: &SceneInput,
     baked: &Bake,
-    keep: KeepVolumes,
+    keep: KeepVolumesArg,
     load: std::time::Duration,
     total: Instant,
 ) -> Result<()> {
@@ -465,7 +460,7 @@ pub(crate) fn write_outputs(
         );
     }
 
-    keep_volumes(keep, &BakeFolder::new(out_dir).volumes_dir(), baked)?;
+    keep_volumes(&BakeFolder::new(out_dir), baked, keep.into())?;
     let mesh = BakeFolder::new(out_dir).scene_mesh();
     prt_render::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
@@ -535,28 +530,20 @@ fn check_size(args: &BakeArgs, scene: &SceneInput) -> Result<()> {
     Ok(())
 }
 
-/// Writes the kept volumes when `keep` says so, and says what it did.
-fn keep_volumes(keep: KeepVolumes, folder: &Path, baked: &Bake) -> Result<()> {
-    let bytes = prt_bake::kept_volume_bytes(baked, Encoding::F16);
-    let mib = bytes as f64 / f64::from(1u32 << 20);
-    let write = match keep {
-        KeepVolumes::Always => true,
-        KeepVolumes::Never => false,
-        KeepVolumes::Auto if bytes <= AUTO_KEEP_BYTES => true,
-        KeepVolumes::Auto => {
-            eprintln!(
-                "volumes: not kept ({mib:.0} MiB over the automatic limit of {} MiB; \
-                 --keep-volumes always keeps them)",
-                AUTO_KEEP_BYTES >> 20
-            );
-            false
+/// Writes the kept volumes as `policy` says, and says what it did.
+fn keep_volumes(folder: &BakeFolder, baked: &Bake, policy: KeepVolumes) -> Result<()> {
+    let stage = Stage::start("volumes");
+    match folder.keep_volumes(baked, policy)? {
+        KeptOutcome::Written(_) => {
+            stage.finish();
         }
-    };
-    if write {
-        let stage = Stage::start("volumes");
-        prt_bake::write_volumes(folder, baked, Encoding::F16)
-            .with_context(|| format!("cannot write the kept volumes to {}", folder.display()))?;
-        stage.finish();
+        KeptOutcome::OverAutoLimit { bytes } => eprintln!(
+            "volumes: not kept ({:.0} MiB over the automatic limit of {} MiB; --keep-volumes \
+             always keeps them)",
+            bytes as f64 / f64::from(1u32 << 20),
+            KeepVolumes::AUTO_BYTES >> 20
+        ),
+        KeptOutcome::NotAsked => {}
     }
     Ok(())
 }

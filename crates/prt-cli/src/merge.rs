@@ -9,7 +9,7 @@ use prt_bake::BakeFolder;
 use prt_bake::tiles::TileSeams;
 use serde_json::json;
 
-use crate::bake::{KeepVolumes, cli_error, default_memory_budget, write_outputs};
+use crate::bake::{KeepVolumesArg, cli_error, write_outputs};
 use crate::plan::{limits, load_scene, read_plan};
 use crate::progress::{Stage, StageBars};
 
@@ -23,8 +23,8 @@ pub struct MergeArgs {
     pub out: PathBuf,
     /// Write the assembled traced volume and the baselines' reconstructions (f16) into
     /// OUT/volumes/, as `prt bake --keep-volumes` does.
-    #[arg(long, value_enum, default_value_t = KeepVolumes::Auto)]
-    pub keep_volumes: KeepVolumes,
+    #[arg(long, value_enum, default_value_t = KeepVolumesArg::Auto)]
+    pub keep_volumes: KeepVolumesArg,
     /// The scene file, when it lives at another path on this machine than in the plan.
     #[arg(long)]
     pub scene: Option<PathBuf>,
@@ -65,7 +65,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
         plan.lattice_dims,
         scene.scene.triangles().len(),
     );
-    let budget = default_memory_budget();
+    let budget = prt_bake::default_memory_budget();
     if estimate.total() > budget {
         bail!(
             "merging in memory needs about {:.2} GiB, over this machine's budget of {:.2} GiB; \

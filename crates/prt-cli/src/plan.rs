@@ -8,7 +8,7 @@ use prt_bake::tiles::{PlanWritten, TilePlan};
 use prt_bake::{BakeFolder, MemoryEstimate, SceneInput};
 use prt_texture::Limits;
 
-use crate::bake::{BakeArgs, KeepVolumes, cli_error, default_memory_budget};
+use crate::bake::{BakeArgs, KeepVolumesArg, cli_error};
 
 /// Options of `prt plan`: the scene and every knob of `prt bake`, the tiling and the halo.
 #[derive(Debug, clap::Args)]
@@ -60,7 +60,7 @@ pub fn load_scene(plan: &TilePlan, over: Option<&Path>) -> Result<SceneInput> {
 pub fn limits() -> Limits {
     let limits = Limits::default();
     Limits {
-        max_bytes: limits.max_bytes.max(default_memory_budget()),
+        max_bytes: limits.max_bytes.max(prt_bake::default_memory_budget()),
         ..limits
     }
 }
@@ -80,7 +80,7 @@ fn gib(bytes: u64) -> f64 {
 }
 
 pub fn run(args: &PlanArgs) -> Result<()> {
-    if args.bake.keep_volumes != KeepVolumes::Auto {
+    if args.bake.keep_volumes != KeepVolumesArg::Auto {
         bail!("--keep-volumes is a flag of `prt merge`, which writes the bake folder");
     }
     let config = args.bake.config(Some(PathBuf::from(BakeFolder::CONTAINER)));
