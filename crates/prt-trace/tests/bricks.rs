@@ -24,8 +24,25 @@ fn options() -> BakeOptions {
 
 #[test]
 fn the_sparse_bake_equals_the_dense_one_bit_for_bit_on_the_kept_voxels() {
+    sparse_equals_dense(options());
+}
+
+/// With adaptive sampling and the denoiser too: the filter reads the same valid neighbours.
+#[test]
+fn the_denoised_sparse_bake_equals_the_denoised_dense_one() {
+    sparse_equals_dense(BakeOptions {
+        adaptive: Some(prt_trace::AdaptiveSampling {
+            target_error: 0.1,
+            min_rays: 24,
+        }),
+        denoise: Some(prt_trace::DenoiseOptions::default()),
+        ..options()
+    });
+}
+
+fn sparse_equals_dense(options: BakeOptions) {
     let scene = Scene::cornell_box();
-    let baker = TransferBaker::new(&scene, options()).expect("valid options");
+    let baker = TransferBaker::new(&scene, options).expect("valid options");
     let dense = baker.bake(&NoProgress).expect("dense bake");
     let sparse = baker
         .bake_bricks(&BrickOptions::default(), &NoProgress)
