@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Mat4, Vec3, Vec4};
+use glam::{Mat4, Vec2, Vec3, Vec4};
 use gltf::json::accessor::{ComponentType, Type};
 use gltf::khr_lights_punctual::Kind;
 
@@ -62,7 +62,8 @@ fn srgb_to_linear(c: f32) -> f32 {
 impl Scene {
     /// Loads a `.gltf` or `.glb` file: the default scene's node hierarchy is flattened to
     /// world-space triangles (each node's transform applied), materials become diffuse
-    /// [`Material`]s, `KHR_lights_punctual` lights and perspective cameras are placed.
+    /// [`Material`]s, `KHR_lights_punctual` lights and perspective cameras are placed;
+    /// `TEXCOORD_1` is kept as lightmap UVs when every primitive has it ([`Scene::lightmap_uvs`]).
     ///
     /// Everything read is checked first (the gltf crate's validation, then every accessor,
     /// buffer view, buffer length, stride, count, component type, index and node reference), so
@@ -456,6 +457,9 @@ fn load_into(
     let mut skipped_modes = Vec::new();
     let mut positionless = Vec::new();
     let mut without_data = Vec::new();
+    // TEXCOORD_1 of every kept triangle, used only if every primitive with triangles has it.
+    let mut lightmap_uvs: Vec<[Vec2; 3]> = Vec::new();
+    let mut lightmap_uvs_everywhere = true;
     while let Some((node, parent)) = stack.pop() {
         if std::mem::replace(&mut visited[node.index()], true) {
             return Err(TraceError::BadNode {
@@ -540,6 +544,23 @@ fn load_into(
                     }
                     None => (0..positions.len() as u32).collect(),
                 };
+                let texcoords = match primitive.get(&gltf::Semantic::TexCoords(1)) {
+                    Some(a) if has_data(&a) => {
+                        let uv = reader.texcoords(a.index(), &format!("{what} TEXCOORD_1"))?;
+                        if uv.len() != positions.len() {
+                            return Err(bad(format!(
+                                "TEXCOORD_1 has {} values for {} vertices",
+                                uv.len(),
+                                positions.len()
+                            )));
+                        }
+                        Some(uv)
+                    }
+                    _ => {
+                        lightmap_uvs_everywhere = false;
+                        None
+                    }
+                };
                 let triangles = triangulate(mode, &indices);
                 if mode == Mode::Triangles && !indices.len().is_multiple_of(3) {
                     scene.warn(format!(
@@ -564,7 +585,14 @@ fn load_into(
                 for (k, tri) in triangles.into_iter().enumerate() {
                     let [a, b, c] = tri.map(|i| positions[i as usize]);
                     let t = if mirrored { [a, c, b] } else { [a, b, c] };
+                    let kept = scene.triangles().len();
                     scene.push_triangle(t, material, &what, k)?;
+                    if let Some(uv) = &texcoords
+                        && scene.triangles().len() > kept
+                    {
+                        let [a, b, c] = tri.map(|i| uv[i as usize]);
+                        lightmap_uvs.push(if mirrored { [a, c, b] } else { [a, b, c] });
+                    }
                 }
             }
         }
@@ -606,6 +634,9 @@ fn load_into(
         }
         stack.extend(node.children().map(|c| (c, world)));
     }
+    if lightmap_uvs_everywhere && lightmap_uvs.len() == scene.triangles().len() {
+        scene.set_lightmap_uvs(lightmap_uvs);
+    }
     if !without_data.is_empty() {
         scene.warn(format!(
             "{} primitive(s) skipped whose positions or indices have no data (all zeros: no \
@@ -636,8 +667,8 @@ fn has_data(accessor: &gltf::Accessor<'_>) -> bool {
     accessor.view().is_some() || accessor.sparse().is_some()
 }
 
-/// The buffers the loader reads: those holding the positions, indices and morph-target
-/// positions of any primitive (and the images, when textures are decoded). Others (animations,
+/// The buffers the loader reads: those holding the positions, indices, `TEXCOORD_1` and
+/// morph-target positions of any primitive (and the images, when textures are decoded). Others (animations,
 /// skins, other attributes, placeholders) are never loaded, so they cannot fail a load.
 fn needed_buffers(
     document: &gltf::Document,
@@ -647,6 +678,7 @@ fn needed_buffers(
     for primitive in document.meshes().flat_map(|m| m.primitives()) {
         accessors.extend(primitive.get(&gltf::Semantic::Positions));
         accessors.extend(primitive.indices());
+        accessors.extend(primitive.get(&gltf::Semantic::TexCoords(1)));
         accessors.extend(primitive.morph_targets().filter_map(|t| t.positions()));
     }
     let mut buffers = std::collections::HashSet::new();
@@ -965,6 +997,20 @@ impl AccessorReader<'_> {
         Ok(values
             .chunks_exact(3)
             .map(|p| Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32))
+            .collect())
+    }
+
+    /// Texture coordinates: VEC2 of FLOAT, or of normalised unsigned 8- or 16-bit integers.
+    fn texcoords(&self, index: usize, used_as: &str) -> Result<Vec<Vec2>, TraceError> {
+        let (values, _) = self.read(
+            index,
+            2,
+            &[ComponentType::F32, ComponentType::U8, ComponentType::U16],
+            used_as,
+        )?;
+        Ok(values
+            .chunks_exact(2)
+            .map(|p| Vec2::new(p[0] as f32, p[1] as f32))
             .collect())
     }
 

@@ -90,7 +90,7 @@
 //!   zeros (a primitive whose positions or indices are such zeros has no area and is skipped
 //!   unread, with a warning), a primitive without POSITION is skipped with a warning, a scene may omit `nodes`, an
 //!   animation target its `node` (animations are ignored), an integer may be written `1.0`.
-//!   Only the buffers holding positions, indices and morph targets (and images, when decoded)
+//!   Only the buffers holding positions, indices, `TEXCOORD_1` and morph targets (and images, when decoded)
 //!   are loaded.
 //! * Degenerate (zero-area) triangles are dropped and counted; NaN/Inf positions are
 //!   [`TraceError::NonFinitePosition`] naming mesh, primitive and triangle; point and line

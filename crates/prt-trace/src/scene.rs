@@ -1,6 +1,6 @@
 //! Scenes as flat world-space triangle lists with per-triangle materials.
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 use prt_core::Aabb;
 
 use crate::TraceError;
@@ -99,6 +99,7 @@ pub struct Scene {
     cameras: Vec<Camera>,
     degenerate_dropped: usize,
     warnings: Vec<String>,
+    lightmap_uvs: Option<Vec<[Vec2; 3]>>,
 }
 
 /// Whether a triangle has (numerically) zero area relative to its size.
@@ -417,6 +418,17 @@ impl Scene {
     /// Number of degenerate triangles dropped while building the scene.
     pub fn degenerate_dropped(&self) -> usize {
         self.degenerate_dropped
+    }
+
+    /// Per triangle, its lightmap UVs (glTF `TEXCOORD_1`, 0..1, origin top-left) when every
+    /// primitive of a loaded glTF has them; `None` otherwise and for built-in scenes.
+    pub fn lightmap_uvs(&self) -> Option<&[[Vec2; 3]]> {
+        self.lightmap_uvs.as_deref()
+    }
+
+    pub(crate) fn set_lightmap_uvs(&mut self, uvs: Vec<[Vec2; 3]>) {
+        debug_assert_eq!(uvs.len(), self.triangles.len());
+        self.lightmap_uvs = Some(uvs);
     }
 
     /// Non-fatal problems met while loading (unsupported required extensions, undecoded textures, ...).
