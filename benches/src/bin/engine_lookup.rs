@@ -24,12 +24,11 @@ use prt_export::{
     light_field, remove_negative_light,
 };
 use prt_render::{
-    RelitVolume, RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, read_mesh, render,
-    views,
+    RelitVolume, RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, render, views,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::RayTracer;
+use prt_trace::{RayTracer, read_mesh};
 
 #[derive(Debug, Parser)]
 #[command(about = "Engine lookups of a bake against prt's lookup of its traced reference")]

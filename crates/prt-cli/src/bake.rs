@@ -345,7 +345,10 @@ impl BakeArgs {
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,
-            max_memory: Some(self.max_memory.unwrap_or_else(prt_bake::default_memory_budget)),
+            max_memory: Some(
+                self.max_memory
+                    .unwrap_or_else(prt_bake::default_memory_budget),
+            ),
             container,
             layout: self.layout.into(),
             brick_max_distance: self.brick_max_distance,
@@ -462,7 +465,7 @@ pub(crate) fn write_outputs(
 
     keep_volumes(&BakeFolder::new(out_dir), baked, keep.into())?;
     let mesh = BakeFolder::new(out_dir).scene_mesh();
-    prt_render::write_mesh(&mesh, &scene.scene)
+    prt_trace::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
 
     let stage = Stage::start("report");

@@ -11,12 +11,12 @@ use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
 use prt_render::{
     NamedView, RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds,
-    image_metrics, read_mesh, render, views,
+    image_metrics, render, views,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
-use prt_trace::{RayTracer, Scene};
+use prt_trace::{RayTracer, Scene, read_mesh};
 
 use crate::progress::Stage;
 use crate::sky::SkyArgs;

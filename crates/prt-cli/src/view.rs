@@ -19,9 +19,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use prt_bake::BakeFolder;
-use prt_render::{read_mesh, views};
+use prt_render::views;
 use prt_sphere::Sky;
 use prt_texture::Limits;
+use prt_trace::read_mesh;
 use serde_json::json;
 
 use crate::sky::parse_sky;

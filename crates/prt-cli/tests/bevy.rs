@@ -24,9 +24,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use glam::Vec3;
-use prt_render::{Rendered, ToneMap, luminance, read_mesh, views};
+use prt_render::{Rendered, ToneMap, luminance, views};
 use prt_texture::Limits;
 use prt_trace::RayTracer;
+use prt_trace::read_mesh;
 
 /// Image side in pixels.
 const SIZE: usize = 256;

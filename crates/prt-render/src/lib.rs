@@ -1,4 +1,4 @@
-//! # prt-render — the lit scene on the CPU, and the scene mesh that bakes export
+//! # prt-render — the lit scene on the CPU
 //!
 //! Renders what a baked transfer volume looks like on the scene's surfaces: one primary ray per
 //! pixel (prt-trace's [`GBuffer`](prt_trace::GBuffer) through a
@@ -17,13 +17,12 @@
 //! | [`image_metrics`], [`ImageMetrics`] | a render against a reference as a person sees them: ꟻLIP and tone-mapped grey-level errors |
 //! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
 //! | [`views`], [`NamedView`] | the scene's glTF cameras, then the automatic `front` and `inside` views |
-//! | [`encode_mesh`], [`write_mesh`], [`decode_mesh`], [`read_mesh`] | the scene mesh file (`scene.mesh`, docs/formats.md): triangles, materials, cameras |
 //! | [`grid_bounds`] | a voxel grid's box from the box of its voxel centres (an MBD container's coefficient kernels) |
-//! | [`RenderError`], [`MeshError`] | what can go wrong |
+//! | [`RenderError`] | what can go wrong |
 //!
 //! Renders are deterministic: every pixel is a pure function of the scene, view, volume and sky,
 //! computed in parallel over rows, so the image is the same on any thread count. This crate
-//! never prints; files are written through prt-texture's atomic writer.
+//! never prints and writes no file.
 //!
 //! ```
 //! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
@@ -52,15 +51,13 @@
 #![deny(missing_docs)]
 
 mod error;
-mod mesh;
 mod metrics;
 mod render;
 mod tonemap;
 mod views;
 mod volume;
 
-pub use error::{MeshError, RenderError};
-pub use mesh::{MESH_MAGIC, MESH_VERSION, decode_mesh, encode_mesh, read_mesh, write_mesh};
+pub use error::RenderError;
 pub use metrics::{ImageMetrics, VISIBLE_LEVELS, image_metrics};
 pub use render::{RenderConfig, Rendered, SurfaceLight, render, voxels_read};
 pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};

@@ -32,6 +32,9 @@
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
 //!   its brute-force reference image. Lights files ([`read_lights_file`]) bring user-made
 //!   point lights in their place.
+//! * **The scene mesh file** ([`write_mesh`], [`read_mesh`], [`encode_mesh`], [`decode_mesh`],
+//!   [`MeshError`]): a scene's triangles, materials and cameras in a small binary format
+//!   (`scene.mesh` in a bake folder) that `prt render` and a browser read back.
 //! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
 //!   wavelet transport, where a transport row has one entry per lighting texel.
@@ -126,6 +129,7 @@ mod denoise;
 mod error;
 mod gltf_load;
 mod lights_file;
+mod mesh;
 mod outdoor;
 mod pixel;
 mod sampling;
@@ -150,6 +154,9 @@ pub use gltf_load::LoadOptions;
 pub use lights_file::{
     LightsBudget, LightsFileError, MAX_LIGHTS_LINE_BYTES, format_lights, parse_lights,
     read_lights_file, write_lights_file,
+};
+pub use mesh::{
+    MESH_MAGIC, MESH_VERSION, MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh,
 };
 pub use pixel::{
     Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
