@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use prt_lightmap::{
-    Atlas, Encoder, Lighting, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig, bake_lightmap,
-    estimate_memory, render_view, unwrap_charts,
+    Atlas, Encoder, Lighting, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig,
+    atlas_from_uvs, bake_lightmap, estimate_memory, render_view, unwrap_charts,
 };
 use prt_render::{Rendered, ToneMap};
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
@@ -21,7 +21,8 @@ use crate::progress::Stage;
 /// Options of `prt lightmap`.
 #[derive(Debug, clap::Args)]
 #[command(
-    after_help = "Writes OUT/lightmap.exr (layer `irradiance`, then one RGB layer per basis \
+    after_help = "UVs: the scene's TEXCOORD_1 when every primitive has it (unless \
+--generate-uvs), else planar charts packed on shelves. Writes OUT/lightmap.exr (layer `irradiance`, then one RGB layer per basis \
 function `c00`, `c01`, ...: incident radiance in each texel's tangent frame, +Y the normal), \
 OUT/lightmap.ktx2 (the same as a 2D array of RGBA32F layers, alpha 1 on texels with data), \
 OUT/lightmap_uvs.bin (per scene triangle, its three lightmap UVs as 6 little-endian f32, 0..1, \
@@ -48,9 +49,13 @@ pub struct LightmapArgs {
     /// Write a preview every K samples per texel (0: none).
     #[arg(long, default_value_t = 64, value_name = "K")]
     pub preview_every: u32,
-    /// Lightmap texels per metre of the generated charts.
+    /// Lightmap texels per metre (the atlas size for the scene's own TEXCOORD_1 follows from
+    /// it and the UV area).
     #[arg(long, default_value_t = 16.0, value_name = "DENSITY")]
     pub texels_per_metre: f32,
+    /// Generate charts even when every primitive of the scene has TEXCOORD_1.
+    #[arg(long)]
+    pub generate_uvs: bool,
     /// Empty texels around each generated chart (filled by dilation).
     #[arg(long, default_value_t = 2)]
     pub padding: u32,
@@ -91,14 +96,20 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
     for warning in scene.warnings() {
         eprintln!("warning: {warning}");
     }
-    let atlas = unwrap_charts(
-        scene.triangles(),
-        &UnwrapConfig {
-            texels_per_metre: args.texels_per_metre,
-            padding: args.padding,
-            ..UnwrapConfig::default()
-        },
-    )?;
+    let atlas = match scene.lightmap_uvs() {
+        Some(uvs) if !args.generate_uvs => {
+            let side = texcoord1_side(scene.triangles(), uvs, args.texels_per_metre)?;
+            atlas_from_uvs(scene.triangles(), uvs, side, side)?
+        }
+        _ => unwrap_charts(
+            scene.triangles(),
+            &UnwrapConfig {
+                texels_per_metre: args.texels_per_metre,
+                padding: args.padding,
+                ..UnwrapConfig::default()
+            },
+        )?,
+    };
     for warning in &atlas.warnings {
         eprintln!("warning: {warning}");
     }
@@ -250,6 +261,31 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The square atlas side (a multiple of 4, at most 8192) that gives the scene's own lightmap
+/// UVs `density` texels per metre: `side² · UV area = surface area · density²`.
+fn texcoord1_side(
+    triangles: &[[glam::Vec3; 3]],
+    uvs: &[[glam::Vec2; 3]],
+    density: f32,
+) -> Result<u32> {
+    if !(density.is_finite() && density > 0.0) {
+        bail!("--texels-per-metre must be > 0");
+    }
+    let surface: f64 = triangles
+        .iter()
+        .map(|t| f64::from(0.5 * (t[1] - t[0]).cross(t[2] - t[0]).length()))
+        .sum();
+    let uv_area: f64 = uvs
+        .iter()
+        .map(|t| f64::from(0.5 * (t[1] - t[0]).perp_dot(t[2] - t[0]).abs()))
+        .sum();
+    if !(uv_area > 0.0 && uv_area.is_finite()) {
+        bail!("the scene's TEXCOORD_1 covers no area; use --generate-uvs");
+    }
+    let side = f64::from(density) * (surface / uv_area).sqrt();
+    Ok(((side / 4.0).ceil() as u32 * 4).clamp(4, 8192))
 }
 
 /// `atlas{tag}.png` (the irradiance atlas) and `view{tag}.png` (the scene lit by the lightmap),

@@ -113,3 +113,94 @@ fn bad_knobs_are_one_line_errors() {
     assert_clean_failure(&run(&["--max-memory", "0.00001"]), "budget");
     assert_clean_failure(&run(&["--texels-per-metre", "0"]), "texels per metre");
 }
+
+/// A GLB of a 1 m × 1 m floor quad facing up whose TEXCOORD_1 fills the unit square.
+fn floor_with_texcoord_1() -> Vec<u8> {
+    let positions: [[f32; 3]; 4] = [
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0],
+    ];
+    let uvs: [[f32; 2]; 4] = [[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]];
+    let indices: [u16; 6] = [0, 1, 2, 0, 2, 3];
+    let mut bin: Vec<u8> = positions
+        .iter()
+        .flatten()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    bin.extend(uvs.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    bin.extend(indices.iter().flat_map(|v| v.to_le_bytes()));
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let mut json = format!(
+        r#"{{"asset": {{"version": "2.0"}}, "scene": 0, "scenes": [{{"nodes": [0]}}],
+        "nodes": [{{"mesh": 0}}],
+        "meshes": [{{"primitives": [{{"attributes": {{"POSITION": 0, "TEXCOORD_1": 1}}, "indices": 2}}]}}],
+        "buffers": [{{"byteLength": {len}}}],
+        "bufferViews": [{{"buffer": 0, "byteOffset": 0, "byteLength": 48}},
+                        {{"buffer": 0, "byteOffset": 48, "byteLength": 32}},
+                        {{"buffer": 0, "byteOffset": 80, "byteLength": 12}}],
+        "accessors": [
+          {{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 0, 1]}},
+          {{"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"}},
+          {{"bufferView": 2, "componentType": 5123, "count": 6, "type": "SCALAR"}}]}}"#,
+        len = bin.len()
+    )
+    .into_bytes();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend(b"glTF");
+    out.extend(2u32.to_le_bytes());
+    out.extend((total as u32).to_le_bytes());
+    out.extend((json.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(json);
+    out.extend((bin.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(bin);
+    out
+}
+
+/// A scene with TEXCOORD_1 is baked on its own UVs at the requested density (16 texels over
+/// 1 m), unless --generate-uvs.
+#[test]
+fn texcoord_1_is_the_lightmap_uv_when_present() {
+    let out = scratch("lightmap-uv1");
+    let scene = out.join("floor.glb");
+    std::fs::write(&scene, floor_with_texcoord_1()).unwrap();
+    let (scene, dir) = (scene.to_str().unwrap(), out.join("bake"));
+    let dir = dir.to_str().unwrap();
+    for (extra, source, side) in [
+        (None, "TEXCOORD_1", 16),
+        (Some("--generate-uvs"), "charts", 0),
+    ] {
+        let mut args = vec![
+            "lightmap",
+            scene,
+            "--samples",
+            "4",
+            "--preview-every",
+            "0",
+            "--view-size",
+            "8",
+            "--out",
+            dir,
+        ];
+        args.extend(extra);
+        let run = prt(&args);
+        assert!(run.status.success(), "{}", stderr(&run));
+        let manifest: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("bake/manifest.json")).unwrap())
+                .unwrap();
+        assert_eq!(manifest["uv_source"], source);
+        if side > 0 {
+            assert_eq!(manifest["width"], side);
+            assert_eq!(manifest["texels"], side * side);
+        }
+    }
+}
