@@ -19,7 +19,8 @@ pub use prt_trace::TRANSFER_DIM;
 pub struct BakeConfig {
     /// Voxels along the longest axis of the scene box (the other axes in proportion, at least 2).
     pub resolution: usize,
-    /// Directions traced per voxel (rounded up to a multiple of 12).
+    /// Directions traced per voxel (rounded up to a multiple of 12; of 48 with adaptive
+    /// sampling or the denoiser).
     pub rays_per_voxel: usize,
     /// Hemisphere rays per surface-cache point (the one-bounce indirect part).
     pub cache_rays: usize,

@@ -135,7 +135,8 @@ pub struct BakeArgs {
     ))]
     pub res: Option<usize>,
     #[arg(long, help = knob_help(
-        "Directions traced per voxel (rounded up to a multiple of 12)",
+        "Directions traced per voxel (rounded up to a multiple of 12; of 48 with adaptive \
+         sampling or the denoiser)",
         |c| c.rays_per_voxel.to_string(),
     ))]
     pub rays: Option<usize>,

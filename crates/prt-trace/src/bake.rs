@@ -67,8 +67,9 @@ pub struct BakeOptions {
     /// Explicit grid box. Voxels whose centre lies outside the scene bounds grown by `margin`
     /// are then not traced: they are zero and invalid.
     pub bounds: Option<Aabb>,
-    /// Directions per voxel, rounded up to a multiple of 12 (whole rotated icosahedra); at most
-    /// 12 x 2^16.
+    /// Directions per voxel, rounded up to a multiple of 12 (whole rotated icosahedra; of 48,
+    /// whole rounds of the [`REPLICATES`] streams, with adaptive sampling or the denoiser); at
+    /// most 12 x 2^16.
     pub rays_per_voxel: usize,
     /// Cosine-weighted hemisphere rays per surface-cache point (and per hit in brute force); at
     /// most 2^16.

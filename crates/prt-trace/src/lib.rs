@@ -68,6 +68,12 @@
 //!   scrambled Sobol' rays. A voxel-ray hit interpolates the lattice linearly and multiplies by
 //!   the albedo. [`IndirectMode::BruteForce`] traces fresh rays per hit instead, and the tests
 //!   check that both agree within Monte Carlo noise.
+//! * **Variance, adaptive sampling, denoising** (opt-in: [`BakeOptions::adaptive`],
+//!   [`BakeOptions::denoise`]). With either, a voxel's icosahedra come from [`REPLICATES`]
+//!   independently scrambled streams whose spread estimates its variance without bias;
+//!   [`AdaptiveSampling`] stops a voxel at a target relative standard error, and the
+//!   [`DenoiseOptions`] filter averages only valid neighbours visible from the voxel (no light
+//!   through a wall), weighted by their difference in units of the measured noise.
 //! * **Determinism.** Every random number is a function of `(seed, voxel or cache point, ray)`;
 //!   sums run in a fixed order inside a voxel (f32 per icosahedron, f64 across them), so a seed
 //!   gives bit-identical volumes on any thread count.
