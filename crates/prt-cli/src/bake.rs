@@ -11,7 +11,7 @@ use prt_bake::{
 };
 use prt_texture::Encoding;
 
-use crate::progress::{Stage, StageBars};
+use crate::progress::{StageBar, StageBars};
 use crate::report::{self, Report};
 
 /// Storage encoding of the written volumes.
@@ -469,7 +469,7 @@ pub(crate) fn write_outputs(
     prt_trace::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
 
-    let stage = Stage::start("report");
+    let stage = StageBar::start("report");
     let images = report::write_images(out_dir, baked)?;
     let renders = report::write_renders(
         out_dir,
@@ -536,7 +536,7 @@ fn check_size(args: &BakeArgs, scene: &SceneInput) -> Result<()> {
 
 /// Writes the kept volumes as `policy` says, and says what it did.
 fn keep_volumes(folder: &BakeFolder, baked: &Bake, policy: KeepVolumes) -> Result<()> {
-    let stage = Stage::start("volumes");
+    let stage = StageBar::start("volumes");
     match folder.keep_volumes(baked, policy)? {
         KeptOutcome::Written(_) => {
             stage.finish();

@@ -16,7 +16,7 @@ use prt_export::{
 use prt_sphere::Sky;
 use prt_texture::Limits;
 
-use crate::progress::Stage;
+use crate::progress::StageBar;
 use crate::sky::SkyArgs;
 
 /// The engine an export is for.
@@ -108,7 +108,7 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
 /// (`reference`, `bpca`, `cpca`).
 pub fn light_bake(bake_dir: &Path, from: &str, sky: &Sky) -> Result<LitVolume> {
     let volume = BakeFolder::new(bake_dir).read_volume(from, &Limits::default())?;
-    let stage = Stage::start("light");
+    let stage = StageBar::start("light");
     let lit = match volume {
         FolderVolume::Mbd(container) => light_container(&container, sky, &stage)?,
         FolderVolume::Kept { field, valid, .. } => light_field(&field, &valid, sky, &stage)?,

@@ -16,7 +16,7 @@ use prt_texture::{Ktx2Texture, PixelFormat, Shape, write_atomic};
 use prt_trace::{PinholeView, Scene};
 use serde_json::json;
 
-use crate::progress::Stage;
+use crate::progress::StageBar;
 
 /// Options of `prt lightmap`.
 #[derive(Debug, clap::Args)]
@@ -150,7 +150,7 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let view = PinholeView::for_scene(&scene)?;
     let start = Instant::now();
-    let stage = Stage::start("lightmap");
+    let stage = StageBar::start("lightmap");
     let mut preview_error = None;
     let bake = bake_lightmap(&scene, &atlas, &config, &stage, &mut |lightmap| {
         if preview_error.is_some() || lightmap.samples_per_texel == config.samples {

@@ -22,7 +22,7 @@ use prt_trace::{
     write_lights_file,
 };
 
-use crate::progress::Stage;
+use crate::progress::StageBar;
 
 /// A many-light method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -345,7 +345,7 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
         }
     }
 
-    let stage = Stage::start("lights");
+    let stage = StageBar::start("lights");
     let (vpls, directional, origin) = match &args.lights_file {
         Some(path) => {
             let vpls = read_lights_file(path, &lights_budget)
@@ -376,7 +376,7 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
 
     let frame_views = camera_path(&view.view, &tracer, &bounds, args.path, frames);
     let frame_lights = light_path(vpls, directional, &view.view, &bounds, args.path, frames);
-    let stage = Stage::start("G-buffer");
+    let stage = StageBar::start("G-buffer");
     stage.set_len(frames as u64);
     let gbuffers = frame_views
         .iter()
@@ -775,7 +775,7 @@ fn run_method(
     oracles: &[SceneOracle<'_>],
     args: &ManyLightArgs,
 ) -> Result<MethodRun> {
-    let stage = Stage::start(method.name());
+    let stage = StageBar::start(method.name());
     let start = Instant::now();
     let (rows, columns) = (args.rows, args.columns);
     let mut elements = 0u64;
@@ -841,7 +841,7 @@ fn run_method(
 /// Brute force on `per_frame` pixels of every frame (spread evenly over the image), its time
 /// extrapolated to every pixel.
 fn sampled_brute_force(oracles: &[SceneOracle<'_>], per_frame: usize) -> Result<Reference> {
-    let stage = Stage::start("brute*");
+    let stage = StageBar::start("brute*");
     let total: usize = oracles.iter().map(|o| per_frame.min(o.rows())).sum();
     stage.set_len(total as u64);
     let start = Instant::now();

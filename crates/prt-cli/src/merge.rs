@@ -11,7 +11,7 @@ use serde_json::json;
 
 use crate::bake::{KeepVolumesArg, cli_error, write_outputs};
 use crate::plan::{limits, load_scene, read_plan};
-use crate::progress::{Stage, StageBars};
+use crate::progress::{StageBar, StageBars};
 
 /// Options of `prt merge`.
 #[derive(Debug, clap::Args)]
@@ -74,7 +74,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
             budget as f64 / f64::from(1u32 << 30)
         );
     }
-    let stage = Stage::start("assemble");
+    let stage = StageBar::start("assemble");
     let assembled = prt_bake::tiles::assemble(&plan, &args.plan_dir, &limits())?;
     stage.finish();
     let config = prt_bake::BakeConfig {
@@ -89,7 +89,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     // The volume moves into the bake: the merge holds one copy of it.
     let baked =
         prt_bake::bake_volume(&scene.name, volume, None, &config, &StageBars).map_err(cli_error)?;
-    let stage = Stage::start("tile seams");
+    let stage = StageBar::start("tile seams");
     let seams = prt_bake::tiles::tile_seams(&tile_of_voxel, &baked)?;
     stage.finish();
     write_outputs(&args.out, &scene, &baked, args.keep_volumes, load, total)?;
@@ -128,7 +128,7 @@ fn run_streamed(
         container: Some(BakeFolder::new(&args.out).container_dir()),
         ..plan.config.clone()
     };
-    let stage = Stage::start("streamed merge");
+    let stage = StageBar::start("streamed merge");
     let merged = prt_bake::tiles::merge_streamed(
         plan,
         &args.plan_dir,

@@ -28,13 +28,13 @@ pub fn cancelled() -> bool {
 
 /// One stage of long work drawn as a progress bar with ETA on stderr (hidden when stderr is not
 /// a terminal).
-pub struct Stage {
+pub struct StageBar {
     name: &'static str,
     bar: ProgressBar,
     start: Instant,
 }
 
-impl Stage {
+impl StageBar {
     /// Starts a stage.
     pub fn start(name: &'static str) -> Self {
         let bar = ProgressBar::new(0);
@@ -62,8 +62,8 @@ impl Stage {
     }
 }
 
-impl Drop for Stage {
-    /// A stage dropped without [`Stage::finish`] (a bake stage, or an error) clears its bar.
+impl Drop for StageBar {
+    /// A stage dropped without [`StageBar::finish`] (a bake stage, or an error) clears its bar.
     fn drop(&mut self) {
         self.bar.finish_and_clear();
     }
@@ -78,7 +78,7 @@ pub struct StageBars;
 
 impl prt_bake::BakeProgress for StageBars {
     fn begin(&self, stage: prt_bake::Stage) -> Box<dyn Progress + '_> {
-        Box::new(Stage::start(stage.name()))
+        Box::new(StageBar::start(stage.name()))
     }
 
     fn end(&self, stage: prt_bake::Stage, elapsed: Duration) {
@@ -86,7 +86,7 @@ impl prt_bake::BakeProgress for StageBars {
     }
 }
 
-impl Progress for Stage {
+impl Progress for StageBar {
     fn set_len(&self, len: u64) {
         self.bar.set_length(len);
         self.bar.set_position(0);

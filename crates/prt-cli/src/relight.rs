@@ -17,7 +17,7 @@ use prt_trace::{
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 
-use crate::progress::Stage;
+use crate::progress::StageBar;
 
 /// Options of `prt relight`.
 #[derive(Debug, Clone, clap::Args)]
@@ -165,7 +165,7 @@ pub fn run(args: &RelightArgs) -> Result<()> {
     let mut tone: Option<ToneMap> = None;
     let mut preview: Vec<Vec<u8>> = Vec::new();
     let (w, h) = (args.size, args.size);
-    let stage = Stage::start("relight");
+    let stage = StageBar::start("relight");
     prt_core::Progress::set_len(&stage, args.frames as u64);
     for t in 0..args.frames {
         if prt_core::Progress::is_cancelled(&stage) {
@@ -351,7 +351,7 @@ fn transport(
             "the bake may need {gib:.2} GiB, more than --max-memory {max_memory}; lower --size, --cube or --max-terms"
         );
     }
-    let stage = Stage::start("transport");
+    let stage = StageBar::start("transport");
     let transport = baker.bake(&stage)?;
     stage.finish();
     transport.write(&path)?;

@@ -18,7 +18,7 @@ use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
 use prt_trace::{RayTracer, Scene, read_mesh};
 
-use crate::progress::Stage;
+use crate::progress::StageBar;
 use crate::sky::SkyArgs;
 
 /// Which volume lights the render.
@@ -246,7 +246,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         width: args.size,
         height: args.size,
     };
-    let stage = Stage::start("render");
+    let stage = StageBar::start("render");
     let start = Instant::now();
     let image = render(&scene, &tracer, &view.view, &*light, &sky, &config, &stage)?;
     let seconds = start.elapsed().as_secs_f64();

@@ -10,7 +10,7 @@ use prt_bake::tiles::{TileOutcome, TileStatus};
 use prt_core::Progress;
 
 use crate::plan::{load_scene, read_plan};
-use crate::progress::Stage;
+use crate::progress::StageBar;
 
 /// The scheduler variables a worker reads its tile index from, in order.
 pub const INDEX_VARIABLES: [&str; 2] = ["JOB_COMPLETION_INDEX", "SLURM_ARRAY_TASK_ID"];
@@ -93,7 +93,7 @@ pub fn run(args: &TileArgs) -> Result<()> {
         _ => {}
     }
     let scene = load_scene(&plan, args.scene.as_deref())?;
-    let stage = Stage::start("trace");
+    let stage = StageBar::start("trace");
     let outcome =
         prt_bake::tiles::bake_tile(&plan, &args.plan_dir, &scene, index, args.force, &stage)?;
     stage.finish();
@@ -214,7 +214,7 @@ fn run_all(args: &TileArgs) -> Result<()> {
         },
         args.workers
     );
-    let stage = Stage::start("tiles");
+    let stage = StageBar::start("tiles");
     stage.set_len(todo.len() as u64);
     let mut pending = todo.into_iter();
     let mut running: Vec<(usize, JoinHandle<Result<bool>>)> = Vec::new();
