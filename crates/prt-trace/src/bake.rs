@@ -157,7 +157,7 @@ pub struct BakeStats {
     pub invalid_voxels: usize,
     /// Voxels outside the scene bounds plus margin (not traced).
     pub skipped_voxels: usize,
-    /// Effective directions per voxel (a multiple of 12).
+    /// Effective directions per voxel (a multiple of 12; with adaptive sampling, the cap).
     pub rays_per_voxel: usize,
     /// Surface-cache lattice points allocated (both sides of a point count once).
     pub cache_points: usize,

@@ -142,6 +142,7 @@ pub(crate) fn denoise<'a>(
                         0.0
                     };
                     let w = spatial * (-excess * inv_strength2).exp();
+                    // A negligible weight is dropped before its visibility ray is traced.
                     if w < 1e-4 || !visible(tracer, cv, grid.centre_of(u)) {
                         continue;
                     }
