@@ -108,7 +108,7 @@ impl Layout {
 
 impl Default for BakeConfig {
     /// 32 voxels along the longest axis, 512 rays per voxel (528: whole rounds of the variance's
-    /// four streams) without adaptive sampling, the denoiser at strength 4 over 3³ voxels, 64
+    /// four streams) without adaptive sampling, the denoiser at strength 1 over 3³ voxels, 64
     /// cache rays, no margin, rank 8
     /// on 5 basis nodes per axis, 64 iterations (a coarse start from 64³ voxels up, then 16 at
     /// full resolution), λ = 1e-4, the relative-error loss weighting, f16 storage, baselines
@@ -121,7 +121,7 @@ impl Default for BakeConfig {
             cache_rays: 64,
             adaptive_error: None,
             adaptive_min_rays: 96,
-            denoise: Some(4.0),
+            denoise: Some(1.0),
             denoise_radius: 1,
             margin: 0.0,
             rank: 8,
