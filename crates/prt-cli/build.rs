@@ -9,6 +9,9 @@
 //! by PRT_BEVY_EXAMPLE, and ../shared/scenes; without either it compiles as ignored, unless
 //! PRT_REQUIRE_BEVY=1 (set by .ci/run after building the example) and PRT_REQUIRE_SHARED=1.
 //!
+//! Tests that read ../shared (scenes, environment maps: the manylight, lightmap and relight
+//! tests) compile as ignored when it is absent, unless PRT_REQUIRE_SHARED=1 (set by .ci/run).
+//!
 //! And for the Slurm test (tests/slurm.rs): it starts munged, slurmctld and slurmd (Debian's
 //! munge and slurm-wlm) as root; without them, or not as root, it compiles as ignored, unless
 //! PRT_REQUIRE_SLURM=1 (set by .ci/run after installing them).
@@ -20,6 +23,7 @@ fn main() {
     println!("cargo::rustc-check-cfg=cfg(prt_skip_bevy)");
     println!("cargo::rustc-check-cfg=cfg(prt_skip_threejs)");
     println!("cargo::rustc-check-cfg=cfg(prt_skip_slurm)");
+    println!("cargo::rustc-check-cfg=cfg(prt_skip_shared)");
     println!("cargo::rerun-if-changed=build.rs");
     println!("cargo::rerun-if-env-changed=PRT_REQUIRE_CHROMIUM");
     println!("cargo::rerun-if-env-changed=PRT_CHROMIUM");
@@ -49,6 +53,21 @@ fn main() {
     if skip_slurm() {
         println!("cargo::rustc-cfg=prt_skip_slurm");
     }
+    if skip_shared() {
+        println!("cargo::rustc-cfg=prt_skip_shared");
+    }
+}
+
+/// Whether ../shared (beside the repository) is absent and may be skipped.
+fn skip_shared() -> bool {
+    println!("cargo::rerun-if-env-changed=PRT_REQUIRE_SHARED");
+    let shared = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").expect("set by cargo"))
+        .join("../../../shared");
+    if shared.is_dir() {
+        println!("cargo::rerun-if-changed={}", shared.display());
+        return false;
+    }
+    std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1")
 }
 
 /// Whether tests/slurm.rs lacks Slurm's and munge's programs, or root, and may skip.

@@ -2,35 +2,15 @@
 //! the knobs it refuses with a one-line error.
 
 mod common;
-use std::path::PathBuf;
 
-use common::{assert_clean_failure, prt, scratch, stderr};
+use common::{assert_clean_failure, prt, scratch, shared_cornell, stderr};
 use prt_texture::exr_io::read_exr;
 use prt_texture::{Ktx2Texture, Limits};
 
-/// The Cornell box glTF of ../shared/scenes, or `None` (with a message) when it is absent and
-/// PRT_REQUIRE_SHARED=1 does not require it.
-fn cornell() -> Option<PathBuf> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/scenes/cornell_box/CornellBox-Original.gltf");
-    if path.is_file() {
-        return Some(path);
-    }
-    assert!(
-        std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1"),
-        "{} is missing and PRT_REQUIRE_SHARED=1",
-        path.display()
-    );
-    eprintln!(
-        "SKIPPED: {} is absent (PRT_REQUIRE_SHARED=1 requires it)",
-        path.display()
-    );
-    None
-}
-
 #[test]
+#[cfg_attr(prt_skip_shared, ignore = "needs ../shared/scenes")]
 fn a_tiny_cornell_lightmap_writes_its_textures_previews_and_manifest() {
-    let Some(scene) = cornell() else { return };
+    let scene = shared_cornell();
     let out = scratch("lightmap");
     let scene = scene.to_str().unwrap();
     let dir = out.to_str().unwrap();
@@ -98,8 +78,9 @@ fn a_tiny_cornell_lightmap_writes_its_textures_previews_and_manifest() {
 }
 
 #[test]
+#[cfg_attr(prt_skip_shared, ignore = "needs ../shared/scenes")]
 fn bad_knobs_are_one_line_errors() {
-    let Some(scene) = cornell() else { return };
+    let scene = shared_cornell();
     let out = scratch("lightmap-bad");
     let (scene, dir) = (scene.to_str().unwrap(), out.to_str().unwrap());
     let run = |extra: &[&str]| {

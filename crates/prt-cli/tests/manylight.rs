@@ -2,29 +2,9 @@
 //! refuse with a one-line error.
 
 mod common;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use common::{assert_clean_failure, prt, scratch, stderr};
-
-/// The Cornell box glTF of ../shared/scenes, or `None` (with a message) when it is absent and
-/// PRT_REQUIRE_SHARED=1 does not require it.
-fn cornell() -> Option<PathBuf> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/scenes/cornell_box/CornellBox-Original.gltf");
-    if path.is_file() {
-        return Some(path);
-    }
-    assert!(
-        std::env::var_os("PRT_REQUIRE_SHARED").is_none_or(|v| v != "1"),
-        "{} is missing and PRT_REQUIRE_SHARED=1",
-        path.display()
-    );
-    eprintln!(
-        "SKIPPED: {} is absent (PRT_REQUIRE_SHARED=1 requires it)",
-        path.display()
-    );
-    None
-}
+use common::{assert_clean_failure, prt, scratch, shared_cornell, stderr};
 
 /// 40 isotropic and downward lights in the Cornell box glTF (x in -1..1, y in 0..1.99, z in
 /// -1.04..0.99), above its two blocks and below its ceiling.
@@ -61,8 +41,9 @@ fn table_errors(stdout: &str, method: &str) -> (f64, f64) {
 }
 
 #[test]
+#[cfg_attr(prt_skip_shared, ignore = "needs ../shared/scenes")]
 fn compare_on_the_cornell_gltf_is_exact_with_a_column_per_light() {
-    let Some(scene) = cornell() else { return };
+    let scene = shared_cornell();
     let dir = scratch("manylight-compare");
     let lights = dir.join("lights.txt");
     write_lights(&lights);
@@ -108,8 +89,9 @@ fn compare_on_the_cornell_gltf_is_exact_with_a_column_per_light() {
 }
 
 #[test]
+#[cfg_attr(prt_skip_shared, ignore = "needs ../shared/scenes")]
 fn traced_lights_on_a_light_path_with_estimated_brute_force_write_exr_frames() {
-    let Some(scene) = cornell() else { return };
+    let scene = shared_cornell();
     let dir = scratch("manylight-frames");
     let out = dir.join("frame.exr");
     let saved = dir.join("saved.txt");

@@ -80,3 +80,19 @@ pub fn assert_clean_failure(out: &Output, needle: &str) {
     );
     assert!(!err.contains("panicked"), "panic in {err}");
 }
+
+/// A file of ../shared (beside the repository), e.g. `scenes/cornell_box/CornellBox-Original.gltf`.
+/// Tests that read one are `#[cfg_attr(prt_skip_shared, ignore = ...)]`: build.rs sets the cfg
+/// when ../shared is absent and PRT_REQUIRE_SHARED=1 does not require it.
+pub fn shared(path: &str) -> PathBuf {
+    let file = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared")
+        .join(path);
+    assert!(file.is_file(), "{} is missing", file.display());
+    file
+}
+
+/// The Cornell box glTF of ../shared/scenes.
+pub fn shared_cornell() -> PathBuf {
+    shared("scenes/cornell_box/CornellBox-Original.gltf")
+}
