@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use crate::{cache_dir, load_scene, save_png};
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
-use prt_trace::{
-    DirectionalLight, GBuffer, PinholeView, RayTracer, Scene, SunSky, Vpl, VplOptions, VplOracle,
-    directional_lights, trace_vpls,
+use prt_trace::manylight::{
+    DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, trace_vpls,
 };
+use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
 use rayon::prelude::*;
 
 /// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility

@@ -4,7 +4,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use prt_trace::{LightsBudget, format_lights, parse_lights};
+use prt_trace::manylight::{LightsBudget, format_lights, parse_lights};
 
 fuzz_target!(|data: &[u8]| {
     let budget = LightsBudget::new(1 << 16);

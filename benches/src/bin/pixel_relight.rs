@@ -13,10 +13,11 @@ use clap::Parser;
 use prt_benches::{Table, cache_dir, cpu_seconds, load_average, load_envmap, load_scene};
 use prt_core::NoProgress;
 use prt_texture::Limits;
-use prt_trace::{
-    Bounce, MethodRelighter, PinholeView, PixelTransport, PixelTransportBaker,
-    PixelTransportOptions, RayTracer, RelightMethod, Sparsify,
+use prt_trace::relight::{
+    Bounce, MethodRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions,
+    RelightMethod, Sparsify,
 };
+use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 

@@ -11,7 +11,7 @@
 //! tessellated to a lattice of spacing `--spacing` × the distance to the centre of the view (the
 //! Cornell box's triangles are a wall each; Sponza's are mostly smaller than one spacing); a
 //! pixel interpolates its sub-triangle's three points barycentrically. Each point traces one
-//! shadow ray per texel of a `6 × size × size` lighting cube map (`prt_trace::CubeRays`, one
+//! shadow ray per texel of a `6 × size × size` lighting cube map (`prt_trace::relight::CubeRays`, one
 //! sample per texel, so the un-factorised reference below sees exactly the same visibility).
 //!
 //! §7.2: a Blinn-Phong lobe (`--exponent`) factored into `--brdf-terms` terms
@@ -35,7 +35,8 @@ use prt_benches::{Table, load_envmap, load_scene};
 use prt_core::{Aabb, CoreError, GridField, MatrixOracle, NoProgress};
 use prt_mbd::ClusteredPca;
 use prt_sphere::envmap::cube_to_direction;
-use prt_trace::{CubeRays, PinholeView, RayTracer};
+use prt_trace::relight::CubeRays;
+use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{
     Approximator, BandStrategy, BrdfFactorisation, CpcaModel, CpcaRelighter, CubemapHaar,

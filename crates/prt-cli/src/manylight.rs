@@ -16,11 +16,11 @@ use prt_manylight::{
 };
 use prt_render::{NamedView, Rendered, ToneMap, image_metrics, views};
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
-use prt_trace::{
-    DirectionalLight, GBuffer, LightsBudget, LoadOptions, PinholeView, RayTracer, Scene, SunSky,
-    Vpl, VplOptions, VplOracle, directional_lights, read_lights_file, trace_vpls,
-    write_lights_file,
+use prt_trace::manylight::{
+    DirectionalLight, LightsBudget, SunSky, Vpl, VplOptions, VplOracle, directional_lights,
+    read_lights_file, trace_vpls, write_lights_file,
 };
+use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene};
 
 use crate::progress::StageBar;
 

@@ -10,10 +10,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use prt_render::{Rendered, ToneMap};
 use prt_texture::{Limits, write_atomic};
-use prt_trace::{
-    Bounce, MethodRelighter, PinholeView, PixelTransport, PixelTransportBaker,
-    PixelTransportOptions, RayTracer, RelightMethod, Sparsify,
+use prt_trace::relight::{
+    Bounce, MethodRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions,
+    RelightMethod, Sparsify,
 };
+use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 

@@ -3,7 +3,8 @@
 use std::f32::consts::{PI, TAU};
 
 use glam::Vec3;
-use prt_trace::{Hit, LightKind, RayTracer, Scene, SunSky};
+use prt_trace::manylight::SunSky;
+use prt_trace::{Hit, LightKind, RayTracer, Scene};
 
 /// Sobol' dimensions of the texel ray: direction (2), sun-or-hemisphere choice (1), point in the
 /// sun's disk (2).
@@ -28,7 +29,7 @@ pub struct Lighting {
 
 impl Lighting {
     /// The scene's lights, plus [`SunSky::default`] when it has no emitter and no punctual
-    /// light (the rule of [`prt_trace::trace_vpls`]).
+    /// light (the rule of [`prt_trace::manylight::trace_vpls`]).
     pub fn for_scene(scene: &Scene) -> Self {
         let emits = (0..scene.triangles().len())
             .any(|t| scene.material_of(t).emissive.max_element() > 0.0)

@@ -8,7 +8,8 @@ use prt_lightmap::{
     Encoder, Lighting, LightmapBasis, LightmapConfig, LightmapError, UnwrapConfig, bake_lightmap,
     unwrap_charts,
 };
-use prt_trace::{Scene, SunSky};
+use prt_trace::Scene;
+use prt_trace::manylight::SunSky;
 
 fn cornell_atlas(scene: &Scene) -> prt_lightmap::Atlas {
     unwrap_charts(

@@ -20,7 +20,8 @@ use glam::Vec3;
 use prt_core::Progress;
 use rayon::prelude::*;
 
-use crate::{CubeRays, GBuffer, RayTracer, TraceError};
+use crate::cube::CubeRays;
+use crate::{GBuffer, RayTracer, TraceError};
 
 /// Options of [`trace_half_angle_transport`].
 #[derive(Debug, Clone, PartialEq)]

@@ -25,24 +25,24 @@
 //!   voxels; bricks without a valid voxel (opt-in: far from geometry) are neither traced nor
 //!   stored, and the kept voxels equal the dense bake's bit for bit. For large grids with much
 //!   solid or outside space.
-//! * **Many lights** ([`trace_vpls`], [`GBuffer`], [`VplOracle`]): virtual point lights by
+//! * **Many lights** ([`trace_vpls`](manylight::trace_vpls), [`GBuffer`], [`VplOracle`](manylight::VplOracle)): virtual point lights by
 //!   particle tracing from the emitters (instant radiosity, Keller 1997; a sun and sky for
 //!   scenes without emitters), a pinhole view ([`PinholeView`]: the glTF camera or a framing of
 //!   the bounds) with a G-buffer of gather points, and the pixel × VPL matrix with shadow rays as
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
-//!   its brute-force reference image. Lights files ([`read_lights_file`]) bring user-made
+//!   its brute-force reference image. Lights files ([`read_lights_file`](manylight::read_lights_file)) bring user-made
 //!   point lights in their place.
 //! * **The scene mesh file** ([`write_mesh`], [`read_mesh`], [`encode_mesh`], [`decode_mesh`],
 //!   [`MeshError`]): a scene's triangles, materials and cameras in a small binary format
 //!   (`scene.mesh` in a bake folder) that `prt render` and a browser read back.
-//! * **Cube-map shadow rays** ([`CubeRays`]): from a surface point towards every texel of a
+//! * **Cube-map shadow rays** ([`CubeRays`](relight::CubeRays)): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
 //!   wavelet transport, where a transport row has one entry per lighting texel.
-//! * **Per-pixel wavelet transport** ([`PixelTransportBaker`], [`PixelTransport`],
-//!   [`PixelRelighter`]): for a fixed camera, every pixel's row over a cube map of light
-//!   (direct, or with one diffuse bounce), Haar-transformed, sparsified ([`Sparsify`]) and
+//! * **Per-pixel wavelet transport** ([`PixelTransportBaker`](relight::PixelTransportBaker), [`PixelTransport`](relight::PixelTransport),
+//!   [`PixelRelighter`](relight::PixelRelighter)): for a fixed camera, every pixel's row over a cube map of light
+//!   (direct, or with one diffuse bounce), Haar-transformed, sparsified ([`Sparsify`](relight::Sparsify)) and
 //!   quantised for prt-wavelet's relighting engine; written to and read from a compact file.
-//! * **BRDF-editing transport** ([`trace_half_angle_transport`]): per pixel, the glossy
+//! * **BRDF-editing transport** ([`trace_half_angle_transport`](relight::trace_half_angle_transport)): per pixel, the glossy
 //!   transport against the bins of an editable half-angle BRDF curve under fixed view and cube-map
 //!   lighting (Ben-Artzi et al. 2006), so that the image is linear in the curve.
 //!
@@ -130,6 +130,7 @@ mod bake;
 mod brdf_transport;
 mod bricks;
 mod bvh;
+mod camera;
 mod cube;
 mod denoise;
 mod error;
@@ -148,29 +149,41 @@ pub use bake::{
     TRANSFER_DIM, TransferBaker, TransferVolume, block, constant_sky, incident_radiance,
     irradiance,
 };
-pub use brdf_transport::{
-    HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
-};
 pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
-pub use cube::CubeRays;
+pub use camera::{GBuffer, GatherPoint, PinholeView};
 pub use denoise::DenoiseOptions;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
-pub use lights_file::{
-    LightsBudget, LightsFileError, MAX_LIGHTS_LINE_BYTES, format_lights, parse_lights,
-    read_lights_file, write_lights_file,
-};
 pub use mesh::{
     MESH_MAGIC, MESH_VERSION, MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh,
 };
-pub use pixel::{
-    Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
-    PixelTransportBaker, PixelTransportOptions, RelightMethod, RelitFrame, Sparsify,
-};
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, sh9};
-pub use vpl::{
-    DirectionalLight, GBuffer, GatherPoint, PinholeView, SunSky, Vpl, VplOptions, VplOracle,
-    directional_lights, emitted_power, trace_vpls,
-};
+
+/// Many lights: virtual point lights traced from a scene's emitters, or its sun and sky, or read
+/// from a lights file, and the pixel × light matrix of a G-buffer lit by them (for prt-manylight).
+pub mod manylight {
+    pub use crate::lights_file::{
+        LightsBudget, LightsFileError, MAX_LIGHTS_LINE_BYTES, format_lights, parse_lights,
+        read_lights_file, write_lights_file,
+    };
+    pub use crate::vpl::{
+        DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, emitted_power,
+        trace_vpls,
+    };
+}
+
+/// Transport for wavelet relighting: per-pixel rows over a cube map of light (baked, stored,
+/// relit frame by frame with prt-wavelet), the half-angle BRDF-editing transport, and the
+/// cube-map shadow rays beneath both.
+pub mod relight {
+    pub use crate::brdf_transport::{
+        HalfAngleOptions, HalfAngleTransport, half_angle_bin, trace_half_angle_transport,
+    };
+    pub use crate::cube::CubeRays;
+    pub use crate::pixel::{
+        Bounce, MethodRelighter, PixelBakeEstimate, PixelRelighter, PixelTransport,
+        PixelTransportBaker, PixelTransportOptions, RelightMethod, RelitFrame, Sparsify,
+    };
+}

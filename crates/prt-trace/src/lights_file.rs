@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 use thiserror::Error;
 
-use crate::Vpl;
+use crate::vpl::Vpl;
 
 /// The longest line a lights file may have, in bytes (its newline excluded).
 pub const MAX_LIGHTS_LINE_BYTES: usize = 4096;

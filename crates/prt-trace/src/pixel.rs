@@ -41,8 +41,9 @@ use prt_texture::{Limits, write_atomic};
 use prt_wavelet::{CubemapHaar, FrameUpdate, Relighter, SparseTransport, TransportParts};
 use rayon::prelude::*;
 
+use crate::cube::CubeRays;
 use crate::sampling::{cosine_hemisphere, hash_seed};
-use crate::{CubeRays, GBuffer, PinholeView, RayTracer, Scene, TraceError};
+use crate::{GBuffer, PinholeView, RayTracer, Scene, TraceError};
 
 /// Which Haar coefficients of a row are kept.
 #[derive(Debug, Clone, Copy, PartialEq)]

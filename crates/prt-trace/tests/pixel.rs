@@ -5,10 +5,10 @@ use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::NoProgress;
 use prt_texture::Limits;
-use prt_trace::{
-    Bounce, PinholeView, PixelRelighter, PixelTransport, PixelTransportBaker,
-    PixelTransportOptions, RayTracer, Scene, Sparsify,
+use prt_trace::relight::{
+    Bounce, PixelRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions, Sparsify,
 };
+use prt_trace::{PinholeView, RayTracer, Scene};
 use prt_wavelet::{BandMode, CubemapHaar, FrameUpdate, Term};
 use rand::{Rng, SeedableRng};
 

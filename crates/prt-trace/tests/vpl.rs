@@ -8,10 +8,11 @@ use std::sync::OnceLock;
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
-use prt_trace::{
-    DirectionalLight, GBuffer, GatherPoint, Material, PinholeView, RayTracer, Scene, SunSky,
-    TraceError, Vpl, VplOptions, VplOracle, directional_lights, emitted_power, trace_vpls,
+use prt_trace::manylight::{
+    DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, emitted_power,
+    trace_vpls,
 };
+use prt_trace::{GBuffer, GatherPoint, Material, PinholeView, RayTracer, Scene, TraceError};
 
 struct Cornell {
     scene: Scene,
