@@ -12,11 +12,8 @@ use rayon::prelude::*;
 use crate::bvh::{BuildQuality, RayTracer};
 use crate::denoise::{DenoiseOptions, denoise};
 use crate::sampling::{ICOSA, cosine_hemisphere, group_rotation, hash_seed, icosahedron};
-use crate::sh::{SH9, sh9};
+use crate::sh::{SH9, TRANSFER_DIM, sh9};
 use crate::{Scene, TraceError};
-
-/// Dimension of a transfer vector: `[direct 81 | R 81 | G 81 | B 81]`.
-pub const TRANSFER_DIM: usize = 4 * SH9 * SH9;
 
 /// Offset of block `k` (0 = direct, 1..=3 = R, G, B direct-to-indirect) in a transfer vector.
 pub const fn block(k: usize) -> std::ops::Range<usize> {

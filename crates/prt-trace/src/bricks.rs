@@ -8,8 +8,9 @@ use prt_core::ndarray::Array2;
 use prt_core::{Aabb, GridField, Progress};
 use rayon::prelude::*;
 
-use crate::bake::{TRANSFER_DIM, TransferBaker, TransferVolume};
+use crate::bake::{TransferBaker, TransferVolume};
 use crate::denoise::denoise;
+use crate::sh::TRANSFER_DIM;
 use crate::{BakeStats, TraceError};
 
 /// Marks an absent brick in [`BrickMap`]'s indirection.

@@ -7,7 +7,7 @@ use glam::Vec3;
 use prt_core::{GridField, Progress};
 use rayon::prelude::*;
 
-use crate::bake::TRANSFER_DIM;
+use crate::sh::TRANSFER_DIM;
 use crate::{RayTracer, TraceError};
 
 /// Options of the transfer-volume denoiser (an opt-in of [`crate::BakeOptions`]).

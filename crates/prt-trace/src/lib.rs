@@ -146,8 +146,7 @@ mod vpl;
 
 pub use bake::{
     AdaptiveSampling, BakeOptions, BakeStats, CLAMPED_COSINE, IndirectMode, REPLICATES,
-    TRANSFER_DIM, TransferBaker, TransferVolume, block, constant_sky, incident_radiance,
-    irradiance,
+    TransferBaker, TransferVolume, block, constant_sky, incident_radiance, irradiance,
 };
 pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
 pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
@@ -159,7 +158,7 @@ pub use mesh::{
     MESH_MAGIC, MESH_VERSION, MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh,
 };
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
-pub use sh::{SH9, sh9};
+pub use sh::{SH9, TRANSFER_DIM, sh9};
 
 /// Many lights: virtual point lights traced from a scene's emitters, or its sun and sky, or read
 /// from a lights file, and the pixel × light matrix of a G-buffer lit by them (for prt-manylight).

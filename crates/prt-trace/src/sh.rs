@@ -22,6 +22,9 @@ use glam::Vec3;
 /// Number of SH coefficients of order 3 (bands 0, 1, 2).
 pub const SH9: usize = 9;
 
+/// Dimension of a transfer vector: `[direct 81 | R 81 | G 81 | B 81]`.
+pub const TRANSFER_DIM: usize = 4 * SH9 * SH9;
+
 /// The nine real SH functions of order 3 at unit direction `dir` (prt frame, +Y up), exactly
 /// `prt_sphere::eval_sh(3, dir, ..)`, so that transfer matrices and prt-sphere's projections
 /// (environment maps, PLSQ fits) share one basis.
