@@ -12,7 +12,7 @@
 //! 64 iterations), written with `prt_bake::write_container` in each encoding and read back
 //! with `read_container` (the layout's own decode). Errors are relative squared errors
 //! `Σ‖f̂ − f‖² / Σ‖f‖²` over every voxel centre, `f` the traced volume (raw) or its relit SH9
-//! (relit, with `prt_trace::incident_radiance`); MBD's relit value is `prt_bake::relight` then
+//! (relit, with `prt_trace::incident_radiance`); MBD's relit value is `prt_bake::light_basis` then
 //! the relit model, the renderer's path. BPCA and CPCA have the same number of bases (one per
 //! basis node) and rank, so the same scalars; their bytes are counted at the encoding's bytes
 //! per scalar (plus one byte per voxel of CPCA labels), not written. The relighting pass is
@@ -22,7 +22,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Parser;
-use prt_bake::{ContainerContents, RelightConfig, read_container, relight, write_container};
+use prt_bake::{ContainerContents, LightBasisConfig, light_basis, read_container, write_container};
 use prt_benches::mbd::traced_field;
 use prt_benches::{RelativeError, Table, cache_dir, fmt_duration, median_time};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress};
@@ -147,11 +147,11 @@ fn main() {
         eprintln!("rank {rank}: fitting MBD, BPCA, CPCA");
         let model = fit_mbd(&field, rank, nodes);
         let mut eval = |m: &MbdModel<HatGrid, HatGrid>, name: String, bytes: Option<f64>| {
-            let relit = relight(
+            let relit = light_basis(
                 m,
-                &RelightConfig {
+                &LightBasisConfig {
                     sky,
-                    ..RelightConfig::default()
+                    ..LightBasisConfig::default()
                 },
             )
             .expect("relight")
@@ -229,16 +229,16 @@ fn main() {
             ]);
         }
 
-        let config = RelightConfig {
+        let config = LightBasisConfig {
             sky,
-            ..RelightConfig::default()
+            ..LightBasisConfig::default()
         };
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()
             .expect("one thread");
-        let time: Duration =
-            pool.install(|| median_time(cli.reps, || relight(&model, &config).expect("relight")));
+        let time: Duration = pool
+            .install(|| median_time(cli.reps, || light_basis(&model, &config).expect("relight")));
         timing.row(vec![
             rank.to_string(),
             format!("{} × {rank}", nodes.iter().product::<usize>()),

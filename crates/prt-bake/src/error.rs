@@ -85,8 +85,8 @@ pub enum BakeError {
     /// The container could not be written or read back.
     #[error("cannot write the MBD container")]
     Container(#[source] ContainerError),
-    /// A model to relight does not hold transfer vectors.
-    #[error("relighting needs {expected}-D transfer vectors, the model's are {got}-D")]
+    /// A model to light does not hold transfer vectors.
+    #[error("lighting a basis needs {expected}-D transfer vectors, the model's are {got}-D")]
     NotTransfer {
         /// The transfer dimension, 324.
         expected: usize,

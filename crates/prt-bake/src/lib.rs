@@ -18,7 +18,7 @@
 //! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
 //! | [`write_container_with`], [`LayoutConfig`], [`CoefficientLayout`], [`node_liveness`], [`layout_bytes`] | the same with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
 //! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
-//! | [`relight`], [`RelightConfig`], [`RelitBasis`], [`RelightTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
+//! | [`light_basis`], [`LightBasisConfig`], [`LitBasis`], [`LitBasisTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`BakeFolder`], [`FolderVolume`], [`FolderError`] | a bake folder's layout (container, kept volumes, scene mesh, reports) and the volume a later tool lights |
 //! | [`KeepVolumes`], [`KeptOutcome`] | whether a bake keeps its traced volume and the baselines beside the container ([`BakeFolder::keep_volumes`]) |
 //! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
@@ -52,11 +52,11 @@ mod config;
 mod container;
 mod error;
 mod folder;
+mod light_basis;
 mod memory;
 mod methods;
 mod pipeline;
 pub mod production;
-mod relight;
 mod scene;
 mod scores;
 mod seams;
@@ -71,11 +71,11 @@ pub use container::{
 };
 pub use error::{BakeError, ContainerError};
 pub use folder::{BakeFolder, FolderError, FolderVolume, KeepVolumes, KeptOutcome};
+pub use light_basis::{LightBasisConfig, LitBasis, LitBasisTarget, light_basis};
 pub use memory::{MemoryEstimate, default_memory_budget, largest_resolution};
 pub use pipeline::{
     Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,
 };
-pub use relight::{RelightConfig, RelightTarget, RelitBasis, relight};
 pub use scene::{SceneInput, scene_hash};
 pub use scores::{Method, MethodScores};
 pub use seams::{BLUR_SIGMA, SeamView};

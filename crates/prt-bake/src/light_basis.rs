@@ -1,4 +1,4 @@
-//! Relighting a compressed bake on its basis grid: a sky collapses each 324-D basis vector to
+//! Lighting a compressed bake on its basis grid: a sky collapses each 324-D basis vector to
 //! the few values a pixel needs, so a sky change costs a pass over nodes × rank, not voxels.
 
 use ndarray::Array3;
@@ -15,7 +15,7 @@ const BLOCK: usize = SH9 * SH9;
 
 /// What the relit basis holds per basis vector: incident radiance as SH per colour channel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum RelightTarget {
+pub enum LitBasisTarget {
     /// Order-3 SH (9 coefficients) per channel, `[R 9 | G 9 | B 9]`: 27 values, what
     /// [`prt_trace::incident_radiance`] gives for a transfer vector.
     #[default]
@@ -24,12 +24,12 @@ pub enum RelightTarget {
     L1Rgb,
 }
 
-impl RelightTarget {
+impl LitBasisTarget {
     /// SH coefficients kept per colour channel (9 or 4).
     pub fn coefficients_per_channel(self) -> usize {
         match self {
-            RelightTarget::Sh9Rgb => SH9,
-            RelightTarget::L1Rgb => 4,
+            LitBasisTarget::Sh9Rgb => SH9,
+            LitBasisTarget::L1Rgb => 4,
         }
     }
 
@@ -39,28 +39,28 @@ impl RelightTarget {
     }
 }
 
-/// How [`relight`] lights a model: the sky and the target.
+/// How [`light_basis`] lights a model: the sky and the target.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct RelightConfig {
+pub struct LightBasisConfig {
     /// The distant lighting, as order-3 SH per channel.
     pub sky: Sky,
     /// What each relit basis vector holds.
-    pub target: RelightTarget,
+    pub target: LitBasisTarget,
 }
 
 /// A model's basis lit by a sky: `b̃_{n,l} = M(sky) B_{n,l}` on every basis node.
 ///
 /// Paired with the model's coefficients it is the relit model
-/// `f̃(x) = Σ_l c_l(x) b̃_l(x)` (both trilinear hat sums); [`RelitBasis::model`] builds it.
+/// `f̃(x) = Σ_l c_l(x) b̃_l(x)` (both trilinear hat sums); [`LitBasis::model`] builds it.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RelitBasis {
+pub struct LitBasis {
     /// The target the values follow.
-    pub target: RelightTarget,
+    pub target: LitBasisTarget,
     /// `N × L × K` (basis node, basis vector, relit value; `K = target.dim()`).
     pub basis: Array3<f32>,
 }
 
-impl RelitBasis {
+impl LitBasis {
     /// The relit model `f̃(x) = Σ_l c_l(x) b̃_l(x)`: `model`'s kernels and coefficients with this
     /// basis; evaluate it with [`prt_core::FieldModel::eval`]. `model` must be the one relit.
     pub fn model(
@@ -84,10 +84,10 @@ impl RelitBasis {
 /// Each output reads 18 of the 324 inputs (one row of the direct block and one of the
 /// channel's indirect block), so the pass costs `N·L·K·18` multiply-adds, f32 throughout (each
 /// sum has 18 terms). Errors when the model's dimension is not 324.
-pub fn relight(
+pub fn light_basis(
     model: &MbdModel<HatGrid, HatGrid>,
-    config: &RelightConfig,
-) -> Result<RelitBasis, BakeError> {
+    config: &LightBasisConfig,
+) -> Result<LitBasis, BakeError> {
     let (nodes, rank, dim) = model.basis().dim();
     if dim != TRANSFER_DIM {
         return Err(BakeError::NotTransfer {
@@ -124,7 +124,7 @@ pub fn relight(
     }
     let basis = Array3::from_shape_vec((nodes, rank, out_dim), out)
         .expect("the output holds nodes × rank × target values");
-    Ok(RelitBasis { target, basis })
+    Ok(LitBasis { target, basis })
 }
 
 #[cfg(test)]
@@ -168,8 +168,8 @@ mod tests {
         ) {
             let model = random_model(seed, rank);
             let sky = Sky::default().rotated_about_y(degrees);
-            let target = if l1 { RelightTarget::L1Rgb } else { RelightTarget::Sh9Rgb };
-            let relit = relight(&model, &RelightConfig { sky, target }).unwrap();
+            let target = if l1 { LitBasisTarget::L1Rgb } else { LitBasisTarget::Sh9Rgb };
+            let relit = light_basis(&model, &LightBasisConfig { sky, target }).unwrap();
             let relit_model = relit.model(&model).unwrap();
             let domain = model.coefficient_kernels().domain();
             let x = domain.min + Vec3::from_array(point) * domain.size();
@@ -200,6 +200,6 @@ mod tests {
         let (c, b, coefficients, basis) = model.into_parts();
         let short = basis.slice(ndarray::s![.., .., ..27]).to_owned();
         let model = MbdModel::new(c, b, coefficients, short).unwrap();
-        assert!(relight(&model, &RelightConfig::default()).is_err());
+        assert!(light_basis(&model, &LightBasisConfig::default()).is_err());
     }
 }
