@@ -6,8 +6,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use prt_bake::BakeFolder;
-use prt_bake::tiles::TileSeams;
-use serde_json::json;
+use prt_bake::tiles::TilesReport;
 
 use crate::bake::{KeepVolumesArg, cli_error, write_outputs};
 use crate::plan::{limits, load_scene, read_plan};
@@ -94,7 +93,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     stage.finish();
     write_outputs(&args.out, &scene, &baked, args.keep_volumes, load, total)?;
 
-    let report = tiles_report(&plan, halo, &seams);
+    let report = TilesReport::of_plan(&plan).with_seams(&seams, halo);
     let path = BakeFolder::new(&args.out).tiles_report();
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -144,27 +143,11 @@ fn run_streamed(
         .with_context(|| format!("cannot write {}", mesh.display()))?;
     let valid = merged.valid.iter().filter(|&&v| v).count();
     let bytes = merged.container.as_ref().map(|c| c.total_bytes);
-    let report = json!({
-        "tiles": plan.tiles.len(),
-        "counts": plan.counts,
-        "halo": plan.halo,
-        "lattice": plan.lattice_dims,
-        "streamed": {
-            "coarse_grid": merged.coarse_dims,
-            "coarse_iterations": merged.coarse_solve.history.len(),
-            "sweeps": args.sweeps,
-            "relative_error_at_valid_voxel_centres": merged.relative_errors,
-            "valid_voxels": valid,
-            "container_bytes": bytes,
-            "bytes_per_valid_voxel": bytes.map(|b| b as f64 / valid.max(1) as f64),
-            "stage_seconds": merged
-                .stage_times
-                .iter()
-                .map(|(name, time)| json!([name, time.as_secs_f64()]))
-                .collect::<Vec<_>>(),
-            "total_seconds": total.elapsed().as_secs_f64(),
-        },
-    });
+    let report = TilesReport::of_plan(plan).with_streamed(
+        &merged,
+        args.sweeps,
+        total.elapsed().as_secs_f64(),
+    );
     let path = BakeFolder::new(&args.out).tiles_report();
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -186,27 +169,4 @@ fn run_streamed(
     );
     println!("wrote {}", path.display());
     Ok(())
-}
-
-/// The merge's record of the tiling and the seam measures.
-fn tiles_report(
-    plan: &prt_bake::tiles::TilePlan,
-    halo: Option<prt_bake::tiles::HaloAgreement>,
-    seams: &TileSeams,
-) -> serde_json::Value {
-    json!({
-        "tiles": plan.tiles.len(),
-        "counts": plan.counts,
-        "halo": plan.halo,
-        "lattice": plan.lattice_dims,
-        "seam_ratio_across_tile_borders": {
-            "trace": seams.trace,
-            "mbd_error": seams.mbd,
-            "mbd_basis": seams.basis,
-        },
-        "halo_agreement": halo.map(|h| json!({
-            "voxels": h.voxels,
-            "relative_rms_difference": h.relative_rms_difference,
-        })),
-    })
 }

@@ -94,15 +94,17 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     );
 
     // Seam ratios across tile borders are about 1.
-    let report: serde_json::Value =
+    let report: prt_bake::tiles::TilesReport =
         serde_json::from_str(&std::fs::read_to_string(tiled.join("tiles.json")).unwrap()).unwrap();
-    for key in ["trace", "mbd_error", "mbd_basis"] {
-        let ratio = report["seam_ratio_across_tile_borders"][key]
-            .as_f64()
-            .unwrap();
+    let seams = report.seam_ratio_across_tile_borders.unwrap();
+    for (key, ratio) in [
+        ("trace", seams.trace),
+        ("mbd_error", seams.mbd_error),
+        ("mbd_basis", seams.mbd_basis),
+    ] {
         assert!((0.7..1.4).contains(&ratio), "{key}: {ratio}");
     }
-    assert!(report["halo_agreement"]["voxels"].as_u64().unwrap() > 0);
+    assert!(report.halo_agreement.unwrap().voxels > 0);
 
     // The streamed merge writes a container on the same lattice and validity (on 3 basis
     // nodes per axis: it fits the basis on the lattice halved, 4 voxels per axis).
@@ -132,13 +134,14 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     ]));
     let back = prt_bake::read_container(&streamed.join("mbd"), &Limits::default()).unwrap();
     assert_eq!((back.grid, &back.valid), (container.grid, &container.valid));
-    let report: serde_json::Value =
+    let report: prt_bake::tiles::TilesReport =
         serde_json::from_str(&std::fs::read_to_string(streamed.join("tiles.json")).unwrap())
             .unwrap();
-    let errors = report["streamed"]["relative_error_at_valid_voxel_centres"]
-        .as_array()
-        .unwrap();
-    assert_eq!(errors.len(), 2);
+    let streamed_record = report.streamed.unwrap();
+    assert_eq!(
+        streamed_record.relative_error_at_valid_voxel_centres.len(),
+        2
+    );
 
     // A finished tile is skipped; a forced retry gives the same bytes.
     let files = ["transfer.f32", "valid.u8", "tile.json"];

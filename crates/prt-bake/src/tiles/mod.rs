@@ -17,6 +17,7 @@ pub(crate) use checksum::Fnv1a64;
 mod file;
 mod merge;
 mod plan;
+mod report;
 mod stream;
 mod worker;
 
@@ -29,6 +30,7 @@ pub use plan::{
     PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten, PlannedScene, TileError, TilePlan, TileSpec,
     VoxelRange, plan_tiles, write_plan,
 };
+pub use report::{HaloRecord, SeamRatios, StreamedRecord, TilesReport};
 pub use stream::{StreamedMerge, merge_streamed};
 pub use worker::{DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options};
 
