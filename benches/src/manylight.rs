@@ -4,73 +4,11 @@
 use std::path::{Path, PathBuf};
 
 use crate::{cache_dir, load_scene, save_png};
-use prt_core::{CoreError, MatrixOracle, NoProgress};
-use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
+use prt_core::{MatrixOracle, NoProgress};
 use prt_trace::manylight::{
     DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, trace_vpls,
 };
 use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
-use rayon::prelude::*;
-
-/// prt-trace's VPL oracle with the G-buffer's geometry, for LightSlice and visibility
-/// clustering.
-pub struct SceneOracle<'a> {
-    /// The VPL oracle.
-    pub inner: VplOracle<'a>,
-    /// The G-buffer it was built on (its gather points).
-    pub gbuffer: &'a GBuffer,
-}
-
-impl MatrixOracle for SceneOracle<'_> {
-    fn rows(&self) -> usize {
-        self.inner.rows()
-    }
-    fn cols(&self) -> usize {
-        self.inner.cols()
-    }
-    fn channels(&self) -> usize {
-        3
-    }
-    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_row(i, out)
-    }
-    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_col(j, out)
-    }
-    fn elements_evaluated(&self) -> u64 {
-        self.inner.elements_evaluated()
-    }
-}
-
-impl SliceOracle for SceneOracle<'_> {
-    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
-        out.par_chunks_mut(3)
-            .zip(rows.par_iter())
-            .with_min_len(64)
-            .try_for_each(|(o, &i)| {
-                o.copy_from_slice(&self.inner.element(i, j)?.to_array());
-                Ok(())
-            })
-    }
-
-    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
-        let g = self.gbuffer.points.get(i).copied().flatten()?;
-        Some(GatherGeometry {
-            position: g.position.to_array(),
-            normal: g.normal.to_array(),
-        })
-    }
-}
-
-impl VisibilityOracle for SceneOracle<'_> {
-    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        out.copy_from_slice(&self.inner.shading(i, j)?.to_array());
-        Ok(())
-    }
-    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
-        Ok(if self.inner.visible(i, j)? { 1.0 } else { 0.0 })
-    }
-}
 
 /// A sampling budget, `rows/columns` on the command line (`300/900`): sampled rows (or slices)
 /// and columns (or clusters).

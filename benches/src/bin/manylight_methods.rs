@@ -19,9 +19,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
-use prt_benches::manylight::{
-    Budget, Light, Reference, SceneOracle, SweepScene, mean_and_max, write_strip,
-};
+use prt_benches::manylight::{Budget, Light, Reference, SweepScene, mean_and_max, write_strip};
 use prt_benches::{Stopwatch, Table, fmt_duration};
 use prt_core::NoProgress;
 use prt_core::metrics::relative_frobenius_error;
@@ -262,10 +260,7 @@ fn main() {
                 } else {
                     vec![0.0f32; 3 * n]
                 };
-                let oracle = SceneOracle {
-                    inner: setup.oracle(clamp, &directional[exact..]),
-                    gbuffer: &setup.gbuffer,
-                };
+                let oracle = setup.oracle(clamp, &directional[exact..]);
                 let exact = Exact {
                     image: exact_image,
                     elements: (exact * n) as u64,

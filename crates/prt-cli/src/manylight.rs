@@ -10,12 +10,10 @@ use clap::ValueEnum;
 use prt_core::glam::{Quat, Vec3};
 use prt_core::{CoreError, MatrixOracle, Progress};
 use prt_manylight::{
-    GatherGeometry, LightSliceConfig, RowColumnConfig, SliceOracle, TensorConfig,
-    VisibilityClusterMethod, VisibilityConfig, VisibilityOracle, light_slice, row_column_sampling,
-    tensor_clustering, visibility_clustering,
+    LightSliceConfig, RowColumnConfig, TensorConfig, VisibilityClusterMethod, VisibilityConfig,
+    light_slice, row_column_sampling, tensor_clustering, visibility_clustering,
 };
 use prt_render::{NamedView, Rendered, ToneMap, image_metrics, views};
-use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
 use prt_trace::manylight::{
     DirectionalLight, LightsBudget, SunSky, Vpl, VplOptions, VplOracle, directional_lights,
     read_lights_file, trace_vpls, write_lights_file,
@@ -23,6 +21,7 @@ use prt_trace::manylight::{
 use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene};
 
 use crate::progress::StageBar;
+use crate::render::{format_of, save_render};
 
 /// A many-light method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -178,61 +177,6 @@ const BYTES_PER_PIXEL: u64 = 64 + 5 * 12;
 /// Lights file and `--lights` at most (the oracle indexes lights with u32 in its clusters).
 const MAX_LIGHTS: usize = u32::MAX as usize / 2;
 
-/// prt-trace's VPL oracle with its G-buffer's geometry: what LightSlice and visibility
-/// clustering need beside the matrix.
-struct SceneOracle<'a> {
-    inner: VplOracle<'a>,
-    gbuffer: &'a GBuffer,
-}
-
-impl MatrixOracle for SceneOracle<'_> {
-    fn rows(&self) -> usize {
-        self.inner.rows()
-    }
-    fn cols(&self) -> usize {
-        self.inner.cols()
-    }
-    fn channels(&self) -> usize {
-        3
-    }
-    fn eval_row(&self, i: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_row(i, out)
-    }
-    fn eval_col(&self, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        self.inner.eval_col(j, out)
-    }
-    fn elements_evaluated(&self) -> u64 {
-        self.inner.elements_evaluated()
-    }
-}
-
-impl SliceOracle for SceneOracle<'_> {
-    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
-        for (o, &i) in out.chunks_mut(3).zip(rows) {
-            o.copy_from_slice(&self.inner.element(i, j)?.to_array());
-        }
-        Ok(())
-    }
-
-    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
-        let g = self.gbuffer.points.get(i).copied().flatten()?;
-        Some(GatherGeometry {
-            position: g.position.to_array(),
-            normal: g.normal.to_array(),
-        })
-    }
-}
-
-impl VisibilityOracle for SceneOracle<'_> {
-    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
-        out.copy_from_slice(&self.inner.shading(i, j)?.to_array());
-        Ok(())
-    }
-    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
-        Ok(if self.inner.visible(i, j)? { 1.0 } else { 0.0 })
-    }
-}
-
 /// The lights of one frame.
 struct FrameLights {
     vpls: Vec<Vpl>,
@@ -302,7 +246,7 @@ impl Reference {
 }
 
 pub fn run(args: &ManyLightArgs) -> Result<()> {
-    let format = format_of(&args.out)?;
+    format_of(&args.out)?;
     check_args(args)?;
     let scene = match &args.scene {
         Some(path) => Scene::load_gltf(path, &LoadOptions::default())
@@ -394,7 +338,7 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
             let lights = &frame_lights[t.min(frame_lights.len() - 1)];
             let inner = VplOracle::new(&tracer, gbuffer, &lights.vpls, clamp, 1e-4 * diagonal)?
                 .with_directional(&lights.directional)?;
-            Ok(SceneOracle { inner, gbuffer })
+            Ok(inner)
         })
         .collect::<Result<Vec<_>, CoreError>>()?;
 
@@ -549,7 +493,7 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
     let out_images = out_images.context("the method of --out was not run")?;
     for (t, image) in out_images.iter().enumerate() {
         let path = frame_path(&args.out, t, frames);
-        save(&path, image, &tone, format)?;
+        save_render(&path, image, &tone)?;
         if t == 0 || t + 1 == frames {
             println!("wrote {}", path.display());
         }
@@ -613,25 +557,6 @@ fn path_name(path: PathArg) -> &'static str {
     match path {
         PathArg::Camera => "camera",
         PathArg::Light => "light",
-    }
-}
-
-/// The output format of `--out`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Format {
-    Png,
-    Exr,
-}
-
-fn format_of(path: &Path) -> Result<Format> {
-    let extension = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_lowercase())
-        .unwrap_or_default();
-    match extension.as_str() {
-        "png" => Ok(Format::Png),
-        "exr" => Ok(Format::Exr),
-        _ => bail!("--out {} must end in .png or .exr", path.display()),
     }
 }
 
@@ -772,7 +697,7 @@ fn light_path(
 /// Runs `method` on every frame (tensor clustering on all at once).
 fn run_method(
     method: MethodArg,
-    oracles: &[SceneOracle<'_>],
+    oracles: &[VplOracle<'_>],
     args: &ManyLightArgs,
 ) -> Result<MethodRun> {
     let stage = StageBar::start(method.name());
@@ -797,7 +722,7 @@ fn run_method(
             let seed = args.seed.wrapping_mul(1000).wrapping_add(t as u64);
             let (image, e) = match method {
                 MethodArg::Brute => {
-                    let image = oracle.inner.reference_image(&stage)?;
+                    let image = oracle.reference_image(&stage)?;
                     (image, (oracle.rows() * oracle.cols()) as u64)
                 }
                 MethodArg::Rowcol => {
@@ -840,7 +765,7 @@ fn run_method(
 
 /// Brute force on `per_frame` pixels of every frame (spread evenly over the image), its time
 /// extrapolated to every pixel.
-fn sampled_brute_force(oracles: &[SceneOracle<'_>], per_frame: usize) -> Result<Reference> {
+fn sampled_brute_force(oracles: &[VplOracle<'_>], per_frame: usize) -> Result<Reference> {
     let stage = StageBar::start("brute*");
     let total: usize = oracles.iter().map(|o| per_frame.min(o.rows())).sum();
     stage.set_len(total as u64);
@@ -913,28 +838,6 @@ fn difference(reference: &Rendered, test: &Rendered) -> Rendered {
     Rendered {
         pixels,
         ..reference.clone()
-    }
-}
-
-fn save(path: &Path, image: &Rendered, tone: &ToneMap, format: Format) -> Result<()> {
-    let (w, h) = (image.width as u32, image.height as u32);
-    match format {
-        Format::Png => {
-            let img = image::RgbImage::from_raw(w, h, tone.apply(image))
-                .context("image buffer of the wrong size")?;
-            crate::report::save_png(path, &img)
-        }
-        Format::Exr => {
-            let layer = ExrLayer {
-                name: None,
-                width: w,
-                height: h,
-                channels: 3,
-                data: image.interleaved(),
-            };
-            write_exr(path, &[layer], ExrSample::F32)
-                .with_context(|| format!("cannot write {}", path.display()))
-        }
     }
 }
 

@@ -119,12 +119,13 @@ const MAX_SIZE: usize = 8192;
 
 /// The output format of `--out`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Format {
+pub(crate) enum Format {
     Png,
     Exr,
 }
 
-fn format_of(path: &Path) -> Result<Format> {
+/// The format `path`'s extension names (`.png` or `.exr`), or why it names none.
+pub(crate) fn format_of(path: &Path) -> Result<Format> {
     let extension = path
         .extension()
         .map(|e| e.to_string_lossy().to_lowercase())

@@ -24,6 +24,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::Vec3;
 use prt_core::{Aabb, CoreError, MatrixOracle, Progress};
+use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
 use rayon::prelude::*;
 
 use crate::sampling::{cosine_hemisphere, hash_seed};
@@ -919,5 +920,38 @@ impl MatrixOracle for VplOracle<'_> {
 
     fn elements_evaluated(&self) -> u64 {
         self.evaluated.load(Ordering::Relaxed)
+    }
+}
+
+/// LightSlice reads columns on chosen rows and each pixel's geometry (its gather point).
+impl SliceOracle for VplOracle<'_> {
+    fn eval_col_rows(&self, j: usize, rows: &[usize], out: &mut [f32]) -> Result<(), CoreError> {
+        out.par_chunks_mut(3)
+            .zip(rows.par_iter())
+            .with_min_len(64)
+            .try_for_each(|(o, &i)| {
+                o.copy_from_slice(&self.element(i, j)?.to_array());
+                Ok(())
+            })
+    }
+
+    fn gather_point(&self, i: usize) -> Option<GatherGeometry> {
+        let g = self.gather.get(i).copied().flatten()?;
+        Some(GatherGeometry {
+            position: g.position.to_array(),
+            normal: g.normal.to_array(),
+        })
+    }
+}
+
+/// Visibility clustering reads shading and visibility apart.
+impl VisibilityOracle for VplOracle<'_> {
+    fn shading(&self, i: usize, j: usize, out: &mut [f32]) -> Result<(), CoreError> {
+        out.copy_from_slice(&VplOracle::shading(self, i, j)?.to_array());
+        Ok(())
+    }
+
+    fn visibility(&self, i: usize, j: usize) -> Result<f32, CoreError> {
+        Ok(if self.visible(i, j)? { 1.0 } else { 0.0 })
     }
 }
