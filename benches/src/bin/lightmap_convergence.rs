@@ -72,16 +72,23 @@ struct Args {
     csv: Option<PathBuf>,
 }
 
-fn functions(basis: LightmapBasis) -> Box<dyn SphericalBasis> {
-    match basis {
+/// The basis functions of `basis`; the irradiance basis has none to measure directions with.
+fn functions(basis: LightmapBasis) -> Result<Box<dyn SphericalBasis>, String> {
+    Ok(match basis {
         LightmapBasis::Sg { lobes } => {
             let (axes, sharpness) = LightmapBasis::sg_lobes(lobes);
             Box::new(SgBasis::new(axes, vec![sharpness; lobes], "sg").expect("valid lobes"))
         }
         LightmapBasis::Sh { order } => Box::new(ShBasis::new(order).expect("valid order")),
         LightmapBasis::AmbientDice => Box::new(AmbientDiceSrbf),
-        LightmapBasis::Irradiance => panic!("the irradiance basis has no directional fit"),
-    }
+        LightmapBasis::Irradiance => {
+            return Err(
+                "--basis irradiance has no directional fit to measure; use sg:N, sh:N or \
+                 ambient-dice"
+                    .into(),
+            );
+        }
+    })
 }
 
 /// 512 uniform directions over the upper hemisphere (+Y), a Fibonacci spiral.
@@ -152,7 +159,7 @@ fn main() -> Result<(), String> {
         },
     )
     .map_err(|e| e.to_string())?;
-    let functions = functions(basis);
+    let functions = functions(basis)?;
     let dirs = hemisphere_directions();
     let table: Vec<Vec<f32>> = dirs
         .iter()
