@@ -81,6 +81,28 @@ pub fn save_png(image: &image::RgbImage, path: &Path) -> Result<(), String> {
         .map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// A temporary folder for a binary's outputs (`NAME_TAG_PID` under the system's temp folder),
+/// removed on drop.
+pub struct Scratch(PathBuf);
+
+impl Scratch {
+    /// The folder for binary `name` and `tag` (not created).
+    pub fn new(name: &str, tag: &str) -> Scratch {
+        Scratch(std::env::temp_dir().join(format!("{name}_{tag}_{}", std::process::id())))
+    }
+
+    /// Its path.
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -19,7 +19,7 @@ pub mod manylight;
 pub mod mbd;
 
 pub use cli::BvhQuality;
-pub use data::{cache_dir, envmap_names, load_envmap, load_scene, save_png, shared_dir};
+pub use data::{Scratch, cache_dir, envmap_names, load_envmap, load_scene, save_png, shared_dir};
 pub use error::{RelativeError, relative_mse_at_centres};
 pub use measure::{
     Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, read_bandwidth,

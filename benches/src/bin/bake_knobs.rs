@@ -22,7 +22,7 @@ use clap::{Parser, ValueEnum};
 use glam::Vec3;
 use prt_bake::{BakeConfig, Method, Quality, SceneInput, Stage, bake, read_container};
 use prt_benches::mbd::{read_cached, write_cached};
-use prt_benches::{RelativeError, Stopwatch, Table, cache_dir, load_average, load_scene};
+use prt_benches::{RelativeError, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_mbd::{EvalOptions, evaluate};
 use prt_texture::{Encoding, Limits};
@@ -395,21 +395,6 @@ fn interior_relative_mse(model: &dyn FieldModel, reference: &Reference, seed: u6
         .relative_mse()
 }
 
-/// A temporary folder for the containers, removed on drop.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(tag: &str) -> Scratch {
-        Scratch(std::env::temp_dir().join(format!("bake_knobs_{tag}_{}", std::process::id())))
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn main() {
     let cli = Cli::parse();
     let scene = match load_scene(&cli.scene) {
@@ -469,7 +454,7 @@ fn main() {
          {interior} valid voxels at least {SHELL} voxels from the box's faces.\n"
     );
 
-    let scratch = Scratch::new(&cli.scene);
+    let scratch = Scratch::new("bake_knobs", &cli.scene);
     let base = BakeConfig::default();
     let run_start = Stopwatch::start();
     if cli.presets {
@@ -481,7 +466,7 @@ fn main() {
                     &scene,
                     &config,
                     &reference,
-                    &scratch.0,
+                    scratch.path(),
                     format!("{quality:?}").to_lowercase(),
                 );
                 eprintln!("preset {}: {row:?}", row.label);
@@ -509,7 +494,7 @@ fn main() {
                 .map(|&v| Setting::Count(knob, v))
                 .collect(),
             };
-            let rows = sweep(&scene, &base, &settings, &reference, &scratch.0);
+            let rows = sweep(&scene, &base, &settings, &reference, scratch.path());
             // The default's row, when the list holds it, scales the last column.
             let default = settings
                 .iter()
@@ -578,7 +563,7 @@ mod tests {
             denoise: None,
             ..BakeConfig::default()
         };
-        let scratch = Scratch::new("test");
+        let scratch = Scratch::new("bake_knobs", "test");
         let rows = sweep(
             &scene,
             &base,
@@ -587,7 +572,7 @@ mod tests {
                 Setting::Count(Knob::Rays, 96),
             ],
             &reference,
-            &scratch.0,
+            scratch.path(),
         );
         let (few, many) = (&rows[0], &rows[1]);
         assert!(
@@ -613,8 +598,8 @@ mod tests {
             max_iterations: 4,
             ..BakeConfig::default()
         };
-        let scratch = Scratch::new("clamp");
-        let row = measure(&scene, &config, &reference, &scratch.0, "4".into());
+        let scratch = Scratch::new("bake_knobs", "clamp");
+        let row = measure(&scene, &config, &reference, scratch.path(), "4".into());
         assert!(row.mse_reference.is_finite() && row.mse_reference > 0.0);
         assert!(row.mse_interior.is_finite() && row.mse_interior > 0.0);
     }

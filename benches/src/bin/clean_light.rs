@@ -23,7 +23,8 @@ use clap::Parser;
 use prt_bake::{BakeConfig, SceneInput, Stage, bake, read_container};
 use prt_benches::mbd::{read_cached, write_cached};
 use prt_benches::{
-    PlotLabels, PlotPoint, Stopwatch, Table, cache_dir, load_average, load_scene, plot_lines,
+    PlotLabels, PlotPoint, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene,
+    plot_lines,
 };
 use prt_core::{GridField, NoProgress};
 use prt_render::{ImageMetrics, RelitVolume, RenderConfig, Rendered, ToneMap, image_metrics};
@@ -236,15 +237,6 @@ fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str)
     }
 }
 
-/// A temporary folder for the containers, removed on drop.
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn main() {
     let cli = Cli::parse();
     let scene = match load_scene(&cli.scene) {
@@ -309,11 +301,7 @@ fn main() {
         field.dims(),
         view.name,
     );
-    let scratch = Scratch(std::env::temp_dir().join(format!(
-        "clean_light_{}_{}",
-        cli.scene,
-        std::process::id()
-    )));
+    let scratch = Scratch::new("clean_light", &cli.scene);
     let mut table = Table::new(&[
         "setting",
         "trace s",
@@ -329,7 +317,7 @@ fn main() {
     ]);
     let mut rows = Vec::new();
     for (label, config) in &configs {
-        let row = measure(&target, config, &scratch.0, label);
+        let row = measure(&target, config, scratch.path(), label);
         eprintln!("{row:?}");
         table.row(vec![
             row.label.clone(),
