@@ -118,10 +118,27 @@ fn main() -> ExitCode {
         // The reader of our output went away (`prt inspect FILE | head`): nothing to report.
         Err(e) if is_closed_stdout(&e) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_text(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// `error` and its causes joined by ": ", each cause once: many library errors already end
+/// their message with their source's (`"{path}: {source}"`), and anyhow's `{:#}` would repeat it.
+fn error_text(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let message = cause.to_string();
+        if text.ends_with(&message) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&message);
+    }
+    text
 }
 
 /// Whether `error` is a write into a pipe whose reader has gone.
@@ -190,5 +207,35 @@ mod tests {
         assert!(!is_closed_stdout_panic(&format!(
             "failed printing to stderr: {epipe}"
         )));
+    }
+
+    #[test]
+    fn an_error_prints_each_cause_once() {
+        #[derive(Debug)]
+        struct EmbedsItsSource {
+            source: std::io::Error,
+        }
+        impl std::fmt::Display for EmbedsItsSource {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                write!(f, "plan.json: {}", self.source)
+            }
+        }
+        impl std::error::Error for EmbedsItsSource {
+            fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+                Some(&self.source)
+            }
+        }
+        let missing = || std::io::Error::from(std::io::ErrorKind::NotFound);
+        let embedded = anyhow::Error::new(EmbedsItsSource { source: missing() })
+            .context("cannot read the plan");
+        assert_eq!(
+            error_text(&embedded),
+            format!("cannot read the plan: plan.json: {}", missing())
+        );
+        let chained = anyhow::Error::new(missing()).context("cannot read the plan");
+        assert_eq!(
+            error_text(&chained),
+            format!("cannot read the plan: {}", missing())
+        );
     }
 }
