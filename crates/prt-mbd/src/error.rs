@@ -55,6 +55,24 @@ pub enum MbdError {
         /// The iteration at which it happened.
         iteration: usize,
     },
+    /// An iterative solve did not reach its tolerance within its iteration bound.
+    #[error(
+        "{what} did not converge: relative residual {relative_residual:.3e} after {iterations} iterations"
+    )]
+    NotConverged {
+        /// The system.
+        what: &'static str,
+        /// Iterations run.
+        iterations: usize,
+        /// The relative residual reached.
+        relative_residual: f64,
+    },
+    /// Serialised basis normal equations that do not fit the basis they are read for.
+    #[error("malformed basis normal equations: {why}")]
+    MalformedNormals {
+        /// What is wrong.
+        why: String,
+    },
     /// An error of the shared vocabulary: non-finite input (naming where), empty field,
     /// cancellation, ...
     #[error(transparent)]

@@ -93,7 +93,7 @@ pub use objective::Preconditioner;
 pub use polish::{PolishOptions, PolishReport};
 pub use projection::{LocalBasis, projection_seam_ratio};
 pub use solver::{SolveReport, SolverOptions};
-pub use stream::{BasisNormals, ProjectScratch, StreamedMbd};
+pub use stream::{BASIS_SOLVE_TOLERANCE, BasisNormals, BasisSolve, ProjectScratch, StreamedMbd};
 pub use synthetic::SyntheticField;
 
 pub mod expert {
