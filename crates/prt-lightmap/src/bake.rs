@@ -11,6 +11,7 @@ use prt_trace::{RayTracer, Scene};
 use rayon::prelude::*;
 
 use crate::basis::{cosine_weights, gram_inverse};
+use crate::punctual::PunctualDirect;
 use crate::trace::{Lighting, MAX_BOUNCES, Sample, Transport};
 use crate::{Atlas, Encoder, LightmapBasis, LightmapError, Seams, TexelMap};
 
@@ -143,7 +144,8 @@ enum State<'b> {
 
 /// Bakes the lightmap of `scene` (whose triangles `atlas` was made for): per texel, samples of
 /// incident radiance over the hemisphere around its normal, path traced ([`Lighting`]: sky,
-/// sun, emitters, punctual lights; `bounces` diffuse bounces with next-event estimation),
+/// sun, emitters, punctual lights; `bounces` diffuse bounces with next-event estimation; the
+/// punctual lights a texel sees directly are deltas, added to its fit in closed form),
 /// splatted in passes into the texel's encoder (progressive least squares: Roughton,
 /// "Progressive Least-Squares Encoding for Linear Bases", JCGT 9(1), 2020).
 ///
@@ -270,7 +272,14 @@ pub fn bake_lightmap(
             sums: vec![0.0; active.len() * (3 * k + 1)],
         },
     };
+    let punctual = PunctualDirect::new(
+        &transport,
+        functions.as_deref(),
+        config.encoder,
+        config.hemisphere_rule,
+    )?;
     let solver = Solver {
+        punctual,
         basis: functions.as_deref(),
         encoder: config.encoder,
         k,
@@ -369,6 +378,8 @@ fn trace_pass(
 }
 
 struct Solver<'b> {
+    /// Point, spot and directional lights seen directly from texels, added to every snapshot.
+    punctual: Option<PunctualDirect<'b>>,
     basis: Option<&'b dyn SphericalBasis>,
     encoder: Encoder,
     k: usize,
@@ -535,7 +546,14 @@ impl Solver<'_> {
         let k = self.k;
         let texels: Vec<(Vec<f32>, [f32; 3])> = (0..active.len())
             .into_par_iter()
-            .map(|e| self.texel(state, e))
+            .map(|e| {
+                let (mut coeffs, mut irradiance) = self.texel(state, e)?;
+                if let Some(p) = &self.punctual {
+                    let (_, position, normal) = active[e];
+                    p.add(position, normal, &self.cosine, &mut coeffs, &mut irradiance)?;
+                }
+                Ok::<_, LightmapError>((coeffs, irradiance))
+            })
             .collect::<Result<_, _>>()?;
         let mut layers = vec![vec![0.0f32; w * h * 3]; k + 1];
         let mut covered = vec![false; w * h];

@@ -48,6 +48,7 @@ mod bake;
 mod basis;
 mod error;
 mod pack;
+mod punctual;
 mod raster;
 mod trace;
 mod view;

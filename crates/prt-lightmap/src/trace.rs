@@ -97,6 +97,11 @@ impl<'a> Transport<'a> {
         }
     }
 
+    /// Whether the scene has `KHR_lights_punctual` lights (see [`Self::punctual_direct`]).
+    pub fn has_punctual_lights(&self) -> bool {
+        !self.scene.lights().is_empty()
+    }
+
     /// The offset that keeps ray origins off surfaces (1e-4 of the scene's diagonal).
     pub fn eps(&self) -> f32 {
         self.eps
@@ -105,7 +110,7 @@ impl<'a> Transport<'a> {
     /// One sample of the texel at `position` with unit `normal`; `u(dim)` gives the sample's
     /// Sobol' coordinates.
     pub fn sample(&self, position: Vec3, normal: Vec3, u: &dyn Fn(u32) -> f32) -> Sample {
-        let (tangent, bitangent) = normal.any_orthonormal_pair();
+        let (tangent, bitangent) = tangent_frame(normal);
         let to_world = |l: Vec3| tangent * l.x + normal * l.y + bitangent * l.z;
         let to_local = |d: Vec3| Vec3::new(d.dot(tangent), d.dot(normal), d.dot(bitangent));
         let hemisphere_pdf = 1.0 / TAU;
@@ -216,21 +221,23 @@ impl<'a> Transport<'a> {
         }
     }
 
-    /// Irradiance at `point` (normal `normal`) from the sun, one emissive triangle chosen by
-    /// power, and every punctual light, with shadow rays.
-    fn direct_irradiance(&self, point: Vec3, normal: Vec3, u: impl Fn(u32) -> f32) -> Vec3 {
-        let mut e = Vec3::ZERO;
-        let towards_infinity = |towards: Vec3, irradiance: Vec3| {
-            let cos = normal.dot(towards);
-            if cos > 0.0 && !self.tracer.occluded(point, towards, 0.0, f32::INFINITY) {
-                irradiance * cos
-            } else {
-                Vec3::ZERO
-            }
-        };
-        if let Some(s) = self.lighting.sun_sky {
-            e += towards_infinity(-s.sun_direction.normalize_or(Vec3::NEG_Y), s.sun_irradiance);
-        }
+    /// The light of every `KHR_lights_punctual` light that reaches `point` above the horizon of
+    /// `normal` unoccluded (shadow rays leave from one ray offset above `point`): `arrive(towards, irradiance)` with the unit direction towards the
+    /// light and the irradiance on a surface facing it. These are deltas in direction, which no
+    /// hemisphere sample finds, so texels add them in closed form (`crate::punctual`) and
+    /// bounces by next-event estimation.
+    ///
+    /// Conventions of the extension: point and spot intensity in candela (`I / d²`), spot cones
+    /// with its smooth falloff (the square of a linear ramp in the cosine from the outer to the
+    /// inner cone), `range` with its recommended window `clamp(1 − (d / range)⁴, 0, 1)`;
+    /// directional lights in lux.
+    pub(crate) fn punctual_direct(
+        &self,
+        point: Vec3,
+        normal: Vec3,
+        mut arrive: impl FnMut(Vec3, Vec3),
+    ) {
+        let origin = point + normal * self.eps;
         for light in self.scene.lights() {
             let intensity = light.color * light.intensity;
             if !intensity.is_finite() || intensity.max_element() <= 0.0 {
@@ -238,7 +245,12 @@ impl<'a> Transport<'a> {
             }
             let spot = match light.kind {
                 LightKind::Directional => {
-                    e += towards_infinity(-light.direction.normalize_or(Vec3::NEG_Y), intensity);
+                    let towards = -light.direction.normalize_or(Vec3::NEG_Z);
+                    if normal.dot(towards) > 0.0
+                        && !self.tracer.occluded(origin, towards, 0.0, f32::INFINITY)
+                    {
+                        arrive(towards, intensity);
+                    }
                     continue;
                 }
                 LightKind::Point => None,
@@ -250,24 +262,46 @@ impl<'a> Transport<'a> {
             };
             let d = light.position - point;
             let dist2 = d.length_squared();
-            let towards = d / dist2.sqrt();
-            let cos = normal.dot(towards);
-            if cos <= 0.0 || dist2 <= 0.0 {
+            if dist2 <= 0.0 {
                 continue;
             }
-            // glTF's spot falloff: linear in the cosine between the outer and inner cones.
-            let falloff = spot.map_or(1.0, |(inner, outer)| {
+            let dist = dist2.sqrt();
+            let towards = d / dist;
+            if normal.dot(towards) <= 0.0 {
+                continue;
+            }
+            let cone = spot.map_or(1.0, |(cos_inner, cos_outer)| {
                 let c = (-towards).dot(light.direction.normalize_or(Vec3::NEG_Z));
-                ((c - outer) / (inner - outer).max(1e-4)).clamp(0.0, 1.0)
+                let ramp = ((c - cos_outer) / (cos_inner - cos_outer).max(1e-3)).clamp(0.0, 1.0);
+                ramp * ramp
             });
-            if falloff > 0.0
+            let window = light
+                .range
+                .map_or(1.0, |r| (1.0 - (dist / r).powi(4)).clamp(0.0, 1.0));
+            if cone * window > 0.0
                 && !self
                     .tracer
-                    .occluded(point, towards, 0.0, dist2.sqrt() * (1.0 - 1e-4))
+                    .occluded(origin, towards, 0.0, dist * (1.0 - 1e-4))
             {
-                e += intensity * (falloff * cos / dist2);
+                arrive(towards, intensity * (cone * window / dist2));
             }
         }
+    }
+
+    /// Irradiance at `point` (normal `normal`) from the sun, one emissive triangle chosen by
+    /// power, and every punctual light, with shadow rays.
+    fn direct_irradiance(&self, point: Vec3, normal: Vec3, u: impl Fn(u32) -> f32) -> Vec3 {
+        let mut e = Vec3::ZERO;
+        if let Some(s) = self.lighting.sun_sky {
+            let towards = -s.sun_direction.normalize_or(Vec3::NEG_Y);
+            let cos = normal.dot(towards);
+            if cos > 0.0 && !self.tracer.occluded(point, towards, 0.0, f32::INFINITY) {
+                e += s.sun_irradiance * cos;
+            }
+        }
+        self.punctual_direct(point, normal, |towards, arriving| {
+            e += arriving * normal.dot(towards);
+        });
         if self.emitter_total > 0.0 {
             let pick = u(0) * self.emitter_total;
             let k = self
@@ -303,6 +337,11 @@ impl<'a> Transport<'a> {
         }
         e
     }
+}
+
+/// The tangent and bitangent of a texel's frame (+Y the normal), in which its coefficients lie.
+pub(crate) fn tangent_frame(normal: Vec3) -> (Vec3, Vec3) {
+    normal.any_orthonormal_pair()
 }
 
 fn facing_normal(hit: &Hit) -> Vec3 {
