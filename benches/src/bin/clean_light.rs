@@ -27,10 +27,10 @@ use prt_benches::{
     plot_lines,
 };
 use prt_core::{GridField, NoProgress};
-use prt_render::{ImageMetrics, RelitVolume, RenderConfig, Rendered, ToneMap, image_metrics};
+use prt_render::{ImageMetrics, RenderConfig, Rendered, ToneMap, image_metrics};
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::{BakeOptions, RayTracer, TransferBaker};
+use prt_trace::{BakeOptions, LitVolume, RayTracer, TransferBaker};
 
 /// Seed of the reference trace: never a bake's (0 by default), whose directions it would share.
 const REFERENCE_SEED: u64 = 1001;
@@ -166,7 +166,7 @@ struct Target<'a> {
 }
 
 impl Target<'_> {
-    fn render(&self, volume: &RelitVolume) -> Rendered {
+    fn render(&self, volume: &LitVolume) -> Rendered {
         let config = RenderConfig {
             width: RENDER_SIZE,
             height: RENDER_SIZE,
@@ -183,7 +183,7 @@ impl Target<'_> {
         .expect("render")
     }
 
-    fn metrics(&self, volume: &RelitVolume) -> ImageMetrics {
+    fn metrics(&self, volume: &LitVolume) -> ImageMetrics {
         image_metrics(&self.image, &self.render(volume), &self.tone).expect("same size")
     }
 }
@@ -215,16 +215,17 @@ fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str)
         .map_or(0.0, |(_, t)| t.as_secs_f64());
     let field = &baked.volume.field;
     let read = read_container(folder, &Limits::default()).expect("container reads back");
-    let mbd = RelitVolume::from_model(
+    let mbd = LitVolume::from_model(
         &read.model,
         read.grid,
         field.bounds(),
         &read.valid,
         &target.sky,
+        &NoProgress,
     )
     .expect("relit model");
-    let traced =
-        RelitVolume::from_transfer(field, &baked.volume.valid, &target.sky).expect("relit trace");
+    let traced = LitVolume::from_transfer(field, &baked.volume.valid, &target.sky, &NoProgress)
+        .expect("relit trace");
     let stats = &baked.volume.stats;
     Row {
         label: label.to_string(),
@@ -274,7 +275,8 @@ fn main() {
         width: RENDER_SIZE,
         height: RENDER_SIZE,
     };
-    let relit = RelitVolume::from_transfer(&field, &valid, &sky).expect("relit reference");
+    let relit =
+        LitVolume::from_transfer(&field, &valid, &sky, &NoProgress).expect("relit reference");
     let image = prt_render::render(
         &scene.scene,
         &tracer,

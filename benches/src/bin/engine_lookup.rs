@@ -20,15 +20,13 @@ use prt_bake::{REFERENCE, read_container, read_volumes};
 use prt_benches::Table;
 use prt_core::{NoProgress, SpatialKernels, glam::Vec3};
 use prt_export::{
-    AmbientCubeFit, DilateConfig, Engine, EngineLookup, LitVolume, dilate, light_container,
-    light_field, remove_negative_light,
+    AmbientCubeFit, DilateConfig, Engine, EngineLookup, dilate, light_container,
+    remove_negative_light,
 };
-use prt_render::{
-    RelitVolume, RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, render, views,
-};
+use prt_render::{RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, render, views};
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::{RayTracer, read_mesh};
+use prt_trace::{LitVolume, RayTracer, read_mesh};
 
 #[derive(Debug, Parser)]
 #[command(about = "Engine lookups of a bake against prt's lookup of its traced reference")]
@@ -93,30 +91,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let kept = read_volumes(&cli.bake.join("volumes"), &limits)?;
     let reference = kept.get(REFERENCE).ok_or("no kept reference volume")?;
     let container = read_container(&cli.bake.join("mbd"), &limits)?;
-    let truth = RelitVolume::from_transfer(reference, &kept.valid, &sky)?;
+    let truth = LitVolume::from_transfer(reference, &kept.valid, &sky, &NoProgress)?;
     let mbd_bounds = grid_bounds(
         container.model.coefficient_kernels().domain(),
         container.grid,
     );
-    let mbd = RelitVolume::from_model(
+    let mbd = LitVolume::from_model(
         &container.model,
         container.grid,
         mbd_bounds,
         &container.valid,
         &sky,
+        &NoProgress,
     )?;
-    let lit_reference = light_field(reference, &kept.valid, &sky, &NoProgress)?;
     let lit_mbd = light_container(&container, &sky, &NoProgress)?;
     let lights: Vec<(&str, &str, Box<dyn SurfaceLight>)> = vec![
-        (
-            "reference",
-            "bevy",
-            Box::new(engine(&lit_reference, Engine::Bevy)?),
-        ),
+        ("reference", "bevy", Box::new(engine(&truth, Engine::Bevy)?)),
         (
             "reference",
             "threejs",
-            Box::new(engine(&lit_reference, Engine::Threejs)?),
+            Box::new(engine(&truth, Engine::Threejs)?),
         ),
         ("mbd", "prt", Box::new(mbd)),
         ("mbd", "bevy", Box::new(engine(&lit_mbd, Engine::Bevy)?)),

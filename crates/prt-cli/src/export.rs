@@ -9,12 +9,12 @@ use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::{BakeFolder, FolderVolume};
 use prt_export::{
-    AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, LitVolume, ShConfig, ThreejsConfig,
-    WrittenFile, dilate, export_bevy, export_sh, export_threejs, light_container, light_field,
-    remove_negative_light,
+    AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
+    dilate, export_bevy, export_sh, export_threejs, light_container, remove_negative_light,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
+use prt_trace::LitVolume;
 
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;
@@ -111,7 +111,9 @@ pub fn light_bake(bake_dir: &Path, from: &str, sky: &Sky) -> Result<LitVolume> {
     let stage = StageBar::start("light");
     let lit = match volume {
         FolderVolume::Mbd(container) => light_container(&container, sky, &stage)?,
-        FolderVolume::Kept { field, valid, .. } => light_field(&field, &valid, sky, &stage)?,
+        FolderVolume::Kept { field, valid, .. } => {
+            LitVolume::from_transfer(&field, &valid, sky, &stage)?
+        }
     };
     stage.finish();
     Ok(lit)

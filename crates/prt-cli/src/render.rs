@@ -10,13 +10,13 @@ use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
 use prt_render::{
-    NamedView, RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds,
-    image_metrics, render, views,
+    NamedView, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds, image_metrics, render,
+    views,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
-use prt_trace::{RayTracer, Scene, read_mesh};
+use prt_trace::{LitVolume, RayTracer, Scene, read_mesh};
 
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;
@@ -143,8 +143,8 @@ pub fn load_scene(bake_dir: &Path) -> Result<Scene> {
     read_mesh(&path, &Limits::default()).with_context(|| format!("cannot read {}", path.display()))
 }
 
-/// The volume of `method` in a bake folder, relit by `sky`.
-fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<RelitVolume> {
+/// The volume of `method` in a bake folder, lit by `sky`.
+fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<LitVolume> {
     let volume = BakeFolder::new(bake_dir)
         .read_volume(method.key(), &Limits::default())
         .with_context(|| format!("--method {}", method.key()))?;
@@ -154,15 +154,18 @@ fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<RelitVol
                 container.model.coefficient_kernels().domain(),
                 container.grid,
             );
-            RelitVolume::from_model(
+            LitVolume::from_model(
                 &container.model,
                 container.grid,
                 bounds,
                 &container.valid,
                 sky,
+                &NoProgress,
             )
         }
-        FolderVolume::Kept { field, valid, .. } => RelitVolume::from_transfer(&field, &valid, sky),
+        FolderVolume::Kept { field, valid, .. } => {
+            LitVolume::from_transfer(&field, &valid, sky, &NoProgress)
+        }
     };
     relit.with_context(|| format!("cannot relight the {} volume", method.key()))
 }

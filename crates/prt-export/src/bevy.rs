@@ -2,6 +2,8 @@
 
 use std::path::Path;
 
+use prt_trace::LitVolume;
+
 use crate::textures::{AmbientCubeVolume, bevy_irradiance_volume_as};
 use prt_texture::PixelFormat;
 use serde_json::json;
@@ -9,7 +11,7 @@ use serde_json::json;
 use crate::ambient::ambient_cube;
 use crate::threejs::ENGINE_PADDING;
 use crate::write::{grid_json, prepare, write_json, write_ktx2, write_validity};
-use crate::{AmbientCubeFit, ExportError, LitVolume, WrittenFile};
+use crate::{AmbientCubeFit, ExportError, WrittenFile};
 
 /// File name of the Bevy irradiance-volume texture.
 pub const BEVY_TEXTURE: &str = "irradiance_volume.ktx2";

@@ -1,7 +1,9 @@
 //! Dilation of valid probes into invalid ones, so that engines' trilinear filtering never
 //! blends in the meaningless transfer of voxels inside geometry.
 
-use crate::{ExportError, LitVolume};
+use prt_trace::LitVolume;
+
+use crate::ExportError;
 
 /// How invalid voxels are filled before export (the rule of Unity's adaptive probe volumes'
 /// dilation: distance 1, squared-distance weighting; Unity stops after one iteration, prt's

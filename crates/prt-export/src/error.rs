@@ -2,6 +2,7 @@ use prt_bake::ContainerError;
 use prt_core::CoreError;
 use prt_sphere::SphereError;
 use prt_texture::TextureError;
+use prt_trace::TraceError;
 use thiserror::Error;
 
 /// What can go wrong while lighting a bake or writing an export.
@@ -20,6 +21,9 @@ pub enum ExportError {
     /// A field, kernel evaluation or cancellation error.
     #[error(transparent)]
     Core(#[from] CoreError),
+    /// A lit volume that does not fit its grid, or a transfer volume that cannot be lit.
+    #[error(transparent)]
+    Trace(#[from] TraceError),
     /// An input that does not fit the export (shape, dimension, parameter).
     #[error("invalid {what}: {why}")]
     Invalid {

@@ -6,8 +6,7 @@
 //!
 //! | item | what it is, when to use it |
 //! |---|---|
-//! | [`light_container`] | light an MBD container (each basis vector relit once) → [`LitVolume`] |
-//! | [`light_field`] | light a full 324-D transfer field (the traced volume) → [`LitVolume`] |
+//! | [`light_container`] | light an MBD container (each basis vector relit once) → a [`prt_trace::LitVolume`]; a traced volume: [`prt_trace::LitVolume::from_transfer`] |
 //! | [`dilate`], [`DilateConfig`], [`Dilated`] | fill invalid voxels from valid neighbours before export |
 //! | [`remove_negative_light`], [`NonNegative`] | make every voxel's irradiance non-negative before export |
 //! | [`EngineLookup`], [`Engine`] | what Bevy's or three.js's shader computes from an export, on the CPU (previews) |
@@ -27,8 +26,9 @@
 //!
 //! ```
 //! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
-//! use prt_export::{BevyConfig, DilateConfig, dilate, export_bevy, light_field};
+//! use prt_export::{BevyConfig, DilateConfig, dilate, export_bevy};
 //! use prt_sphere::Sky;
+//! use prt_trace::LitVolume;
 //!
 //! // A 4×4×4 transfer field that passes the sky straight through (direct block = identity).
 //! let bounds = Aabb::new(Vec3::ZERO, Vec3::ONE);
@@ -36,7 +36,7 @@
 //!     (0..9).for_each(|i| t[i * 9 + i] = 1.0)
 //! })?;
 //! let valid = vec![true; 64];
-//! let lit = light_field(&field, &valid, &Sky::constant([1.0; 3]), &NoProgress)?;
+//! let lit = LitVolume::from_transfer(&field, &valid, &Sky::constant([1.0; 3]), &NoProgress)?;
 //! // A constant sky of radiance 1 gives irradiance π in every direction.
 //! assert!((lit.irradiance(0, Vec3::Y).x - std::f32::consts::PI).abs() < 1e-4);
 //! let lit = dilate(&lit, &DilateConfig::default())?.volume;
@@ -64,7 +64,7 @@ pub use ambient::AmbientCubeFit;
 pub use bevy::{BevyConfig, BevyExport, BevyFormat, export_bevy};
 pub use dilate::{DilateConfig, Dilated, dilate};
 pub use error::ExportError;
-pub use lit::{LitVolume, RadianceSh, light_container, light_field};
+pub use lit::light_container;
 pub use nonneg::{NonNegative, remove_negative_light};
 pub use preview::{Engine, EngineLookup};
 pub use sh::{ShConfig, ShExport, export_sh};

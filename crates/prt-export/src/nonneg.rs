@@ -2,9 +2,9 @@
 //! before an engine sees it.
 
 use glam::Vec3;
-use prt_trace::{CLAMPED_COSINE, SH9, sh9};
+use prt_trace::{CLAMPED_COSINE, LitVolume, SH9, sh9};
 
-use crate::{ExportError, LitVolume};
+use crate::ExportError;
 
 /// A volume whose irradiance is non-negative in every test direction, and how many voxel
 /// channels were changed to make it so.

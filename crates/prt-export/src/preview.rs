@@ -4,11 +4,11 @@
 use std::f32::consts::PI;
 
 use glam::Vec3;
-use prt_trace::irradiance;
+use prt_trace::{LitVolume, irradiance};
 
 use crate::ambient::ambient_cube;
 use crate::threejs::ENGINE_PADDING;
-use crate::{AmbientCubeFit, ExportError, LitVolume};
+use crate::{AmbientCubeFit, ExportError};
 
 /// An engine whose probe lookup [`EngineLookup`] reproduces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -2,13 +2,15 @@
 
 use std::path::Path;
 
+use prt_trace::LitVolume;
+
 use crate::textures::{ShL1Layout, ShL1Volume, sh_l1_volume};
 use prt_texture::exr_io::{ExrLayer, ExrSample, encode_exr};
 use prt_texture::{Ktx2Texture, PixelFormat, Shape};
 use serde_json::json;
 
 use crate::write::{grid_json, prepare, write_bytes, write_json, write_ktx2, write_validity};
-use crate::{ExportError, LitVolume, WrittenFile};
+use crate::{ExportError, WrittenFile};
 
 /// Files of the L1 volume, one per colour channel (texel = L0, L1₋₁, L1₀, L1₁).
 pub const SH_L1_FILES: [&str; 3] = ["sh_l1_r.ktx2", "sh_l1_g.ktx2", "sh_l1_b.ktx2"];

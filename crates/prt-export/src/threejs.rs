@@ -5,8 +5,10 @@ use std::path::Path;
 use prt_texture::{Ktx2Texture, PixelFormat, Shape};
 use serde_json::json;
 
+use prt_trace::LitVolume;
+
 use crate::write::{grid_json, prepare, write_json, write_ktx2, write_validity};
-use crate::{ExportError, LitVolume, WrittenFile};
+use crate::{ExportError, WrittenFile};
 
 /// File name of the three.js atlas.
 pub const THREEJS_TEXTURE: &str = "light_probe_grid.ktx2";

@@ -4,7 +4,9 @@ use std::path::{Path, PathBuf};
 
 use prt_texture::{Ktx2Texture, PixelFormat, Shape, write_atomic};
 
-use crate::{ExportError, LitVolume};
+use prt_trace::LitVolume;
+
+use crate::ExportError;
 
 /// One file an export wrote.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -13,6 +13,7 @@ use prt_export::*;
 use prt_sphere::{Sky, SunSky};
 use prt_texture::quant::rgb9e5_error_bound;
 use prt_texture::{Ktx2Texture, Limits};
+use prt_trace::LitVolume;
 
 #[test]
 fn exports_of_a_cornell_bake_give_back_its_irradiance() {
@@ -36,7 +37,8 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
         .rotated_about_y(20.0);
     let lit = light_container(&container, &sky, &NoProgress).unwrap();
     let reference =
-        light_field(&baked.volume.field, &baked.volume.valid, &sky, &NoProgress).unwrap();
+        LitVolume::from_transfer(&baked.volume.field, &baked.volume.valid, &sky, &NoProgress)
+            .unwrap();
     assert_eq!(lit.dims, reference.dims);
     assert!((lit.bounds.min - reference.bounds.min).length() < 1e-4);
     assert!((lit.bounds.max - reference.bounds.max).length() < 1e-4);

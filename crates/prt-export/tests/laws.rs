@@ -11,10 +11,10 @@ use proptest::prelude::*;
 use prt_core::{Aabb, GridField, NoProgress};
 use prt_export::layout::{ambient_cube, ambient_cube_blend, test_directions};
 use prt_export::{
-    AmbientCubeFit, DilateConfig, Engine, EngineLookup, LitVolume, dilate, light_field,
-    remove_negative_light,
+    AmbientCubeFit, DilateConfig, Engine, EngineLookup, dilate, remove_negative_light,
 };
 use prt_sphere::Sky;
+use prt_trace::LitVolume;
 
 fn lit(dims: [usize; 3], mask: u64, seed: u64) -> LitVolume {
     let n: usize = dims.iter().product();
@@ -200,9 +200,9 @@ proptest! {
         let sky = Sky::default().rotated_about_y(angle);
         let valid = vec![true; 12];
         let (l1, l2, ls) = (
-            light_field(&f1, &valid, &sky, &NoProgress).unwrap(),
-            light_field(&f2, &valid, &sky, &NoProgress).unwrap(),
-            light_field(&sum, &valid, &sky, &NoProgress).unwrap(),
+            LitVolume::from_transfer(&f1, &valid, &sky, &NoProgress).unwrap(),
+            LitVolume::from_transfer(&f2, &valid, &sky, &NoProgress).unwrap(),
+            LitVolume::from_transfer(&sum, &valid, &sky, &NoProgress).unwrap(),
         );
         for v in 0..12 {
             for c in 0..3 {
@@ -215,7 +215,7 @@ proptest! {
         let pass = GridField::from_fn([1, 1, 2], bounds, 324, |_, t| {
             (0..9).for_each(|i| t[i * 9 + i] = 1.0)
         }).unwrap();
-        let turned = light_field(&pass, &[true, true], &sky, &NoProgress).unwrap();
+        let turned = LitVolume::from_transfer(&pass, &[true, true], &sky, &NoProgress).unwrap();
         let r = Mat3::from_rotation_y(angle.to_radians());
         for d in [Vec3::X, Vec3::Y, Vec3::new(0.6, 0.0, 0.8)] {
             let l = &turned.radiance[0];

@@ -15,6 +15,7 @@ use prt_sphere::eval_sh;
 use prt_texture::exr_io::read_exr;
 use prt_texture::quant::rgb9e5_error_bound;
 use prt_texture::{Ktx2Texture, Limits};
+use prt_trace::LitVolume;
 
 fn temp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("prt-export-{name}-{}", std::process::id()));

@@ -8,9 +8,10 @@ use glam::Vec3;
 use prt_bake::{BakeConfig, SceneInput, bake, read_container};
 use prt_core::NoProgress;
 use prt_export::layout::SIDES;
-use prt_export::{DilateConfig, LitVolume, dilate, light_container};
+use prt_export::{DilateConfig, dilate, light_container};
 use prt_sphere::Sky;
 use prt_texture::Limits;
+use prt_trace::LitVolume;
 
 /// The stated bounds on the drop after dilation (default radius 1, one pass): the largest
 /// (a filled voxel averages valid neighbours that can be darker, across a thin wall) and the

@@ -3,7 +3,7 @@
 use prt_core::CoreError;
 use prt_trace::TraceError;
 
-/// An error of [`render`](crate::render) or of building a [`RelitVolume`](crate::RelitVolume).
+/// An error of [`render`](crate::render) or of what it reads.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum RenderError {

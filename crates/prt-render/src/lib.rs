@@ -5,14 +5,13 @@
 //! [`PinholeView`](prt_trace::PinholeView)), each hit shaded as a diffuse surface lit by the
 //! volume, `L = emission + albedo/π · E(n, p)`, where `E` is the irradiance of the volume's
 //! incident-radiance SH at the hit point. The volume is the 324-D transfer of a bake (the traced
-//! reference, an MBD container read back, or a baseline's reconstruction) relit by a sky
-//! ([`prt_sphere::Sky`]) once per voxel, so a render costs one trilinear lookup per pixel.
+//! reference, an MBD container read back, or a baseline's reconstruction) lit by a sky
+//! ([`prt_sphere::Sky`]) once per voxel ([`prt_trace::LitVolume`]), so a render costs one trilinear lookup per pixel.
 //!
 //! | item | what it is, when to use it |
 //! |---|---|
-//! | [`RelitVolume`] | incident-radiance SH9 RGB per voxel of a transfer volume or model under a sky; trilinear over valid voxels |
 //! | [`render`], [`RenderConfig`], [`Rendered`] | the image: linear RGB radiance per pixel, sky where rays miss |
-//! | [`SurfaceLight`] | what lights a surface point: a [`RelitVolume`] by prt's lookup, or an engine's lookup (prt-export) |
+//! | [`SurfaceLight`] | what lights a surface point: a [`LitVolume`](prt_trace::LitVolume) (a transfer volume or model lit by a sky) by prt's lookup, or an engine's lookup (prt-export) |
 //! | [`voxels_read`] | which voxels a render reads, to limit per-voxel work to them |
 //! | [`image_metrics`], [`ImageMetrics`] | a render against a reference as a person sees them: ꟻLIP and tone-mapped grey-level errors |
 //! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
@@ -26,9 +25,9 @@
 //!
 //! ```
 //! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
-//! use prt_render::{RelitVolume, RenderConfig, render};
+//! use prt_render::{RenderConfig, render};
 //! use prt_sphere::Sky;
-//! use prt_trace::{PinholeView, RayTracer, Scene, TRANSFER_DIM};
+//! use prt_trace::{LitVolume, PinholeView, RayTracer, Scene, TRANSFER_DIM};
 //!
 //! // A volume that lets the whole sky through (direct transfer = identity) over a grey plane.
 //! let scene = Scene::ground_plane(1.0, Vec3::splat(0.5));
@@ -39,7 +38,7 @@
 //!     }
 //! })?;
 //! let sky = Sky::constant([1.0, 1.0, 1.0]);
-//! let volume = RelitVolume::from_transfer(&transfer, &[true; 8], &sky)?;
+//! let volume = LitVolume::from_transfer(&transfer, &[true; 8], &sky, &NoProgress)?;
 //! let view = PinholeView { position: Vec3::Y, forward: Vec3::NEG_Y, up: Vec3::NEG_Z, yfov: 1.0 };
 //! let config = RenderConfig { width: 16, height: 16, ..RenderConfig::default() };
 //! let image = render(&scene, &RayTracer::new(scene.triangles()), &view, &volume, &sky, &config, &NoProgress)?;
@@ -62,7 +61,7 @@ pub use metrics::{ImageMetrics, VISIBLE_LEVELS, image_metrics};
 pub use render::{RenderConfig, Rendered, SurfaceLight, render, voxels_read};
 pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};
 pub use views::{NamedView, views};
-pub use volume::{RELIT_DIM, RelitVolume, grid_bounds};
+pub use volume::grid_bounds;
 
 /// The README's Rust snippet, compiled as a doc test so it stays true.
 #[doc = include_str!("../README.md")]

@@ -1,14 +1,14 @@
-//! Primary rays through a pinhole, shaded with the diffuse irradiance of a relit volume.
+//! Primary rays through a pinhole, shaded with the diffuse irradiance of a lit volume.
 
 use std::f32::consts::PI;
 
 use glam::Vec3;
 use prt_core::{GridField, Progress};
 use prt_sphere::Sky;
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
+use prt_trace::{GBuffer, LitVolume, PinholeView, RayTracer, Scene};
 use rayon::prelude::*;
 
-use crate::{RelitVolume, RenderError};
+use crate::RenderError;
 
 /// Options of [`render`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -36,13 +36,13 @@ pub trait SurfaceLight: Sync {
     fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3>;
 }
 
-/// prt's own lookup: [`RelitVolume::irradiance`] half a voxel off the surface along its normal
+/// prt's own lookup: [`LitVolume::valid_irradiance_at`] half a voxel off the surface along its normal
 /// (per axis: `½ n ⊙ voxel size`), which keeps a wall's lookup from leaning on the voxels
 /// behind it, over the valid voxels only.
-impl SurfaceLight for RelitVolume {
+impl SurfaceLight for LitVolume {
     fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3> {
-        let offset = NORMAL_OFFSET * self.field().voxel_size();
-        self.irradiance(position + normal * offset, normal)
+        let offset = NORMAL_OFFSET * self.voxel_size();
+        self.valid_irradiance_at(position + normal * offset, normal)
     }
 }
 
@@ -88,7 +88,7 @@ impl Rendered {
 
 /// Renders `scene` from `view`: one primary ray per pixel centre (prt-trace's [`GBuffer`]);
 /// a hit shows `emission + albedo/π · E`, with `E` the irradiance `light` gives the hit point
-/// and its normal facing the viewer ([`SurfaceLight`]; for a [`RelitVolume`], prt's lookup);
+/// and its normal facing the viewer ([`SurfaceLight`]; for a [`LitVolume`], prt's lookup);
 /// a miss shows the sky's radiance along the ray. The back
 /// of a single-sided surface is black. Shading runs in parallel over rows, reporting one unit
 /// per row to `progress` and stopping when it is cancelled; the image is the same on any

@@ -2,11 +2,11 @@
 
 use glam::{Mat4, Vec3};
 use prt_core::{Aabb, AtomicProgress, GridField, NoProgress};
-use prt_render::{
-    RelitVolume, RenderConfig, Rendered, SurfaceLight, ToneMap, image_metrics, render, views,
-};
+use prt_render::{RenderConfig, Rendered, SurfaceLight, ToneMap, image_metrics, render, views};
 use prt_sphere::Sky;
-use prt_trace::{BakeOptions, Camera, PinholeView, RayTracer, Scene, TRANSFER_DIM, TransferBaker};
+use prt_trace::{
+    BakeOptions, Camera, LitVolume, PinholeView, RayTracer, Scene, TRANSFER_DIM, TransferBaker,
+};
 
 /// A transfer volume that passes the sky through unchanged (direct transfer = identity,
 /// no bounce) everywhere, times `scale`.
@@ -32,13 +32,7 @@ fn small(width: usize, height: usize) -> RenderConfig {
     RenderConfig { width, height }
 }
 
-fn draw(
-    scene: &Scene,
-    view: &PinholeView,
-    volume: &RelitVolume,
-    sky: &Sky,
-    size: usize,
-) -> Rendered {
+fn draw(scene: &Scene, view: &PinholeView, volume: &LitVolume, sky: &Sky, size: usize) -> Rendered {
     let tracer = RayTracer::new(scene.triangles());
     render(
         scene,
@@ -63,8 +57,13 @@ fn a_plane_under_a_constant_sky_shows_albedo_times_radiance() {
     let bounds = Aabb::new(Vec3::new(-2.0, -1.0, -2.0), Vec3::new(2.0, 1.0, 2.0));
     let radiance = [1.5f32, 1.0, 0.5];
     let sky = Sky::constant(radiance);
-    let volume = RelitVolume::from_transfer(&open_sky([4, 3, 4], bounds, 1.0), &[true; 48], &sky)
-        .expect("volume");
+    let volume = LitVolume::from_transfer(
+        &open_sky([4, 3, 4], bounds, 1.0),
+        &[true; 48],
+        &sky,
+        &NoProgress,
+    )
+    .expect("volume");
     let image = draw(&scene, &looking_down(), &volume, &sky, 16);
     assert!(image.hit.iter().all(|&h| h), "the plane fills the view");
     assert_eq!(image.unlit, 0);
@@ -82,8 +81,13 @@ fn the_default_sky_lights_an_upward_surface_with_its_cosine_weighted_mean() {
     let scene = Scene::ground_plane(2.0, albedo);
     let bounds = Aabb::new(Vec3::splat(-2.0), Vec3::splat(2.0));
     let sky = Sky::default();
-    let volume = RelitVolume::from_transfer(&open_sky([2, 2, 2], bounds, 1.0), &[true; 8], &sky)
-        .expect("volume");
+    let volume = LitVolume::from_transfer(
+        &open_sky([2, 2, 2], bounds, 1.0),
+        &[true; 8],
+        &sky,
+        &NoProgress,
+    )
+    .expect("volume");
     let image = draw(&scene, &looking_down(), &volume, &sky, 8);
     let want = [0.9f32, 1.0, 1.2].map(|c| 1.4 * 0.5 * c);
     for p in &image.pixels {
@@ -96,8 +100,13 @@ fn a_miss_shows_the_sky_along_the_ray() {
     let scene = Scene::ground_plane(1.0, Vec3::ONE);
     let sky = Sky::default();
     let bounds = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
-    let volume = RelitVolume::from_transfer(&open_sky([2, 2, 2], bounds, 1.0), &[true; 8], &sky)
-        .expect("volume");
+    let volume = LitVolume::from_transfer(
+        &open_sky([2, 2, 2], bounds, 1.0),
+        &[true; 8],
+        &sky,
+        &NoProgress,
+    )
+    .expect("volume");
     let up = PinholeView {
         position: Vec3::new(0.0, 1.0, 0.0),
         forward: Vec3::Y,
@@ -130,7 +139,7 @@ fn invalid_voxels_are_left_out_of_the_interpolation() {
         }
     }
     let sky = Sky::constant([1.0; 3]);
-    let volume = RelitVolume::from_transfer(&transfer, &valid, &sky).expect("volume");
+    let volume = LitVolume::from_transfer(&transfer, &valid, &sky, &NoProgress).expect("volume");
     // No normal offset: the plane lies halfway between the two layers.
     let config = small(8, 8);
     let tracer = RayTracer::new(scene.triangles());
@@ -148,18 +157,18 @@ fn invalid_voxels_are_left_out_of_the_interpolation() {
         assert!(close(*p, [0.6; 3], 1e-4), "{p:?}");
     }
     // With every voxel invalid nothing is lit: the plane shows its (zero) emission.
-    let none = RelitVolume::from_transfer(&transfer, &[false; 8], &sky).expect("volume");
+    let none = LitVolume::from_transfer(&transfer, &[false; 8], &sky, &NoProgress).expect("volume");
     let dark = draw(&scene, &looking_down(), &none, &sky, 8);
     assert_eq!(dark.unlit, 64);
     assert!(dark.pixels.iter().all(|p| *p == [0.0; 3]));
 }
 
-/// A relit volume read at the surface point itself, with no normal offset.
-struct AtSurface<'a>(&'a RelitVolume);
+/// A lit volume read at the surface point itself, with no normal offset.
+struct AtSurface<'a>(&'a LitVolume);
 
 impl SurfaceLight for AtSurface<'_> {
     fn surface_irradiance(&self, position: Vec3, normal: Vec3) -> Option<Vec3> {
-        self.0.irradiance(position, normal)
+        self.0.valid_irradiance_at(position, normal)
     }
 }
 
@@ -175,7 +184,8 @@ fn prts_lookup_moves_half_a_voxel_off_the_surface() {
     })
     .expect("field");
     let sky = Sky::constant([1.0; 3]);
-    let volume = RelitVolume::from_transfer(&transfer, &[true; 16], &sky).expect("volume");
+    let volume =
+        LitVolume::from_transfer(&transfer, &[true; 16], &sky, &NoProgress).expect("volume");
     let tracer = RayTracer::new(scene.triangles());
     let at_surface = AtSurface(&volume);
     for (offset, light) in [(0.0f32, &at_surface as &dyn SurfaceLight), (0.5, &volume)] {
@@ -204,8 +214,13 @@ fn an_emitter_seen_directly_shows_its_emission() {
     let scene = Scene::cornell_box();
     let bounds = scene.bounds().expect("bounds");
     let sky = Sky::constant([1.0; 3]);
-    let volume = RelitVolume::from_transfer(&open_sky([2, 2, 2], bounds, 0.0), &[true; 8], &sky)
-        .expect("volume");
+    let volume = LitVolume::from_transfer(
+        &open_sky([2, 2, 2], bounds, 0.0),
+        &[true; 8],
+        &sky,
+        &NoProgress,
+    )
+    .expect("volume");
     // Looking up at the light from below it.
     let view = PinholeView {
         position: Vec3::new(0.0, 1.0, -0.03),
@@ -219,7 +234,7 @@ fn an_emitter_seen_directly_shows_its_emission() {
     }
 }
 
-fn cornell_volume() -> (Scene, RelitVolume, Sky) {
+fn cornell_volume() -> (Scene, LitVolume, Sky) {
     let scene = Scene::cornell_box();
     let options = BakeOptions {
         resolution: [6, 6, 6],
@@ -233,7 +248,8 @@ fn cornell_volume() -> (Scene, RelitVolume, Sky) {
         .bake(&NoProgress)
         .expect("bake");
     let sky = Sky::default().rotated_about_y(30.0);
-    let volume = RelitVolume::from_transfer(&baked.field, &baked.valid, &sky).expect("volume");
+    let volume =
+        LitVolume::from_transfer(&baked.field, &baked.valid, &sky, &NoProgress).expect("volume");
     (scene, volume, sky)
 }
 
@@ -279,10 +295,16 @@ fn bad_inputs_are_errors() {
     let bounds = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
     let sky = Sky::default();
     assert!(
-        RelitVolume::from_transfer(&open_sky([2, 2, 2], bounds, 1.0), &[true; 7], &sky).is_err()
+        LitVolume::from_transfer(
+            &open_sky([2, 2, 2], bounds, 1.0),
+            &[true; 7],
+            &sky,
+            &NoProgress
+        )
+        .is_err()
     );
     let narrow = GridField::new([2, 2, 2], bounds, 27).expect("field");
-    assert!(RelitVolume::from_transfer(&narrow, &[true; 8], &sky).is_err());
+    assert!(LitVolume::from_transfer(&narrow, &[true; 8], &sky, &NoProgress).is_err());
     let (scene, volume, sky) = cornell_volume();
     let tracer = RayTracer::new(scene.triangles());
     let view = views(&scene)[0].view;

@@ -136,6 +136,7 @@ mod denoise;
 mod error;
 mod gltf_load;
 mod lights_file;
+mod lit;
 mod mesh;
 mod outdoor;
 mod pixel;
@@ -154,6 +155,7 @@ pub use camera::{GBuffer, GatherPoint, PinholeView};
 pub use denoise::DenoiseOptions;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
+pub use lit::{LitVolume, RadianceSh};
 pub use mesh::{
     MESH_MAGIC, MESH_VERSION, MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh,
 };

@@ -10,12 +10,11 @@ use prt_core::{GridField, NoProgress};
 use prt_mbd::LocalBasis;
 use prt_mbd::expert::{blur_valid, projection_residuals};
 use prt_render::{
-    ImageMetrics, RelitVolume, RenderConfig, Rendered, ToneMap, image_metrics, render, views,
-    voxels_read,
+    ImageMetrics, RenderConfig, Rendered, ToneMap, image_metrics, render, views, voxels_read,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::{RayTracer, Scene};
+use prt_trace::{LitVolume, RayTracer, Scene};
 
 use crate::report::images::{heat_scale, save_png};
 use crate::report::plots::draw_text;
@@ -94,20 +93,41 @@ pub fn write_renders(
     let valid = &bake.volume.valid;
     let mut volumes = vec![(
         "reference".to_string(),
-        RelitVolume::from_transfer(field, valid, &sky)?,
+        LitVolume::from_transfer(field, valid, &sky, &NoProgress)?,
     )];
     let mbd = if container.join("manifest.json").is_file() {
         let read = read_container(container, &Limits::default())
             .with_context(|| format!("cannot read back {}", container.display()))?;
-        RelitVolume::from_model(&read.model, read.grid, field.bounds(), &read.valid, &sky)?
+        LitVolume::from_model(
+            &read.model,
+            read.grid,
+            field.bounds(),
+            &read.valid,
+            &sky,
+            &NoProgress,
+        )?
     } else {
-        RelitVolume::from_model(&bake.mbd.model, field.dims(), field.bounds(), valid, &sky)?
+        LitVolume::from_model(
+            &bake.mbd.model,
+            field.dims(),
+            field.bounds(),
+            valid,
+            &sky,
+            &NoProgress,
+        )?
     };
     volumes.push(("mbd".into(), mbd));
     for b in &bake.baselines {
         volumes.push((
             b.method.key().into(),
-            RelitVolume::from_model(&b.model, field.dims(), field.bounds(), valid, &sky)?,
+            LitVolume::from_model(
+                &b.model,
+                field.dims(),
+                field.bounds(),
+                valid,
+                &sky,
+                &NoProgress,
+            )?,
         ));
     }
     let tracer = RayTracer::new(scene.triangles());
@@ -180,7 +200,7 @@ pub fn write_renders(
     let read = voxels_read(scene, &tracer, &view.view, field, &config)?;
     let needed: Vec<bool> = valid.iter().zip(&read).map(|(&v, &r)| v && r).collect();
     let lit = |f: &GridField| -> Result<Rendered> {
-        let volume = RelitVolume::from_transfer(f, valid, &sky)?;
+        let volume = LitVolume::from_transfer(f, valid, &sky, &NoProgress)?;
         Ok(render(
             scene,
             &tracer,
