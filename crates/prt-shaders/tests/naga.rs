@@ -260,3 +260,164 @@ void main() {
     }
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// The lobes `prt lightmap --basis sg:N` writes (a Fibonacci spiral over the upper
+/// hemisphere, sharpness N ln 2), rebuilt here so that the test needs no prt-lightmap.
+fn lightmap_lobes(n: usize) -> (Vec<[f32; 3]>, f32) {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let axes = (0..n)
+        .map(|i| {
+            let y = 1.0 - (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - y * y).max(0.0).sqrt();
+            let phi = golden * i as f64;
+            [(r * phi.cos()) as f32, y as f32, (r * phi.sin()) as f32]
+        })
+        .collect();
+    (axes, (n as f64 * std::f64::consts::LN_2) as f32)
+}
+
+const LOBES: [usize; 4] = [1, 4, 9, 12];
+
+const WGSL_LIGHTMAP_SG_FRAGMENT: &str = "
+@fragment
+fn fs_main(@location(0) normal: vec3<f32>, @location(1) view: vec3<f32>, @location(2) c0: vec3<f32>) -> @location(0) vec4<f32> {
+    var c: array<vec3<f32>, LM_SG_LOBES>;
+    for (var i = 0u; i < LM_SG_LOBES; i++) { c[i] = c0 * f32(i + 1u); }
+    let frame = lm_tangent_frame(normalize(normal));
+    let v = lm_to_tangent(frame, normalize(view));
+    let n = vec3<f32>(0.0, 1.0, 0.0);
+    let rgb = lm_sg_diffuse(c, n) / 3.14159265 + lm_sg_specular(c, n, v, 0.5, vec3<f32>(0.04));
+    return vec4<f32>(rgb, 1.0);
+}
+";
+
+const WGSL_LIGHTMAP_SH_FRAGMENT: &str = "
+@fragment
+fn fs_main(@location(0) normal: vec3<f32>, @location(1) view: vec3<f32>, @location(2) c0: vec3<f32>) -> @location(0) vec4<f32> {
+    var c: array<vec3<f32>, 9>;
+    for (var i = 0u; i < 9u; i++) { c[i] = c0 * f32(i + 1u); }
+    let frame = lm_tangent_frame(normalize(normal));
+    let v = lm_to_tangent(frame, normalize(view));
+    let n = vec3<f32>(0.0, 1.0, 0.0);
+    let rgb = lm_sh_diffuse(c, n) / 3.14159265 + lm_sh_specular(c, n, v, 0.5, vec3<f32>(0.04));
+    return vec4<f32>(rgb, 1.0);
+}
+";
+
+#[test]
+fn the_wgsl_lightmap_libraries_validate() {
+    for n in LOBES {
+        let (axes, sharpness) = lightmap_lobes(n);
+        let source =
+            prt_shaders::wgsl_lightmap_sg(&axes, sharpness).unwrap() + WGSL_LIGHTMAP_SG_FRAGMENT;
+        let what = format!("lightmap_sg.wgsl, {n} lobes");
+        validate(&parse_wgsl(&source, &what), &what);
+    }
+    let source = prt_shaders::wgsl_lightmap_sh() + WGSL_LIGHTMAP_SH_FRAGMENT;
+    validate(&parse_wgsl(&source, "lightmap_sh.wgsl"), "lightmap_sh.wgsl");
+}
+
+/// Bad lobe sets are refused, not written into a shader.
+#[test]
+fn bad_sg_lobes_are_errors() {
+    assert!(prt_shaders::wgsl_lightmap_sg(&[], 1.0).is_err());
+    assert!(prt_shaders::wgsl_lightmap_sg(&[[0.0, 2.0, 0.0]], 1.0).is_err());
+    assert!(prt_shaders::glsl_lightmap_sg(&[[0.0, f32::NAN, 0.0]], 1.0).is_err());
+    assert!(prt_shaders::glsl_lightmap_sg(&[[0.0, 1.0, 0.0]], f32::INFINITY).is_err());
+    assert!(prt_shaders::glsl_lightmap_sg(&[[0.0, 1.0, 0.0]], -1.0).is_err());
+}
+
+/// A fragment `main` for the GLSL lightmap libraries; `{C}` is the coefficient count.
+fn glsl_lightmap_main(prefix: &str, count: &str, declarations: &str) -> String {
+    format!(
+        "{declarations}
+void main() {{
+    vec3 c[{count}];
+    for (int i = 0; i < {count}; i++) {{ c[i] = v_c0 * float(i + 1); }}
+    mat3 frame = lm_tangent_frame(normalize(v_normal));
+    vec3 v = lm_to_tangent(frame, normalize(v_view));
+    vec3 n = vec3(0.0, 1.0, 0.0);
+    vec3 rgb = {prefix}_diffuse(c, n) / 3.14159265 + {prefix}_specular(c, n, v, 0.5, vec3(0.04));
+    o_color = vec4(rgb, 1.0);
+}}
+"
+    )
+}
+
+const GLSL_LIGHTMAP_IO_450: &str = "
+layout(location = 0) in vec3 v_normal;
+layout(location = 1) in vec3 v_view;
+layout(location = 2) in vec3 v_c0;
+layout(location = 0) out vec4 o_color;";
+
+const GLSL_LIGHTMAP_IO_ES: &str = "
+in vec3 v_normal;
+in vec3 v_view;
+in vec3 v_c0;
+out vec4 o_color;";
+
+#[test]
+fn the_glsl_lightmap_bodies_validate() {
+    for n in LOBES {
+        let (axes, sharpness) = lightmap_lobes(n);
+        let source = format!(
+            "#version 450 core\n{}{}",
+            prt_shaders::glsl_lightmap_sg_body(&axes, sharpness).unwrap(),
+            glsl_lightmap_main("lm_sg", "LM_SG_LOBES", GLSL_LIGHTMAP_IO_450)
+        );
+        let what = format!("lightmap_sg.glsl, {n} lobes");
+        validate(
+            &parse_glsl(&source, naga::ShaderStage::Fragment, &what),
+            &what,
+        );
+    }
+    let source = format!(
+        "#version 450 core\n{}{}{}",
+        prt_shaders::glsl::LIGHTMAP_COMMON,
+        prt_shaders::glsl::LIGHTMAP_SH,
+        glsl_lightmap_main("lm_sh", "9", GLSL_LIGHTMAP_IO_450)
+    );
+    validate(
+        &parse_glsl(&source, naga::ShaderStage::Fragment, "lightmap_sh.glsl"),
+        "lightmap_sh.glsl",
+    );
+}
+
+/// The complete GLSL ES 3.00 lightmap libraries compile with `glslangValidator` (ignored where
+/// it is not installed, unless `PRT_REQUIRE_GLSLANG=1`).
+#[test]
+#[cfg_attr(
+    prt_skip_glslang,
+    ignore = "glslangValidator not installed (apt-get install glslang-tools)"
+)]
+fn the_glsl_es_lightmap_libraries_compile_with_glslang() {
+    let dir = std::env::temp_dir().join(format!("prt-shaders-lightmap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp folder");
+    let mut sources = vec![(
+        "lightmap_sh".to_string(),
+        prt_shaders::glsl_lightmap_sh() + &glsl_lightmap_main("lm_sh", "9", GLSL_LIGHTMAP_IO_ES),
+    )];
+    for n in LOBES {
+        let (axes, sharpness) = lightmap_lobes(n);
+        sources.push((
+            format!("lightmap_sg_{n}"),
+            prt_shaders::glsl_lightmap_sg(&axes, sharpness).unwrap()
+                + &glsl_lightmap_main("lm_sg", "LM_SG_LOBES", GLSL_LIGHTMAP_IO_ES),
+        ));
+    }
+    for (name, source) in sources {
+        assert!(source.starts_with("#version 300 es\n"));
+        let path = dir.join(format!("{name}.frag"));
+        std::fs::write(&path, &source).expect("write shader");
+        let out = std::process::Command::new("glslangValidator")
+            .arg(&path)
+            .output()
+            .expect("run glslangValidator");
+        assert!(
+            out.status.success(),
+            "{name}:\n{}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
