@@ -1,8 +1,9 @@
 //! The workspace's architectural invariants (docs/architecture.md, "Invariants"), checked on the
 //! source text of every crate under `crates/`:
 //!
-//! * the crates depend only downwards through the layers of docs/architecture.md ("Dependency
-//!   direction"), and every crate has a layer;
+//! * the crates depend as docs/architecture.md's layer table draws ("Dependency direction"): the
+//!   table is read from the page, every crate has one layer, every dependency runs to a lower
+//!   layer the row's "may use" allows, so the page and the Cargo.toml files cannot disagree;
 //! * no crate's top-level modules import each other in a cycle;
 //! * only prt-cli prints (library code returns data and reports through `Progress`);
 //! * files are written only through prt-texture's atomic writer (write to a temporary file in
@@ -260,18 +261,6 @@ fn files_are_written_only_through_the_atomic_writer() {
     );
 }
 
-/// The crates' layers, lowest first (docs/architecture.md, "Dependency direction"): a crate may
-/// depend only on crates of lower layers.
-const LAYERS: &[&[&str]] = &[
-    &["prt-core", "prt-texture", "prt-shaders"],
-    &["prt-linalg", "prt-kernels", "prt-sphere"],
-    &["prt-mbd", "prt-plsq", "prt-wavelet", "prt-manylight"],
-    &["prt-trace"],
-    &["prt-bake", "prt-render", "prt-lightmap"],
-    &["prt-export"],
-    &["prt-cli", "prt"],
-];
-
 /// The `prt*` crates named in the `[dependencies]` table of a Cargo.toml.
 fn prt_dependencies(manifest: &str) -> BTreeSet<String> {
     let mut out = BTreeSet::new();
@@ -289,43 +278,183 @@ fn prt_dependencies(manifest: &str) -> BTreeSet<String> {
     out
 }
 
-/// Every dependency that does not run to a lower layer, and every crate without a layer.
-fn layer_violations(dependencies: &BTreeMap<String, BTreeSet<String>>) -> Vec<String> {
-    let layer = |name: &str| LAYERS.iter().position(|l| l.contains(&name));
-    let mut out = Vec::new();
-    for (krate, deps) in dependencies {
-        let Some(own) = layer(krate) else {
-            out.push(format!("{krate} has no layer in LAYERS"));
+/// One row of docs/architecture.md's layer table ("Dependency direction").
+#[derive(Debug, Clone, PartialEq)]
+struct Layer {
+    /// The layer's number (0 is the lowest).
+    number: usize,
+    /// The crates of the layer, as the table names them in backticks.
+    crates: BTreeSet<String>,
+    /// What the layer's crates may depend on.
+    may_use: MayUse,
+}
+
+/// The table's "may use" column.
+#[derive(Debug, Clone, PartialEq)]
+enum MayUse {
+    /// "nothing of ours".
+    Nothing,
+    /// "everything below".
+    Below,
+    /// "layers a–b" or "layer a".
+    Layers(usize, usize),
+    /// Crates named in backticks.
+    Crates(BTreeSet<String>),
+}
+
+/// The names in backticks in a table cell.
+fn backticked(cell: &str) -> BTreeSet<String> {
+    cell.split('`')
+        .skip(1)
+        .step_by(2)
+        .map(str::to_string)
+        .collect()
+}
+
+/// The layer table of the section "## Dependency direction" of an architecture document: the
+/// rows whose first cell is a number. Panics on a row it cannot read, so a reworded table fails
+/// the test instead of checking nothing.
+fn parse_layers(doc: &str) -> Vec<Layer> {
+    let section = doc
+        .split("\n## ")
+        .find(|s| s.starts_with("Dependency direction"))
+        .expect("a section '## Dependency direction'");
+    let mut layers = Vec::new();
+    for line in section.lines() {
+        let cells: Vec<&str> = line
+            .trim()
+            .trim_matches('|')
+            .split('|')
+            .map(str::trim)
+            .collect();
+        let Ok(number) = cells[0].parse::<usize>() else {
             continue;
         };
+        assert_eq!(
+            cells.len(),
+            3,
+            "layer row '{line}': layer | crates | may use"
+        );
+        let may_use = match cells[2] {
+            "nothing of ours" => MayUse::Nothing,
+            "everything below" => MayUse::Below,
+            cell if cell.starts_with("layer") => {
+                let numbers: Vec<usize> = cell
+                    .split(|c: char| !c.is_ascii_digit())
+                    .filter_map(|n| n.parse().ok())
+                    .collect();
+                match numbers[..] {
+                    [a] => MayUse::Layers(a, a),
+                    [a, b] => MayUse::Layers(a, b),
+                    _ => panic!("layer row '{line}': cannot read '{cell}'"),
+                }
+            }
+            cell => {
+                let crates = backticked(cell);
+                assert!(
+                    !crates.is_empty(),
+                    "layer row '{line}': cannot read '{cell}'"
+                );
+                MayUse::Crates(crates)
+            }
+        };
+        layers.push(Layer {
+            number,
+            crates: backticked(cells[1]),
+            may_use,
+        });
+    }
+    assert!(
+        !layers.is_empty(),
+        "no layer table under '## Dependency direction'"
+    );
+    layers
+}
+
+/// Where the documented layers and the crates' dependencies disagree: a crate without a layer
+/// or with two, a documented crate that does not exist, a dependency on the same or a higher
+/// layer, a dependency the layer's "may use" does not allow.
+fn layer_violations(
+    layers: &[Layer],
+    dependencies: &BTreeMap<String, BTreeSet<String>>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    let layer_of = |name: &str| layers.iter().find(|l| l.crates.contains(name));
+    for layer in layers {
+        for krate in &layer.crates {
+            if !dependencies.contains_key(krate) {
+                out.push(format!(
+                    "layer {} names {krate}, which is not a crate",
+                    layer.number
+                ));
+            }
+        }
+    }
+    for (krate, deps) in dependencies {
+        let owners = layers.iter().filter(|l| l.crates.contains(krate)).count();
+        let Some(own) = layer_of(krate) else {
+            out.push(format!("{krate} has no layer in docs/architecture.md"));
+            continue;
+        };
+        if owners > 1 {
+            out.push(format!("{krate} is in {owners} layers"));
+        }
         for dep in deps {
-            match layer(dep) {
-                Some(l) if l < own => {}
-                Some(l) => out.push(format!(
-                    "{krate} (layer {own}) depends on {dep} (layer {l})"
-                )),
-                None => out.push(format!("{krate} depends on {dep}, which has no layer")),
+            let Some(theirs) = layer_of(dep) else {
+                out.push(format!("{krate} depends on {dep}, which has no layer"));
+                continue;
+            };
+            if theirs.number >= own.number {
+                out.push(format!(
+                    "{krate} (layer {}) depends on {dep} (layer {})",
+                    own.number, theirs.number
+                ));
+                continue;
+            }
+            let allowed = match &own.may_use {
+                MayUse::Nothing => false,
+                MayUse::Below => true,
+                MayUse::Layers(a, b) => (*a..=*b).contains(&theirs.number),
+                MayUse::Crates(names) => names.contains(dep),
+            };
+            if !allowed {
+                out.push(format!(
+                    "{krate} depends on {dep}, which its layer's 'may use' ({:?}) does not allow",
+                    own.may_use
+                ));
             }
         }
     }
     out
 }
 
-#[test]
-fn the_crates_depend_only_downwards() {
-    let dependencies: BTreeMap<String, BTreeSet<String>> = crate_sources()
+/// The `prt*` dependencies of every crate under `crates/`.
+fn workspace_dependencies() -> BTreeMap<String, BTreeSet<String>> {
+    crate_sources()
         .into_iter()
         .map(|(name, src)| {
             let manifest = std::fs::read_to_string(src.join("../Cargo.toml")).expect("Cargo.toml");
             (name, prt_dependencies(&manifest))
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn the_crates_depend_as_the_architecture_page_draws() {
+    let doc = std::fs::read_to_string(crates_dir().join("../docs/architecture.md"))
+        .expect("docs/architecture.md");
+    let layers = parse_layers(&doc);
+    let dependencies = workspace_dependencies();
     assert!(
         dependencies["prt-bake"].contains("prt-mbd"),
         "{dependencies:?}"
     );
-    let violations = layer_violations(&dependencies);
-    assert!(violations.is_empty(), "{violations:#?}");
+    let violations = layer_violations(&layers, &dependencies);
+    assert!(
+        violations.is_empty(),
+        "docs/architecture.md's layer table and the Cargo.toml files disagree:\n{}",
+        violations.join("\n")
+    );
 }
 
 /// The checks themselves: a cycle, a print, a write and an upward dependency are found where
@@ -338,19 +467,39 @@ fn the_checks_find_what_they_look_for() {
         prt_dependencies(manifest),
         BTreeSet::from(["prt-core".to_string(), "prt-mbd".to_string()])
     );
-    let upward = BTreeMap::from([
-        (
-            "prt-mbd".to_string(),
-            BTreeSet::from(["prt-bake".to_string()]),
-        ),
-        ("prt-new".to_string(), BTreeSet::new()),
-    ]);
+    let doc = "# x\n\n## Dependency direction\n\n| layer | crates | may use |\n|---|---|---|\n\
+               | 2 | `prt-cli` (the binary) | everything below |\n\
+               | 1 | `prt-mbd`, `prt-bake` | `prt-core` |\n\
+               | 0 | `prt-core` | nothing of ours |\n\n## Next\n\n| 9 | `prt-x` | layer 0 |\n";
+    let layers = parse_layers(doc);
+    assert_eq!(layers.len(), 3, "{layers:?}");
+    assert_eq!(layers[1].crates.len(), 2);
     assert_eq!(
-        layer_violations(&upward).len(),
-        2,
-        "{:?}",
-        layer_violations(&upward)
+        parse_layers("\n## Dependency direction\n| 4 | `a` | layers 0–3 |\n")[0].may_use,
+        MayUse::Layers(0, 3)
     );
+    let deps = |pairs: &[(&str, &[&str])]| -> BTreeMap<String, BTreeSet<String>> {
+        pairs
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.iter().map(|d| d.to_string()).collect()))
+            .collect()
+    };
+    let agreeing = deps(&[
+        ("prt-cli", &["prt-mbd", "prt-core"]),
+        ("prt-mbd", &["prt-core"]),
+        ("prt-bake", &[]),
+        ("prt-core", &[]),
+    ]);
+    assert!(layer_violations(&layers, &agreeing).is_empty());
+    // Upward, sideways and not-allowed dependencies; an undocumented and a missing crate.
+    let disagreeing = deps(&[
+        ("prt-cli", &[]),
+        ("prt-mbd", &["prt-cli", "prt-bake"]),
+        ("prt-core", &["prt-mbd"]),
+        ("prt-new", &[]),
+    ]);
+    let found = layer_violations(&layers, &disagreeing);
+    assert_eq!(found.len(), 5, "{found:#?}");
     let mut graph = BTreeMap::new();
     graph.insert("a".to_string(), BTreeSet::from(["b".to_string()]));
     graph.insert("b".to_string(), BTreeSet::from(["a".to_string()]));
