@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use prt_export::{LightmapEngine, LightmapTexels, export_lightmap};
 use prt_lightmap::{
     Atlas, Encoder, Lighting, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig,
     atlas_from_uvs, bake_lightmap, estimate_memory, render_view, unwrap_charts,
@@ -27,8 +28,12 @@ function `c00`, `c01`, ...: incident radiance in each texel's tangent frame, +Y 
 OUT/lightmap.ktx2 (the same as a 2D array of RGBA32F layers, alpha 1 on texels with data), \
 OUT/lightmap_uvs.bin (per scene triangle, its three lightmap UVs as 6 little-endian f32, 0..1, \
 origin top-left), OUT/manifest.json, OUT/atlas.png and OUT/view.png (the irradiance atlas and \
-the scene lit by the lightmap, tone-mapped), and OUT/preview/{atlas,view}_NNNNN.png every \
---preview-every samples. Ctrl-C stops inside a pass and writes the last completed one."
+the scene lit by the lightmap, tone-mapped), OUT/view.exr (that view, linear RGB: emission + \
+albedo/pi * E; its camera is the manifest's `view`), and OUT/preview/{atlas,view}_NNNNN.png \
+every --preview-every samples. With --engine bevy or --engine threejs (repeatable), also \
+OUT/ENGINE/: lightmap_scene.glb (the scene with the lightmap UVs as TEXCOORD_1), lightmap.ktx2 \
+(RGBA16F, E/pi for Bevy's Lightmap, E for three.js's lightMap) and lightmap.json. Ctrl-C stops \
+inside a pass and writes the last completed one."
 )]
 pub struct LightmapArgs {
     /// glTF 2.0 scene; the built-in Cornell box when omitted.
@@ -74,6 +79,10 @@ pub struct LightmapArgs {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Also write the irradiance lightmap for an engine into OUT/ENGINE: `bevy` (its
+    /// `Lightmap` component) or `threejs` (`material.lightMap`, channel 1); repeatable.
+    #[arg(long, value_name = "ENGINE")]
+    pub engine: Vec<String>,
     /// Output folder.
     #[arg(long, value_name = "DIR")]
     pub out: PathBuf,
@@ -85,6 +94,15 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
     if !(args.max_memory.is_finite() && args.max_memory > 0.0) {
         bail!("--max-memory must be a positive number of GiB");
     }
+    let engines = args
+        .engine
+        .iter()
+        .map(|name| match name.as_str() {
+            "bevy" => Ok(LightmapEngine::Bevy),
+            "threejs" => Ok(LightmapEngine::Threejs),
+            other => bail!("--engine {other:?}: expected bevy or threejs"),
+        })
+        .collect::<Result<Vec<_>>>()?;
     if args.view_size == 0 || args.view_size > 4096 {
         bail!("--view-size must be in 1..=4096 pixels");
     }
@@ -187,6 +205,21 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         "",
     )?;
     write_textures(&args.out, lightmap)?;
+    for &engine in &engines {
+        let folder = args.out.join(engine.label());
+        export_lightmap(
+            &scene,
+            &atlas.normalized_uvs(),
+            &LightmapTexels {
+                width: lightmap.width,
+                height: lightmap.height,
+                irradiance: &lightmap.irradiance,
+            },
+            engine,
+            &folder,
+        )
+        .with_context(|| format!("cannot write the {} lightmap", engine.label()))?;
+    }
     let uv_bytes: Vec<u8> = atlas
         .normalized_uvs()
         .iter()
@@ -231,12 +264,21 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         "estimated_bytes": bake.estimated_bytes,
         "seconds": seconds,
         "warnings": atlas.warnings,
+        "view": {
+            "position": view.position.to_array(),
+            "forward": view.forward.to_array(),
+            "up": view.up.to_array(),
+            "yfov": view.yfov,
+            "size": args.view_size,
+        },
+        "engines": engines.iter().map(|e| e.label()).collect::<Vec<_>>(),
         "files": {
             "exr": "lightmap.exr",
             "ktx2": "lightmap.ktx2",
             "uvs": "lightmap_uvs.bin",
             "atlas": "atlas.png",
             "view": "view.png",
+            "view_exr": "view.exr",
         },
     });
     let manifest_path = args.out.join("manifest.json");
@@ -289,7 +331,8 @@ fn texcoord1_side(
 }
 
 /// `atlas{tag}.png` (the irradiance atlas) and `view{tag}.png` (the scene lit by the lightmap),
-/// tone-mapped with one exposure from the view.
+/// tone-mapped with one exposure from the view; for the final pictures (no tag) also the view
+/// as linear `view.exr`.
 fn write_pictures(
     scene: &Scene,
     atlas: &Atlas,
@@ -309,6 +352,18 @@ fn write_pictures(
     };
     let tone = ToneMap::auto(&rendered);
     save_png(&dir.join(format!("view{tag}.png")), &rendered, &tone)?;
+    if tag.is_empty() {
+        let exr_path = dir.join("view.exr");
+        let layer = ExrLayer {
+            name: None,
+            width: size as u32,
+            height: size as u32,
+            channels: 3,
+            data: rendered.pixels.iter().flatten().copied().collect(),
+        };
+        write_exr(&exr_path, &[layer], ExrSample::F32)
+            .with_context(|| format!("cannot write {}", exr_path.display()))?;
+    }
     let (w, h) = (lightmap.width as usize, lightmap.height as usize);
     let texels = Rendered {
         width: w,

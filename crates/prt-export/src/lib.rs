@@ -13,6 +13,7 @@
 //! | [`export_bevy`], [`BevyConfig`], [`BevyExport`] | Bevy's `IrradianceVolume`: ambient-cube KTX2 (RGB9E5 / RGBA16F) + placement JSON |
 //! | [`export_threejs`], [`ThreejsConfig`], [`ThreejsExport`] | three.js `LightProbeGrid`: RGBA16F 3D atlas KTX2 + placement JSON |
 //! | [`export_sh`], [`ShConfig`], [`ShExport`] | L1 and L2 SH volumes (KTX2 + EXR) + manifest, for custom engines and importers |
+//! | [`export_lightmap`], [`LightmapEngine`], [`LightmapTexels`], [`LightmapExport`] | an irradiance lightmap (prt-lightmap's) for Bevy's `Lightmap` or three.js's `lightMap`: scene GLB with `TEXCOORD_1` + RGBA16F KTX2 + placement JSON |
 //! | [`AmbientCubeFit`] | how Bevy's ambient cubes are fitted to the SH |
 //! | [`layout`] | the layouts behind the exports: file names, padding, ambient cubes, three.js's SH basis and atlas, SH textures |
 //! | [`sky_from_json`] | a sky from SH coefficients in JSON |
@@ -51,6 +52,7 @@ mod ambient;
 mod bevy;
 mod dilate;
 mod error;
+mod lightmap;
 mod lit;
 mod nonneg;
 mod preview;
@@ -64,6 +66,7 @@ pub use ambient::AmbientCubeFit;
 pub use bevy::{BevyConfig, BevyExport, BevyFormat, export_bevy};
 pub use dilate::{DilateConfig, Dilated, dilate};
 pub use error::ExportError;
+pub use lightmap::{LightmapEngine, LightmapExport, LightmapTexels, export_lightmap};
 pub use lit::light_container;
 pub use nonneg::{NonNegative, remove_negative_light};
 pub use preview::{Engine, EngineLookup};
@@ -80,6 +83,7 @@ pub mod layout {
         AmbientCubeColours, SIDES, ambient_cube, ambient_cube_blend, ambient_cube_error_bound,
     };
     pub use crate::bevy::{BEVY_PLACEMENT, BEVY_TEXTURE};
+    pub use crate::lightmap::{LIGHTMAP_PLACEMENT, LIGHTMAP_SCENE, LIGHTMAP_TEXTURE};
     pub use crate::nonneg::test_directions;
     pub use crate::sh::{
         SH_EXR_FILE, SH_L1_FILES, SH_L2_FILE, SH_LAYER_NAMES, SH_MANIFEST, sh_l1, sh_l2_texture,

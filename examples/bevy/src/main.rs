@@ -1,4 +1,5 @@
-//! Renders a glTF scene lit by the irradiance volume that `prt export --target bevy` wrote.
+//! Renders a glTF scene lit by the irradiance volume that `prt export --target bevy` wrote, or
+//! the scene and irradiance lightmap that `prt lightmap --engine bevy` wrote.
 //!
 //! ```text
 //! prt bake scene.gltf --out bake
@@ -7,20 +8,26 @@
 //! # no display: an image instead of a window, then exit (software Vulkan will do)
 //! cargo run --release --manifest-path examples/bevy/Cargo.toml -- bake/bevy scene.gltf \
 //!     --screenshot shot.png
+//! # a lightmap: EXPORT_DIR holds lightmap.json, the scene is the export's lightmap_scene.glb
+//! prt lightmap scene.gltf --basis irradiance --engine bevy --out lm
+//! cargo run --release --manifest-path examples/bevy/Cargo.toml -- lm/bevy
 //! ```
 //!
 //! The volume is Bevy's own `IrradianceVolume` on a `LightProbe`, placed by the transform in
-//! `irradiance_volume.json`: nothing here decodes prt data. The scene has no other light and no
+//! `irradiance_volume.json`; a lightmap is Bevy's own `Lightmap` component (default `uv_rect`,
+//! sampling `UV_1`, which Bevy's glTF loader fills from `TEXCOORD_1`) added to every mesh entity
+//! of the scene: nothing here decodes prt data. The scene has no other light and no
 //! ambient light, tone mapping is off and the camera's exposure is EV100 = −log₂ 1.2, which
 //! makes Bevy's exposure factor `2^−EV100 / 1.2` exactly 1: a pixel holds the radiance Bevy
-//! computes, `albedo · volume · intensity`, in the sky's units.
+//! computes, `albedo · volume · intensity` or `albedo · lightmap texel` (`E/π`), in the sky's
+//! (or the emitters') units.
 //!
 //! Options (after the two paths):
 //!
 //! * `--view EX,EY,EZ,TX,TY,TZ,FOV`: the camera at the eye `E` looking at `T` with +Y up and a
 //!   vertical field of view of `FOV` degrees (a view of `prt render --camera N`: the tests
-//!   pass the one prt computes); without it the camera looks at the volume's centre from near
-//!   its +Z face.
+//!   pass the one prt computes); without it the camera looks at the volume's (or the lightmapped
+//!   scene's) centre from near its +Z face.
 //! * `--screenshot PATH`: render without a window (no winit: an offscreen `Rgba16Float` image
 //!   on whatever Vulkan adapter wgpu finds, e.g. Mesa's lavapipe), save it and exit. `.pfm`
 //!   writes the linear RGB values (32-bit float Portable Float Map), `.png` writes them clamped
@@ -41,6 +48,7 @@ use bevy::asset::{AssetPlugin, RecursiveDependencyLoadState, UnapprovedPathMode}
 use bevy::camera::{Exposure, RenderTarget};
 use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::light::{GlobalAmbientLight, IrradianceVolume, LightProbe};
+use bevy::pbr::Lightmap;
 use bevy::prelude::*;
 use bevy::render::render_resource::{PipelineCache, TextureFormat, TextureUsages};
 use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
@@ -50,10 +58,13 @@ use bevy::winit::WinitPlugin;
 use bevy::world_serialization::WorldAsset;
 
 /// What the program was given: asset paths (relative to the file-system root, where the asset
-/// server is rooted) and the volume's placement.
+/// server is rooted) and the volume's placement (for a lightmap, the box around the scene).
 #[derive(Resource)]
 struct Inputs {
-    volume: String,
+    /// The irradiance volume's or the lightmap's texture.
+    texture: String,
+    /// Whether `texture` is a lightmap (`lightmap.json`) rather than a volume.
+    lightmap: bool,
     scene: String,
     translation: Vec3,
     scale: Vec3,
@@ -84,7 +95,7 @@ fn main() -> AppExit {
         Err(e) => {
             eprintln!("error: {e}");
             eprintln!(
-                "usage: prt-bevy-example EXPORT_DIR SCENE.gltf [--view EX,EY,EZ,TX,TY,TZ,FOV] \
+                "usage: prt-bevy-example EXPORT_DIR [SCENE.gltf] [--view EX,EY,EZ,TX,TY,TZ,FOV] \
                  [--screenshot OUT.pfm|OUT.png] [--size W[xH]] [--frames N]"
             );
             return AppExit::error();
@@ -128,7 +139,7 @@ fn main() -> AppExit {
                 frames: options.frames,
                 target: Handle::default(),
                 scene: Handle::default(),
-                volume: Handle::default(),
+                texture: Handle::default(),
                 waiting: WaitingPipelines(waiting),
                 state: CaptureState::Loading,
                 previous: None,
@@ -144,21 +155,28 @@ fn main() -> AppExit {
     })
     .insert_resource(inputs)
     .add_systems(Startup, setup)
+    .add_systems(Update, attach_lightmap)
     .run()
 }
 
 /// Reads the command line and the placement JSON beside the texture.
 fn parse(args: &[String]) -> Result<(Inputs, Options), String> {
-    let (Some(export), Some(scene)) = (args.first(), args.get(1)) else {
-        return Err("EXPORT_DIR and SCENE.gltf are required".into());
+    let Some(export) = args.first() else {
+        return Err("EXPORT_DIR is required".into());
     };
+    let lightmap = Path::new(export).join(LIGHTMAP_PLACEMENT).is_file();
+    // A lightmap export brings its scene; an irradiance volume needs one.
+    let scene = args.get(1).filter(|a| !a.starts_with("--"));
+    if scene.is_none() && !lightmap {
+        return Err("SCENE.gltf is required with an irradiance volume".into());
+    }
     let mut options = Options {
         view: None,
         screenshot: None,
         size: UVec2::splat(512),
         frames: 5,
     };
-    let mut rest = args[2..].iter();
+    let mut rest = args[1 + usize::from(scene.is_some())..].iter();
     while let Some(flag) = rest.next() {
         let mut value = || {
             rest.next()
@@ -220,7 +238,11 @@ fn parse(args: &[String]) -> Result<(Inputs, Options), String> {
             }
         }
     }
-    let mut inputs = read_inputs(Path::new(export), Path::new(scene))?;
+    let mut inputs = if lightmap {
+        read_lightmap_inputs(Path::new(export), scene.map(Path::new))?
+    } else {
+        read_inputs(Path::new(export), Path::new(scene.expect("checked above")))?
+    };
     inputs.view = options.view;
     Ok((inputs, options))
 }
@@ -231,44 +253,90 @@ fn extension(path: &Path) -> String {
         .unwrap_or_default()
 }
 
-/// Reads the placement JSON beside the texture and makes both paths absolute.
-fn read_inputs(export: &Path, scene: &Path) -> Result<Inputs, String> {
-    let absolute = |p: &Path| -> Result<PathBuf, String> {
-        p.canonicalize()
-            .map_err(|e| format!("{}: {e}", p.display()))
-    };
-    let placement_path = export.join("irradiance_volume.json");
-    let text = std::fs::read_to_string(&placement_path)
-        .map_err(|e| format!("{}: {e}", placement_path.display()))?;
-    let doc: serde_json::Value = serde_json::from_str(&text).map_err(|e| e.to_string())?;
-    let vec3 = |key: &str| -> Result<Vec3, String> {
-        let values: Vec<f32> = doc["transform"][key]
-            .as_array()
-            .map(|a| {
-                a.iter()
-                    .filter_map(|v| v.as_f64())
-                    .map(|v| v as f32)
-                    .collect()
-            })
-            .unwrap_or_default();
-        match values[..] {
-            [x, y, z] => Ok(Vec3::new(x, y, z)),
-            _ => Err(format!("transform.{key} is not three numbers")),
-        }
-    };
+/// File name of the placement of `prt lightmap --engine bevy`.
+const LIGHTMAP_PLACEMENT: &str = "lightmap.json";
+
+/// A path relative to the file-system root, where the asset server is rooted.
+fn root_relative(p: &Path) -> Result<String, String> {
+    let absolute = p
+        .canonicalize()
+        .map_err(|e| format!("{}: {e}", p.display()))?;
+    Ok(absolute
+        .to_string_lossy()
+        .trim_start_matches('/')
+        .to_string())
+}
+
+fn read_json(path: &Path) -> Result<serde_json::Value, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// `doc[group][key]` as three numbers.
+fn json_vec3(doc: &serde_json::Value, group: &str, key: &str) -> Result<Vec3, String> {
+    let values: Vec<f32> = doc[group][key]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|v| v.as_f64())
+                .map(|v| v as f32)
+                .collect()
+        })
+        .unwrap_or_default();
+    match values[..] {
+        [x, y, z] => Ok(Vec3::new(x, y, z)),
+        _ => Err(format!("{group}.{key} is not three numbers")),
+    }
+}
+
+/// Reads `lightmap.json`: the texture, the scene (the export's own unless `scene` is given)
+/// and the scene's bounds, which place the default camera.
+fn read_lightmap_inputs(export: &Path, scene: Option<&Path>) -> Result<Inputs, String> {
+    let doc = read_json(&export.join(LIGHTMAP_PLACEMENT))?;
+    if doc["engine"].as_str() != Some("bevy") {
+        return Err(format!(
+            "{}: made for {}, not Bevy (prt lightmap --engine bevy)",
+            export.join(LIGHTMAP_PLACEMENT).display(),
+            doc["engine"]
+        ));
+    }
     let texture = doc["texture"].as_str().ok_or("no texture name")?;
-    let root_relative = |p: PathBuf| p.to_string_lossy().trim_start_matches('/').to_string();
+    let own_scene = export.join(doc["scene"].as_str().ok_or("no scene name")?);
+    let (min, max) = (
+        json_vec3(&doc, "bounds", "min")?,
+        json_vec3(&doc, "bounds", "max")?,
+    );
     Ok(Inputs {
-        volume: root_relative(absolute(&export.join(texture))?),
-        scene: root_relative(absolute(scene)?),
-        translation: vec3("translation")?,
-        scale: vec3("scale")?,
+        texture: root_relative(&export.join(texture))?,
+        lightmap: true,
+        scene: root_relative(scene.unwrap_or(&own_scene))?,
+        translation: 0.5 * (min + max),
+        scale: max - min,
+        intensity: 1.0,
+        view: None,
+    })
+}
+
+/// Reads `irradiance_volume.json` beside the texture.
+fn read_inputs(export: &Path, scene: &Path) -> Result<Inputs, String> {
+    let doc = read_json(&export.join("irradiance_volume.json"))?;
+    let texture = doc["texture"].as_str().ok_or("no texture name")?;
+    Ok(Inputs {
+        texture: root_relative(&export.join(texture))?,
+        lightmap: false,
+        scene: root_relative(scene)?,
+        translation: json_vec3(&doc, "transform", "translation")?,
+        scale: json_vec3(&doc, "transform", "scale")?,
         intensity: doc["intensity"].as_f64().ok_or("no intensity")? as f32,
         view: None,
     })
 }
 
-/// The scene and the volume; the capture keeps their handles to wait for them.
+/// The lightmap every mesh entity of the scene gets ([`attach_lightmap`]).
+#[derive(Resource)]
+struct SceneLightmap(Handle<Image>);
+
+/// The scene and the volume or lightmap; the capture keeps their handles to wait for them.
 fn setup(
     mut commands: Commands,
     assets: Res<AssetServer>,
@@ -277,21 +345,43 @@ fn setup(
 ) {
     let scene: Handle<WorldAsset> =
         assets.load(GltfAssetLabel::Scene(0).from_asset(inputs.scene.clone()));
-    let volume: Handle<Image> = assets.load(inputs.volume.clone());
+    let texture: Handle<Image> = assets.load(inputs.texture.clone());
     commands.spawn(WorldAssetRoot(scene.clone()));
-    // Bevy's light probes are the unit cube [-0.5, 0.5]³ under their transform.
-    commands.spawn((
-        LightProbe::default(),
-        IrradianceVolume {
-            voxels: volume.clone(),
-            intensity: inputs.intensity,
-            ..default()
-        },
-        Transform::from_translation(inputs.translation).with_scale(inputs.scale),
-    ));
+    if inputs.lightmap {
+        commands.insert_resource(SceneLightmap(texture.clone()));
+    } else {
+        // Bevy's light probes are the unit cube [-0.5, 0.5]³ under their transform.
+        commands.spawn((
+            LightProbe::default(),
+            IrradianceVolume {
+                voxels: texture.clone(),
+                intensity: inputs.intensity,
+                ..default()
+            },
+            Transform::from_translation(inputs.translation).with_scale(inputs.scale),
+        ));
+    }
     if let Some(mut capture) = capture {
         capture.scene = scene;
-        capture.volume = volume;
+        capture.texture = texture;
+    }
+}
+
+/// Gives every mesh entity of the spawned scene Bevy's `Lightmap` (the whole texture,
+/// `uv_rect` (0, 0)..(1, 1), sampled at `UV_1`).
+fn attach_lightmap(
+    mut commands: Commands,
+    lightmap: Option<Res<SceneLightmap>>,
+    meshes: Query<Entity, (With<Mesh3d>, Without<Lightmap>)>,
+) {
+    let Some(lightmap) = lightmap else {
+        return;
+    };
+    for entity in &meshes {
+        commands.entity(entity).insert(Lightmap {
+            image: lightmap.0.clone(),
+            ..default()
+        });
     }
 }
 
@@ -365,7 +455,7 @@ fn count_waiting_pipelines(cache: Res<PipelineCache>, waiting: Res<WaitingPipeli
 }
 
 enum CaptureState {
-    /// Waiting for the scene and the volume.
+    /// Waiting for the scene and the volume or lightmap.
     Loading,
     /// Rendering frames (the count so far) until `--frames` and no pipeline waiting.
     Settling(u32),
@@ -383,7 +473,7 @@ struct Capture {
     frames: u32,
     target: Handle<Image>,
     scene: Handle<WorldAsset>,
-    volume: Handle<Image>,
+    texture: Handle<Image>,
     waiting: WaitingPipelines,
     state: CaptureState,
     /// The last capture, to compare the next with.
@@ -405,7 +495,7 @@ fn capture(
     let capture = &mut *capture;
     match capture.state {
         CaptureState::Loading => {
-            for id in [capture.scene.id().untyped(), capture.volume.id().untyped()] {
+            for id in [capture.scene.id().untyped(), capture.texture.id().untyped()] {
                 if let RecursiveDependencyLoadState::Failed(e) =
                     assets.recursive_dependency_load_state(id)
                 {
@@ -415,7 +505,7 @@ fn capture(
                 }
             }
             if assets.is_loaded_with_dependencies(&capture.scene)
-                && assets.is_loaded_with_dependencies(&capture.volume)
+                && assets.is_loaded_with_dependencies(&capture.texture)
             {
                 capture.state = CaptureState::Settling(0);
             }
