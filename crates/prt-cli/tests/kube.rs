@@ -17,21 +17,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{prt, scratch, stderr};
+use common::{TINY_PLAN, deploy, files, kubernetes_manifest, ok, prt, required, scratch, stderr};
 use serde_json::Value;
-
-/// The plan's knobs in the simulation: tiny (the same as tests/tiles.rs).
-const KNOBS: [&str; 9] = [
-    "--res",
-    "8",
-    "--rays",
-    "48",
-    "--cache-rays",
-    "8",
-    "--iterations",
-    "8",
-    "--no-baselines",
-];
 
 /// Kubernetes versions the manifest is validated against: the first with
 /// `backoffLimitPerIndex` generally available (1.33), and the newest the validator bundles.
@@ -39,45 +26,6 @@ const KUBERNETES_VERSIONS: [Option<&str>; 2] = [Some("1.33"), None];
 
 /// How long the whole flow may take.
 const TIMEOUT: Duration = Duration::from_secs(120);
-
-fn manifest_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/kubernetes/prt-bake-indexed-job.yaml")
-}
-
-fn required(name: &str) -> bool {
-    std::env::var_os(name).is_some_and(|v| v == "1")
-}
-
-/// The manifest's documents as JSON, or `None` (the test skips) without python3 and PyYAML.
-fn manifest() -> Option<Vec<Value>> {
-    let dump = "import sys, json, yaml; \
-                print(json.dumps([d for d in yaml.safe_load_all(open(sys.argv[1])) if d]))";
-    let out = match Command::new("python3")
-        .args(["-c", dump])
-        .arg(manifest_path())
-        .output()
-    {
-        Ok(out) => out,
-        Err(e) => {
-            assert!(
-                !required("PRT_REQUIRE_YAML"),
-                "PRT_REQUIRE_YAML=1 but python3 cannot run: {e}"
-            );
-            eprintln!("skipped: python3 not available ({e})");
-            return None;
-        }
-    };
-    if stderr(&out).contains("No module named 'yaml'") {
-        assert!(
-            !required("PRT_REQUIRE_YAML"),
-            "PRT_REQUIRE_YAML=1 but python3 has no PyYAML"
-        );
-        eprintln!("skipped: PyYAML not available");
-        return None;
-    }
-    assert!(out.status.success(), "YAML: {}", stderr(&out));
-    Some(serde_json::from_slice(&out.stdout).unwrap())
-}
 
 #[test]
 fn the_manifest_is_valid_against_the_kubernetes_api_schemas() {
@@ -87,7 +35,10 @@ fn the_manifest_is_valid_against_the_kubernetes_api_schemas() {
         if let Some(version) = version {
             command.args(["-k", version]);
         }
-        let out = match command.arg(manifest_path()).output() {
+        let out = match command
+            .arg(deploy("kubernetes/prt-bake-indexed-job.yaml"))
+            .output()
+        {
             Ok(out) => out,
             Err(e) => {
                 assert!(
@@ -323,31 +274,9 @@ fn run_indexed_job(node: &Node, job: &Value, evicted: impl Fn(usize, usize) -> b
     run
 }
 
-/// Every file under `dir`, relative, sorted.
-fn files(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for entry in std::fs::read_dir(&d).unwrap().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push(path.strip_prefix(dir).unwrap().to_path_buf());
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
-fn ok(out: &std::process::Output) {
-    assert!(out.status.success(), "{}", stderr(out));
-}
-
 #[test]
 fn the_indexed_job_flow_retries_per_index_and_the_merge_waits_for_every_tile() {
-    let Some(documents) = manifest() else {
+    let Some(documents) = kubernetes_manifest() else {
         return;
     };
     let job = |name: &str| {
@@ -388,7 +317,7 @@ fn the_indexed_job_flow_retries_per_index_and_the_merge_waits_for_every_tile() {
         init: Vec::new(),
         main: format!(
             "prt plan --tiles {tiles} {} --out /bake/plan",
-            KNOBS.join(" ")
+            TINY_PLAN.join(" ")
         ),
     };
 
@@ -469,7 +398,7 @@ fn the_indexed_job_flow_retries_per_index_and_the_merge_waits_for_every_tile() {
         "--out",
         local_plan.to_str().unwrap(),
     ];
-    args.extend(KNOBS);
+    args.extend(TINY_PLAN);
     ok(&prt(&args));
     ok(&prt(&["bake-tile", local_plan.to_str().unwrap(), "--all"]));
     let local = dir.join("local");

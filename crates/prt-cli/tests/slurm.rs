@@ -17,20 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{prt, scratch, stderr};
-
-/// The knobs of the plan: tiny and fast (the same as tests/tiles.rs).
-const KNOBS: [&str; 9] = [
-    "--res",
-    "8",
-    "--rays",
-    "48",
-    "--cache-rays",
-    "8",
-    "--iterations",
-    "8",
-    "--no-baselines",
-];
+use common::{TINY_PLAN, deploy, files, ok, prt, scratch, stderr};
 
 /// How long the cluster may take to start, and a submission to leave the queue.
 const START_TIMEOUT: Duration = Duration::from_secs(60);
@@ -51,13 +38,6 @@ fn program(name: &str) -> PathBuf {
         })
 }
 
-/// A file of deploy/slurm.
-fn deploy(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../deploy/slurm")
-        .join(name)
-}
-
 /// A one-node cluster whose daemons run in the foreground as this process's children; dropping
 /// it cancels its jobs and stops them by PID (SIGTERM, then SIGKILL after 10 s).
 struct Cluster {
@@ -73,7 +53,7 @@ impl Cluster {
     /// each in the foreground, so a child's PID is the daemon's).
     fn start(dir: &Path) -> Cluster {
         let dir = dir.to_path_buf();
-        let script = deploy("local-cluster.sh");
+        let script = deploy("slurm/local-cluster.sh");
         let out = Command::new("bash")
             .arg(&script)
             .arg("conf")
@@ -288,7 +268,7 @@ fn submit(cluster: &Cluster, args: &[&str]) -> String {
 }
 
 fn submit_command(cluster: &Cluster, args: &[&str]) -> Command {
-    let script = deploy("submit.sh");
+    let script = deploy("slurm/submit.sh");
     let prt_dir = Path::new(env!("CARGO_BIN_EXE_prt")).parent().unwrap();
     let path = std::env::var_os("PATH").unwrap_or_default();
     let path = std::env::join_paths(
@@ -326,28 +306,6 @@ fn task_states(cluster: &Cluster, id: &str) -> BTreeMap<usize, String> {
         .collect()
 }
 
-/// Every file under `dir`, relative, sorted.
-fn files(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for entry in std::fs::read_dir(&d).unwrap().flatten() {
-            let path = entry.path();
-            if path.is_dir() {
-                stack.push(path);
-            } else {
-                out.push(path.strip_prefix(dir).unwrap().to_path_buf());
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
-fn ok(out: &std::process::Output) {
-    assert!(out.status.success(), "{}", stderr(out));
-}
-
 #[test]
 #[cfg_attr(
     prt_skip_slurm,
@@ -361,7 +319,7 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
         let plan = dir.join(name);
         let mut args = vec!["plan", "--tiles", "2,2,1", "--halo", "1", "--out"];
         args.push(plan.to_str().unwrap());
-        args.extend(KNOBS);
+        args.extend(TINY_PLAN);
         ok(&prt(&args));
         plan
     };

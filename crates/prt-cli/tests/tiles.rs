@@ -7,27 +7,15 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{assert_clean_failure, prt, scratch, stderr};
+use common::{
+    TINY_PLAN, assert_clean_failure, deploy, kubernetes_manifest, ok, prt, scratch, stderr,
+};
 use prt_texture::Limits;
 
-/// The knobs of every bake here: tiny and fast. Tiles trace without the denoiser, so the single
-/// bakes they are compared with do too.
-const KNOBS: [&str; 11] = [
-    "--res",
-    "8",
-    "--rays",
-    "48",
-    "--cache-rays",
-    "8",
-    "--iterations",
-    "8",
-    "--no-baselines",
-    "--denoise",
-    "off",
-];
-
-fn ok(out: &std::process::Output) {
-    assert!(out.status.success(), "{}", stderr(out));
+/// The plan's knobs with the denoiser off: tiles trace without it, so the single bakes they are
+/// compared with do too.
+fn knobs() -> Vec<&'static str> {
+    [TINY_PLAN, &["--denoise", "off"]].concat()
 }
 
 /// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` over voxels valid in both bakes' traced volumes.
@@ -53,7 +41,7 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     let plan = dir.join("plan");
     let plan_s = plan.to_str().unwrap();
     let mut args = vec!["plan", "--tiles", "2,2,1", "--halo", "1", "--out", plan_s];
-    args.extend(KNOBS);
+    args.extend(knobs());
     ok(&prt(&args));
 
     // The merge refuses a plan whose tiles have not run.
@@ -82,7 +70,7 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     let single = |name: &str, seed: &str| {
         let out = dir.join(name);
         let mut args = vec!["bake", "--out", out.to_str().unwrap(), "--seed", seed];
-        args.extend(KNOBS);
+        args.extend(knobs());
         ok(&prt(&args));
         out
     };
@@ -119,7 +107,7 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
         "--basis-nodes",
         "3",
     ];
-    args.extend(KNOBS);
+    args.extend(knobs());
     ok(&prt(&args));
     ok(&prt(&["bake-tile", plan3_s, "--all", "--workers", "2"]));
     let streamed = dir.join("streamed");
@@ -187,19 +175,17 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
 
 #[test]
 fn the_deploy_files_parse() {
-    let deploy = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy");
     for script in ["prt-bake.sbatch", "prt-merge.sbatch", "submit.sh"] {
         match Command::new("bash")
             .arg("-n")
-            .arg(deploy.join("slurm").join(script))
+            .arg(deploy(&format!("slurm/{script}")))
             .output()
         {
             Ok(out) => assert!(out.status.success(), "bash -n {script}: {}", stderr(&out)),
             Err(e) => eprintln!("skipped: bash not available ({e})"),
         }
     }
-    let manifest = deploy.join("kubernetes/prt-bake-indexed-job.yaml");
-    let text = std::fs::read_to_string(&manifest).unwrap();
+    let text = std::fs::read_to_string(deploy("kubernetes/prt-bake-indexed-job.yaml")).unwrap();
     for needle in [
         "completionMode: Indexed",
         "prt bake-tile",
@@ -208,24 +194,9 @@ fn the_deploy_files_parse() {
     ] {
         assert!(text.contains(needle), "the manifest lacks {needle:?}");
     }
-    // A full YAML parse where python3 with PyYAML is at hand (no YAML crate in the workspace);
-    // PRT_REQUIRE_YAML=1 (set by .ci/run, which installs python3-yaml) makes its absence fail.
-    let required = std::env::var_os("PRT_REQUIRE_YAML").is_some_and(|v| v == "1");
-    let check = "import sys, yaml; docs = [d for d in yaml.safe_load_all(open(sys.argv[1])) if d]; \
-                 assert [d['kind'] for d in docs].count('Job') == 3, [d['kind'] for d in docs]";
-    match Command::new("python3")
-        .args(["-c", check])
-        .arg(&manifest)
-        .output()
-    {
-        Ok(out) if String::from_utf8_lossy(&out.stderr).contains("No module named 'yaml'") => {
-            assert!(!required, "PRT_REQUIRE_YAML=1 but python3 has no PyYAML");
-            eprintln!("skipped: PyYAML not available")
-        }
-        Ok(out) => assert!(out.status.success(), "YAML: {}", stderr(&out)),
-        Err(e) => {
-            assert!(!required, "PRT_REQUIRE_YAML=1 but python3 cannot run: {e}");
-            eprintln!("skipped: python3 not available ({e})")
-        }
+    // A full YAML parse where python3 with PyYAML is at hand (PRT_REQUIRE_YAML=1 requires it).
+    if let Some(documents) = kubernetes_manifest() {
+        let jobs = documents.iter().filter(|d| d["kind"] == "Job").count();
+        assert_eq!(jobs, 3, "{documents:?}");
     }
 }

@@ -1,7 +1,7 @@
 //! Helpers shared by the `prt` binary's integration tests.
 #![allow(dead_code)] // each test file uses its own subset
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The knobs of the smallest bake the export and engine tests use: a Cornell box of 8 voxels
@@ -17,6 +17,20 @@ pub const TINY_BAKE: &[&str] = &[
     "4",
     "--basis-nodes",
     "3",
+    "--iterations",
+    "8",
+    "--no-baselines",
+];
+
+/// The knobs of the tiny tiled plans of the scheduler tests (tiles, Slurm, Kubernetes): a Cornell
+/// box of 8 voxels per axis, 48 rays, 8 surface-cache rays, 8 iterations, no baselines.
+pub const TINY_PLAN: &[&str] = &[
+    "--res",
+    "8",
+    "--rays",
+    "48",
+    "--cache-rays",
+    "8",
     "--iterations",
     "8",
     "--no-baselines",
@@ -59,6 +73,75 @@ pub fn scratch(name: &str) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
     dir
+}
+
+/// Requires that a run of `prt` succeeded, showing its stderr if not.
+pub fn ok(out: &Output) {
+    assert!(out.status.success(), "{}", stderr(out));
+}
+
+/// Every file under `dir`, relative to it, sorted.
+pub fn files(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap().flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                out.push(path.strip_prefix(dir).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// A file of the repository's deploy/ folder, e.g. `slurm/submit.sh`.
+pub fn deploy(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../deploy")
+        .join(path)
+}
+
+/// Whether the environment variable `name` (a `PRT_REQUIRE_*` of .ci/run) is set to 1: a tool
+/// the test needs must then be present, so that CI never passes by skipping.
+pub fn required(name: &str) -> bool {
+    std::env::var_os(name).is_some_and(|v| v == "1")
+}
+
+/// The documents of deploy/kubernetes/prt-bake-indexed-job.yaml as JSON, parsed by python3's
+/// PyYAML (no YAML crate in the workspace), or `None` after saying so when either is missing
+/// and `PRT_REQUIRE_YAML=1` does not require them.
+pub fn kubernetes_manifest() -> Option<Vec<serde_json::Value>> {
+    let dump = "import sys, json, yaml; \
+                print(json.dumps([d for d in yaml.safe_load_all(open(sys.argv[1])) if d]))";
+    let out = match Command::new("python3")
+        .args(["-c", dump])
+        .arg(deploy("kubernetes/prt-bake-indexed-job.yaml"))
+        .output()
+    {
+        Ok(out) => out,
+        Err(e) => {
+            assert!(
+                !required("PRT_REQUIRE_YAML"),
+                "PRT_REQUIRE_YAML=1 but python3 cannot run: {e}"
+            );
+            eprintln!("skipped: python3 not available ({e})");
+            return None;
+        }
+    };
+    if stderr(&out).contains("No module named 'yaml'") {
+        assert!(
+            !required("PRT_REQUIRE_YAML"),
+            "PRT_REQUIRE_YAML=1 but python3 has no PyYAML"
+        );
+        eprintln!("skipped: PyYAML not available");
+        return None;
+    }
+    assert!(out.status.success(), "YAML: {}", stderr(&out));
+    Some(serde_json::from_slice(&out.stdout).unwrap())
 }
 
 /// The process's stderr as text.
