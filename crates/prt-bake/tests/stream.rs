@@ -2,7 +2,10 @@
 //! never raise its error, an error close to the in-memory merge's, and a container that reads
 //! back.
 
-use prt_bake::tiles::{assemble, bake_tile, merge_streamed, plan_tiles};
+use prt_bake::tiles::{
+    MapOutcome, MergeStage, PartialError, TileError, assemble, bake_tile, map_tile,
+    merge_from_partials, merge_streamed, partial_path, plan_tiles, reduce_stage,
+};
 use prt_bake::{BakeConfig, SceneInput, bake_volume, read_container};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_texture::Limits;
@@ -111,4 +114,184 @@ fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory
     );
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Every file under `dir`, relative, with its bytes.
+fn tree(dir: &std::path::Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).expect("folder").flatten() {
+            let path = entry.path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                let bytes = std::fs::read(&path).expect("file");
+                out.push((path.strip_prefix(dir).unwrap().to_path_buf(), bytes));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn the_distributed_merge_writes_the_streamed_merges_bytes_and_refuses_stale_partials() {
+    let scene = SceneInput::cornell_box();
+    let config = BakeConfig {
+        resolution: 12,
+        rays_per_voxel: 24,
+        cache_rays: 8,
+        rank: 4,
+        basis_nodes: 3,
+        max_iterations: 16,
+        baselines: false,
+        ..BakeConfig::default()
+    };
+    let plan = plan_tiles(&scene, None, &config, [2, 2, 1], 1).expect("plan");
+    let dir = scratch("distributed");
+    plan.write(&dir).expect("plan written");
+    for index in 0..plan.tiles.len() {
+        bake_tile(&plan, &dir, &scene, index, false, &NoProgress).expect("tile");
+    }
+    let limits = Limits::default();
+    let sweeps = 2;
+    let with_container = |name: &str| BakeConfig {
+        container: Some(scratch(name).join("mbd")),
+        ..config.clone()
+    };
+    let local = with_container("distributed-local");
+    let streamed = merge_streamed(&plan, &dir, "cornell", &local, sweeps, &limits, &NoProgress)
+        .expect("streamed merge");
+
+    // Each stage as separate maps and a reduce through the plan folder's files.
+    let distributed = with_container("distributed-files");
+    for stage in MergeStage::all(sweeps) {
+        for tile in 0..plan.tiles.len() {
+            let outcome = map_tile(&plan, &dir, &config, sweeps, stage, tile, &limits).unwrap();
+            assert!(matches!(outcome, MapOutcome::Written { .. }), "{outcome:?}");
+        }
+        if stage != MergeStage::Coefficients {
+            reduce_stage(&plan, &dir, &config, sweeps, stage, &limits, &NoProgress).unwrap();
+        }
+    }
+    let merged = merge_from_partials(
+        &plan,
+        &dir,
+        "cornell",
+        &distributed,
+        sweeps,
+        &limits,
+        &NoProgress,
+    )
+    .expect("reduce of the coefficients");
+    assert_eq!(merged.relative_errors, streamed.relative_errors);
+    assert_eq!(merged.basis_solves, streamed.basis_solves);
+    let (a, b) = (
+        tree(local.container.as_ref().unwrap()),
+        tree(distributed.container.as_ref().unwrap()),
+    );
+    assert!(a.len() >= 2 && a == b, "the containers differ");
+    // A requeued map finds its partial current.
+    let again = map_tile(
+        &plan,
+        &dir,
+        &config,
+        sweeps,
+        MergeStage::Sweep(1),
+        2,
+        &limits,
+    )
+    .unwrap();
+    assert!(matches!(again, MapOutcome::AlreadyDone { .. }), "{again:?}");
+
+    // A partial of another stage in a sweep's place: stale, naming the file.
+    let part = |stage, tile| partial_path(&dir, stage, tile);
+    std::fs::copy(part(MergeStage::Sweep(2), 0), part(MergeStage::Sweep(1), 0)).unwrap();
+    let error = reduce_stage(
+        &plan,
+        &dir,
+        &config,
+        sweeps,
+        MergeStage::Sweep(1),
+        &limits,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&error, TileError::Partial(PartialError::Stale { path, .. }) if path.ends_with("sweep-1/tile-0.part")),
+        "{error}"
+    );
+    // A flipped payload byte: the checksum refuses it.
+    let coarse = part(MergeStage::Coarse, 1);
+    let mut bytes = std::fs::read(&coarse).unwrap();
+    *bytes.last_mut().unwrap() ^= 1;
+    std::fs::write(&coarse, &bytes).unwrap();
+    let error = reduce_stage(
+        &plan,
+        &dir,
+        &config,
+        sweeps,
+        MergeStage::Coarse,
+        &limits,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&error, TileError::Partial(PartialError::Malformed { why, .. }) if why.contains("checksum")),
+        "{error}"
+    );
+    // The coefficients mapped on another basis (one sweep): not current, mapped again; then
+    // stale for the merge of two sweeps.
+    let remapped = map_tile(
+        &plan,
+        &dir,
+        &config,
+        1,
+        MergeStage::Coefficients,
+        0,
+        &limits,
+    )
+    .unwrap();
+    assert!(
+        matches!(remapped, MapOutcome::Written { .. }),
+        "{remapped:?}"
+    );
+    let error = merge_from_partials(
+        &plan,
+        &dir,
+        "cornell",
+        &distributed,
+        sweeps,
+        &limits,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&error, TileError::Partial(PartialError::Stale { .. })),
+        "{error}"
+    );
+    // A missing partial is named with the command that makes it.
+    std::fs::remove_file(part(MergeStage::Coefficients, 3)).unwrap();
+    std::fs::remove_file(part(MergeStage::Coefficients, 0)).unwrap();
+    let error = merge_from_partials(
+        &plan,
+        &dir,
+        "cornell",
+        &distributed,
+        sweeps,
+        &limits,
+        &NoProgress,
+    )
+    .unwrap_err();
+    assert!(
+        error
+            .to_string()
+            .contains("--map --stage coefficients --tile 0"),
+        "{error}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    for config in [local, distributed] {
+        let _ = std::fs::remove_dir_all(config.container.unwrap().parent().unwrap());
+    }
 }

@@ -247,7 +247,8 @@ impl StreamedMbd {
     /// # Errors
     /// `normals` of another shape or covering part of the grid; [`MbdError::Diverged`] for a
     /// non-finite iterate or a block that cannot be factored; [`MbdError::NotConverged`] when
-    /// `N·L` iterations (exact in exact arithmetic) do not reach the tolerance.
+    /// `10·N·L` iterations (`N·L` would be exact in exact arithmetic) do not reach the
+    /// tolerance.
     pub fn solve_basis(&mut self, normals: &BasisNormals) -> Result<BasisSolve, MbdError> {
         let (n, l, d) = self.basis.dim();
         let grid = self.basis_grid();
@@ -345,8 +346,9 @@ impl StreamedMbd {
 }
 
 /// The relative residual the basis step's conjugate gradients reach for every output:
-/// `‖R − (G + μI) B‖ ≤ 1e-10 ‖R‖` per column.
-pub const BASIS_SOLVE_TOLERANCE: f64 = 1e-10;
+/// `‖R − (G + μI) B‖ ≤ 1e-8 ‖R‖` per column. The basis is stored in f32, and an error `e` in
+/// the solution raises the basis step's loss by `eᵀ(G + μI)e`, second order in the residual.
+pub const BASIS_SOLVE_TOLERANCE: f64 = 1e-8;
 
 /// What [`StreamedMbd::solve_basis`] did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -680,7 +682,7 @@ impl BasisNormals {
         let mut residual = relative(&column_dots(&r, &r, d));
         let mut iterations = 0;
         while residual > BASIS_SOLVE_TOLERANCE {
-            if iterations == m {
+            if iterations == 10 * m {
                 return Err(MbdError::NotConverged {
                     what: "basis normal equations (conjugate gradients)",
                     iterations,
@@ -909,8 +911,8 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
         /// The block Gram is the dense Gram's non-zero blocks, exactly; the conjugate-gradient
-        /// solve agrees with a dense Cholesky of the same ridge system to 1e-7 relative (the
-        /// tolerance 1e-10 times the condition number of these well-sampled problems, at most
+        /// solve agrees with a dense Cholesky of the same ridge system to 1e-5 relative (the
+        /// tolerance 1e-8 times the condition number of these well-sampled problems, at most
         /// about 1e3).
         #[test]
         fn block_normals_and_their_solve_agree_with_a_dense_reference(
@@ -939,11 +941,11 @@ mod tests {
 
             let report = model.solve_basis(&normals).unwrap();
             prop_assert!(report.relative_residual <= BASIS_SOLVE_TOLERANCE);
-            prop_assert!(report.iterations <= m);
+            prop_assert!(report.iterations <= 10 * m);
             let got: Vec<f64> = model.basis().iter().map(|&v| f64::from(v)).collect();
             let want32: Vec<f64> = want.iter().map(|&v| f64::from(v as f32)).collect();
             let error = relative_difference(&got, &want32);
-            prop_assert!(error < 1e-6, "relative difference {error:.3e}");
+            prop_assert!(error < 1e-5, "relative difference {error:.3e}");
         }
     }
 

@@ -16,6 +16,7 @@ mod checksum;
 pub(crate) use checksum::Fnv1a64;
 mod file;
 mod merge;
+mod partial;
 mod plan;
 mod report;
 mod stream;
@@ -31,7 +32,14 @@ pub use plan::{
     VoxelRange, plan_tiles, write_plan,
 };
 pub use report::{HaloRecord, SeamRatios, StreamedRecord, TilesReport};
-pub use stream::{StreamedMerge, merge_streamed};
+pub use partial::{
+    BASIS_FORMAT, MERGE_FILE_VERSION, MERGE_MAGIC, MergeStage, PARTIAL_FORMAT, PartialError,
+    basis_path, merge_dir, partial_path,
+};
+pub use stream::{
+    BasisState, MapOutcome, MergeContext, Partial, ReduceOutcome, StageSums, StreamedMerge,
+    map_tile, merge_from_partials, merge_streamed, reduce_stage,
+};
 pub use worker::{DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options};
 
 #[cfg(test)]

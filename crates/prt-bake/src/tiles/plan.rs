@@ -135,6 +135,9 @@ pub enum TileError {
     /// The bake itself (tracing, fitting, writing the container) failed.
     #[error(transparent)]
     Bake(#[from] BakeError),
+    /// A file of the distributed merge is missing, stale or damaged.
+    #[error(transparent)]
+    Partial(#[from] super::partial::PartialError),
 }
 
 /// A box of voxels `min..max` (half-open) of the global lattice.

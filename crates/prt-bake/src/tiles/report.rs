@@ -55,6 +55,9 @@ pub struct StreamedRecord {
     pub coarse_grid: [usize; 3],
     /// Solver iterations of that fit.
     pub coarse_iterations: usize,
+    /// Conjugate-gradient iterations of each sweep's basis solve.
+    #[serde(default)]
+    pub basis_solve_iterations: Vec<usize>,
     /// Sweeps over the tiles after it.
     pub sweeps: usize,
     /// The relative error at the valid voxel centres after the coarse fit, then after each sweep.
@@ -108,7 +111,8 @@ impl TilesReport {
         Self {
             streamed: Some(StreamedRecord {
                 coarse_grid: merged.coarse_dims,
-                coarse_iterations: merged.coarse_solve.history.len(),
+                coarse_iterations: merged.coarse_iterations,
+                basis_solve_iterations: merged.basis_solves.iter().map(|s| s.iterations).collect(),
                 sweeps,
                 relative_error_at_valid_voxel_centres: merged.relative_errors.clone(),
                 valid_voxels: valid,
