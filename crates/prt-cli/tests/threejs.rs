@@ -21,6 +21,12 @@
 //! 8.2e-5 of `E/π` (largest 0.52), at most 0.32 of the f16 bound; whole scene 4.3e-4 against
 //! `--lookup threejs`, 0.0125 against `--lookup prt`. The test takes ~6 s (two pages ~2 s each).
 //!
+//! The lightmap test: `prt lightmap --engine threejs` bakes a small irradiance lightmap of the
+//! Cornell box of ../shared; `check/lightmap.html` loads it with the README's
+//! `load-prt-lightmap.js` (GLTFLoader, KTX2Loader, `lightMap` on channel 1) and WebGL 2 renders
+//! it with no other light; it must show `prt lightmap`'s own `view.exr` (mean and per-material
+//! relative errors below) and keep the red and green walls' colours. ~4 s.
+//!
 //! Ignored when chromium was absent at build time (`PRT_REQUIRE_CHROMIUM=1` makes it run and
 //! fail instead); returns with a message when examples/threejs/node_modules is missing (run
 //! `npm ci` there), which fails under `PRT_REQUIRE_CHROMIUM=1`. `PRT_THREEJS_SHOTS=DIR` saves
@@ -272,7 +278,7 @@ impl Drop for Browser {
     }
 }
 
-/// What a page posted: `points` and `scene` as RGBA f32.
+/// What a page posted: `points` (none from lightmap.html) and `scene` as RGBA f32.
 struct PageResult {
     points: Vec<[f64; 4]>,
     scene: Vec<[f64; 4]>,
@@ -333,7 +339,7 @@ fn run_page(server: &Server, page: &str, webgpu: bool, dir: &Path) -> PageResult
         ),
     };
     PageResult {
-        points: rgba(&got["points"]),
+        points: got.get("points").map(|b| rgba(b)).unwrap_or_default(),
         scene: rgba(&got["scene"]),
         seconds,
         device,
@@ -747,22 +753,30 @@ fn save_png(path: &Path, pixels: Vec<[f32; 3]>, hit: &[bool], tone: &prt_render:
     rgb.save(path).expect("save PNG");
 }
 
-/// The README shows the loader module the test pages import, verbatim.
+/// The README shows the loader modules the test pages import, verbatim.
 #[test]
 fn the_readme_shows_the_tested_loader_verbatim() {
     let example = example_dir();
-    let loader = std::fs::read_to_string(example.join("load-prt-probe-grid.js")).expect("loader");
     let readme = std::fs::read_to_string(example.join("README.md")).expect("README");
-    assert!(
-        readme.contains(&format!("```js\n{loader}```")),
-        "examples/threejs/README.md must show load-prt-probe-grid.js verbatim in a ```js block"
-    );
-    for page in ["check/webgl.html", "check/webgpu.html"] {
-        let html = std::fs::read_to_string(example.join(page)).expect("page");
+    for (module, pages) in [
+        (
+            "load-prt-probe-grid.js",
+            &["check/webgl.html", "check/webgpu.html"][..],
+        ),
+        ("load-prt-lightmap.js", &["check/lightmap.html"][..]),
+    ] {
+        let loader = std::fs::read_to_string(example.join(module)).expect("loader");
         assert!(
-            html.contains("'../load-prt-probe-grid.js'"),
-            "{page} must use the loader module"
+            readme.contains(&format!("```js\n{loader}```")),
+            "examples/threejs/README.md must show {module} verbatim in a ```js block"
         );
+        for page in pages {
+            let html = std::fs::read_to_string(example.join(page)).expect("page");
+            assert!(
+                html.contains(&format!("'../{module}'")),
+                "{page} must use the loader module {module}"
+            );
+        }
     }
 }
 
@@ -978,5 +992,248 @@ fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
         "bake and exports {baked:.1} s, whole test {:.1} s",
         started.elapsed().as_secs_f64()
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Largest mean relative error of three.js's lightmapped Cornell box against `prt lightmap`'s
+/// own view of it (`view.exr`: prt-lightmap's `render_view`, bilinear in f32), over the pixels
+/// three.js drew; measured on SwiftShader: 1.31e-3 (64 samples per texel).
+const MAX_LIGHTMAP_ERROR: f64 = 2e-3;
+/// Largest per-material median of the per-pixel relative error (luminance) on pixels inside one
+/// material; measured 0.06–0.37 %. SwiftShader's filtering is less exact than f32 bilinear: the
+/// error follows the lightmap's texel-to-texel contrast (at 1024 samples per texel, smoother,
+/// the medians are 0.02–0.09 %, p90 ≤ 0.41 %).
+const MAX_LIGHTMAP_MEDIAN: f64 = 6e-3;
+/// Largest per-material 90th percentile of it; measured 0.21–1.72 %.
+const MAX_LIGHTMAP_P90: f64 = 2.5e-2;
+
+/// The material each pixel of `view` shows (prt's ray), or `None` for a miss.
+fn materials_seen(
+    scene: &prt_trace::Scene,
+    view: &prt_trace::PinholeView,
+    size: usize,
+) -> Vec<Option<String>> {
+    let tracer = prt_trace::RayTracer::new(scene.triangles());
+    (0..size * size)
+        .map(|i| {
+            let dir = view.ray(i % size, i / size, size, size);
+            tracer
+                .closest_hit(view.position, dir, 0.0, f32::INFINITY)
+                .map(|hit| scene.material_of(hit.triangle as usize).name.clone())
+        })
+        .collect()
+}
+
+/// three.js's lightMap (channel 1) on `prt lightmap --engine threejs`'s GLB: a small irradiance
+/// lightmap of the Cornell box of ../shared, rendered by WebGL 2 on SwiftShader into a float
+/// target with no other light and no tone mapping, must show what `prt lightmap`'s `view.exr`
+/// shows from the same camera (`emission + albedo/π · E`), and the red and green walls must keep
+/// their colours (a lightmap read at the wrong UVs mixes them).
+#[test]
+#[cfg_attr(
+    prt_skip_chromium,
+    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
+#[cfg_attr(
+    prt_skip_threejs,
+    ignore = "needs examples/threejs/node_modules (`npm ci` there), absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
+#[cfg_attr(
+    prt_skip_shared,
+    ignore = "needs ../shared/scenes, absent at build time (PRT_REQUIRE_SHARED=1 requires it)"
+)]
+fn threejs_lightmap_shows_what_prt_lightmap_shows() {
+    let example = example_dir();
+    assert!(
+        example.join("node_modules/three/package.json").is_file(),
+        "examples/threejs/node_modules/three is missing: run `npm ci` in examples/threejs"
+    );
+    let gltf = common::shared_cornell();
+    let dir = scratch("lightmap");
+    let out = dir.join("out");
+    let started = Instant::now();
+    run(prt()
+        .arg("lightmap")
+        .arg(&gltf)
+        .args(["--basis", "irradiance", "--samples", "64", "--pass", "64"])
+        .args(["--preview-every", "0", "--texels-per-metre", "16"])
+        .args([
+            "--view-size",
+            &SIZE.to_string(),
+            "--engine",
+            "threejs",
+            "--out",
+        ])
+        .arg(&out));
+    let manifest = json_file(&out.join("manifest.json"));
+    let camera = &manifest["view"];
+    let as_vec3 = |v: &Value| glam::Vec3::from_array(vec3(v).map(|x| x as f32));
+    let view = prt_trace::PinholeView {
+        position: as_vec3(&camera["position"]),
+        forward: as_vec3(&camera["forward"]),
+        up: as_vec3(&camera["up"]),
+        yfov: camera["yfov"].as_f64().expect("yfov") as f32,
+    };
+    let case = json!({
+        "lightmap": "/out/threejs",
+        "size": SIZE,
+        "camera": {
+            "position": view.position.to_array(),
+            "forward": view.forward.to_array(),
+            "up": view.up.to_array(),
+            "yfov": view.yfov,
+            "near": 0.05,
+            "far": 100.0,
+        },
+    });
+    std::fs::write(
+        out.join("case.json"),
+        serde_json::to_vec(&case).expect("JSON"),
+    )
+    .expect("write case.json");
+    let layer =
+        prt_texture::exr_io::read_exr(&out.join("view.exr"), &prt_texture::Limits::default())
+            .expect("read view.exr")
+            .remove(0);
+    assert_eq!((layer.width as usize, layer.height as usize), (SIZE, SIZE));
+    let cpu: Vec<[f64; 3]> = layer
+        .data
+        .chunks_exact(layer.channels)
+        .map(|p| std::array::from_fn(|c| f64::from(p[c])))
+        .collect();
+
+    let server = Server::start(vec![("/", example.clone()), ("/out/", out.clone())]);
+    let result = run_page(&server, "lightmap.html", false, &dir);
+    drop(server);
+    let three = top_down("webgl", &result.scene, SIZE);
+    let (error, drawn) = scene_error(&three, &cpu);
+    eprintln!(
+        "webgl lightmap: {} drew the page in {:.1} s; over the {:.1} % of pixels three.js drew, \
+         mean relative error {error:.2e} against prt lightmap's view.exr",
+        result.device,
+        result.seconds,
+        100.0 * drawn
+    );
+
+    // Per material: the mean colour three.js and prt show.
+    let scene = prt_trace::Scene::load_gltf(&gltf, &prt_trace::LoadOptions::default())
+        .expect("load the Cornell box");
+    let seen = materials_seen(&scene, &view, SIZE);
+    let mut means: HashMap<String, ([f64; 3], [f64; 3], usize)> = HashMap::new();
+    for (i, name) in seen.iter().enumerate() {
+        if let (Some(name), true) = (name, three[i][3] > 0.5) {
+            let entry = means.entry(name.clone()).or_default();
+            for c in 0..3 {
+                entry.0[c] += three[i][c];
+                entry.1[c] += cpu[i][c];
+            }
+            entry.2 += 1;
+        }
+    }
+    // Per material, the relative error of each pixel whose 8 neighbours show the same material
+    // (rasterisation and prt's rays may disagree on edges).
+    let luma = |c: &[f64]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+    let mut errors: HashMap<String, Vec<f64>> = HashMap::new();
+    for y in 1..SIZE - 1 {
+        for x in 1..SIZE - 1 {
+            let i = y * SIZE + x;
+            let Some(name) = &seen[i] else { continue };
+            let same = (0..9).all(|k| {
+                let j = (y + k / 3 - 1) * SIZE + x + k % 3 - 1;
+                seen[j].as_ref() == Some(name) && three[j][3] > 0.5
+            });
+            if same {
+                let (a, b) = (luma(&three[i][..3]), luma(&cpu[i]));
+                errors
+                    .entry(name.clone())
+                    .or_default()
+                    .push((a - b).abs() / b.max(1e-12));
+            }
+        }
+    }
+    let mut names: Vec<_> = means.keys().cloned().collect();
+    names.sort();
+    let mut failures = Vec::new();
+    for name in &names {
+        let (three_sum, cpu_sum, n) = means[name];
+        let (a, b) = (
+            three_sum.map(|v| v / n as f64),
+            cpu_sum.map(|v| v / n as f64),
+        );
+        let mut relative = errors.remove(name).unwrap_or_default();
+        relative.sort_by(f64::total_cmp);
+        let (median, p90) = if relative.is_empty() {
+            (0.0, 0.0)
+        } else {
+            (percentile(&relative, 0.5), percentile(&relative, 0.9))
+        };
+        eprintln!(
+            "{name:>10}: {n:5} px, mean three.js {a:.4?} / prt {b:.4?}; {} interior px, \
+             relative error median {:.3} % p90 {:.3} %",
+            relative.len(),
+            100.0 * median,
+            100.0 * p90
+        );
+        if relative.len() >= 40 && (median > MAX_LIGHTMAP_MEDIAN || p90 > MAX_LIGHTMAP_P90) {
+            failures.push(format!(
+                "{name}: relative error median {:.3} % p90 {:.3} % (at most {:.2} % / {:.2} %)",
+                100.0 * median,
+                100.0 * p90,
+                100.0 * MAX_LIGHTMAP_MEDIAN,
+                100.0 * MAX_LIGHTMAP_P90
+            ));
+        }
+        if luma(&a) < 0.9 * luma(&b) {
+            failures.push(format!("{name}: three.js {a:.4?} darker than prt {b:.4?}"));
+        }
+    }
+    for (wall, channel, other) in [("leftWall", 0, 1), ("rightWall", 1, 0)] {
+        let (sum, _, _) = means
+            .get(wall)
+            .unwrap_or_else(|| panic!("no {wall} in view"));
+        if sum[channel] <= 2.0 * sum[other] || sum[channel].is_nan() {
+            failures.push(format!("{wall}: three.js's mean {sum:?} lost its colour"));
+        }
+    }
+    if let Some(shots) = std::env::var_os("PRT_THREEJS_SHOTS") {
+        let shots = PathBuf::from(shots);
+        std::fs::create_dir_all(&shots).expect("shots folder");
+        let hit: Vec<bool> = three.iter().map(|p| p[3] > 0.5).collect();
+        let cpu32: Vec<[f32; 3]> = cpu.iter().map(|p| p.map(|v| v as f32)).collect();
+        let tone = prt_render::ToneMap::auto(&prt_render::Rendered {
+            width: SIZE,
+            height: SIZE,
+            pixels: cpu32.clone(),
+            hit: hit.clone(),
+            unlit: 0,
+        });
+        save_png(
+            &shots.join("threejs-lightmap-cornell.png"),
+            three
+                .iter()
+                .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32])
+                .collect(),
+            &hit,
+            &tone,
+        );
+        save_png(
+            &shots.join("prt-lightmap-view-cornell.png"),
+            cpu32,
+            &hit,
+            &tone,
+        );
+    }
+    assert!(
+        drawn > 0.5,
+        "three.js drew only {:.1} % of the image",
+        100.0 * drawn
+    );
+    assert!(
+        error <= MAX_LIGHTMAP_ERROR,
+        "mean relative error {error:.2e} against prt lightmap's view > {MAX_LIGHTMAP_ERROR} (files in {})",
+        dir.display()
+    );
+    assert!(failures.is_empty(), "{}", failures.join("; "));
+    eprintln!("whole test {:.1} s", started.elapsed().as_secs_f64());
     let _ = std::fs::remove_dir_all(&dir);
 }

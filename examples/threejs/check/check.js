@@ -4,7 +4,8 @@
 // and POSTs the pixels (little-endian f32 RGBA) back to the server that served the page.
 //
 // case.json (beside the export, written by the test): { gi, points: [ { p, n } ], scene: {
-// mesh: JSON URL, size, camera: { position, forward, up, yfov, near, far } } }.
+// mesh: JSON URL, size, camera: { position, forward, up, yfov, near, far } } }; for
+// lightmap.html: { lightmap: URL of the export, size, camera }.
 import * as THREE from 'three';
 
 async function post( name, body ) {
@@ -130,16 +131,24 @@ async function renderScene( renderer, grid, spec ) {
 
 	}
 
-	const { position, forward, up, yfov, near, far } = spec.camera;
-	const camera = new THREE.PerspectiveCamera( THREE.MathUtils.radToDeg( yfov ), 1, near, far );
-	camera.position.fromArray( position );
-	camera.up.fromArray( up );
-	camera.lookAt( new THREE.Vector3().fromArray( position ).add( new THREE.Vector3().fromArray( forward ) ) );
-	camera.updateMatrixWorld();
-	const target = floatTarget( renderer, spec.size, spec.size );
+	return renderView( renderer, scene, spec.camera, spec.size );
+
+}
+
+// `scene` from `camera` ({ position, forward, up, yfov, near, far }) into a size × size float
+// target; its RGBA f32 pixels.
+async function renderView( renderer, scene, camera, size ) {
+
+	const { position, forward, up, yfov, near, far } = camera;
+	const view = new THREE.PerspectiveCamera( THREE.MathUtils.radToDeg( yfov ), 1, near, far );
+	view.position.fromArray( position );
+	view.up.fromArray( up );
+	view.lookAt( new THREE.Vector3().fromArray( position ).add( new THREE.Vector3().fromArray( forward ) ) );
+	view.updateMatrixWorld();
+	const target = floatTarget( renderer, size, size );
 	renderer.setRenderTarget( target );
 	renderer.setClearColor( 0x000000, 0 );
-	renderer.render( scene, camera );
+	renderer.render( scene, view );
 	const pixels = await readPixels( renderer, target );
 	renderer.setRenderTarget( null );
 	target.dispose();
@@ -172,6 +181,18 @@ export async function runCheck( renderer, grid, spec ) {
 	await post( 'points', points );
 	const pixels = await renderScene( renderer, grid, spec.scene );
 	await post( 'scene', pixels );
+	await post( 'done', await describe( renderer ) );
+
+}
+
+// lightmap.html: the scene load-prt-lightmap.js returned, lit by its lightmap only (no other
+// light, no tone mapping), from the case's camera.
+export async function runLightmapCheck( renderer, lightmapped, spec ) {
+
+	renderer.toneMapping = THREE.NoToneMapping;
+	const scene = new THREE.Scene();
+	scene.add( lightmapped );
+	await post( 'scene', await renderView( renderer, scene, spec.camera, spec.size ) );
 	await post( 'done', await describe( renderer ) );
 
 }
