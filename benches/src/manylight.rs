@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use crate::{cache_dir, load_scene, save_png};
 use prt_core::{MatrixOracle, NoProgress};
 use prt_trace::manylight::{
-    DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, trace_vpls,
+    DirectionalLight, SunAndUniformSky, Vpl, VplOptions, VplOracle, directional_lights, trace_vpls,
 };
 use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
 
@@ -161,7 +161,8 @@ impl SweepScene {
 
     /// The default sun and 1024 sky directions as directional lights, the sun first.
     pub fn sun_sky(&self) -> Vec<DirectionalLight> {
-        directional_lights(&self.scene, &SunSky::default(), 1024).expect("non-empty scene")
+        directional_lights(&self.scene, &SunAndUniformSky::default(), 1024)
+            .expect("non-empty scene")
     }
 }
 

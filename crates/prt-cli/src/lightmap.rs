@@ -134,7 +134,7 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
     let mut lighting = Lighting::for_scene(&scene);
     match args.sun_sky.as_str() {
         "auto" => {}
-        "on" => lighting.sun_sky = Some(prt_trace::manylight::SunSky::default()),
+        "on" => lighting.sun_sky = Some(prt_trace::manylight::SunAndUniformSky::default()),
         "off" => lighting.sun_sky = None,
         other => bail!("--sun-sky {other:?}: expected auto, on or off"),
     }

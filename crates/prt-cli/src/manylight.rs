@@ -15,8 +15,8 @@ use prt_manylight::{
 };
 use prt_render::{NamedView, Rendered, ToneMap, image_metrics, views};
 use prt_trace::manylight::{
-    DirectionalLight, LightsBudget, SunSky, Vpl, VplOptions, VplOracle, directional_lights,
-    read_lights_file, trace_vpls, write_lights_file,
+    DirectionalLight, LightsBudget, SunAndUniformSky, Vpl, VplOptions, VplOracle,
+    directional_lights, read_lights_file, trace_vpls, write_lights_file,
 };
 use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene};
 
@@ -298,7 +298,8 @@ pub fn run(args: &ManyLightArgs) -> Result<()> {
         }
         None => {
             let vpls = trace_about(&scene, &tracer, args.lights, args.seed, &stage)?;
-            let sky = directional_lights(&scene, &SunSky::default(), args.sky_directions)?;
+            let sky =
+                directional_lights(&scene, &SunAndUniformSky::default(), args.sky_directions)?;
             (vpls, sky, "traced, one bounce")
         }
     };

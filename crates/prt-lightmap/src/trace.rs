@@ -3,7 +3,7 @@
 use std::f32::consts::{PI, TAU};
 
 use glam::Vec3;
-use prt_trace::manylight::SunSky;
+use prt_trace::manylight::SunAndUniformSky;
 use prt_trace::{Hit, LightKind, RayTracer, Scene};
 
 /// Sobol' dimensions of the texel ray: direction (2), sun-or-hemisphere choice (1), point in the
@@ -19,7 +19,7 @@ pub(crate) const MAX_BOUNCES: u32 = (256 - TEXEL_DIMS) / BOUNCE_DIMS;
 pub struct Lighting {
     /// A sun (a disk of `sun_angular_radius_deg`) and a constant sky over the upper (+Y)
     /// hemisphere; `None` for the scene's own lights only.
-    pub sun_sky: Option<SunSky>,
+    pub sun_sky: Option<SunAndUniformSky>,
     /// The sun's angular radius, degrees (the real sun: 0.27).
     pub sun_angular_radius_deg: f32,
     /// Fraction of texel rays aimed at the sun's disk when it is above a texel's horizon (the
@@ -28,14 +28,14 @@ pub struct Lighting {
 }
 
 impl Lighting {
-    /// The scene's lights, plus [`SunSky::default`] when it has no emitter and no punctual
-    /// light (the rule of [`prt_trace::manylight::trace_vpls`]).
+    /// The scene's lights, plus [`SunAndUniformSky::default`] when it has no emitter and no
+    /// punctual light (the rule of [`prt_trace::manylight::trace_vpls`]).
     pub fn for_scene(scene: &Scene) -> Self {
         let emits = (0..scene.triangles().len())
             .any(|t| scene.material_of(t).emissive.max_element() > 0.0)
             || !scene.lights().is_empty();
         Self {
-            sun_sky: (!emits).then(SunSky::default),
+            sun_sky: (!emits).then(SunAndUniformSky::default),
             sun_angular_radius_deg: 0.27,
             sun_ray_fraction: 0.1,
         }

@@ -9,7 +9,7 @@ use prt_lightmap::{
     unwrap_charts,
 };
 use prt_trace::Scene;
-use prt_trace::manylight::SunSky;
+use prt_trace::manylight::SunAndUniformSky;
 
 fn cornell_atlas(scene: &Scene) -> prt_lightmap::Atlas {
     unwrap_charts(
@@ -24,7 +24,7 @@ fn cornell_atlas(scene: &Scene) -> prt_lightmap::Atlas {
 
 fn sky_only(radiance: f32) -> Lighting {
     Lighting {
-        sun_sky: Some(SunSky {
+        sun_sky: Some(SunAndUniformSky {
             sun_direction: Vec3::NEG_Y,
             sun_irradiance: Vec3::ZERO,
             sky_radiance: Vec3::splat(radiance),

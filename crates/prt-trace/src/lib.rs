@@ -170,8 +170,8 @@ pub mod manylight {
         read_lights_file, write_lights_file,
     };
     pub use crate::vpl::{
-        DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, emitted_power,
-        trace_vpls,
+        DirectionalLight, SunAndUniformSky, Vpl, VplOptions, VplOracle, directional_lights,
+        emitted_power, trace_vpls,
     };
 }
 

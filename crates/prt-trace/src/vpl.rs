@@ -45,9 +45,12 @@ pub struct Vpl {
     pub bounce: u32,
 }
 
-/// Sun and sky that light scenes without emitters or punctual lights.
+/// Sun and sky that light scenes without emitters or punctual lights: a sun at infinity and a
+/// sky of one radiance over the upper hemisphere, what VPL emission and the sky's directional
+/// lights sample. ([`prt_sphere::SunSky`] is an analytic sky with a gradient and a ground for SH
+/// lighting of bakes.)
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SunSky {
+pub struct SunAndUniformSky {
     /// Unit direction the sunlight travels (from the sun into the scene).
     pub sun_direction: Vec3,
     /// Irradiance on a surface facing the sun (linear RGB).
@@ -56,7 +59,7 @@ pub struct SunSky {
     pub sky_radiance: Vec3,
 }
 
-impl Default for SunSky {
+impl Default for SunAndUniformSky {
     fn default() -> Self {
         Self {
             sun_direction: Vec3::new(0.3, -1.0, 0.2).normalize(),
@@ -89,7 +92,7 @@ pub struct DirectionalLight {
 /// for a non-finite `sun_sky`.
 pub fn directional_lights(
     scene: &Scene,
-    sun_sky: &SunSky,
+    sun_sky: &SunAndUniformSky,
     sky_directions: usize,
 ) -> Result<Vec<DirectionalLight>, TraceError> {
     let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
@@ -162,7 +165,7 @@ pub struct VplOptions {
     /// Seed: the same seed gives the same VPLs on any thread count.
     pub seed: u64,
     /// Light used when the scene has neither emissive triangles nor punctual lights.
-    pub sun_sky: SunSky,
+    pub sun_sky: SunAndUniformSky,
 }
 
 impl Default for VplOptions {
@@ -171,7 +174,7 @@ impl Default for VplOptions {
             particles: 10_000,
             max_bounces: 2,
             seed: 0,
-            sun_sky: SunSky::default(),
+            sun_sky: SunAndUniformSky::default(),
         }
     }
 }
@@ -228,7 +231,7 @@ fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
 /// The scene's light sources: emissive triangles (front face, power `π A L_e`), punctual lights
 /// (point `4π I`, spot `2π (1 - cos outer) I`, directional `E π R²` over the bounding sphere of
 /// radius `R`), or, when there are none, the sun and sky of `sun_sky`.
-fn sources(scene: &Scene, bounds: &Aabb, sun_sky: &SunSky) -> Vec<Source> {
+fn sources(scene: &Scene, bounds: &Aabb, sun_sky: &SunAndUniformSky) -> Vec<Source> {
     let radius = 0.5 * (bounds.max - bounds.min).length();
     let disk = PI * radius * radius;
     let mut out = Vec::new();
@@ -292,7 +295,7 @@ fn sources(scene: &Scene, bounds: &Aabb, sun_sky: &SunSky) -> Vec<Source> {
 /// Total power of the light sources [`trace_vpls`] emits from (linear RGB), for energy checks.
 ///
 /// Errors: [`TraceError::EmptyScene`] for a scene without triangles.
-pub fn emitted_power(scene: &Scene, sun_sky: &SunSky) -> Result<Vec3, TraceError> {
+pub fn emitted_power(scene: &Scene, sun_sky: &SunAndUniformSky) -> Result<Vec3, TraceError> {
     let bounds = scene.bounds().ok_or(TraceError::EmptyScene)?;
     Ok(sources(scene, &bounds, sun_sky)
         .iter()

@@ -9,8 +9,8 @@ use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
 use prt_trace::manylight::{
-    DirectionalLight, SunSky, Vpl, VplOptions, VplOracle, directional_lights, emitted_power,
-    trace_vpls,
+    DirectionalLight, SunAndUniformSky, Vpl, VplOptions, VplOracle, directional_lights,
+    emitted_power, trace_vpls,
 };
 use prt_trace::{GBuffer, GatherPoint, Material, PinholeView, RayTracer, Scene, TraceError};
 
@@ -47,7 +47,7 @@ fn cornell() -> &'static Cornell {
 #[test]
 fn emitter_vpls_carry_exactly_the_light_power() {
     let c = cornell();
-    let power = emitted_power(&c.scene, &SunSky::default()).unwrap();
+    let power = emitted_power(&c.scene, &SunAndUniformSky::default()).unwrap();
     // The Cornell light: a 0.47 × 0.38 quad of radiance 1, power π A.
     let expected = PI * 0.47 * 0.38;
     assert!((power - Vec3::splat(expected)).abs().max_element() < 1e-4 * expected);
@@ -79,7 +79,7 @@ fn sun_on_a_ground_plane_deposits_albedo_times_irradiance_times_area() {
     let albedo = 0.5;
     let scene = Scene::ground_plane(half, Vec3::splat(albedo));
     let tracer = RayTracer::new(scene.triangles());
-    let sun = SunSky {
+    let sun = SunAndUniformSky {
         sun_direction: Vec3::NEG_Y,
         sun_irradiance: Vec3::ONE,
         sky_radiance: Vec3::ZERO,
@@ -327,10 +327,10 @@ fn empty_inputs_are_typed_errors() {
     let dark = Scene::ground_plane(1.0, Vec3::ONE);
     let dark_tracer = RayTracer::new(dark.triangles());
     let no_light = VplOptions {
-        sun_sky: SunSky {
+        sun_sky: SunAndUniformSky {
             sun_irradiance: Vec3::ZERO,
             sky_radiance: Vec3::ZERO,
-            ..SunSky::default()
+            ..SunAndUniformSky::default()
         },
         ..Default::default()
     };
@@ -377,10 +377,10 @@ fn a_uniform_sky_on_a_ground_plane_deposits_albedo_times_pi_radiance_times_area(
     let albedo = 0.8;
     let scene = Scene::ground_plane(half, Vec3::splat(albedo));
     let tracer = RayTracer::new(scene.triangles());
-    let sky = SunSky {
+    let sky = SunAndUniformSky {
         sun_irradiance: Vec3::ZERO,
         sky_radiance: Vec3::ONE,
-        ..SunSky::default()
+        ..SunAndUniformSky::default()
     };
     let n = 6000;
     let options = VplOptions {
@@ -438,7 +438,7 @@ fn the_reference_image_is_cached_on_disk_and_recomputed_when_the_input_changes()
 
 #[test]
 fn sun_and_sky_become_directional_lights_whose_sky_irradiance_is_pi_radiance() {
-    let sun_sky = SunSky {
+    let sun_sky = SunAndUniformSky {
         sun_direction: Vec3::new(1.0, -1.0, 0.0),
         sun_irradiance: Vec3::new(3.0, 2.0, 1.0),
         sky_radiance: Vec3::new(0.1, 0.2, 0.4),
@@ -466,7 +466,7 @@ fn sun_and_sky_become_directional_lights_whose_sky_irradiance_is_pi_radiance() {
             .unwrap()
             .is_empty()
     );
-    let dark = SunSky {
+    let dark = SunAndUniformSky {
         sun_irradiance: Vec3::ZERO,
         sky_radiance: Vec3::ZERO,
         ..sun_sky
@@ -476,7 +476,7 @@ fn sun_and_sky_become_directional_lights_whose_sky_irradiance_is_pi_radiance() {
             .unwrap()
             .is_empty()
     );
-    let bad = SunSky {
+    let bad = SunAndUniformSky {
         sun_direction: Vec3::NAN,
         ..sun_sky
     };
