@@ -395,7 +395,9 @@ impl<'a> MergeContext<'a> {
         frame(&header, &payload)
     }
 
-    fn partial_fingerprint(
+    /// The fingerprint that stage `stage`'s partial of tile `tile`, mapped from `basis`,
+    /// records: of the plan, the stage, the tile and the basis.
+    pub fn partial_fingerprint(
         &self,
         stage: MergeStage,
         tile: usize,
@@ -779,6 +781,27 @@ impl<'a> MergeContext<'a> {
             .into_model(coefficients)
             .map_err(mbd_error)?;
         Ok((model, valid, errors))
+    }
+
+    /// `basis` (`N × L × D`, the plan's basis grid and rank) as the basis `stage`'s reduce
+    /// fitted, without history: to map from a basis made elsewhere.
+    ///
+    /// # Errors
+    /// A basis of another shape.
+    pub fn basis_state(
+        &self,
+        stage: MergeStage,
+        basis: Array3<f32>,
+    ) -> Result<BasisState, TileError> {
+        let want = (self.nodes.iter().product(), self.config.rank, TRANSFER_DIM);
+        if basis.dim() != want {
+            return Err(mbd_error(MbdError::ShapeMismatch {
+                what: "basis",
+                expected: vec![want.0, want.1, want.2],
+                got: basis.shape().to_vec(),
+            }));
+        }
+        Ok(self.state(stage, basis, Vec::new(), 0, Vec::new(), self.coarse_dims))
     }
 
     /// Writes `state` to `plan_dir`'s merge folder (atomically); returns the file and its size.
