@@ -69,6 +69,7 @@ fn a_tiny_cornell_lightmap_writes_its_textures_previews_and_manifest() {
     );
     for file in [
         "view.png",
+        "view.exr",
         "atlas.png",
         "preview/view00004.png",
         "preview/atlas00004.png",
@@ -93,6 +94,7 @@ fn bad_knobs_are_one_line_errors() {
     assert_clean_failure(&run(&["--encoder", "fast"]), "encoder");
     assert_clean_failure(&run(&["--max-memory", "0.00001"]), "budget");
     assert_clean_failure(&run(&["--texels-per-metre", "0"]), "texels per metre");
+    assert_clean_failure(&run(&["--engine", "unity"]), "--engine");
 }
 
 /// A GLB of a 1 m × 1 m floor quad facing up whose TEXCOORD_1 fills the unit square.
@@ -182,6 +184,98 @@ fn texcoord_1_is_the_lightmap_uv_when_present() {
         if side > 0 {
             assert_eq!(manifest["width"], side);
             assert_eq!(manifest["texels"], side * side);
+        }
+    }
+}
+
+/// The JSON document and binary chunk of a GLB.
+fn read_glb(bytes: &[u8]) -> (serde_json::Value, Vec<u8>) {
+    assert_eq!(&bytes[0..4], b"glTF", "GLB magic");
+    let word = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+    assert_eq!(word(8), bytes.len(), "GLB length");
+    let json_len = word(12);
+    let doc = serde_json::from_slice(&bytes[20..20 + json_len]).expect("JSON chunk");
+    let bin_at = 20 + json_len;
+    (doc, bytes[bin_at + 8..bin_at + 8 + word(bin_at)].to_vec())
+}
+
+/// `--engine bevy --engine threejs` on a scene with its own TEXCOORD_1: each engine's GLB
+/// carries those UVs as TEXCOORD_1 (per triangle, unshared vertices), and its KTX2 holds the
+/// baked irradiance in the engine's units (`E/π` for Bevy, `E` for three.js).
+#[test]
+fn engine_exports_carry_the_scenes_lightmap_uvs_and_each_engines_units() {
+    let out = scratch("lightmap-engines");
+    let scene = out.join("floor.glb");
+    std::fs::write(&scene, floor_with_texcoord_1()).unwrap();
+    let bake = out.join("bake");
+    let args = [
+        "lightmap",
+        scene.to_str().unwrap(),
+        "--basis",
+        "irradiance",
+        "--samples",
+        "4",
+        "--preview-every",
+        "0",
+        "--view-size",
+        "8",
+        "--engine",
+        "bevy",
+        "--engine",
+        "threejs",
+        "--out",
+        bake.to_str().unwrap(),
+    ];
+    let run = prt(&args);
+    assert!(run.status.success(), "{}", stderr(&run));
+    let irradiance = read_exr(&bake.join("lightmap.exr"), &Limits::default()).unwrap()[0]
+        .data
+        .clone();
+    assert!(irradiance.iter().any(|&v| v > 0.0), "the floor is unlit");
+    // The quad's two triangles, as the file indexes them.
+    let want: Vec<f32> = [
+        [0.0, 0.0],
+        [0.0, 1.0],
+        [1.0, 1.0],
+        [0.0, 0.0],
+        [1.0, 1.0],
+        [1.0, 0.0],
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    for (engine, scale) in [("bevy", std::f32::consts::FRAC_1_PI), ("threejs", 1.0)] {
+        let folder = bake.join(engine);
+        let placement: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(folder.join("lightmap.json")).unwrap()).unwrap();
+        assert_eq!(placement["engine"], engine);
+        let (doc, bin) = read_glb(&std::fs::read(folder.join("lightmap_scene.glb")).unwrap());
+        let primitive = &doc["meshes"][0]["primitives"][0];
+        let accessor =
+            &doc["accessors"][primitive["attributes"]["TEXCOORD_1"].as_u64().unwrap() as usize];
+        let view = &doc["bufferViews"][accessor["bufferView"].as_u64().unwrap() as usize];
+        let at = view["byteOffset"].as_u64().unwrap() as usize;
+        let uvs: Vec<f32> = bin[at..at + view["byteLength"].as_u64().unwrap() as usize]
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        assert_eq!(uvs.len(), want.len(), "{engine}: TEXCOORD_1 of 2 triangles");
+        for (got, want) in uvs.iter().zip(&want) {
+            assert!(
+                (got - want).abs() < 1e-6,
+                "{engine}: TEXCOORD_1 {uvs:?}, expected {want:?}"
+            );
+        }
+        let ktx =
+            Ktx2Texture::read_file(&folder.join("lightmap.ktx2"), &Limits::default()).unwrap();
+        let level = ktx.level_f32(0).unwrap();
+        assert_eq!(level.len(), irradiance.len() / 3 * 4);
+        for (i, &e) in irradiance.iter().enumerate() {
+            let got = level[4 * (i / 3) + i % 3];
+            assert!(
+                (got - e * scale).abs() <= 1e-3 * (e * scale).abs() + 1e-6,
+                "{engine}: texel value {got} for E = {e}"
+            );
         }
     }
 }
