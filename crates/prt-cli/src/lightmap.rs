@@ -61,7 +61,7 @@ pub struct LightmapArgs {
     /// Generate charts even when every primitive of the scene has TEXCOORD_1.
     #[arg(long)]
     pub generate_uvs: bool,
-    /// Empty texels around each generated chart (filled by dilation).
+    /// Empty texels between generated charts and at the atlas edges (filled by dilation).
     #[arg(long, default_value_t = 2)]
     pub padding: u32,
     /// Diffuse bounces after the surface a texel sees.

@@ -14,8 +14,9 @@ pub struct UnwrapConfig {
     pub texels_per_metre: f32,
     /// Largest angle between a triangle's normal and its chart's normal, degrees.
     pub max_chart_angle_deg: f32,
-    /// Empty texels around every chart, so that bilinear filtering and mip levels do not mix
-    /// charts (dilation fills them).
+    /// Empty texels between any two charts and between a chart and the atlas's edges (dilation
+    /// fills them): 2 keeps bilinear filtering inside a chart's texels and one ring of dilation
+    /// (Unity's default lightmap padding); more for mip levels.
     pub padding: u32,
     /// Largest atlas side, texels.
     pub max_side: u32,
@@ -97,6 +98,69 @@ fn check_triangles(triangles: &[[Vec3; 3]]) -> Result<(), LightmapError> {
     }
 }
 
+fn bounds(points: impl IntoIterator<Item = Vec2>) -> (Vec2, Vec2) {
+    points.into_iter().fold(
+        (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(p), hi.max(p)),
+    )
+}
+
+/// The rotation `(cos, sin)` that gives `points` their smallest axis-aligned bounding box: the
+/// smallest rectangle around a convex hull has a side on one of its edges (Freeman and Shapira
+/// 1975), so each hull edge is tried; the first of equal areas wins.
+fn smallest_box_rotation(points: &[Vec2]) -> (f32, f32) {
+    let hull = convex_hull(points);
+    let mut best = (f32::INFINITY, 1.0, 0.0);
+    for i in 0..hull.len() {
+        let d = hull[(i + 1) % hull.len()] - hull[i];
+        let len = d.length();
+        if len <= 0.0 {
+            continue;
+        }
+        // Turning by -atan2(d) lays the edge along +x.
+        let (cos, sin) = (d.x / len, -d.y / len);
+        let (lo, hi) = bounds(
+            hull.iter()
+                .map(|p| Vec2::new(cos * p.x - sin * p.y, sin * p.x + cos * p.y)),
+        );
+        let area = (hi.x - lo.x) * (hi.y - lo.y);
+        if area < best.0 * (1.0 - 1e-5) {
+            best = (area, cos, sin);
+        }
+    }
+    (best.1, best.2)
+}
+
+/// Andrew's monotone chain: the convex hull, counter-clockwise, without collinear points.
+fn convex_hull(points: &[Vec2]) -> Vec<Vec2> {
+    let mut sorted = points.to_vec();
+    sorted.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
+    sorted.dedup();
+    if sorted.len() < 3 {
+        return sorted;
+    }
+    let mut hull: Vec<Vec2> = Vec::with_capacity(2 * sorted.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &Vec2>> = if pass == 0 {
+            Box::new(sorted.iter())
+        } else {
+            Box::new(sorted.iter().rev())
+        };
+        for &p in iter {
+            while hull.len() >= start + 2
+                && (hull[hull.len() - 1] - hull[hull.len() - 2]).perp_dot(p - hull[hull.len() - 2])
+                    <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(p);
+        }
+        hull.pop();
+    }
+    hull
+}
+
 /// Whether two triangles (counter-clockwise or not) overlap by more than `eps` (touching
 /// along an edge or at a corner is not an overlap): the separating-axis test on their six
 /// edge normals.
@@ -130,8 +194,8 @@ fn triangles_overlap(a: &[Vec2; 3], b: &[Vec2; 3], eps: f32) -> bool {
 /// are taken largest first; a chart grows over shared edges to triangles whose normal lies
 /// within `max_chart_angle_deg` of the seed's and whose projection onto the seed's plane
 /// overlaps no triangle already in the chart, up to `max_chart_triangles`. Each chart is
-/// projected at `texels_per_metre`, framed by `padding` texels and packed
-/// ([`pack_shelves`](crate::pack_shelves)). Charts never overlap and a triangle never overlaps
+/// projected at `texels_per_metre`, turned to its smallest bounding rectangle lying wider than
+/// tall, and packed `padding` texels apart ([`pack_shelves`](crate::pack_shelves)). Charts never overlap and a triangle never overlaps
 /// another of its chart.
 ///
 /// Errors: no triangles, a non-finite position, knobs out of range, an atlas over `max_side`.
@@ -217,26 +281,40 @@ pub fn unwrap_charts(
         }
         charts.push(members);
     }
-    // Chart rectangles: the bounding box of its corners, framed by padding.
-    let pad = config.padding as f32;
+    // Each chart turned to its smallest bounding rectangle, lying (wider than tall): less
+    // empty box around slanted charts, and lower shelves.
+    for members in &charts {
+        let points: Vec<Vec2> = members.iter().flat_map(|&t| uvs[t]).collect();
+        let (cos, sin) = smallest_box_rotation(&points);
+        let turn = |p: Vec2| Vec2::new(cos * p.x - sin * p.y, sin * p.x + cos * p.y);
+        let (lo, hi) = bounds(points.iter().map(|&p| turn(p)));
+        let lying = hi.x - lo.x >= hi.y - lo.y;
+        for &t in members {
+            uvs[t] = uvs[t].map(|p| {
+                let q = turn(p);
+                if lying { q } else { Vec2::new(-q.y, q.x) }
+            });
+        }
+    }
+    // Chart rectangles: the texels a chart can claim (centres within 0.75 texel of it, see
+    // `TexelMap`). With its corner 0.3 texel into the rectangle, a chart `e` texels wide
+    // claims none left of it and `floor(e + 0.55)` beyond its first texel.
+    const INSET: f32 = 0.3;
     let mut mins = Vec::with_capacity(charts.len());
     let mut sizes = Vec::with_capacity(charts.len());
     for members in &charts {
-        let (lo, hi) = members.iter().flat_map(|&t| uvs[t]).fold(
-            (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY)),
-            |(lo, hi), p| (lo.min(p), hi.max(p)),
-        );
+        let (lo, hi) = bounds(members.iter().flat_map(|&t| uvs[t]));
         mins.push(lo);
         let extent = hi - lo;
         sizes.push([
-            (extent.x.ceil() as u32).saturating_add(1 + 2 * config.padding),
-            (extent.y.ceil() as u32).saturating_add(1 + 2 * config.padding),
+            ((extent.x + 0.25 + INSET).floor() as u32).saturating_add(1),
+            ((extent.y + 0.25 + INSET).floor() as u32).saturating_add(1),
         ]);
     }
-    let packing = pack_shelves(&sizes, config.max_side)?;
+    let packing = pack_shelves(&sizes, config.padding, config.max_side)?;
     for (c, members) in charts.iter().enumerate() {
         let origin = Vec2::new(packing.origins[c][0] as f32, packing.origins[c][1] as f32)
-            + Vec2::splat(pad + 0.5);
+            + Vec2::splat(INSET);
         for &t in members {
             uvs[t] = uvs[t].map(|p| p - mins[c] + origin);
         }
@@ -464,22 +542,53 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
-        /// Random triangle soups unwrap without overlaps, inside the atlas.
+        /// Random triangle soups unwrap without overlaps, inside the atlas, and the texels of
+        /// different charts (and the atlas's edges) stay `padding` texels apart.
         #[test]
-        fn unwrapped_triangles_never_overlap(points in proptest::collection::vec((-2f32..2.0, -2f32..2.0, -2f32..2.0), 3..60)) {
+        fn unwrapped_triangles_never_overlap(
+            points in proptest::collection::vec((-2f32..2.0, -2f32..2.0, -2f32..2.0), 3..60),
+            texels_per_metre in 1f32..12.0,
+            padding in 0u32..4,
+        ) {
             let triangles: Vec<[Vec3; 3]> = points
                 .chunks_exact(3)
                 .map(|c| [c[0], c[1], c[2]].map(|(x, y, z)| Vec3::new(x, y, z)))
                 .filter(|t| (t[1] - t[0]).cross(t[2] - t[0]).length() > 1e-3)
                 .collect();
             prop_assume!(!triangles.is_empty());
-            let atlas = unwrap_charts(&triangles, &UnwrapConfig { texels_per_metre: 8.0, ..Default::default() }).unwrap();
+            let config = UnwrapConfig { texels_per_metre, padding, ..Default::default() };
+            let atlas = unwrap_charts(&triangles, &config).unwrap();
             for (i, a) in atlas.uvs.iter().enumerate() {
                 for p in a {
                     prop_assert!(p.x >= 0.0 && p.y >= 0.0 && p.x <= atlas.width as f32 && p.y <= atlas.height as f32);
                 }
                 for b in atlas.uvs.iter().skip(i + 1) {
                     prop_assert!(!triangles_overlap(a, b, 1e-3));
+                }
+            }
+            // Every texel a chart claims (see `TexelMap`), against every other chart's within
+            // `padding` texels, and the edges.
+            let map = crate::TexelMap::new(&triangles, &atlas);
+            let (w, h, pad) = (atlas.width as i64, atlas.height as i64, i64::from(padding));
+            let chart = |x: i64, y: i64| map.texels[(y * w + x) as usize]
+                .map(|t| atlas.chart_of[t.triangle as usize]);
+            prop_assert!(!map.is_empty());
+            for y in 0..h {
+                for x in 0..w {
+                    let Some(c) = chart(x, y) else { continue };
+                    prop_assert!(
+                        x >= pad && y >= pad && x < w - pad && y < h - pad,
+                        "texel ({}, {}) within {} of the edge of {}×{}", x, y, pad, w, h
+                    );
+                    for ny in (y - pad).max(0)..=(y + pad).min(h - 1) {
+                        for nx in (x - pad).max(0)..=(x + pad).min(w - 1) {
+                            let other = chart(nx, ny);
+                            prop_assert!(
+                                other.is_none_or(|o| o == c),
+                                "charts {} and {:?} at ({}, {}) and ({}, {})", c, other, x, y, nx, ny
+                            );
+                        }
+                    }
                 }
             }
         }
