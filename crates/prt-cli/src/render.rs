@@ -1,4 +1,5 @@
-//! `prt render`: the lit scene of a bake folder, on the CPU, to PNG or EXR.
+//! `prt render`: the lit scene of a bake folder, or of a lightmap folder (`--lightmap`), on the
+//! CPU, to PNG or EXR.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,10 +10,14 @@ use prt_bake::{BakeFolder, FolderVolume, REFERENCE};
 use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
+use prt_lightmap::{
+    LIGHTMAP_MANIFEST, LightmapBasis, LightmapFolder, LightmapManifest, MAX_MANIFEST_BYTES,
+};
 use prt_render::{
     NamedView, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds, image_metrics, render,
     views,
 };
+use prt_shaders::lightmap as lm;
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
@@ -77,11 +82,38 @@ the valid voxels, looked up half a voxel off the surface along its normal; --loo
 threejs: that engine's shader on the export's data); rays that miss show the sky. \
 PNG output is tone-mapped: exposure, the ACES filmic curve (Narkowicz's fit), sRGB. EXR output \
 holds the linear radiance. With --method other than reference, and the kept volumes present, \
-the RMSE against the reference render is printed."
+the RMSE against the reference render is printed. With --lightmap DIR (a folder of `prt \
+lightmap`), the scene is lit by that lightmap instead: E is the lightmap's bilinearly filtered \
+texel at the hit's lightmap UV, reconstructed from an sg or sh basis's coefficients with \
+prt-shaders' lightmap math (what lm_sg_diffuse / lm_sh_diffuse compute on the GPU; \
+--irradiance-layer reads the stored irradiance instead, as ambient-dice and irradiance \
+lightmaps always do); misses and back faces of single-sided surfaces are black, and the RMSE \
+against the stored irradiance's render is printed."
 )]
 pub struct RenderArgs {
     /// The folder `prt bake --out DIR` wrote (scene.mesh, mbd/, volumes/).
-    pub bake_dir: PathBuf,
+    #[arg(required_unless_present = "lightmap")]
+    pub bake_dir: Option<PathBuf>,
+    /// Render a lightmap folder (`prt lightmap --out DIR`: manifest.json, lightmap.ktx2,
+    /// lightmap_uvs.bin) instead of a bake folder.
+    #[arg(
+        long,
+        value_name = "DIR",
+        conflicts_with_all = ["bake_dir", "compare", "method", "lookup"]
+    )]
+    pub lightmap: Option<PathBuf>,
+    /// With --lightmap: the scene's glTF, when the manifest's `scene` path does not reach it from
+    /// here [default: the manifest's].
+    #[arg(long, requires = "lightmap")]
+    pub scene: Option<PathBuf>,
+    /// With --lightmap: light with the stored irradiance layer, not the basis's reconstruction.
+    #[arg(long, requires = "lightmap")]
+    pub irradiance_layer: bool,
+    /// With --lightmap of an sg or sh basis: add a GGX specular lobe of this perceptual
+    /// roughness (0..=1, dielectric F0 = 0.04), reconstructed from the coefficients
+    /// (lm_sg_specular / lm_sh_specular).
+    #[arg(long, requires = "lightmap", value_name = "ROUGHNESS")]
+    pub specular: Option<f32>,
     /// View: the scene's glTF cameras in file order, then two automatic views of the scene box:
     /// `front` (looking along -Z from +Z, the box's x-y extent filling a 40° field of view) and
     /// `inside` (from inside the box near its +X or +Z end, whichever axis is longer, at 40 % of
@@ -192,7 +224,7 @@ fn load_light(
 }
 
 /// The view `--camera` picks, with an error that lists them all.
-fn pick_view(scene: &Scene, camera: usize) -> Result<NamedView> {
+pub(crate) fn pick_view(scene: &Scene, camera: usize) -> Result<NamedView> {
     let all = views(scene);
     all.get(camera).cloned().with_context(|| {
         let list: Vec<String> = all
@@ -241,10 +273,17 @@ pub fn run(args: &RenderArgs) -> Result<()> {
     {
         bail!("--exposure {e} is not a positive number");
     }
+    if let Some(dir) = &args.lightmap {
+        return run_lightmap(dir, args);
+    }
+    let bake_dir = args
+        .bake_dir
+        .as_deref()
+        .context("give a bake folder or --lightmap DIR")?;
     let sky = args.sky.sky()?;
-    let scene = load_scene(&args.bake_dir)?;
+    let scene = load_scene(bake_dir)?;
     let view = pick_view(&scene, args.camera)?;
-    let light = load_light(&args.bake_dir, args.method, args.lookup, &sky)?;
+    let light = load_light(bake_dir, args.method, args.lookup, &sky)?;
     let tracer = RayTracer::new(scene.triangles());
     let config = RenderConfig {
         width: args.size,
@@ -281,7 +320,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             String::new()
         }
     );
-    let kept = BakeFolder::new(&args.bake_dir).has_volumes();
+    let kept = BakeFolder::new(bake_dir).has_volumes();
     if args.compare && !kept {
         bail!(
             "--compare needs the reference volume, which this bake did not keep (bake with \
@@ -289,7 +328,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         );
     }
     if args.method != MethodArg::Reference && kept {
-        let reference = load_light(&args.bake_dir, MethodArg::Reference, args.lookup, &sky)?;
+        let reference = load_light(bake_dir, MethodArg::Reference, args.lookup, &sky)?;
         let base = render(
             &scene,
             &tracer,
@@ -325,6 +364,238 @@ pub fn run(args: &RenderArgs) -> Result<()> {
                 prt_render::VISIBLE_LEVELS,
                 m.dark_levels,
                 100.0 * m.median_relative
+            );
+        }
+    }
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// A file of a lightmap folder, refused before reading when over `max_bytes`.
+fn read_limited(path: &Path, max_bytes: u64) -> Result<Vec<u8>> {
+    let size = std::fs::metadata(path)
+        .with_context(|| format!("cannot read {}", path.display()))?
+        .len();
+    if size > max_bytes {
+        bail!(
+            "{} is {size} bytes, over the limit of {max_bytes}",
+            path.display()
+        );
+    }
+    std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// A lightmap folder read back (manifest, KTX2, UVs) with `limits`.
+fn read_lightmap_folder(dir: &Path, limits: &Limits) -> Result<LightmapFolder> {
+    let manifest_path = dir.join(LIGHTMAP_MANIFEST);
+    let manifest = LightmapManifest::parse(&read_limited(&manifest_path, MAX_MANIFEST_BYTES)?)
+        .with_context(|| format!("cannot read {}", manifest_path.display()))?;
+    // The KTX2's headers and key/values come on top of its decoded bytes.
+    let ktx2 = read_limited(
+        &dir.join(&manifest.ktx2),
+        limits.max_bytes.saturating_add(1 << 20),
+    )?;
+    let uvs = read_limited(&dir.join(&manifest.uvs), limits.max_bytes)?;
+    LightmapFolder::parse(manifest, &ktx2, &uvs, limits)
+        .with_context(|| format!("cannot read the lightmap folder {}", dir.display()))
+}
+
+/// Irradiance at a lightmap UV, and the specular lobe towards a view, as the lightmap shaders
+/// reconstruct them (prt_shaders::lightmap).
+enum LightmapShading<'a> {
+    /// The stored irradiance layer.
+    Irradiance,
+    /// SG coefficients: lobe axes (tangent frame) and sharpness.
+    Sg(&'a [Vec3], f32),
+    /// SH coefficients (the first 9).
+    Sh,
+}
+
+impl LightmapShading<'_> {
+    /// `(E, specular)` at atlas position `uv` in texels, for a view direction `to_eye` in the
+    /// texel's tangent frame (+Y the winding normal).
+    fn shade(
+        &self,
+        lightmap: &prt_lightmap::Lightmap,
+        uv: prt_core::glam::Vec2,
+        to_eye: Vec3,
+        roughness: Option<f32>,
+    ) -> (Vec3, Vec3) {
+        let f0 = Vec3::splat(0.04);
+        match *self {
+            LightmapShading::Irradiance => (lightmap.irradiance_at(uv), Vec3::ZERO),
+            LightmapShading::Sg(axes, sharpness) => {
+                let mut c = vec![Vec3::ZERO; axes.len()];
+                lightmap.coefficients_at(uv, &mut c);
+                let e = lm::sg_diffuse(axes, sharpness, &c, Vec3::Y);
+                let s = roughness
+                    .filter(|_| to_eye.y > 0.0)
+                    .map_or(Vec3::ZERO, |r| {
+                        lm::sg_specular(axes, sharpness, &c, Vec3::Y, to_eye, r, f0)
+                    });
+                (e, s)
+            }
+            LightmapShading::Sh => {
+                let mut c = vec![Vec3::ZERO; lightmap.basis.len()];
+                lightmap.coefficients_at(uv, &mut c);
+                let mut nine = [Vec3::ZERO; lm::SH_COEFFICIENTS];
+                for (o, c) in nine.iter_mut().zip(&c) {
+                    *o = *c;
+                }
+                let e = lm::sh_diffuse(&nine, Vec3::Y);
+                let s = roughness
+                    .filter(|_| to_eye.y > 0.0)
+                    .map_or(Vec3::ZERO, |r| {
+                        lm::sh_specular(&nine, Vec3::Y, to_eye, r, f0)
+                    });
+                (e, s)
+            }
+        }
+    }
+}
+
+/// `scene` from `view` lit by `folder`'s lightmap: per pixel, `emission + albedo/π · E` plus
+/// the specular lobe when `roughness` is given; misses and back faces of single-sided surfaces
+/// are black.
+fn render_lightmapped(
+    scene: &Scene,
+    folder: &LightmapFolder,
+    shading: &LightmapShading<'_>,
+    roughness: Option<f32>,
+    view: &prt_trace::PinholeView,
+    size: usize,
+) -> Rendered {
+    use rayon::prelude::*;
+    let tracer = RayTracer::new(scene.triangles());
+    let lightmap = &folder.lightmap;
+    let pixels: Vec<Option<[f32; 3]>> = (0..size * size)
+        .into_par_iter()
+        .map(|i| {
+            let dir = view.ray(i % size, i / size, size, size);
+            let hit = tracer.closest_hit(view.position, dir, 0.0, f32::INFINITY)?;
+            let t = hit.triangle as usize;
+            let material = scene.material_of(t);
+            if !hit.front_face && !material.double_sided {
+                return Some([0.0; 3]);
+            }
+            let uv = folder.uvs[t];
+            let b = hit.barycentrics;
+            let at = uv[0] * (1.0 - b.x - b.y) + uv[1] * b.x + uv[2] * b.y;
+            // The texel's frame: the triangle's winding normal, as the bake computed it.
+            let tri = scene.triangles()[t];
+            let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+            let to_eye = lm::to_tangent(lm::tangent_frame(normal), -dir.normalize());
+            let (e, specular) = shading.shade(lightmap, at, to_eye, roughness);
+            let emission = if hit.front_face {
+                material.emissive
+            } else {
+                Vec3::ZERO
+            };
+            let specular = if hit.front_face { specular } else { Vec3::ZERO };
+            Some((emission + material.albedo / std::f32::consts::PI * e + specular).to_array())
+        })
+        .collect();
+    Rendered {
+        width: size,
+        height: size,
+        hit: pixels.iter().map(Option::is_some).collect(),
+        pixels: pixels.into_iter().map(|p| p.unwrap_or([0.0; 3])).collect(),
+        unlit: 0,
+    }
+}
+
+/// `prt render --lightmap DIR`.
+fn run_lightmap(dir: &Path, args: &RenderArgs) -> Result<()> {
+    if let Some(r) = args.specular
+        && !(0.0..=1.0).contains(&r)
+    {
+        bail!("--specular {r} is not a roughness in 0..=1");
+    }
+    let folder = read_lightmap_folder(dir, &Limits::default())?;
+    let manifest = &folder.manifest;
+    let scene = match (&args.scene, &manifest.scene) {
+        (Some(path), _) => Scene::load_gltf(path, &prt_trace::LoadOptions::default())
+            .with_context(|| format!("cannot load {}", path.display()))?,
+        (None, Some(path)) => Scene::load_gltf(Path::new(path), &prt_trace::LoadOptions::default())
+            .with_context(|| format!("cannot load the manifest's scene {path} (give --scene)"))?,
+        (None, None) => Scene::cornell_box(),
+    };
+    if folder.uvs.len() != scene.triangles().len() {
+        bail!(
+            "the lightmap has UVs for {} triangles, the scene has {}: not its scene (give --scene)",
+            folder.uvs.len(),
+            scene.triangles().len()
+        );
+    }
+    let shading = match (manifest.basis, &manifest.sg) {
+        _ if args.irradiance_layer => LightmapShading::Irradiance,
+        (LightmapBasis::Sg { .. }, Some((axes, sharpness))) => {
+            LightmapShading::Sg(axes, *sharpness)
+        }
+        (LightmapBasis::Sh { .. }, _) => LightmapShading::Sh,
+        _ => LightmapShading::Irradiance,
+    };
+    if args.specular.is_some() && matches!(shading, LightmapShading::Irradiance) {
+        bail!(
+            "--specular needs the coefficients of an sg or sh lightmap (this one is {}{})",
+            manifest.basis.label(),
+            if args.irradiance_layer {
+                ", read through --irradiance-layer"
+            } else {
+                ""
+            }
+        );
+    }
+    let view = pick_view(&scene, args.camera)?;
+    let start = Instant::now();
+    let image = render_lightmapped(
+        &scene,
+        &folder,
+        &shading,
+        args.specular,
+        &view.view,
+        args.size,
+    );
+    let seconds = start.elapsed().as_secs_f64();
+    let tone = args
+        .exposure
+        .map_or_else(|| ToneMap::auto(&image), |exposure| ToneMap { exposure });
+    save_render(&args.out, &image, &tone)?;
+    eprintln!(
+        "{} × {} pixels, camera {} ({}), {} lightmap {}×{} ({}), {seconds:.3} s; exposure {:.4}",
+        image.width,
+        image.height,
+        args.camera,
+        view.name,
+        manifest.basis.label(),
+        manifest.width,
+        manifest.height,
+        match shading {
+            LightmapShading::Irradiance => "stored irradiance",
+            _ => "reconstructed from the coefficients",
+        },
+        tone.exposure,
+    );
+    if !matches!(shading, LightmapShading::Irradiance) && args.specular.is_none() {
+        let base = render_lightmapped(
+            &scene,
+            &folder,
+            &LightmapShading::Irradiance,
+            None,
+            &view.view,
+            args.size,
+        );
+        if let Some(rmse) = image.rmse(&base) {
+            let mean = base
+                .pixels
+                .iter()
+                .flatten()
+                .map(|&v| f64::from(v))
+                .sum::<f64>()
+                / (3 * base.pixels.len()).max(1) as f64;
+            println!(
+                "RMSE against the stored irradiance's render: {rmse:.4e} ({:.3} % of its mean radiance {mean:.4e})",
+                100.0 * rmse / mean.max(f64::MIN_POSITIVE)
             );
         }
     }
