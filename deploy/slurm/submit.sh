@@ -4,10 +4,15 @@
 #
 #   prt plan SCENE --tiles X,Y,Z [prt bake's knobs] --out PLAN_DIR
 #   deploy/slurm/submit.sh PLAN_DIR BAKE_DIR [MERGE_FLAG...] [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
+#   deploy/slurm/submit.sh PLAN_DIR BAKE_DIR --distributed-merge [--sweeps K] [-- ...]
 #   deploy/slurm/submit.sh --resume PLAN_DIR [-- SBATCH_OPTION... [--merge SBATCH_OPTION...]]
 #
-# MERGE_FLAGs go to `prt merge` (e.g. --stream --sweeps 2). Options after `--` go to both jobs'
-# sbatch, those after `--merge` to the merge's only (a later option wins). Without
+# MERGE_FLAGs go to `prt merge` (e.g. --stream --sweeps 2). `--distributed-merge [--sweeps K]`
+# runs the streamed merge as distributed work instead: per stage (coarse, sweep-1..sweep-K,
+# coefficients) an array of map tasks over the tiles (prt-merge-map.sbatch), then its reduce
+# (prt-merge-reduce.sbatch), each after the one before (afterany); the last reduce writes
+# BAKE_DIR, the bytes `prt merge --stream --sweeps K` writes. Options after `--` go to every
+# job's sbatch, those after `--merge` to the merge's jobs only (a later option wins). Without
 # -c/--cpus-per-task a job asks for the CPUs of the partition's largest node, at most 8, so that
 # it never pends on a node too small. Logs: PLAN_DIR/logs/slurm-tile-INDEX.log and
 # slurm-merge.log, appended by every attempt. The submission (BAKE_DIR, flags, options) and the
@@ -78,7 +83,7 @@ take_options "$@"
 
 # A second submission while the first runs would trace tiles twice and merge twice.
 if [ -f "$jobs_file" ]; then
-    ours=$({ grep -oE "(tiles|merge)=[0-9]+" "$jobs_file" || true; } | cut -d= -f2 | sort -u)
+    ours=$({ grep -oE "(tiles|merge|maps|reduce)=[0-9]+" "$jobs_file" || true; } | cut -d= -f2 | sort -u)
     queued=$(squeue -h -o '%F' | sort -u)
     active=$(comm -12 <(echo "$ours") <(echo "$queued") | paste -sd, -)
     [ -z "$active" ] || fail "jobs $active of this plan are still queued or running: wait for them, or scancel them, then run $0 --resume $plan"
@@ -111,6 +116,29 @@ cpus_for() {
     echo "--cpus-per-task=$((most < 8 ? most : 8))"
 }
 
+# --distributed-merge [--sweeps K]: no other merge flag.
+distributed=false sweeps=2
+if printf '%s\n' "${flags[@]}" | grep -qx -- --distributed-merge; then
+    distributed=true
+    rest=("${flags[@]}")
+    set -- "${rest[@]}"
+    while [ "$#" -gt 0 ]; do
+        case $1 in
+            --distributed-merge) ;;
+            --sweeps) sweeps=${2:?--sweeps needs a number}; shift ;;
+            --sweeps=*) sweeps=${1#--sweeps=} ;;
+            *) fail "with --distributed-merge the only merge flag is --sweeps K (got $1)" ;;
+        esac
+        shift
+    done
+    case $sweeps in '' | *[!0-9]*) fail "--sweeps $sweeps is not a number" ;; esac
+    # Tiles: the product of the plan's "counts".
+    counts=($(tr -d ' \n' <"$plan/plan.json" | grep -oE '"counts":\[[0-9]+,[0-9]+,[0-9]+\]' |
+        head -1 | grep -oE '[0-9]+'))
+    [ "${#counts[@]}" -eq 3 ] || fail "$plan/plan.json has no tile counts"
+    ntiles=$((counts[0] * counts[1] * counts[2]))
+fi
+
 # The jobs run `prt` from the PATH exported with them (--export=ALL).
 command -v prt >/dev/null || fail "prt is not on PATH (the jobs get this shell's PATH)"
 unfinished=$(prt bake-tile "$plan" --unfinished)
@@ -131,6 +159,29 @@ if [ -n "$unfinished" ]; then
     echo "tiles $unfinished: job $tiles"
 else
     echo "every tile is finished"
+fi
+if $distributed; then
+    cpus=$(cpus_for "$here/prt-merge-map.sbatch" "${both[@]}" "${merge[@]}")
+    stages=(coarse)
+    for ((k = 1; k <= sweeps; k++)); do stages+=("sweep-$k"); done
+    stages+=(coefficients)
+    for stage in "${stages[@]}"; do
+        env=--export=ALL,STAGE=$stage,SWEEPS=$sweeps
+        maps=$(sbatch --parsable "$env" "${dependency[@]}" --array="0-$((ntiles - 1))" \
+            --output="$plan/logs/slurm-map-$stage-%a.log" --open-mode=append \
+            ${cpus:+"$cpus"} "${both[@]}" "${merge[@]}" "$here/prt-merge-map.sbatch")
+        maps=${maps%%;*}
+        job=$(sbatch --parsable "$env" --dependency=afterany:"$maps" \
+            --output="$plan/logs/slurm-reduce-$stage.log" --open-mode=append \
+            ${cpus:+"$cpus"} "${both[@]}" "${merge[@]}" "$here/prt-merge-reduce.sbatch")
+        job=${job%%;*}
+        echo "$(date -u +%FT%TZ) maps=$maps reduce=$job stage=$stage" >>"$jobs_file"
+        echo "$stage: maps job $maps, reduce job $job"
+        dependency=(--dependency=afterany:"$job")
+    done
+    echo "merge: job $job (the coefficients' reduce), writing $bake"
+    echo "logs: $plan/logs/slurm-*.log; after a failure: $0 --resume $plan"
+    exit 0
 fi
 cpus=$(cpus_for "$here/prt-merge.sbatch" "${both[@]}" "${merge[@]}")
 job=$(sbatch --parsable --export=ALL "${dependency[@]}" \

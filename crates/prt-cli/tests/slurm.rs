@@ -5,7 +5,8 @@
 //! through `submit.sh` with a merge flag and sbatch options, one tile fails (its folder is a
 //! file), the merge runs after the array anyway and names the tile, `submit.sh --resume`
 //! submits that tile and the merge again, and the bake folder is the bytes of a local
-//! `bake-tile --all` + `merge`.
+//! `bake-tile --all` + `merge`. Then `submit.sh --distributed-merge` on another plan: the
+//! streamed merge as chained map arrays and reduces, to the bytes of `prt merge --stream`.
 //!
 //! Ignored when the programs or root are missing at build time (build.rs), unless
 //! `PRT_REQUIRE_SLURM=1` (set by .ci/run, which installs slurm-wlm and munge).
@@ -468,6 +469,101 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
     }
     assert!(compared >= 5 && listed.iter().any(|f| f.starts_with("mbd")));
 
+    distributed_merge(&mut cluster, &dir);
+
     drop(cluster);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `submit.sh --distributed-merge` on finished tiles: per stage an array of map tasks and a
+/// reduce, chained; every job completes and the bake folder is the bytes of
+/// `prt merge --stream` run here (tiles.json aside: it holds timings).
+fn distributed_merge(cluster: &mut Cluster, dir: &Path) {
+    let plan = dir.join("stream-plan");
+    let plan_s = plan.to_str().unwrap();
+    let mut args = vec![
+        "plan",
+        "--tiles",
+        "2,2,1",
+        "--halo",
+        "1",
+        "--basis-nodes",
+        "3",
+        "--out",
+        plan_s,
+    ];
+    args.extend(TINY_PLAN);
+    ok(&prt(&args));
+    ok(&prt(&["bake-tile", plan_s, "--all", "--workers", "2"]));
+    let local = dir.join("stream-local");
+    let local_s = local.to_str().unwrap();
+    ok(&prt(&[
+        "merge", plan_s, "--out", local_s, "--stream", "--sweeps", "1",
+    ]));
+
+    let baked = dir.join("stream-slurm");
+    let out = submit(
+        cluster,
+        &[
+            plan_s,
+            baked.to_str().unwrap(),
+            "--distributed-merge",
+            "--sweeps",
+            "1",
+            "--",
+            "--time=5",
+        ],
+    );
+    assert!(out.contains("every tile is finished"), "{out}");
+    // coarse, sweep-1, coefficients: "STAGE: maps job M, reduce job R".
+    let jobs: Vec<(String, String)> = out
+        .lines()
+        .filter_map(|line| {
+            let (_, ids) = line.split_once(": maps job ")?;
+            let (maps, reduce) = ids.split_once(", reduce job ")?;
+            Some((maps.to_string(), reduce.to_string()))
+        })
+        .collect();
+    assert_eq!(jobs.len(), 3, "{out}");
+    assert_eq!(job_id(&out, "merge"), jobs[2].1);
+    cluster.wait_for_empty_queue();
+    let log =
+        |name: &str| std::fs::read_to_string(plan.join("logs").join(name)).unwrap_or_default();
+    for (stage, (maps, reduce)) in ["coarse", "sweep-1", "coefficients"].iter().zip(&jobs) {
+        let states = task_states(cluster, maps);
+        assert_eq!(states.len(), 4);
+        assert!(
+            states.values().all(|s| s == "COMPLETED"),
+            "{stage} maps: {states:?}\n{}",
+            log(&format!("slurm-map-{stage}-0.log"))
+        );
+        assert_eq!(
+            cluster.jobs(reduce)[0]["JobState"],
+            "COMPLETED",
+            "{}",
+            log(&format!("slurm-reduce-{stage}.log"))
+        );
+        assert!(prt_bake::tiles::partial_path(&plan, stage.parse().unwrap(), 3).is_file());
+    }
+    let listed = files(&local);
+    assert_eq!(files(&baked), listed);
+    assert!(listed.iter().any(|f| f.starts_with("mbd")));
+    for file in &listed {
+        let (a, b) = (
+            std::fs::read(local.join(file)).unwrap(),
+            std::fs::read(baked.join(file)).unwrap(),
+        );
+        if file.to_str() == Some("tiles.json") {
+            let errors = |bytes: &[u8]| {
+                let report: prt_bake::tiles::TilesReport = serde_json::from_slice(bytes).unwrap();
+                report
+                    .streamed
+                    .unwrap()
+                    .relative_error_at_valid_voxel_centres
+            };
+            assert_eq!(errors(&a), errors(&b));
+            continue;
+        }
+        assert!(a == b, "{} differs", file.display());
+    }
 }
