@@ -7,11 +7,13 @@
 //! cargo run --release -p prt-benches --bin clean_light -- --scene sponza --res 64 --run base
 //! ```
 //!
-//! A run is a comma-separated list of `knob=value` applied to `prt bake`'s defaults (`base`:
-//! none; the default before the denoiser: `rays=256,denoise=off`). Knobs: `rays`, `cache_rays`,
-//! `rank`, `seed`, `adaptive` (target relative standard error, `off`), `min_rays` (adaptive
-//! sampling's minimum), `denoise` (strength, `off`), `radius` (the denoiser's half-width),
-//! `baselines` (`on`/`off`). Each bake writes its container into a temporary folder, reads it
+//! A run is a comma-separated list of `knob=value` applied in order to `prt bake`'s defaults
+//! (`base`: none; the default before the denoiser: `rays=256,denoise=off`). Knobs: `quality`
+//! (`draft`, `default`, `high`: every knob of that `--quality` preset, the resolution staying
+//! `--res`), `rays`, `cache_rays`, `rank`, `iterations`, `full_iterations`, `seed`, `adaptive`
+//! (target relative standard error, `off`), `min_rays` (adaptive sampling's minimum), `denoise`
+//! (strength, `off`), `radius` (the denoiser's half-width), `baselines` (`on`/`off`). `--plot`
+//! draws one line per run with its `rays` knob removed (more rays to the right). Each bake writes its container into a temporary folder, reads it
 //! back and renders it (256², the reference's exposure); the traced volume itself is rendered
 //! too (the trace's error before compression). The reference (16 × 256 rays, 16 × 64 cache rays,
 //! seed 1001, neither adaptive nor denoised) is cached in `target/clean_light/`. Times: the
@@ -20,7 +22,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
-use prt_bake::{BakeConfig, SceneInput, Stage, bake, read_container};
+use prt_bake::{BakeConfig, Quality, SceneInput, Stage, bake, read_container};
 use prt_benches::mbd::{read_cached, write_cached};
 use prt_benches::{
     PlotLabels, PlotPoint, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene,
@@ -56,7 +58,8 @@ struct Cli {
     /// Write each table as CSV into this folder.
     #[arg(long)]
     csv: Option<PathBuf>,
-    /// Plot image error against wall time into this PNG.
+    /// Plot image error against the bake's CPU time (steadier than wall time on a shared
+    /// machine) into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
 }
@@ -94,6 +97,20 @@ fn apply(base: &BakeConfig, run: &str) -> Result<BakeConfig, String> {
             _ => Err(format!("{key}={value}: on or off")),
         };
         match key {
+            "quality" => {
+                let quality = match value {
+                    "draft" => Quality::Draft,
+                    "default" => Quality::Default,
+                    "high" => Quality::High,
+                    _ => return Err(format!("{key}={value}: draft, default or high")),
+                };
+                config = BakeConfig {
+                    resolution: config.resolution,
+                    ..BakeConfig::preset(quality)
+                };
+            }
+            "iterations" => config.max_iterations = count()?,
+            "full_iterations" => config.full_iterations = count()?,
             "rays" => config.rays_per_voxel = count()?,
             "cache_rays" => config.cache_rays = count()?,
             "rank" => config.rank = count()?,
@@ -107,6 +124,19 @@ fn apply(base: &BakeConfig, run: &str) -> Result<BakeConfig, String> {
         }
     }
     Ok(config)
+}
+
+/// The line of the plot a run belongs to: the run without its `rays` knob.
+fn series(run: &str) -> String {
+    let rest: Vec<&str> = run
+        .split(',')
+        .filter(|pair| !pair.starts_with("rays="))
+        .collect();
+    if rest.is_empty() {
+        "base".into()
+    } else {
+        rest.join(",")
+    }
 }
 
 /// The reference's traced field and validity, read from `target/clean_light/` when an earlier
@@ -343,14 +373,14 @@ fn main() {
     if let Some(path) = &cli.plot {
         let points: Vec<PlotPoint> = rows
             .iter()
-            .map(|r| (r.label.clone(), r.wall_s, r.mbd.mean_levels))
+            .map(|r| (series(&r.label), r.cpu_s, r.mbd.mean_levels))
             .collect();
         let labels = PlotLabels {
             title: &format!(
                 "{}: MBD image error against the 16×-ray reference",
                 cli.scene
             ),
-            x: "wall time of the bake (s)",
+            x: "process CPU time of the bake (s)",
             y: "mean grey-level error",
             x_ticks: &|v| format!("{v:.0}"),
         };

@@ -20,7 +20,9 @@ pub struct PlanArgs {
     pub tiles: [usize; 3],
     /// Voxels each tile traces beyond its own on every side. The merge keeps each voxel from
     /// the tile that owns it and compares the overlap (two independent traces) as a measure of
-    /// the Monte Carlo noise at tile borders; 0 traces no voxel twice.
+    /// the Monte Carlo noise at tile borders; 0 traces no voxel twice. With the denoiser a
+    /// worker also traces a margin of its radius, filters and drops it (the kept voxels are
+    /// filtered as in `prt bake`).
     #[arg(long, default_value_t = 0)]
     pub halo: usize,
     /// Replace the plan the output folder holds when it differs from this one, removing its
@@ -122,7 +124,11 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         .unwrap_or_else(|| Path::new("prt-out").join(&scene.name));
     let written = prt_bake::tiles::write_plan(&plan, &out, args.replace, &limits())?;
     let path = out.join(prt_bake::tiles::PLAN_FILE);
-    let largest = plan.tiles.iter().map(|t| t.traced.len()).max().unwrap_or(0);
+    let largest = (0..plan.tiles.len())
+        .filter_map(|i| prt_bake::tiles::tile_trace_box(&plan, i).ok())
+        .map(|traced| traced.len())
+        .max()
+        .unwrap_or(0);
     println!(
         "planned {} tiles ({}×{}×{}) of the {}×{}×{} lattice of {}, halo {}, largest tile {} \
          voxels traced",

@@ -67,6 +67,12 @@ pub struct TileFingerprint {
     pub max_backface_fraction: f32,
     /// How the one-bounce part is computed (`SurfaceCache`, `BruteForce`, `Off`).
     pub indirect: String,
+    /// Adaptive sampling's target relative standard error and minimum directions (`None`:
+    /// off).
+    pub adaptive: Option<(f32, usize)>,
+    /// The denoiser's strength and radius (`None`: off); with it the tile traces a margin of
+    /// that radius around its traced box ([`super::tile_trace_box`]).
+    pub denoise: Option<(f32, usize)>,
 }
 
 impl TileFingerprint {
@@ -91,6 +97,8 @@ impl TileFingerprint {
             probe_rays: options.probe_rays,
             max_backface_fraction: options.max_backface_fraction,
             indirect: format!("{:?}", options.indirect),
+            adaptive: options.adaptive.map(|a| (a.target_error, a.min_rays)),
+            denoise: options.denoise.map(|d| (d.strength, d.radius)),
         })
     }
 }

@@ -40,7 +40,9 @@ pub use stream::{
     BasisState, MapOutcome, MergeContext, Partial, ReduceOutcome, StageSums, StreamedMerge,
     map_tile, merge_from_partials, merge_streamed, reduce_stage,
 };
-pub use worker::{DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options};
+pub use worker::{
+    DONE_MARKER, TileOutcome, bake_tile, tile_dir, tile_is_done, tile_options, tile_trace_box,
+};
 
 #[cfg(test)]
 mod tests {
@@ -48,6 +50,8 @@ mod tests {
     use proptest::prelude::*;
     use prt_core::NoProgress;
     use prt_texture::Limits;
+
+    use prt_trace::TransferVolume;
 
     use super::*;
     use crate::{BakeConfig, SceneInput};
@@ -124,12 +128,119 @@ mod tests {
         let bounds = options.bounds.unwrap();
         let lattice = plan.lattice_bounds();
         let cell = lattice.size() / Vec3::from_array(plan.lattice_dims.map(|n| n as f32));
-        let first = plan.tiles[1].core.min.map(|i| i as f32);
+        // (With the default denoiser the worker traces its box grown by the radius.)
+        let traced = tile_trace_box(&plan, 1).unwrap();
+        assert_eq!(traced.min[0], plan.tiles[1].core.min[0] - 1);
+        let first = traced.min.map(|i| i as f32);
         let want = lattice.min + (Vec3::from_array(first) + 0.5) * cell;
         let got = bounds.min
             + 0.5 * bounds.size() / Vec3::from_array(options.resolution.map(|n| n as f32));
         assert!((want - got).abs().max_element() < 1e-5, "{want} vs {got}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// The per-voxel squared differences `‖a_v − b_v‖²` over the voxels valid in both, grouped
+    /// into 3³ blocks (the radius-1 denoiser correlates a voxel with its neighbours, so blocks,
+    /// not voxels, are the independent samples): each block's mean.
+    fn block_differences(a: &TransferVolume, b: &TransferVolume) -> Vec<f64> {
+        let dims = a.field.dims();
+        assert_eq!(dims, b.field.dims());
+        let blocks = dims.map(|n| n.div_ceil(3));
+        let mut sums = vec![(0.0f64, 0usize); blocks.iter().product()];
+        for v in 0..a.field.num_voxels() {
+            if !(a.valid[v] && b.valid[v]) {
+                continue;
+            }
+            let d: f64 = a
+                .field
+                .voxel(v)
+                .iter()
+                .zip(b.field.voxel(v))
+                .map(|(&x, &y)| (f64::from(x) - f64::from(y)).powi(2))
+                .sum();
+            let [x, y, z] = a.field.coords(v).map(|i| i / 3);
+            let block = &mut sums[x + blocks[0] * (y + blocks[1] * z)];
+            block.0 += d;
+            block.1 += 1;
+        }
+        sums.iter()
+            .filter(|s| s.1 > 0)
+            .map(|s| s.0 / s.1 as f64)
+            .collect()
+    }
+
+    /// Whether `a` and `c` are equally far from `b`: the mean over blocks of
+    /// `‖a − b‖² − ‖c − b‖²` within four standard errors of zero. Returns the two mean squared
+    /// differences and the verdict.
+    fn equally_far(a: &TransferVolume, c: &TransferVolume, b: &TransferVolume) -> (f64, f64, bool) {
+        let (ab, cb) = (block_differences(a, b), block_differences(c, b));
+        assert_eq!(ab.len(), cb.len());
+        let n = ab.len() as f64;
+        let gaps: Vec<f64> = ab.iter().zip(&cb).map(|(x, y)| x - y).collect();
+        let mean = gaps.iter().sum::<f64>() / n;
+        let var = gaps.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        let (mean_ab, mean_cb) = (ab.iter().sum::<f64>() / n, cb.iter().sum::<f64>() / n);
+        (mean_ab, mean_cb, mean.abs() <= 4.0 * (var / n).sqrt())
+    }
+
+    /// A 2×2 tiled bake with the denoiser is as far from the one-machine bake as another seed
+    /// of the one-machine bake (its tiles traced with a margin of the denoiser's radius, every
+    /// kept voxel filtered with all its neighbours); the same tiles without the denoiser are
+    /// not.
+    #[test]
+    fn a_tiled_bake_is_denoised_like_a_one_machine_bake() {
+        let scene = SceneInput::cornell_box();
+        let denoised = BakeConfig {
+            rays_per_voxel: 96,
+            cache_rays: 16,
+            ..config(12)
+        };
+        let one_machine = |seed: u64| {
+            let options = prt_trace::BakeOptions {
+                resolution: denoised
+                    .grid_resolution(scene.scene.bounds().unwrap().size().to_array()),
+                rays_per_voxel: denoised.rays_per_voxel,
+                cache_rays: denoised.cache_rays,
+                seed,
+                denoise: denoised.denoise_options(),
+                ..prt_trace::BakeOptions::default()
+            };
+            prt_trace::TransferBaker::new(&scene.scene, options)
+                .unwrap()
+                .bake(&NoProgress)
+                .unwrap()
+        };
+        let tiled = |config: &BakeConfig, name: &str| {
+            let plan = plan_tiles(&scene, None, config, [2, 2, 1], 0).unwrap();
+            let dir = scratch(name);
+            plan.write(&dir).unwrap();
+            for index in 0..plan.tiles.len() {
+                bake_tile(&plan, &dir, &scene, index, false, &NoProgress).unwrap();
+            }
+            let assembled = assemble(&plan, &dir, &Limits::default()).unwrap();
+            let _ = std::fs::remove_dir_all(&dir);
+            assembled.volume
+        };
+        let (b, c) = (one_machine(0), one_machine(1));
+        let a = tiled(&denoised, "denoised");
+        assert_eq!(a.field.bounds(), b.field.bounds());
+        let (tiled_error, seed_error, same) = equally_far(&a, &c, &b);
+        assert!(
+            same,
+            "tiled {tiled_error:.4e} against another seed {seed_error:.4e}"
+        );
+        let raw = tiled(
+            &BakeConfig {
+                denoise: None,
+                ..denoised.clone()
+            },
+            "raw",
+        );
+        let (raw_error, _, same) = equally_far(&raw, &c, &b);
+        assert!(
+            !same && raw_error > seed_error,
+            "undenoised tiles {raw_error:.4e} against another seed {seed_error:.4e}"
+        );
     }
 
     /// `plan.json`'s bytes with `lattice_dims` replaced.

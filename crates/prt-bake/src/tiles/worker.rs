@@ -4,15 +4,15 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use prt_core::Progress;
-use prt_trace::{BakeOptions, TransferBaker, TransferVolume};
+use prt_core::{GridField, Progress};
+use prt_trace::{BakeOptions, BakeStats, TransferBaker, TransferVolume};
 
 use super::checksum::Fnv1a64;
 use super::file::{
     TILE_FILE, TILE_FORMAT, TILE_VERSION, TIMING_FILE, TRANSFER_FILE, TileChecksums,
     TileFingerprint, TileStats, TileStatus, VALID_FILE, tile_status,
 };
-use super::plan::{TileError, TilePlan};
+use super::plan::{TileError, TilePlan, VoxelRange, flat, voxels};
 use crate::scene_hash;
 use crate::{BakeError, SceneInput, TRANSFER_DIM};
 
@@ -49,19 +49,83 @@ pub fn tile_is_done(plan_dir: &Path, index: usize) -> bool {
     tile_dir(plan_dir, index).join(DONE_MARKER).is_file()
 }
 
-/// The tracer's options for `tile` of `plan`: the tile's traced box of the global lattice
-/// (as explicit bounds and resolution), the plan's knobs, the tile's seed.
+/// The voxels tile `index` traces: its traced box, grown with the denoiser on by the
+/// denoiser's radius (clipped to the lattice) so that every voxel it keeps is filtered with all
+/// of its neighbours, as in a one-machine bake; the margin is dropped before the tile is written.
+pub fn tile_trace_box(plan: &TilePlan, index: usize) -> Result<VoxelRange, TileError> {
+    let traced = plan.tile(index)?.traced;
+    let margin = plan
+        .config
+        .denoise
+        .map_or(0, |_| plan.config.denoise_radius);
+    Ok(VoxelRange {
+        min: traced.min.map(|m| m.saturating_sub(margin)),
+        max: [0, 1, 2].map(|k| {
+            traced.max[k]
+                .saturating_add(margin)
+                .min(plan.lattice_dims[k])
+        }),
+    })
+}
+
+/// The tracer's options for `tile` of `plan`: the tile's [`tile_trace_box`] of the global
+/// lattice (as explicit bounds and resolution), the plan's knobs (adaptive sampling and the
+/// denoiser included), the tile's seed.
 pub fn tile_options(plan: &TilePlan, index: usize) -> Result<BakeOptions, TileError> {
     let tile = plan.tile(index)?;
+    let traced = tile_trace_box(plan, index)?;
     let config = &plan.config;
     Ok(BakeOptions {
-        resolution: tile.traced.dims(),
+        resolution: traced.dims(),
         margin: config.margin,
-        bounds: Some(plan.range_bounds(&tile.traced)),
+        bounds: Some(plan.range_bounds(&traced)),
         rays_per_voxel: config.rays_per_voxel,
         cache_rays: config.cache_rays,
         seed: tile.seed,
+        adaptive: config.adaptive_sampling(),
+        denoise: config.denoise_options(),
         ..BakeOptions::default()
+    })
+}
+
+/// `volume`, traced over `from`, cut down to the voxels of `to` (inside `from`) on the lattice
+/// of `plan`. The work done (rays, cache) stays the whole trace's; the voxel counts are the
+/// cut's, a voxel outside the scene's box grown by the margin counting as skipped as the tracer
+/// counts it.
+fn crop(
+    volume: TransferVolume,
+    from: &VoxelRange,
+    to: &VoxelRange,
+    plan: &TilePlan,
+    scene: &SceneInput,
+) -> Result<TransferVolume, TileError> {
+    if from == to {
+        return Ok(volume);
+    }
+    let mut field = GridField::new(to.dims(), plan.range_bounds(to), TRANSFER_DIM)
+        .map_err(|e| BakeError::Trace(e.into()))?;
+    let mut valid = Vec::with_capacity(to.len());
+    for (cut, v) in voxels(to).enumerate() {
+        let local = flat(from.dims(), [0, 1, 2].map(|k| v[k] - from.min[k]));
+        field
+            .voxel_mut(cut)
+            .copy_from_slice(volume.field.voxel(local));
+        valid.push(volume.valid[local]);
+    }
+    let trace_box = scene.scene.bounds().map(|b| b.expand(plan.config.margin));
+    let skipped = (0..to.len())
+        .filter(|&v| trace_box.is_some_and(|b| !b.contains(field.centre_of(v))))
+        .count();
+    let stats = BakeStats {
+        voxels: to.len(),
+        invalid_voxels: valid.iter().filter(|&&ok| !ok).count() - skipped,
+        skipped_voxels: skipped,
+        ..volume.stats
+    };
+    Ok(TransferVolume {
+        field,
+        valid,
+        stats,
     })
 }
 
@@ -111,6 +175,8 @@ pub fn bake_tile(
         .map_err(BakeError::TracerSetup)?
         .bake(progress)
         .map_err(BakeError::Trace)?;
+    let traced = plan.tile(index)?.traced;
+    let volume = crop(volume, &tile_trace_box(plan, index)?, &traced, plan, scene)?;
     let trace = start.elapsed();
     let start = Instant::now();
     let stats = write_tile(&dir, index, fingerprint, &volume)?;
