@@ -1,6 +1,6 @@
 //! Command-line pieces shared by several binaries (parsed with clap).
 
-use prt_trace::BuildQuality;
+use prt_trace::expert::BuildQuality;
 
 /// The BVH build quality of a tracing experiment (`--quality`), prt-trace's `BuildQuality`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]

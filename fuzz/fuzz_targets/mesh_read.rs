@@ -4,7 +4,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use prt_texture::Limits;
-use prt_trace::{decode_mesh, encode_mesh};
+use prt_trace::mesh::{decode_mesh, encode_mesh};
 
 fuzz_target!(|data: &[u8]| {
     let limits = Limits::small();

@@ -20,7 +20,7 @@ use prt_bake::{REFERENCE, read_container, read_volumes};
 use prt_benches::{Table, relative_mse_at_centres};
 use prt_core::FieldModel;
 use prt_texture::Limits;
-use prt_trace::BrickMap;
+use prt_trace::bricks::BrickMap;
 
 #[derive(Debug, Parser)]
 #[command(about = "A sparse-brick bake against a dense one: voxels, validity, errors")]

@@ -26,7 +26,8 @@ use prt_export::{
 use prt_render::{RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, render, views};
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::{LitVolume, RayTracer, read_mesh};
+use prt_trace::mesh::read_mesh;
+use prt_trace::{LitVolume, RayTracer};
 
 #[derive(Debug, Parser)]
 #[command(about = "Engine lookups of a bake against prt's lookup of its traced reference")]

@@ -14,9 +14,8 @@ use prt_benches::{
     BvhQuality, Stopwatch, Table, fmt_duration, load_scene, peak_resident_bytes, save_png,
 };
 use prt_core::NoProgress;
-use prt_trace::{
-    BakeOptions, BuildQuality, RayTracer, TransferBaker, TransferVolume, constant_sky,
-};
+use prt_trace::expert::BuildQuality;
+use prt_trace::{BakeOptions, RayTracer, TransferBaker, TransferVolume, constant_sky};
 
 /// A scene to bake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

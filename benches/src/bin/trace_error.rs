@@ -8,7 +8,8 @@ use std::time::Instant;
 use clap::Parser;
 use prt_benches::{RelativeError, Table, fmt_duration};
 use prt_core::NoProgress;
-use prt_trace::{BakeOptions, Scene, TransferBaker, TransferVolume, block};
+use prt_trace::expert::block;
+use prt_trace::{BakeOptions, Scene, TransferBaker, TransferVolume};
 
 fn bake(scene: &Scene, options: BakeOptions) -> (TransferVolume, std::time::Duration) {
     let t = Instant::now();

@@ -22,7 +22,8 @@ use obvhs::ray::{Ray, RayHit};
 use obvhs::rt_triangle::RtTriangle;
 use obvhs::triangle::Triangle;
 use prt_benches::{BvhQuality, Table, cpu_seconds, fmt_duration, load_scene};
-use prt_trace::{BuildQuality, RayTracer, Scene};
+use prt_trace::expert::BuildQuality;
+use prt_trace::{RayTracer, Scene};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 

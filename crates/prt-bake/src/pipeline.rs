@@ -7,7 +7,8 @@ use prt_kernels::HatGrid;
 use prt_mbd::{LocalBasis, MbdModel, PiecewisePcaModel, SolveReport};
 use prt_texture::Limits;
 use prt_texture::container::WriteReport;
-use prt_trace::{BakeOptions, BrickMap, BrickOptions, BrickStats, TransferBaker, TransferVolume};
+use prt_trace::bricks::{BrickMap, BrickOptions, BrickStats};
+use prt_trace::{BakeOptions, TransferBaker, TransferVolume};
 
 use crate::container::{ContainerContents, read_container, write_container};
 use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd};

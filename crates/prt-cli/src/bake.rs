@@ -466,7 +466,7 @@ pub(crate) fn write_outputs(
 
     keep_volumes(&BakeFolder::new(out_dir), baked, keep.into())?;
     let mesh = BakeFolder::new(out_dir).scene_mesh();
-    prt_trace::write_mesh(&mesh, &scene.scene)
+    prt_trace::mesh::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
 
     let stage = StageBar::start("report");

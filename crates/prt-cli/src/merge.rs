@@ -242,7 +242,7 @@ fn run_streamed(
     )?;
     stage.finish();
     let mesh = BakeFolder::new(out).scene_mesh();
-    prt_trace::write_mesh(&mesh, &scene.scene)
+    prt_trace::mesh::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
     let valid = merged.valid.iter().filter(|&&v| v).count();
     let bytes = merged.container.as_ref().map(|c| c.total_bytes);

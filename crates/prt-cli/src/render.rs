@@ -21,7 +21,8 @@ use prt_shaders::lightmap as lm;
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
-use prt_trace::{LitVolume, RayTracer, Scene, read_mesh};
+use prt_trace::mesh::read_mesh;
+use prt_trace::{LitVolume, RayTracer, Scene};
 
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;

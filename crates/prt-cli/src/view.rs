@@ -22,7 +22,7 @@ use prt_bake::BakeFolder;
 use prt_render::views;
 use prt_sphere::Sky;
 use prt_texture::Limits;
-use prt_trace::read_mesh;
+use prt_trace::mesh::read_mesh;
 use serde_json::json;
 
 use crate::sky::parse_sky;

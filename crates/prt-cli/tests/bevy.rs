@@ -36,7 +36,7 @@ use std::process::Command;
 use glam::Vec3;
 use prt_render::{Rendered, ToneMap, luminance, views};
 use prt_texture::Limits;
-use prt_trace::read_mesh;
+use prt_trace::mesh::read_mesh;
 use prt_trace::{PinholeView, RayTracer};
 
 /// Image side in pixels.

@@ -848,8 +848,9 @@ fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
     let brightest = expected.iter().flat_map(|(v, _)| *v).fold(0.0f64, f64::max);
     assert!(brightest > 0.0, "the exported volume is black");
     let floor = FLOOR * brightest;
-    let scene = prt_trace::read_mesh(&bake.join("scene.mesh"), &prt_texture::Limits::default())
-        .expect("read scene.mesh");
+    let scene =
+        prt_trace::mesh::read_mesh(&bake.join("scene.mesh"), &prt_texture::Limits::default())
+            .expect("read scene.mesh");
     let view = prt_render::views(&scene)[CAMERA].view;
     std::fs::write(
         out.join("scene.json"),

@@ -2,7 +2,8 @@
 //! before an engine sees it.
 
 use glam::Vec3;
-use prt_trace::{CLAMPED_COSINE, LitVolume, SH9, sh9};
+use prt_trace::expert::CLAMPED_COSINE;
+use prt_trace::{LitVolume, SH9, sh9};
 
 use crate::ExportError;
 

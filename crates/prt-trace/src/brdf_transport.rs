@@ -196,7 +196,8 @@ pub fn trace_half_angle_transport(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{GatherPoint, Scene};
+    use crate::Scene;
+    use crate::camera::GatherPoint;
     use prt_core::NoProgress;
 
     fn single_point(normal: Vec3) -> GBuffer {

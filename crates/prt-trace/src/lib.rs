@@ -20,8 +20,8 @@
 //!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and
 //!     `L^c_j(h) = (ρ_c/π) ∫_H V(h, ω') (n·ω') Y_j(ω') dω'` is the radiance leaving `h` when the
 //!     sky is `Y_j`.
-//! * **Sparse bricks** ([`TransferBaker::bake_bricks`], [`BrickOptions`], [`BrickMap`],
-//!   [`BrickedVolume`]): a probe pass (the validity test's rays only) classifies bricks of 4³
+//! * **Sparse bricks** ([`TransferBaker::bake_bricks`], [`bricks::BrickOptions`], [`bricks::BrickMap`],
+//!   [`bricks::BrickedVolume`]): a probe pass (the validity test's rays only) classifies bricks of 4³
 //!   voxels; bricks without a valid voxel (opt-in: far from geometry) are neither traced nor
 //!   stored, and the kept voxels equal the dense bake's bit for bit. For large grids with much
 //!   solid or outside space.
@@ -32,8 +32,9 @@
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
 //!   its brute-force reference image. Lights files ([`read_lights_file`](manylight::read_lights_file)) bring user-made
 //!   point lights in their place.
-//! * **The scene mesh file** ([`write_mesh`], [`read_mesh`], [`encode_mesh`], [`decode_mesh`],
-//!   [`MeshError`]): a scene's triangles, materials and cameras in a small binary format
+//! * **The scene mesh file** ([`mesh`]: [`write_mesh`](mesh::write_mesh),
+//!   [`read_mesh`](mesh::read_mesh), [`encode_mesh`](mesh::encode_mesh),
+//!   [`decode_mesh`](mesh::decode_mesh), [`MeshError`](mesh::MeshError)): a scene's triangles, materials and cameras in a small binary format
 //!   (`scene.mesh` in a bake folder) that `prt render` and a browser read back.
 //! * **Cube-map shadow rays** ([`CubeRays`](relight::CubeRays)): from a surface point towards every texel of a
 //!   cube map of distant light, with exact sub-texel solid angles; the sampling under per-pixel
@@ -66,10 +67,10 @@
 //!   cache points (spacing at most one voxel edge by default), each with the 9-vector
 //!   `t_j = (1/π) ∫_H V (n·ω) Y_j dω` for each reflecting side, estimated with cosine-weighted
 //!   scrambled Sobol' rays. A voxel-ray hit interpolates the lattice linearly and multiplies by
-//!   the albedo. [`IndirectMode::BruteForce`] traces fresh rays per hit instead, and the tests
+//!   the albedo. [`expert::IndirectMode::BruteForce`] traces fresh rays per hit instead, and the tests
 //!   check that both agree within Monte Carlo noise.
 //! * **Variance, adaptive sampling, denoising** (opt-in: [`BakeOptions::adaptive`],
-//!   [`BakeOptions::denoise`]). With either, a voxel's icosahedra come from [`REPLICATES`]
+//!   [`BakeOptions::denoise`]). With either, a voxel's icosahedra come from [`expert::REPLICATES`]
 //!   independently scrambled streams whose spread estimates its variance without bias;
 //!   [`AdaptiveSampling`] stops a voxel at a target relative standard error, and the
 //!   [`DenoiseOptions`] filter averages only valid neighbours visible from the voxel (no light
@@ -128,7 +129,7 @@
 
 mod bake;
 mod brdf_transport;
-mod bricks;
+pub mod bricks;
 mod bvh;
 mod camera;
 mod cube;
@@ -137,7 +138,7 @@ mod error;
 mod gltf_load;
 mod lights_file;
 mod lit;
-mod mesh;
+pub mod mesh;
 mod outdoor;
 mod pixel;
 mod sampling;
@@ -146,21 +147,27 @@ mod sh;
 mod vpl;
 
 pub use bake::{
-    AdaptiveSampling, BakeOptions, BakeStats, CLAMPED_COSINE, IndirectMode, REPLICATES,
-    TransferBaker, TransferVolume, block, constant_sky, incident_radiance, irradiance,
+    AdaptiveSampling, BakeOptions, BakeStats, TransferBaker, TransferVolume, constant_sky,
+    incident_radiance, irradiance,
 };
-pub use bricks::{BrickMap, BrickOptions, BrickStats, BrickedVolume};
-pub use bvh::{BuildQuality, Hit, RayTracer, brute_force_closest};
-pub use camera::{GBuffer, GatherPoint, PinholeView};
+pub use bvh::{Hit, RayTracer};
+pub use camera::{GBuffer, PinholeView};
 pub use denoise::DenoiseOptions;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
 pub use lit::{LitVolume, RadianceSh};
-pub use mesh::{
-    MESH_MAGIC, MESH_VERSION, MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh,
-};
 pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
 pub use sh::{SH9, TRANSFER_DIM, sh9};
+
+/// The baker's and the ray tracer's details, for tests, benches and callers who need them: the
+/// clamped-cosine SH weights, the indirect estimator's mode, the number of independent ray
+/// streams per voxel, one 9×9 block of a transfer vector, the BVH's build quality, a brute-force
+/// ray query to check the BVH against, and the gather points of a G-buffer.
+pub mod expert {
+    pub use crate::bake::{CLAMPED_COSINE, IndirectMode, REPLICATES, block};
+    pub use crate::bvh::{BuildQuality, brute_force_closest};
+    pub use crate::camera::GatherPoint;
+}
 
 /// Many lights: virtual point lights traced from a scene's emitters, or its sun and sky, or read
 /// from a lights file, and the pixel × light matrix of a G-buffer lit by them (for prt-manylight).

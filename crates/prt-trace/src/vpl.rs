@@ -27,8 +27,9 @@ use prt_core::{Aabb, CoreError, MatrixOracle, Progress};
 use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
 use rayon::prelude::*;
 
+use crate::camera::GatherPoint;
 use crate::sampling::{cosine_hemisphere, hash_seed};
-use crate::{GBuffer, GatherPoint, LightKind, RayTracer, Scene, TraceError};
+use crate::{GBuffer, LightKind, RayTracer, Scene, TraceError};
 
 /// A virtual point light: an oriented point that radiates its flux like a Lambertian emitter.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -3,9 +3,10 @@ use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{Aabb, AtomicProgress, NoProgress};
 use prt_sphere::Sky;
+use prt_trace::expert::{IndirectMode, block};
 use prt_trace::{
-    BakeOptions, IndirectMode, SH9, Scene, TRANSFER_DIM, TraceError, TransferBaker, TransferVolume,
-    block, constant_sky, incident_radiance, sh9,
+    BakeOptions, SH9, Scene, TRANSFER_DIM, TraceError, TransferBaker, TransferVolume, constant_sky,
+    incident_radiance, sh9,
 };
 
 fn bake(scene: &Scene, options: BakeOptions) -> TransferVolume {

@@ -2,7 +2,8 @@
 
 use proptest::prelude::*;
 use prt_core::NoProgress;
-use prt_trace::{BakeOptions, BrickMap, BrickOptions, Scene, TransferBaker};
+use prt_trace::bricks::{BrickMap, BrickOptions};
+use prt_trace::{BakeOptions, Scene, TransferBaker};
 
 /// The Cornell box in a grid reaching past its walls: the outside sees back faces (invalid), so
 /// whole bricks are dropped; 11 voxels per axis cut the upper bricks short.

@@ -3,7 +3,8 @@ mod common;
 
 use glam::Vec3;
 use proptest::prelude::*;
-use prt_trace::{RayTracer, Scene, brute_force_closest};
+use prt_trace::expert::brute_force_closest;
+use prt_trace::{RayTracer, Scene};
 use rand::{Rng, SeedableRng};
 
 fn unit(rng: &mut impl Rng) -> Vec3 {

@@ -135,7 +135,7 @@ pub fn threejs_sample(
 /// plus the smallest subnormal step): `Σ_j A_l |Y_j|_max |c_j| 2⁻¹¹`, with `|Y_j| ≤ 1.1`.
 pub fn f16_irradiance_bound(l: &[f32; 9]) -> f32 {
     (0..9)
-        .map(|j| prt_trace::CLAMPED_COSINE[j] * 1.1 * (l[j].abs() * 2f32.powi(-11) + 6e-8))
+        .map(|j| prt_trace::expert::CLAMPED_COSINE[j] * 1.1 * (l[j].abs() * 2f32.powi(-11) + 6e-8))
         .sum()
 }
 

@@ -157,7 +157,7 @@ impl<'a> PixelTransportBaker<'a> {
                 &channel,
             )?);
         }
-        let point = |p: usize, f: fn(&crate::GatherPoint) -> Vec3| {
+        let point = |p: usize, f: fn(&crate::camera::GatherPoint) -> Vec3| {
             self.gbuffer.points[p]
                 .as_ref()
                 .map_or([0.0; 3], |g| f(g).to_array())
