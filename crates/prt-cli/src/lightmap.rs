@@ -30,7 +30,9 @@ OUT/lightmap_uvs.bin (per scene triangle, its three lightmap UVs as 6 little-end
 origin top-left), OUT/manifest.json, OUT/atlas.png and OUT/view.png (the irradiance atlas and \
 the scene lit by the lightmap, tone-mapped), OUT/view.exr (that view, linear RGB: emission + \
 albedo/pi * E; its camera is the manifest's `view`), and OUT/preview/{atlas,view}_NNNNN.png \
-every --preview-every samples. With --engine bevy or --engine threejs (repeatable), also \
+every --preview-every samples; OUT/view_mesh.bin and OUT/view_irradiance.bin (the latest \
+preview) are what `prt view OUT` shows, refreshed while the bake runs. With --engine bevy or \
+--engine threejs (repeatable), also \
 OUT/ENGINE/: lightmap_scene.glb (the scene with the lightmap UVs as TEXCOORD_1), lightmap.ktx2 \
 (RGBA16F, E/pi for Bevy's Lightmap, E for three.js's lightMap) and lightmap.json. Ctrl-C stops \
 inside a pass and writes the last completed one."
@@ -167,6 +169,7 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
     std::fs::create_dir_all(args.out.join("preview"))
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let view = PinholeView::for_scene(&scene)?;
+    crate::view::lightmap::write_mesh(&args.out, &scene, &atlas, &view)?;
     let start = Instant::now();
     let stage = StageBar::start("lightmap");
     let mut preview_error = None;
@@ -177,6 +180,7 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         let tag = format!("{:05}", lightmap.samples_per_texel);
         let dir = args.out.join("preview");
         if let Err(e) = write_pictures(&scene, &atlas, lightmap, &view, args.view_size, &dir, &tag)
+            .and_then(|()| crate::view::lightmap::write_irradiance(&args.out, lightmap))
         {
             preview_error = Some(e);
         }
@@ -205,6 +209,7 @@ pub fn run(args: &LightmapArgs) -> Result<()> {
         "",
     )?;
     write_textures(&args.out, lightmap)?;
+    crate::view::lightmap::write_irradiance(&args.out, lightmap)?;
     for &engine in &engines {
         let folder = args.out.join(engine.label());
         export_lightmap(

@@ -27,6 +27,8 @@ use serde_json::json;
 
 use crate::sky::parse_sky;
 
+pub mod lightmap;
+
 /// The viewer page, compiled into the binary (no build step, no network).
 const INDEX_HTML: &str = include_str!("../viewer/index.html");
 /// The page's script, compiled in too: every ES module by the path it is served at (the page
@@ -41,6 +43,10 @@ const VIEWER_MODULES: [(&str, &str); 8] = [
     ("/methods.js", include_str!("../viewer/methods.js")),
     ("/draw.js", include_str!("../viewer/draw.js")),
 ];
+
+/// The page of a lightmap folder and its one module.
+const LIGHTMAP_HTML: &str = include_str!("../viewer/lightmap.html");
+const LIGHTMAP_MODULE: (&str, &str) = ("/lightmap.js", include_str!("../viewer/lightmap.js"));
 
 /// Largest request head we read; browsers send well under 2 KiB.
 const MAX_REQUEST_BYTES: usize = 8192;
@@ -69,7 +75,9 @@ the means (wall clock). `prt render BAKE_DIR --camera N --rotate DEG --method M 
 renders the same frame on the CPU. Ctrl-C stops the server."
 )]
 pub struct ViewArgs {
-    /// The folder `prt bake --out DIR` wrote (scene.mesh, mbd/, volumes/).
+    /// The folder `prt bake --out DIR` wrote (scene.mesh, mbd/, volumes/), or one `prt lightmap
+    /// --out DIR` writes (view_mesh.bin): the scene lit by its lightmap, albedo/π · E, redrawn
+    /// whenever the bake writes a preview.
     pub bake_dir: PathBuf,
     /// TCP port on 127.0.0.1 (0: any free port; the URL printed says which).
     #[arg(long, default_value_t = 8000)]
@@ -107,6 +115,8 @@ impl Default for ServerLimits {
 /// What the server answers from: the bake folder and the JSON computed at start.
 struct Site {
     root: PathBuf,
+    /// A lightmap folder (`view_mesh.bin`) rather than a bake.
+    lightmap: bool,
     /// The `Host` header values the server answers (compared ignoring ASCII case): itself, on
     /// its port.
     hosts: Vec<String>,
@@ -192,11 +202,13 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         .canonicalize()
         .with_context(|| format!("cannot open the bake folder {}", args.bake_dir.display()))?;
     let folder = BakeFolder::new(&root);
-    if !folder.has_container() {
+    let lightmap = lightmap::is_lightmap_folder(&root);
+    if !lightmap && !folder.has_container() {
         bail!(
-            "{} has no {}/manifest.json: is it a folder written by `prt bake --out`?",
+            "{} has no {}/manifest.json nor {}: is it a folder written by `prt bake --out` or `prt lightmap --out`?",
             root.display(),
-            BakeFolder::CONTAINER
+            BakeFolder::CONTAINER,
+            lightmap::MESH_FILE
         );
     }
     let mut skies = vec![("default".to_string(), Sky::default())];
@@ -214,9 +226,14 @@ pub fn run(args: &ViewArgs) -> Result<()> {
         .with_context(|| format!("cannot listen on 127.0.0.1:{}", args.port))?;
     let port = listener.local_addr()?.port();
     let site = Arc::new(Site {
-        views_json: views_json(&root)?,
+        views_json: if lightmap {
+            "[]".to_string()
+        } else {
+            views_json(&root)?
+        },
         skies_json: skies_json(&skies),
         root,
+        lightmap,
         hosts: own_hosts(port),
         bench: Mutex::default(),
     });
@@ -575,6 +592,29 @@ fn answer(request_line: &str, site: &Site) -> (bool, Response) {
 }
 
 fn route(path: &str, query: &str, site: &Site) -> Response {
+    if site.lightmap {
+        match path {
+            "/" | "/index.html" => return Response::ok("text/html; charset=utf-8", LIGHTMAP_HTML),
+            "/lightmap/state" => {
+                return Response::ok("application/json", lightmap::state_json(&site.root));
+            }
+            "/lightmap/shown" => {
+                // The page says which lightmap it now shows: the terminal follows the refreshes.
+                let mut out = std::io::stdout();
+                let _ = writeln!(
+                    out,
+                    "lightmap: the page shows {} samples per texel",
+                    percent_decode(query)
+                );
+                let _ = out.flush();
+                return Response::ok("text/plain; charset=utf-8", "ok\n");
+            }
+            _ if path == LIGHTMAP_MODULE.0 => {
+                return Response::ok("text/javascript; charset=utf-8", LIGHTMAP_MODULE.1);
+            }
+            _ => {}
+        }
+    }
     if let Some((_, source)) = VIEWER_MODULES.iter().find(|(served, _)| *served == path) {
         return Response::ok("text/javascript; charset=utf-8", *source);
     }
@@ -698,6 +738,7 @@ mod tests {
     fn site_on(root: &Path, port: u16) -> Site {
         Site {
             root: root.canonicalize().expect("root"),
+            lightmap: lightmap::is_lightmap_folder(root),
             hosts: own_hosts(port),
             skies_json: skies_json(&[("default".into(), Sky::default())]),
             views_json: "[]".into(),
@@ -729,6 +770,59 @@ mod tests {
         std::fs::write(dir.join("bake/mbd/manifest.json"), b"{}").expect("manifest");
         std::fs::write(dir.join("secret.txt"), b"outside").expect("secret");
         dir
+    }
+
+    #[test]
+    fn a_lightmap_folder_serves_its_page_files_and_state() {
+        let dir = scratch("lightmap");
+        let root = dir.join("bake");
+        std::fs::write(root.join(lightmap::MESH_FILE), b"PRTLMV1\n").expect("mesh");
+        let site = site(&root);
+        assert!(site.lightmap);
+        let get = |target: &str| answer(&format!("GET {target} HTTP/1.1"), &site).1;
+        let page = get("/");
+        assert_eq!(page.content_type, "text/html; charset=utf-8");
+        assert!(
+            String::from_utf8(bytes(page.body))
+                .unwrap()
+                .contains("lightmap.js")
+        );
+        assert_eq!(get("/lightmap.js").status, "200 OK");
+        assert_eq!(get("/page.js").status, "200 OK");
+        assert_eq!(get("/bake/view_mesh.bin").status, "200 OK");
+        // No irradiance yet, then one of 24 samples per texel; the stamp follows the file.
+        let state = |site: &Site| -> serde_json::Value {
+            let r = answer("GET /lightmap/state HTTP/1.1", site).1;
+            assert_eq!(r.content_type, "application/json");
+            serde_json::from_slice(&bytes(r.body)).unwrap()
+        };
+        assert_eq!(state(&site)["samples"], serde_json::Value::Null);
+        let mut map = prt_lightmap::Lightmap {
+            width: 2,
+            height: 1,
+            basis: prt_lightmap::LightmapBasis::Irradiance,
+            coefficients: Vec::new(),
+            irradiance: vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            covered: vec![true; 2],
+            samples_per_texel: 24,
+        };
+        lightmap::write_irradiance(&root, &map).expect("write");
+        let first = state(&site);
+        assert_eq!(first["samples"], 24);
+        let file = bytes(get("/bake/view_irradiance.bin").body);
+        assert_eq!(file.len(), 20 + 6 * 4);
+        assert_eq!(&file[..8], b"PRTLMI1\n");
+        map.samples_per_texel = 32;
+        lightmap::write_irradiance(&root, &map).expect("write");
+        let second = state(&site);
+        assert_eq!(second["samples"], 32);
+        assert_ne!(first["stamp"], second["stamp"]);
+        // A bake folder has none of these.
+        let bake = site_on(&dir.join("bake/mbd"), 8000);
+        assert!(!bake.lightmap);
+        let get = |target: &str| answer(&format!("GET {target} HTTP/1.1"), &bake).1;
+        assert_eq!(get("/lightmap/state").status, "404 Not Found");
+        assert_eq!(get("/lightmap.js").status, "404 Not Found");
     }
 
     #[test]

@@ -4,11 +4,14 @@
 //! most about four times the measured squared error, on the 8-bit images), and turning the sky
 //! must move the browser's image the way it moves the CPU's. A bake whose grid is 10 voxels
 //! wide (rows of one-byte texels not a multiple of 4 bytes) must draw too, and a load error
-//! must show on the page.
+//! must show on the page. A lightmap folder (`prt lightmap --out`) shows the lightmapped box,
+//! and the page picks up a new lightmap when the bake writes one.
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
 
 mod common;
 use common::{chromium, run, scratch};
@@ -38,21 +41,23 @@ struct Server {
 
 impl Server {
     fn start(bake: &Path, envmap: &Path) -> Server {
-        let mut child = prt()
-            .args([
-                "view",
-                bake.to_str().expect("utf-8"),
-                "--port",
-                "0",
-                "--envmap",
-            ])
-            .arg(envmap)
+        Self::start_with_lines(bake, &[envmap]).0
+    }
+
+    /// The server, with `--envmap` for each of `envmaps`, and the lines it prints after its URL.
+    fn start_with_lines(bake: &Path, envmaps: &[&Path]) -> (Server, mpsc::Receiver<String>) {
+        let mut command = prt();
+        command.args(["view", bake.to_str().expect("utf-8"), "--port", "0"]);
+        for envmap in envmaps {
+            command.arg("--envmap").arg(envmap);
+        }
+        let mut child = command
             .stdout(Stdio::piped())
             .spawn()
             .expect("prt view starts");
-        let stdout = child.stdout.take().expect("stdout");
+        let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
         let mut line = String::new();
-        BufReader::new(stdout)
+        stdout
             .read_line(&mut line)
             .expect("prt view prints its URL");
         let url = line
@@ -60,7 +65,15 @@ impl Server {
             .find(|w| w.starts_with("http://127.0.0.1:"))
             .unwrap_or_else(|| panic!("no URL in {line:?}"))
             .to_string();
-        Server { child, url }
+        let (send, lines) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in stdout.lines().map_while(Result::ok) {
+                if send.send(line).is_err() {
+                    break;
+                }
+            }
+        });
+        (Server { child, url }, lines)
     }
 }
 
@@ -162,7 +175,7 @@ fn write_in_bricks(bake: &Path, out: &Path) {
     std::fs::copy(bake.join("scene.mesh"), out.join("scene.mesh")).expect("copy the mesh");
     let dense = prt_bake::read_container(&bake.join("mbd"), &prt_texture::Limits::default())
         .expect("read the bake");
-    let contents = prt_bake::ContainerContents {
+    let contents = prt_bake::container::ContainerContents {
         model: &dense.model,
         grid: dense.grid,
         valid: &dense.valid,
@@ -170,11 +183,11 @@ fn write_in_bricks(bake: &Path, out: &Path) {
         lambda: 1e-4,
         encoding: dense.encoding,
     };
-    let config = prt_bake::LayoutConfig {
-        layout: prt_bake::CoefficientLayout::Bricks,
-        ..prt_bake::LayoutConfig::default()
+    let config = prt_bake::container::LayoutConfig {
+        layout: prt_bake::container::CoefficientLayout::Bricks,
+        ..prt_bake::container::LayoutConfig::default()
     };
-    let report = prt_bake::write_container_with(&out.join("mbd"), &contents, &config)
+    let report = prt_bake::container::write_container_with(&out.join("mbd"), &contents, &config)
         .expect("write in bricks");
     assert!(report.manifest.arrays[0].bricks.is_some());
 }
@@ -401,6 +414,120 @@ fn a_grid_not_a_multiple_of_4_wide_draws_and_load_errors_show_on_the_page() {
             "<div id=\"error\">prt view: cannot load bake/mbd/validity.ktx2: HTTP 404</div>"
         ),
         "{dom}"
+    );
+    drop(server);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Mean 8-bit RGB over the rows 30..70 % of the column band `from..from + 10 %` (as the lightmap
+/// page measures its own frame).
+fn band_mean(image: &image::RgbImage, from: f64) -> [f64; 3] {
+    let (w, h) = (f64::from(image.width()), f64::from(image.height()));
+    let mut sum = [0.0; 3];
+    let mut n = 0.0;
+    for y in (0.3 * h) as u32..(0.7 * h) as u32 {
+        for x in (from * w) as u32..((from + 0.1) * w) as u32 {
+            let p = image.get_pixel(x, y);
+            for c in 0..3 {
+                sum[c] += f64::from(p[c]);
+            }
+            n += 1.0;
+        }
+    }
+    sum.map(|s| s / n)
+}
+
+#[test]
+#[cfg_attr(
+    prt_skip_chromium,
+    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+)]
+fn the_viewer_shows_a_lightmap_and_picks_up_a_new_one() {
+    let dir = scratch("lightmap");
+    let out = dir.join("lightmap");
+    // The built-in Cornell box, small and quick.
+    run(prt()
+        .args(["lightmap", "--samples", "16", "--pass", "8"])
+        .args(["--preview-every", "8", "--texels-per-metre", "6"])
+        .args(["--view-size", "16", "--out"])
+        .arg(&out));
+    let (server, mut lines) = Server::start_with_lines(&out, &[]);
+    let shot = screenshot(&server, "poll=50", &dir.join("lightmap-view.png"));
+    let (left, right) = (band_mean(&shot, 0.03), band_mean(&shot, 0.87));
+    eprintln!("lightmap view: left wall {left:.0?}, right wall {right:.0?} (8-bit RGB)");
+    // The box is lit, its left wall red and its right wall green (measured: [106, 23, 16] and
+    // [91, 142, 68]).
+    let mean =
+        shot.as_raw().iter().map(|&v| f64::from(v)).sum::<f64>() / shot.as_raw().len() as f64;
+    assert!(
+        mean > 30.0,
+        "the page drew black (mean {mean:.1}; {})",
+        dir.display()
+    );
+    assert!(
+        left[0] > left[1] + 30.0 && left[0] > left[2] + 30.0,
+        "the left wall is not red: {left:?}"
+    );
+    assert!(
+        right[1] > right[0] + 30.0 && right[1] > right[2] + 30.0,
+        "the right wall is not green: {right:?}"
+    );
+
+    // The page keeps polling until it shows a lightmap of 1000 samples per texel; once it shows
+    // the bake's (16), a quarter as bright a one of "1000" samples replaces the file, as the
+    // bake does (write, then rename).
+    while lines.try_recv().is_ok() {}
+    let url = format!("{}?size={SIZE}&poll=50&until=1000", server.url);
+    let browser_run = browser(&dir.join("refresh.profile"), SIZE)
+        .arg("--dump-dom")
+        .arg(&url)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("chromium starts");
+    let shown = |lines: &mut mpsc::Receiver<String>, samples: u32| loop {
+        let line = lines
+            .recv_timeout(Duration::from_secs(300))
+            .expect("the page reports what it shows");
+        if line == format!("lightmap: the page shows {samples} samples per texel") {
+            break;
+        }
+    };
+    shown(&mut lines, 16);
+    let path = out.join("view_irradiance.bin");
+    let mut bytes = std::fs::read(&path).expect("irradiance");
+    bytes[16..20].copy_from_slice(&1000u32.to_le_bytes());
+    for v in bytes[20..].chunks_exact_mut(4) {
+        let e = f32::from_le_bytes(v.try_into().expect("4 bytes")) * 0.25;
+        v.copy_from_slice(&e.to_le_bytes());
+    }
+    let partial = out.join("view_irradiance.bin.partial");
+    std::fs::write(&partial, &bytes).expect("write");
+    std::fs::rename(&partial, &path).expect("rename");
+    shown(&mut lines, 1000);
+    let dom = browser_run.wait_with_output().expect("chromium ends");
+    let dom = String::from_utf8_lossy(&dom.stdout);
+    assert!(dom.contains("<title>ready</title>"), "{dom}");
+    let attribute = |name: &str| -> [f64; 3] {
+        let key = format!("data-{name}=\"");
+        let start = dom
+            .find(&key)
+            .unwrap_or_else(|| panic!("no {key} in {dom}"))
+            + key.len();
+        let values: Vec<f64> = dom[start..dom[start..].find('"').expect("end") + start]
+            .split(',')
+            .map(|v| v.parse().expect("a number"))
+            .collect();
+        [values[0], values[1], values[2]]
+    };
+    assert!(dom.contains("data-samples=\"1000\""), "{dom}");
+    let (left_after, right_after) = (attribute("left"), attribute("right"));
+    eprintln!("after the refresh: left wall {left_after:.0?}, right wall {right_after:.0?}");
+    // The page's exposure stays that of the first lightmap, so a quarter of the light shows
+    // darker. Measured: left wall red 106 -> 46, right wall green 142 -> 79.
+    assert!(
+        left_after[0] < 0.85 * left[0] && right_after[1] < 0.85 * right[1],
+        "the page did not show the new lightmap: left {left:?} -> {left_after:?}, right {right:?} -> {right_after:?}"
     );
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
