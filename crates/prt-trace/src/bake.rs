@@ -1,5 +1,6 @@
 //! The 324-dimensional transfer-volume baker.
 
+use std::borrow::Cow;
 use std::f32::consts::PI;
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -340,6 +341,26 @@ fn lattice_index(m: usize, a: usize, b: usize) -> usize {
 }
 
 impl SurfaceCache {
+    /// A 64-bit FNV-1a hash of the lattice (each slot's subdivision, each point's position and
+    /// normal): equal lattices, equal hashes; a shared cache laid on another lattice is refused.
+    fn layout_hash(&self) -> u64 {
+        let mut hash = 0xcbf2_9ce4_8422_2325u64;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                hash = (hash ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        };
+        for &m in &self.subdiv {
+            eat(&m.to_le_bytes());
+        }
+        for (p, n) in &self.points {
+            for x in p.to_array().into_iter().chain(n.to_array()) {
+                eat(&x.to_bits().to_le_bytes());
+            }
+        }
+        hash
+    }
+
     /// Lattice points (both sides of a point count once).
     pub(crate) fn points(&self) -> usize {
         self.values.len() / 2
@@ -394,6 +415,41 @@ impl SurfaceCache {
     }
 }
 
+/// A surface cache evaluated ahead of the bakes that share it
+/// ([`TransferBaker::evaluate_surface_cache`], [`TransferBaker::with_surface_cache`]): the
+/// tiles of a tiled bake trace it once between them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SharedSurfaceCache {
+    /// The spacing its lattice was laid with (after the point budget's coarsening).
+    pub spacing: f32,
+    /// A hash of its lattice (slot subdivisions, point positions and normals) that a bake
+    /// using it must reproduce.
+    pub layout: u64,
+    /// The seed its rays were scrambled with.
+    pub seed: u64,
+    /// Hemisphere rays per entry.
+    pub cache_rays: usize,
+    /// Rays traced to evaluate it.
+    pub rays: u64,
+    /// Wall time of laying and evaluating it.
+    pub time: Duration,
+    /// Per entry (`point * 2 + side`, side 0 the front): its SH9 transfer, `None` for the back
+    /// of a single-sided surface, which no ray looks up.
+    pub values: Vec<Option<[f32; SH9]>>,
+}
+
+impl SharedSurfaceCache {
+    /// Lattice points (both sides of a point count once).
+    pub fn points(&self) -> usize {
+        self.values.len() / 2
+    }
+
+    /// Entries evaluated.
+    pub fn evaluated(&self) -> usize {
+        self.values.iter().filter(|v| v.is_some()).count()
+    }
+}
+
 /// Bakes transfer volumes of one scene (see the crate docs for the method).
 ///
 /// ```
@@ -426,6 +482,9 @@ pub struct TransferBaker<'s> {
     /// Whether directions come from [`REPLICATES`] streams (the variance is measured).
     replicated: bool,
     pub(crate) bvh_time: Duration,
+    /// A surface cache evaluated ahead ([`TransferBaker::with_surface_cache`]), used instead of
+    /// building one.
+    shared_cache: Option<SurfaceCache>,
 }
 
 impl<'s> TransferBaker<'s> {
@@ -552,6 +611,7 @@ impl<'s> TransferBaker<'s> {
             min_groups,
             replicated,
             bvh_time,
+            shared_cache: None,
         })
     }
 
@@ -621,7 +681,8 @@ impl<'s> TransferBaker<'s> {
             .collect()
     }
 
-    fn build_cache(&self) -> SurfaceCache {
+    /// The surface cache's lattice, unevaluated, and the spacing it was laid with.
+    fn build_cache(&self) -> (SurfaceCache, f32) {
         // Coarsen the spacing until the lattice fits the point budget (deterministically).
         let mut spacing = self.cache_spacing();
         let mut subdiv = self.subdivisions(spacing);
@@ -636,6 +697,11 @@ impl<'s> TransferBaker<'s> {
             spacing *= 1.5;
             subdiv = self.subdivisions(spacing);
         }
+        (self.lay_cache(subdiv), spacing)
+    }
+
+    /// The unevaluated surface cache of lattice subdivisions `subdiv` (one per slot).
+    fn lay_cache(&self, subdiv: Vec<u16>) -> SurfaceCache {
         let slots = self.tracer.slots();
         let mut start = Vec::with_capacity(slots);
         // (point, front normal) for every lattice point.
@@ -706,14 +772,134 @@ impl<'s> TransferBaker<'s> {
         Ok(GridField::new(self.options.resolution, self.grid, dim)?)
     }
 
-    /// Builds the surface cache the indirect mode needs (`None` without one) and its set-up time.
-    pub(crate) fn surface_cache(&self) -> (Option<SurfaceCache>, Duration) {
+    /// The surface cache the indirect mode needs (`None` without one): the one given to
+    /// [`TransferBaker::with_surface_cache`], else a fresh one; and its set-up time.
+    pub(crate) fn surface_cache(&self) -> (Option<Cow<'_, SurfaceCache>>, Duration) {
         let t0 = Instant::now();
-        let cache = match self.options.indirect {
-            IndirectMode::SurfaceCache => Some(self.build_cache()),
-            IndirectMode::BruteForce | IndirectMode::Off => None,
+        let cache = match (self.options.indirect, &self.shared_cache) {
+            (IndirectMode::SurfaceCache, Some(shared)) => Some(Cow::Borrowed(shared)),
+            (IndirectMode::SurfaceCache, None) => Some(Cow::Owned(self.build_cache().0)),
+            (IndirectMode::BruteForce | IndirectMode::Off, _) => None,
         };
         (cache, t0.elapsed())
+    }
+
+    /// Whether side `side` of lattice point `point` can be looked up by a voxel ray: every
+    /// front, the back of double-sided slots only.
+    fn entry_needed(&self, cache: &SurfaceCache, point: usize, side: usize) -> bool {
+        side == 0 || {
+            let slot = cache.start.partition_point(|&s| s as usize <= point) - 1;
+            self.materials[slot].double_sided
+        }
+    }
+
+    /// Evaluates this bake's whole surface cache ahead: every entry a voxel ray can look up
+    /// (each lattice point's front, the back of double-sided surfaces), each the same value a
+    /// bake with these options computes on first use. Use it to share one cache between bakes
+    /// of parts of one grid (the tiles of a tiled bake, [`TransferBaker::with_surface_cache`])
+    /// so that none traces it again. Deterministic for the seed on any thread count. Errors:
+    /// [`TraceError::InvalidOption`] when the indirect mode has no surface cache,
+    /// [`TraceError::Core`]`(Cancelled)` when cancelled.
+    pub fn evaluate_surface_cache(
+        &self,
+        progress: &dyn Progress,
+    ) -> Result<SharedSurfaceCache, TraceError> {
+        if self.options.indirect != IndirectMode::SurfaceCache {
+            return Err(TraceError::InvalidOption {
+                what: "indirect",
+                why: format!("{:?} has no surface cache", self.options.indirect),
+            });
+        }
+        let t0 = Instant::now();
+        let (cache, spacing) = self.build_cache();
+        let entries = cache.values.len();
+        progress.message("surface cache");
+        progress.set_len(entries as u64);
+        let values = (0..entries)
+            .into_par_iter()
+            .with_min_len(256)
+            .map(|entry| {
+                let (point, side) = (entry / 2, entry % 2);
+                progress.check()?;
+                progress.inc(1);
+                if !self.entry_needed(&cache, point, side) {
+                    return Ok(None);
+                }
+                let (p, n) = cache.points[point];
+                let n = if side == 0 { n } else { -n };
+                let scramble = hash_seed(self.options.seed, STREAM_CACHE, entry as u64);
+                Ok(Some(self.hemisphere_transfer(p, n, scramble)))
+            })
+            .collect::<Result<Vec<_>, TraceError>>()?;
+        let evaluated = values.iter().filter(|v| v.is_some()).count() as u64;
+        Ok(SharedSurfaceCache {
+            spacing,
+            layout: cache.layout_hash(),
+            seed: self.options.seed,
+            cache_rays: self.options.cache_rays,
+            rays: evaluated * self.options.cache_rays as u64,
+            time: t0.elapsed(),
+            values,
+        })
+    }
+
+    /// This baker using `shared` (from [`TransferBaker::evaluate_surface_cache`] of a bake of
+    /// the same scene with the same cache knobs, e.g. of the whole grid this one is a part of)
+    /// as its surface cache: it traces no cache ray. Errors ([`TraceError::InvalidOption`])
+    /// when this bake has no surface cache, or `shared` was laid on another lattice (another
+    /// scene, spacing or tracer), with other cache rays, or lacks an entry a voxel ray can look
+    /// up.
+    pub fn with_surface_cache(mut self, shared: &SharedSurfaceCache) -> Result<Self, TraceError> {
+        let invalid = |why: String| TraceError::InvalidOption {
+            what: "surface cache",
+            why,
+        };
+        if self.options.indirect != IndirectMode::SurfaceCache {
+            return Err(invalid(format!(
+                "{:?} has no surface cache",
+                self.options.indirect
+            )));
+        }
+        if shared.cache_rays != self.options.cache_rays {
+            return Err(invalid(format!(
+                "it was traced with {} rays per point, this bake asks for {}",
+                shared.cache_rays, self.options.cache_rays
+            )));
+        }
+        if !(shared.spacing.is_finite() && shared.spacing > 0.0) {
+            return Err(invalid(format!(
+                "its spacing {} is not positive",
+                shared.spacing
+            )));
+        }
+        let cache = self.lay_cache(self.subdivisions(shared.spacing));
+        let layout = cache.layout_hash();
+        if layout != shared.layout || cache.values.len() != shared.values.len() {
+            return Err(invalid(format!(
+                "it was laid on another lattice ({} entries, layout {:016x}; this scene's has {} \
+                 entries, layout {layout:016x})",
+                shared.values.len(),
+                shared.layout,
+                cache.values.len()
+            )));
+        }
+        for (entry, value) in shared.values.iter().enumerate() {
+            match value {
+                Some(v) => {
+                    let _ = cache.values[entry].set(*v);
+                }
+                None if self.entry_needed(&cache, entry / 2, entry % 2) => {
+                    return Err(invalid(format!(
+                        "it lacks entry {entry} (point {}, side {}), which voxel rays can look up",
+                        entry / 2,
+                        entry % 2
+                    )));
+                }
+                None => {}
+            }
+        }
+        self.shared_cache = Some(cache);
+        Ok(self)
     }
 
     /// The rotation of icosahedron `g` of voxel `voxel`: one Sobol' stream per voxel, or with
@@ -873,7 +1059,7 @@ impl<'s> TransferBaker<'s> {
         let voxels = field.num_voxels();
         let cache_rays = AtomicU64::new(0);
         let (cache, cache_time) = self.surface_cache();
-        let cache_points = cache.as_ref().map_or(0, SurfaceCache::points);
+        let cache_points = cache.as_deref().map_or(0, SurfaceCache::points);
 
         let t1 = Instant::now();
         let voxel_rays = AtomicU64::new(0);
@@ -912,7 +1098,7 @@ impl<'s> TransferBaker<'s> {
                             continue;
                         }
                         let (is_valid, r) =
-                            self.voxel_transfer(x, v, cache.as_ref(), &cache_rays, o, var);
+                            self.voxel_transfer(x, v, cache.as_deref(), &cache_rays, o, var);
                         *okv = is_valid;
                         if !is_valid {
                             invalid.fetch_add(1, Ordering::Relaxed);
@@ -925,7 +1111,7 @@ impl<'s> TransferBaker<'s> {
                 })?;
         }
         let voxel_time = t1.elapsed();
-        let cache_evaluated = cache.as_ref().map_or(0, SurfaceCache::evaluated);
+        let cache_evaluated = cache.as_deref().map_or(0, SurfaceCache::evaluated);
         drop(cache);
         let t2 = Instant::now();
         if let Some(options) = &self.options.denoise {
@@ -1183,5 +1369,66 @@ mod tests {
             assert_eq!(cache.lookup(0, 1, || Vec2::ZERO, eval), [0.5; SH9]);
         }
         assert_eq!(calls.into_inner(), 1);
+    }
+
+    /// A bake using a cache evaluated ahead is the bake that evaluates it on the way, bit for
+    /// bit, and traces no cache ray; a cache of another lattice or other cache rays is refused.
+    #[test]
+    fn a_shared_surface_cache_gives_the_same_bake_without_cache_rays() {
+        let scene = crate::Scene::cornell_box();
+        let options = BakeOptions {
+            resolution: [5, 5, 5],
+            rays_per_voxel: 24,
+            cache_rays: 8,
+            seed: 3,
+            ..BakeOptions::default()
+        };
+        let baker = TransferBaker::new(&scene, options.clone()).unwrap();
+        let own = baker.bake(&prt_core::NoProgress).unwrap();
+        let shared = baker.evaluate_surface_cache(&prt_core::NoProgress).unwrap();
+        // Every front, the backs of the double-sided surfaces.
+        assert!((shared.points()..=2 * shared.points()).contains(&shared.evaluated()));
+        assert_eq!(shared.rays, (shared.evaluated() * 8) as u64);
+        assert!(own.stats.cache_rays <= shared.rays);
+        let with = TransferBaker::new(&scene, options.clone())
+            .unwrap()
+            .with_surface_cache(&shared)
+            .unwrap()
+            .bake(&prt_core::NoProgress)
+            .unwrap();
+        assert_eq!(with.field.data(), own.field.data());
+        assert_eq!(with.valid, own.valid);
+        assert_eq!(with.stats.cache_rays, 0);
+        assert_eq!(with.stats.voxel_rays, own.stats.voxel_rays);
+        assert_eq!(with.stats.cache_points, shared.points());
+
+        let refused = |options: BakeOptions, shared: &SharedSurfaceCache| {
+            TransferBaker::new(&scene, options)
+                .unwrap()
+                .with_surface_cache(shared)
+                .unwrap_err()
+        };
+        let other_rays = BakeOptions {
+            cache_rays: 16,
+            ..options.clone()
+        };
+        assert!(matches!(
+            refused(other_rays, &shared),
+            TraceError::InvalidOption { .. }
+        ));
+        let coarser = SharedSurfaceCache {
+            spacing: shared.spacing * 3.0,
+            ..shared.clone()
+        };
+        assert!(matches!(
+            refused(options.clone(), &coarser),
+            TraceError::InvalidOption { .. }
+        ));
+        let mut holed = shared.clone();
+        holed.values[0] = None;
+        assert!(matches!(
+            refused(options, &holed),
+            TraceError::InvalidOption { .. }
+        ));
     }
 }

@@ -164,7 +164,7 @@ pub use sh::{SH9, TRANSFER_DIM, sh9};
 /// streams per voxel, one 9×9 block of a transfer vector, the BVH's build quality, a brute-force
 /// ray query to check the BVH against, and the gather points of a G-buffer.
 pub mod expert {
-    pub use crate::bake::{CLAMPED_COSINE, IndirectMode, REPLICATES, block};
+    pub use crate::bake::{CLAMPED_COSINE, IndirectMode, REPLICATES, SharedSurfaceCache, block};
     pub use crate::bvh::{BuildQuality, brute_force_closest};
     pub use crate::camera::GatherPoint;
 }
