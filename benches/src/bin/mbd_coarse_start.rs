@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use prt_bake::read_volumes;
+use prt_bake::volumes::read_volumes;
 use prt_benches::Table;
 use prt_benches::load_average;
 use prt_benches::mbd::{Cost, FieldArgs, basis_nodes};

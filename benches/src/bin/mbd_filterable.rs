@@ -22,7 +22,8 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Parser;
-use prt_bake::{ContainerContents, LightBasisConfig, light_basis, read_container, write_container};
+use prt_bake::container::ContainerContents;
+use prt_bake::{LightBasisConfig, light_basis, read_container, write_container};
 use prt_benches::mbd::traced_field;
 use prt_benches::{RelativeError, Table, cache_dir, fmt_duration, median_time};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress};

@@ -108,12 +108,12 @@ fn knobs(res: &str) -> Vec<&str> {
 }
 
 /// A bake folder's kept traced volume (f16) and validity.
-fn traced(dir: &Path) -> prt_bake::KeptVolumes {
-    prt_bake::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap()
+fn traced(dir: &Path) -> prt_bake::volumes::KeptVolumes {
+    prt_bake::volumes::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap()
 }
 
 /// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` of two traced volumes over voxels valid in both.
-fn difference(a: &prt_bake::KeptVolumes, b: &prt_bake::KeptVolumes) -> f64 {
+fn difference(a: &prt_bake::volumes::KeptVolumes, b: &prt_bake::volumes::KeptVolumes) -> f64 {
     assert_eq!(a.grid, b.grid);
     let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());
     let mut sum = RelativeError::default();
@@ -142,10 +142,10 @@ fn tile_labels(plan: &prt_bake::tiles::TilePlan) -> Vec<u32> {
 /// The seam ratios across the plan's tile borders of a bake folder (tiled or not): of its
 /// traced volume against itself blurred, and of its MBD container's error, as `prt merge`
 /// measures them.
-fn border_seams(dir: &Path, kept: &prt_bake::KeptVolumes, labels: &[u32]) -> (f64, f64) {
+fn border_seams(dir: &Path, kept: &prt_bake::volumes::KeptVolumes, labels: &[u32]) -> (f64, f64) {
     let field = kept.get("reference").unwrap();
     let options = prt_mbd::SeamOptions {
-        denoise_sigma: prt_bake::BLUR_SIGMA,
+        denoise_sigma: prt_bake::seams::BLUR_SIGMA,
         valid: Some(&kept.valid),
     };
     let trace = prt_mbd::error_seams(field, field, labels, &options).unwrap();

@@ -63,7 +63,7 @@ pub struct BakeConfig {
     /// Seed of every random choice (tracing, solver, evaluation, clustering).
     pub seed: u64,
     /// Memory budget in bytes: the bake is refused before it starts when its
-    /// [`crate::MemoryEstimate`] is above it (`None`: no check).
+    /// [`crate::memory::MemoryEstimate`] is above it (`None`: no check).
     #[serde(skip)]
     pub max_memory: Option<u64>,
     /// Folder to write the MBD container into, then score the model read back from it; `None`

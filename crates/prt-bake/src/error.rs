@@ -30,7 +30,7 @@ pub enum BakeError {
         }
     )]
     OverMemoryBudget {
-        /// Estimated peak bytes ([`crate::MemoryEstimate`]).
+        /// Estimated peak bytes ([`crate::memory::MemoryEstimate`]).
         need: u64,
         /// The budget in bytes.
         budget: u64,

@@ -13,16 +13,16 @@
 //! | [`Layout`], [`BrickSummary`] | dense or sparse-brick tracing and masked fitting, and what a sparse bake kept |
 //! | [`Quality`] | the named presets (draft, default, high) of [`BakeConfig::preset`] |
 //! | [`SceneInput`], [`scene_hash`] | the built-in Cornell box or a glTF file, with the name the container records; the hash of a loaded scene |
-//! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`]s, stage times |
+//! | [`Bake`] | the result: volume, [`BakedMbd`], [`Baseline`]s, the comparison ([`MethodScores`] per [`Method`]), [`SeamView`](seams::SeamView)s, stage times |
 //! | [`BakeProgress`], [`Stage`] | per-stage progress handles (any `Progress` works as one) |
-//! | [`write_container`], [`ContainerContents`] | write an MBD model as KTX2 volumes + JSON manifest |
-//! | [`write_container_with`], [`LayoutConfig`], [`CoefficientLayout`], [`node_liveness`], [`layout_bytes`] | the same with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
-//! | [`read_container`], [`MbdContainer`] | read it back: the model, the validity mask, the manifest |
+//! | [`write_container`], [`read_container`], [`MbdContainer`] | write an MBD model as KTX2 volumes + JSON manifest; read it back: the model, the validity mask, the manifest |
+//! | [`container`] | the container's contents, and writing it with the coefficient volume dense or in bricks of live nodes (and the rule that picks one) |
 //! | [`light_basis`], [`LightBasisConfig`], [`LitBasis`], [`LitBasisTarget`] | light a model's basis by a sky on the basis grid (SH9 or L1 RGB per basis vector): the pass a renderer runs when the sky changes |
 //! | [`BakeFolder`], [`FolderVolume`], [`FolderError`] | a bake folder's layout (container, kept volumes, scene mesh, reports) and the volume a later tool lights |
 //! | [`KeepVolumes`], [`KeptOutcome`] | whether a bake keeps its traced volume and the baselines beside the container ([`BakeFolder::keep_volumes`]) |
-//! | [`write_volumes`], [`read_volumes`], [`KeptVolumes`] | keep the traced volume and the baselines' reconstructions beside the container, for exports and renders that compare against them |
-//! | [`MemoryEstimate`], [`largest_resolution`], [`default_memory_budget`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
+//! | [`volumes`] | the traced volume and the baselines' reconstructions kept beside the container, for exports and renders that compare against them |
+//! | [`memory`] | what a bake needs in memory, checked against [`BakeConfig::max_memory`] before it starts |
+//! | [`seams`] | the seam view: what each method's basis does to a smooth field |
 //! | [`BakeError`], [`ContainerError`] | what can go wrong |
 //! | [`tiles`] | tiled bakes: the plan (`prt plan`), one worker's tile (`prt bake-tile`), the merge in memory or streamed (`prt merge`), their files and errors |
 //! | [`production`] | the paper's production configuration: a bake lit by a sky as linear-SH irradiance, a hybrid MBD (2D basis over the terrain, 3D coefficients), 8-bit textures at node resolution, read back |
@@ -49,39 +49,30 @@
 #![deny(missing_docs)]
 
 mod config;
-mod container;
+pub mod container;
 mod error;
 mod folder;
 mod light_basis;
-mod memory;
+pub mod memory;
 mod methods;
 mod pipeline;
 pub mod production;
 mod scene;
 mod scores;
-mod seams;
+pub mod seams;
 pub mod tiles;
-mod volumes;
+pub mod volumes;
 
 pub use config::{BakeConfig, Layout, Quality, SPARSE_FROM_VOXELS, TRANSFER_DIM};
-pub use container::{
-    BRICK_MIN_SAVING, CoefficientLayout, ContainerContents, LayoutBytes, LayoutConfig, MBD_MODEL,
-    MbdContainer, VALIDITY, layout_bytes, node_liveness, read_container, write_container,
-    write_container_with,
-};
+pub use container::{MbdContainer, read_container, write_container};
 pub use error::{BakeError, ContainerError};
 pub use folder::{BakeFolder, FolderError, FolderVolume, KeepVolumes, KeptOutcome};
 pub use light_basis::{LightBasisConfig, LitBasis, LitBasisTarget, light_basis};
-pub use memory::{MemoryEstimate, default_memory_budget, largest_resolution};
 pub use pipeline::{
     Bake, BakeProgress, BakedMbd, Baseline, BrickSummary, Stage, bake, bake_volume,
 };
 pub use scene::{SceneInput, scene_hash};
 pub use scores::{Method, MethodScores};
-pub use seams::{BLUR_SIGMA, SeamView};
-pub use volumes::{
-    KEPT_VOLUMES, KeptVolumes, REFERENCE, kept_volume_bytes, read_volumes, write_volumes,
-};
 
 /// The README's Rust snippet, compiled as a doc test so it stays true.
 #[doc = include_str!("../README.md")]

@@ -11,10 +11,11 @@ use prt_trace::bricks::{BrickMap, BrickOptions, BrickStats};
 use prt_trace::{BakeOptions, TransferBaker, TransferVolume};
 
 use crate::container::{ContainerContents, read_container, write_container};
+use crate::memory::MemoryEstimate;
 use crate::methods::{basis_cells, fit_bpca, fit_cpca, fit_mbd};
 use crate::scores::{Method, MethodScores, eval_options, score};
 use crate::seams::{SeamView, seam_view, smooth};
-use crate::{BakeConfig, BakeError, MemoryEstimate, SceneInput};
+use crate::{BakeConfig, BakeError, SceneInput};
 
 /// A stage of the bake, in the order they run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -62,7 +62,7 @@ pub struct MethodScores {
     /// The same jump between neighbours inside clusters.
     pub seam_interior: f64,
     /// The seam ratio of the method's basis alone, on the denoised reference (see
-    /// [`SeamView`](crate::SeamView)); `None` where not measured.
+    /// [`SeamView`](crate::seams::SeamView)); `None` where not measured.
     pub denoised_seam_ratio: Option<f64>,
     /// Scalars the model stores.
     pub stored_scalars: usize,

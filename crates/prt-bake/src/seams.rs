@@ -13,8 +13,9 @@
 //! centre. Without the noise, the jump `‖e_u − e_v‖` between neighbouring voxels is large only
 //! where the basis jumps: at block and cluster boundaries.
 //!
-//! The residuals and the volume's seam ratio come from [`prt_mbd::projection`]; this module
-//! adds the per-pixel maps of one horizontal slice, which the report draws.
+//! The residuals and the volume's seam ratio come from [`prt_mbd::projection_seam_ratio`] and
+//! [`prt_mbd::expert::projection_residuals`]; this module adds the per-pixel maps of one
+//! horizontal slice, which the report draws.
 
 use prt_core::GridField;
 use prt_mbd::{LocalBasis, MbdError};

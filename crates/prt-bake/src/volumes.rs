@@ -12,7 +12,8 @@ use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer,
 use prt_texture::{Encoding, Limits, TextureError};
 use serde_json::json;
 
-use crate::{Bake, ContainerError, TRANSFER_DIM, VALIDITY};
+use crate::container::VALIDITY;
+use crate::{Bake, ContainerError, TRANSFER_DIM};
 
 /// Value of the `model` attribute of a kept-volumes container.
 pub const KEPT_VOLUMES: &str = "kept transfer volumes";

@@ -8,10 +8,10 @@ use common::scratch;
 
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
-use prt_bake::{
-    CoefficientLayout, ContainerContents, LayoutConfig, node_liveness, read_container,
-    write_container_with,
+use prt_bake::container::{
+    CoefficientLayout, ContainerContents, LayoutConfig, node_liveness, write_container_with,
 };
+use prt_bake::read_container;
 use prt_core::{Aabb, FieldModel, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;

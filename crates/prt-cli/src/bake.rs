@@ -5,9 +5,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
+use prt_bake::memory::MemoryEstimate;
 use prt_bake::{
-    Bake, BakeConfig, BakeError, BakeFolder, KeepVolumes, KeptOutcome, Layout, MemoryEstimate,
-    Quality, SceneInput,
+    Bake, BakeConfig, BakeError, BakeFolder, KeepVolumes, KeptOutcome, Layout, Quality, SceneInput,
 };
 use prt_texture::Encoding;
 
@@ -348,7 +348,7 @@ impl BakeArgs {
             seed: self.seed,
             max_memory: Some(
                 self.max_memory
-                    .unwrap_or_else(prt_bake::default_memory_budget),
+                    .unwrap_or_else(prt_bake::memory::default_memory_budget),
             ),
             container,
             layout: self.layout.into(),

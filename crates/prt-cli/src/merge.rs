@@ -152,12 +152,12 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     }
 
     // The in-memory merge holds the whole volume: refuse it over the budget before reading.
-    let estimate = prt_bake::MemoryEstimate::for_grid(
+    let estimate = prt_bake::memory::MemoryEstimate::for_grid(
         &plan.config,
         plan.lattice_dims,
         scene.scene.triangles().len(),
     );
-    let budget = prt_bake::default_memory_budget();
+    let budget = prt_bake::memory::default_memory_budget();
     if estimate.total() > budget {
         bail!(
             "merging in memory needs about {:.2} GiB, over this machine's budget of {:.2} GiB; \

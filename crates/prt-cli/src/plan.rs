@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use prt_bake::memory::MemoryEstimate;
 use prt_bake::tiles::{PlanWritten, TilePlan};
-use prt_bake::{BakeFolder, MemoryEstimate, SceneInput};
+use prt_bake::{BakeFolder, SceneInput};
 use prt_texture::Limits;
 
 use crate::bake::{BakeArgs, KeepVolumesArg, cli_error};
@@ -62,7 +63,9 @@ pub fn load_scene(plan: &TilePlan, over: Option<&Path>) -> Result<SceneInput> {
 pub fn limits() -> Limits {
     let limits = Limits::default();
     Limits {
-        max_bytes: limits.max_bytes.max(prt_bake::default_memory_budget()),
+        max_bytes: limits
+            .max_bytes
+            .max(prt_bake::memory::default_memory_budget()),
         ..limits
     }
 }

@@ -20,8 +20,9 @@ fn knobs() -> Vec<&'static str> {
 
 /// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` over voxels valid in both bakes' traced volumes.
 fn difference(a: &Path, b: &Path) -> f64 {
-    let read =
-        |dir: &Path| prt_bake::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap();
+    let read = |dir: &Path| {
+        prt_bake::volumes::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap()
+    };
     let (a, b) = (read(a), read(b));
     assert_eq!(a.grid, b.grid, "the tiled lattice is the single bake's");
     let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());

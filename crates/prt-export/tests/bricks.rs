@@ -5,10 +5,10 @@
 use std::path::PathBuf;
 
 use ndarray::{Array2, Array3};
-use prt_bake::{
-    CoefficientLayout, ContainerContents, LayoutConfig, MbdContainer, read_container,
-    write_container_with,
+use prt_bake::container::{
+    CoefficientLayout, ContainerContents, LayoutConfig, write_container_with,
 };
+use prt_bake::{MbdContainer, read_container};
 use prt_core::{Aabb, NoProgress, glam::Vec3};
 use prt_export::{DilateConfig, dilate, light_container};
 use prt_kernels::HatGrid;

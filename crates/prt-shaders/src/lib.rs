@@ -54,7 +54,7 @@ pub const RELIT_GROUPS: usize = 7;
 pub const BASIS_GROUPS: usize = 81;
 
 /// How a container stores its coefficient volume (its `coefficients` array's `layout`), as the
-/// shaders read it; `prt_bake::CoefficientLayout` is the writer's choice, which may be `Auto`.
+/// shaders read it; `prt_bake::container::CoefficientLayout` is the writer's choice, which may be `Auto`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CoefficientStorage {
     /// `volume`: ⌈L/4⌉ tiles stacked along z.

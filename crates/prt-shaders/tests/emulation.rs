@@ -25,9 +25,10 @@ use glam::Vec3;
 use half::f16;
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
-use prt_bake::{
-    CoefficientLayout, ContainerContents, LayoutConfig, write_container, write_container_with,
+use prt_bake::container::{
+    CoefficientLayout, ContainerContents, LayoutConfig, write_container_with,
 };
+use prt_bake::write_container;
 use prt_core::{Aabb, FieldModel};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;

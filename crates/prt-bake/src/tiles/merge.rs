@@ -12,7 +12,8 @@ use prt_texture::Limits;
 
 use super::file::{TileData, read_tile, read_timing};
 use super::plan::{TileError, TilePlan, flat, voxels};
-use crate::{BLUR_SIGMA, Bake, BakeError, TRANSFER_DIM};
+use crate::seams::BLUR_SIGMA;
+use crate::{Bake, BakeError, TRANSFER_DIM};
 
 /// How well two tiles agree on the voxels both traced (a tile's halo lies in its neighbours'
 /// cores): independent traces of the same voxels, so their difference is Monte Carlo noise.

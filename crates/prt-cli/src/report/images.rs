@@ -6,7 +6,8 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use prt_bake::{Bake, Method, SeamView};
+use prt_bake::seams::SeamView;
+use prt_bake::{Bake, Method};
 use prt_core::{FieldModel, GridField};
 use prt_sphere::Sky;
 use prt_texture::write_atomic;

@@ -4,7 +4,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::Result;
-use prt_bake::{BLUR_SIGMA, Bake, BakeFolder, MethodScores};
+use prt_bake::seams::BLUR_SIGMA;
+use prt_bake::{Bake, BakeFolder, MethodScores};
 use prt_texture::write_atomic;
 use serde_json::json;
 
