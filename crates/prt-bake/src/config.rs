@@ -142,43 +142,39 @@ impl Default for BakeConfig {
     }
 }
 
-/// A named trade of bake time for accuracy, chosen from the measured error and time of each
-/// knob (docs/results.md, "The main job's speed/accuracy trade"); see [`BakeConfig::preset`].
+/// A named trade of bake time for accuracy, each a point of the measured curve of image error
+/// against bake time (docs/results.md, "Presets and the curve of error against time"); see
+/// [`BakeConfig::preset`]. A preset changes how well the volume is computed, never what is
+/// stored: the grid, the rank, the basis and the encoding stay the default's (or the flags').
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Quality {
-    /// The cheapest knobs whose error stays close to the default's: for previews and
-    /// iterating on a scene.
+    /// The cheapest knobs whose image error stays within 10 % of the default's: for previews
+    /// and iterating on a scene.
     Draft,
     /// `prt bake`'s defaults: [`BakeConfig::default`].
     #[default]
     Default,
-    /// The knobs that still lower the error for their cost (a finer grid, more rays): for the
-    /// bake an engine ships.
+    /// The most accurate knobs measured at up to 4× the default's time: for the bake an engine
+    /// ships.
     High,
 }
 
 impl BakeConfig {
     /// The knobs of a [`Quality`]; every field not named here keeps its default.
     ///
-    /// - `Draft`: 24 voxels along the longest axis, 256 rays per voxel, 32 cache rays, rank 4,
-    ///   16 iterations.
+    /// - `Draft`: 16 MBD iterations.
     /// - `Default`: [`BakeConfig::default`] exactly.
-    /// - `High`: 48 voxels along the longest axis, 1024 rays per voxel.
+    /// - `High`: 4096 rays per voxel.
     pub fn preset(quality: Quality) -> BakeConfig {
         let default = BakeConfig::default();
         match quality {
             Quality::Draft => BakeConfig {
-                resolution: 24,
-                rays_per_voxel: 256,
-                cache_rays: 32,
-                rank: 4,
                 max_iterations: 16,
                 ..default
             },
             Quality::Default => default,
             Quality::High => BakeConfig {
-                resolution: 48,
-                rays_per_voxel: 1024,
+                rays_per_voxel: 4096,
                 ..default
             },
         }
@@ -356,6 +352,19 @@ mod tests {
     fn the_default_preset_is_the_default() {
         assert_eq!(BakeConfig::preset(Quality::Default), BakeConfig::default());
         assert_eq!(Quality::default(), Quality::Default);
+    }
+
+    #[test]
+    fn every_preset_is_valid_and_stores_what_the_default_stores() {
+        let default = BakeConfig::default();
+        for quality in [Quality::Draft, Quality::Default, Quality::High] {
+            let preset = BakeConfig::preset(quality);
+            assert!(preset.validate().is_ok(), "{quality:?}");
+            let storage = |c: &BakeConfig| (c.resolution, c.rank, c.basis_nodes, c.encoding);
+            assert_eq!(storage(&preset), storage(&default), "{quality:?}");
+        }
+        assert_ne!(BakeConfig::preset(Quality::Draft), default);
+        assert_ne!(BakeConfig::preset(Quality::High), default);
     }
 
     #[test]

@@ -85,12 +85,12 @@ impl From<LayoutArg> for Layout {
 /// A named preset of `prt bake` (`--quality`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
 pub enum QualityArg {
-    /// The cheapest settings whose error stays close to the default's.
+    /// The cheapest settings whose image error stays within 10 % of the default's.
     Draft,
     /// `prt bake`'s defaults.
     #[default]
     Default,
-    /// More work where it still lowers the error.
+    /// The most accurate settings measured at up to 4× the default's time.
     High,
 }
 
@@ -126,7 +126,7 @@ pub struct BakeArgs {
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Preset for every knob below; an explicit knob flag overrides it (measured trade in
-    /// docs/results.md, "The main job's speed/accuracy trade").
+    /// docs/results.md, "Presets and the curve of error against time").
     #[arg(long, value_enum, default_value_t = QualityArg::Default)]
     pub quality: QualityArg,
     #[arg(long, help = knob_help(
@@ -710,7 +710,7 @@ mod tests {
         let help = Bake::command().render_help().to_string();
         let high = BakeConfig::preset(Quality::High);
         assert!(
-            help.contains(&format!("high {}]", high.resolution)),
+            help.contains(&format!("high {}]", high.rays_per_voxel)),
             "{help}"
         );
     }
