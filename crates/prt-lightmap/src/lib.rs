@@ -23,6 +23,9 @@
 //!
 //! * **Looking** — [`Lightmap::irradiance_at`] (bilinear, as a GPU filters) and
 //!   [`render_view`]: the scene from a pinhole view lit by its lightmap.
+//! * **Reading back** — [`LightmapManifest::parse`] and [`LightmapFolder::parse`]: the folder
+//!   `prt lightmap` writes, from its bytes; [`Lightmap::coefficients_at`] filters the basis
+//!   layers as [`Lightmap::irradiance_at`] does.
 //!
 //! The crate does no I/O; long work takes a [`prt_core::Progress`] handle (cancellation keeps
 //! the last completed pass). A seed gives bit-identical lightmaps on any thread count.
