@@ -5,7 +5,13 @@
 //! Run: `cargo run --release -p prt-benches --bin lightmap_convergence -- [--scene cornell]
 //! [--basis sg:9] [--texels-per-metre 8] [--max-samples 1024] [--reference 16384]
 //! [--reference-encoder ls|nnls]
-//! [--correlated] [--no-hemisphere-rule] [--plot PATH] [--csv DIR]`
+//! [--correlated] [--no-hemisphere-rule] [--plot PATH] [--csv DIR]
+//! [--figure5 PATH [--figure-samples 8] [--figure-size 256]]`
+//!
+//! `--figure5 PATH` also writes the paper's Figure 5 on texels: the scene lit by non-negative
+//! PLSQ lightmaps of `--figure-samples` samples per texel, one with every texel on the same
+//! scrambled sequence (correlated) and one with a scramble per texel (decorrelated, the
+//! default), beside the reference; one exposure for the three (the reference's).
 //!
 //! The reference is the least-squares fit (hemisphere rule on; `--reference-encoder nnls`: the
 //! non-negative one) with `--reference` samples per texel and another seed: the best the basis
@@ -20,12 +26,15 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use glam::Vec3;
-use prt_benches::{PlotLabels, PlotPoint, Table, load_scene, plot_lines};
+use prt_benches::{PlotLabels, PlotPoint, Table, load_scene, plot_lines, save_png};
 use prt_core::{NoProgress, SphericalBasis};
 use prt_lightmap::{
-    Encoder, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig, bake_lightmap, unwrap_charts,
+    Encoder, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig, bake_lightmap, render_view,
+    unwrap_charts,
 };
+use prt_render::{Rendered, ToneMap};
 use prt_sphere::{AmbientDiceSrbf, SgBasis, ShBasis};
+use prt_trace::PinholeView;
 
 #[derive(Parser)]
 struct Args {
@@ -70,6 +79,70 @@ struct Args {
     /// Write the table as CSV into this folder.
     #[arg(long)]
     csv: Option<PathBuf>,
+    /// Write Figure 5 (correlated | decorrelated | reference views) here (PNG).
+    #[arg(long)]
+    figure5: Option<PathBuf>,
+    /// Samples per texel of Figure 5's two lightmaps.
+    #[arg(long, default_value_t = 8)]
+    figure_samples: u32,
+    /// Side of each of Figure 5's views, pixels.
+    #[arg(long, default_value_t = 256)]
+    figure_size: usize,
+}
+
+/// Figure 5: views of the scene lit by a correlated and a decorrelated lightmap of
+/// `args.figure_samples` samples per texel, and by the reference, side by side.
+fn figure5(
+    args: &Args,
+    scene: &prt_trace::Scene,
+    atlas: &prt_lightmap::Atlas,
+    base: &LightmapConfig,
+    reference: &Lightmap,
+    path: &std::path::Path,
+) -> Result<(), String> {
+    let view = PinholeView::for_scene(scene).map_err(|e| e.to_string())?;
+    let size = args.figure_size;
+    let render = |lightmap: &Lightmap| -> Result<Rendered, String> {
+        let pixels =
+            render_view(scene, atlas, lightmap, &view, size, size).map_err(|e| e.to_string())?;
+        Ok(Rendered {
+            width: size,
+            height: size,
+            hit: pixels.iter().map(|p| p.iter().any(|&v| v > 0.0)).collect(),
+            pixels,
+            unlit: 0,
+        })
+    };
+    let mut panels = Vec::new();
+    for decorrelated in [false, true] {
+        let bake = bake_lightmap(
+            scene,
+            atlas,
+            &LightmapConfig {
+                encoder: Encoder::PlsqNonNegative,
+                samples: args.figure_samples,
+                pass_samples: args.figure_samples,
+                decorrelated,
+                ..*base
+            },
+            &NoProgress,
+            &mut |_| {},
+        )
+        .map_err(|e| e.to_string())?;
+        panels.push(render(&bake.lightmap)?);
+    }
+    let reference = render(reference)?;
+    let tone = ToneMap::auto(&reference);
+    panels.push(reference);
+    let mut image = image::RgbImage::new((3 * size) as u32, size as u32);
+    for (k, panel) in panels.iter().enumerate() {
+        let bytes = tone.apply(panel);
+        for (i, rgb) in bytes.chunks_exact(3).enumerate() {
+            let (x, y) = ((k * size + i % size) as u32, (i / size) as u32);
+            image.put_pixel(x, y, image::Rgb([rgb[0], rgb[1], rgb[2]]));
+        }
+    }
+    save_png(&image, path)
 }
 
 /// The basis functions of `basis`; the irradiance basis has none to measure directions with.
@@ -202,6 +275,9 @@ fn main() -> Result<(), String> {
         args.reference,
         started.elapsed().as_secs_f64()
     );
+    if let Some(path) = &args.figure5 {
+        figure5(&args, &scene, &atlas, &base, &reference.lightmap, path)?;
+    }
     let reference_radiance = radiance(&reference.lightmap, functions.as_ref(), &table);
     let reference_irradiance = irradiance(&reference.lightmap);
     let mut out = Table::new(&[
