@@ -12,10 +12,10 @@ use common::{
 };
 use prt_texture::Limits;
 
-/// The plan's knobs with the denoiser off: tiles trace without it, so the single bakes they are
-/// compared with do too.
+/// The plan's knobs, the denoiser on (the default): tiles trace with it (over a margin of its
+/// radius), as the single bakes they are compared with do.
 fn knobs() -> Vec<&'static str> {
-    [TINY_PLAN, &["--denoise", "off"]].concat()
+    TINY_PLAN.to_vec()
 }
 
 /// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` over voxels valid in both bakes' traced volumes.
