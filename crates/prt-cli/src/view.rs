@@ -633,7 +633,7 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
             }
             Response::ok("text/plain; charset=utf-8", "ok\n")
         }
-        "/shaders/common.glsl" | "/shaders/reconstruct.glsl" | "/shaders/relight.glsl" => {
+        "/shaders/common.glsl" | "/shaders/reconstruct.glsl" | "/shaders/light.glsl" => {
             let rank = query
                 .split('&')
                 .find_map(|kv| kv.strip_prefix("rank="))
@@ -653,7 +653,7 @@ fn route(path: &str, query: &str, site: &Site) -> Response {
                     };
                     prt_shaders::glsl_reconstruct_for(rank, layout)
                 }
-                _ => prt_shaders::glsl_relight(rank),
+                _ => prt_shaders::glsl_light(rank),
             };
             Response::ok("text/plain; charset=utf-8", source)
         }
@@ -866,15 +866,9 @@ mod tests {
             ("GET / FTP/1.0", "400 Bad Request"),
             ("GET / HTTP/1.1 extra", "400 Bad Request"),
             ("POST / HTTP/1.1", "405 Method Not Allowed"),
-            ("GET /shaders/relight.glsl HTTP/1.1", "400 Bad Request"),
-            (
-                "GET /shaders/relight.glsl?rank=0 HTTP/1.1",
-                "400 Bad Request",
-            ),
-            (
-                "GET /shaders/relight.glsl?rank=x HTTP/1.1",
-                "400 Bad Request",
-            ),
+            ("GET /shaders/light.glsl HTTP/1.1", "400 Bad Request"),
+            ("GET /shaders/light.glsl?rank=0 HTTP/1.1", "400 Bad Request"),
+            ("GET /shaders/light.glsl?rank=x HTTP/1.1", "400 Bad Request"),
             ("GET /nope HTTP/1.1", "404 Not Found"),
             ("GET \u{1F600} HTTP/1.1", "404 Not Found"),
         ] {

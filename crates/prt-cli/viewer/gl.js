@@ -4,7 +4,7 @@
 import { checkGl, fail, fetchText } from './page.js';
 import { parseKtx2 } from './formats.js';
 import {
-  FULLSCREEN_VS, KEPT_VOXEL, MBD_VOXEL, RELIT_GROUPS, SCENE_FS, SCENE_VS, SKY_FS, TONEMAP_FS,
+  FULLSCREEN_VS, KEPT_VOXEL, MBD_VOXEL, LIT_GROUPS, SCENE_FS, SCENE_VS, SKY_FS, TONEMAP_FS,
   VOXEL_MAIN,
 } from './shaders.js';
 
@@ -99,7 +99,7 @@ export function indirectionTexture(gl, bricks, data) {
   return texture;
 }
 
-// Scale and bias of every group as a (groups × 2) RGBA32F texture: what relight.glsl fetches.
+// Scale and bias of every group as a (groups × 2) RGBA32F texture: what light.glsl fetches.
 export function rangesTexture(gl, scale, bias) {
   const groups = scale.length / 4;
   const data = new Float32Array(8 * groups);
@@ -183,7 +183,7 @@ function program(gl, vs, fs, what) {
 export async function compilePrograms(gl, rank, bricked) {
   const [common1, relight1, relightRank, reconstructRank] = await Promise.all([
     fetchText('shaders/common.glsl?rank=1'),
-    fetchText('shaders/relight.glsl?rank=1'), fetchText(`shaders/relight.glsl?rank=${rank}`),
+    fetchText('shaders/light.glsl?rank=1'), fetchText(`shaders/light.glsl?rank=${rank}`),
     fetchText(`shaders/reconstruct.glsl?rank=${rank}${bricked ? '&layout=bricks' : ''}`),
   ]);
   return {
@@ -223,10 +223,10 @@ export function drawVoxelSlices(gl, prog, atlas, voxels) {
   gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
   gl.viewport(0, 0, voxels[0], voxels[1]);
   gl.disable(gl.DEPTH_TEST);
-  const buffers = [...Array(RELIT_GROUPS).keys()].map((r) => gl.COLOR_ATTACHMENT0 + r);
+  const buffers = [...Array(LIT_GROUPS).keys()].map((r) => gl.COLOR_ATTACHMENT0 + r);
   gl.drawBuffers(buffers);
   for (let z = 0; z < voxels[2]; z++) {
-    for (let r = 0; r < RELIT_GROUPS; r++) {
+    for (let r = 0; r < LIT_GROUPS; r++) {
       gl.framebufferTextureLayer(gl.FRAMEBUFFER, buffers[r], atlas, 0, z + r * voxels[2]);
     }
     prog.int('u_voxel_slice', z);

@@ -16,7 +16,7 @@ import {
 } from './page.js';
 import { parseMesh } from './formats.js';
 import { compilePrograms } from './gl.js';
-import { RELIT_GROUPS } from './shaders.js';
+import { LIT_GROUPS } from './shaders.js';
 import { orbit, rotateSky, scale3, sub } from './math.js';
 import { containerLayout, loadMethods } from './methods.js';
 import { autoExposure, createRenderer, drawHdr, ensureRelit, relightShown, sync, toneMap } from './draw.js';
@@ -53,7 +53,7 @@ function webgl2(canvas) {
   const gl = canvas.getContext('webgl2', { antialias: false, preserveDrawingBuffer: true });
   if (!gl) fail('this browser has no WebGL2');
   if (!gl.getExtension('EXT_color_buffer_float')) fail('WebGL2 without EXT_color_buffer_float: cannot render to float textures');
-  if (gl.getParameter(gl.MAX_DRAW_BUFFERS) < RELIT_GROUPS) fail(`the voxel pass needs ${RELIT_GROUPS} draw buffers; this WebGL2 has ${gl.getParameter(gl.MAX_DRAW_BUFFERS)}`);
+  if (gl.getParameter(gl.MAX_DRAW_BUFFERS) < LIT_GROUPS) fail(`the voxel pass needs ${LIT_GROUPS} draw buffers; this WebGL2 has ${gl.getParameter(gl.MAX_DRAW_BUFFERS)}`);
   // The volumes are tightly packed: a one-channel row (R8: x bytes, R16F: 2x) is not a multiple
   // of WebGL's default 4-byte row alignment when the grid's x size is not a multiple of 4.
   gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);

@@ -1,6 +1,6 @@
 // Vectors (3-element arrays), the camera's projection and orbit, and the sky's SH.
 
-import { RELIT_GROUPS } from './shaders.js';
+import { LIT_GROUPS } from './shaders.js';
 
 export const sub = (a, b) => a.map((v, i) => v - b[i]);
 export const add = (a, b) => a.map((v, i) => v + b[i]);
@@ -76,7 +76,7 @@ export function rotateSky(sh, degrees) {
 
 // Incident-radiance SH per channel packed as 7 vec4 (value c·9 + j).
 export function packSky(sh) {
-  const out = new Float32Array(4 * RELIT_GROUPS);
+  const out = new Float32Array(4 * LIT_GROUPS);
   for (let c = 0; c < 3; c++) for (let j = 0; j < 9; j++) out[9 * c + j] = sh[c][j];
   return out;
 }

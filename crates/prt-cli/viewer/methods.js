@@ -9,7 +9,7 @@ import {
   targetTexture,
 } from './gl.js';
 import { packSky } from './math.js';
-import { RELIT_GROUPS } from './shaders.js';
+import { LIT_GROUPS } from './shaders.js';
 
 const TRANSFER_DIM = 324;
 // Texel groups of one kept volume's 324 channels (nine parts of 36).
@@ -66,7 +66,7 @@ async function loadMbd(gl, { manifest, rank, coefficientKernel, basisKernel }) {
   if (!coefficients.linear) fail('the coefficient volume needs float filtering (OES_texture_float_linear)');
   if (coefficients.bricks) coefficients.indirection = await loadIndirection(gl, 'mbd', coefficients.bricks);
   const voxels = validity.size;
-  const relitTiles = [RELIT_GROUPS, rank, 1];
+  const relitTiles = [LIT_GROUPS, rank, 1];
   const basisNodes = basisKernel.nodes;
   const { domain_min: lo, domain_max: hi } = coefficientKernel;
   const step = coefficientKernel.nodes.map((n, k) => (n > 1 ? (hi[k] - lo[k]) / (n - 1) : 0));
@@ -83,8 +83,8 @@ async function loadMbd(gl, { manifest, rank, coefficientKernel, basisKernel }) {
     coefficients,
     coefficientGrid: grid(lo, hi, coefficientKernel.nodes, coefficients.tiles),
     step,
-    atlas: targetTexture(gl, [voxels[0], voxels[1], RELIT_GROUPS * voxels[2]]),
-    atlasGrid: grid(lo, hi, voxels, [1, 1, RELIT_GROUPS]),
+    atlas: targetTexture(gl, [voxels[0], voxels[1], LIT_GROUPS * voxels[2]]),
+    atlasGrid: grid(lo, hi, voxels, [1, 1, LIT_GROUPS]),
     offset: step.map((s) => 0.5 * s),
   };
 }
@@ -108,10 +108,10 @@ async function loadKeptVolumes(gl, keptManifest) {
       basis: { texture },
       basisRanges: rangesTexture(gl, scale, bias),
       basisGrid: grid(first, last, voxels, [9, 9, 1]),
-      relitGrid: grid(first, last, voxels, [RELIT_GROUPS, 1, 1]),
-      relit: targetTexture(gl, [RELIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
-      atlas: targetTexture(gl, [voxels[0], voxels[1], RELIT_GROUPS * voxels[2]]),
-      atlasGrid: grid(first, last, voxels, [1, 1, RELIT_GROUPS]),
+      relitGrid: grid(first, last, voxels, [LIT_GROUPS, 1, 1]),
+      relit: targetTexture(gl, [LIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
+      atlas: targetTexture(gl, [voxels[0], voxels[1], LIT_GROUPS * voxels[2]]),
+      atlasGrid: grid(first, last, voxels, [1, 1, LIT_GROUPS]),
       offset: edge.map((e) => 0.5 * e),
     }]);
   }
@@ -152,7 +152,7 @@ async function keptBasis(gl, keptManifest, name, voxels) {
 export function relight(gl, programs, emptyVao, m, skySh) {
   gl.bindVertexArray(emptyVao);
   const relightProgram = programs.relight.get(m.rank).use()
-    .grid('u_mbd_basis', m.basisGrid).grid('u_mbd_relit', m.relitGrid)
+    .grid('u_mbd_basis', m.basisGrid).grid('u_mbd_lit', m.relitGrid)
     .vec4s('u_mbd_sky', packSky(skySh))
     .texture('u_mbd_basis_texture', 0, gl.TEXTURE_3D, m.basis.texture)
     .texture('u_mbd_basis_ranges', 1, gl.TEXTURE_2D, m.basisRanges);
@@ -168,11 +168,11 @@ export function relight(gl, programs, emptyVao, m, skySh) {
 // The MBD voxel pass, bound: Σ c_l b̃_l from the coefficients and the relit basis.
 function mbdVoxelPass(gl, prog, m) {
   const voxel = prog.use()
-    .grid('u_mbd_coefficients', m.coefficientGrid).grid('u_mbd_relit', m.relitGrid)
+    .grid('u_mbd_coefficients', m.coefficientGrid).grid('u_mbd_lit', m.relitGrid)
     .vec4s('u_mbd_coefficient_scale', m.coefficients.scale)
     .vec4s('u_mbd_coefficient_bias', m.coefficients.bias)
     .texture('u_mbd_coefficient_texture', 0, gl.TEXTURE_3D, m.coefficients.texture)
-    .texture('u_mbd_relit_texture', 1, gl.TEXTURE_3D, m.relit)
+    .texture('u_mbd_lit_texture', 1, gl.TEXTURE_3D, m.relit)
     .vec3('u_node_step', m.step);
   const b = m.coefficients.bricks;
   if (b) {

@@ -1,7 +1,7 @@
 // The viewer's own GLSL (prt-shaders' comes from the server, /shaders/*.glsl).
 
-// Relit SH9 RGB (27 values) is 7 vec4 per node: prt-shaders' MBD_RELIT_GROUPS.
-export const RELIT_GROUPS = 7;
+// Relit SH9 RGB (27 values) is 7 vec4 per node: prt-shaders' MBD_LIT_GROUPS.
+export const LIT_GROUPS = 7;
 
 // One triangle over the whole viewport, from gl_VertexID alone (no vertex buffer).
 export const FULLSCREEN_VS = `#version 300 es
@@ -24,16 +24,16 @@ layout(location = 3) out vec4 o_3;
 layout(location = 4) out vec4 o_4;
 layout(location = 5) out vec4 o_5;
 layout(location = 6) out vec4 o_6;
-void voxel_values(ivec3 voxel, out vec4 v[${RELIT_GROUPS}]);
+void voxel_values(ivec3 voxel, out vec4 v[${LIT_GROUPS}]);
 void main() {
   ivec3 voxel = ivec3(ivec2(gl_FragCoord.xy), u_voxel_slice);
   float stored = u_validity_range.y + u_validity_range.x * texelFetch(u_validity, voxel, 0).r;
-  vec4 v[${RELIT_GROUPS}];
-  for (int r = 0; r < ${RELIT_GROUPS}; r++) v[r] = vec4(0.0);
+  vec4 v[${LIT_GROUPS}];
+  for (int r = 0; r < ${LIT_GROUPS}; r++) v[r] = vec4(0.0);
   if (stored > 0.5) {
     voxel_values(voxel, v);
     // Slot 28 (always 0 in a relit texel) carries the validity, so filtering gives its weight.
-    v[${RELIT_GROUPS - 1}].w = 1.0;
+    v[${LIT_GROUPS - 1}].w = 1.0;
   }
   o_0 = v[0]; o_1 = v[1]; o_2 = v[2]; o_3 = v[3]; o_4 = v[4]; o_5 = v[5]; o_6 = v[6];
 }
@@ -42,7 +42,7 @@ void main() {
 // MBD: Σ c_l b̃_l at the voxel centre (prt-shaders' reconstruction).
 export const MBD_VOXEL = `
 uniform vec3 u_node_step;
-void voxel_values(ivec3 voxel, out vec4 v[MBD_RELIT_GROUPS]) {
+void voxel_values(ivec3 voxel, out vec4 v[MBD_LIT_GROUPS]) {
   mbd_incident_radiance(u_mbd_coefficients.domain_min.xyz + vec3(voxel) * u_node_step, v);
 }
 `;
@@ -50,8 +50,8 @@ void voxel_values(ivec3 voxel, out vec4 v[MBD_RELIT_GROUPS]) {
 // Kept volumes: the voxel's relit texels.
 export const KEPT_VOXEL = `
 uniform highp sampler3D u_relit_voxels;
-void voxel_values(ivec3 voxel, out vec4 v[MBD_RELIT_GROUPS]) {
-  for (int r = 0; r < MBD_RELIT_GROUPS; r++) {
+void voxel_values(ivec3 voxel, out vec4 v[MBD_LIT_GROUPS]) {
+  for (int r = 0; r < MBD_LIT_GROUPS; r++) {
     v[r] = texelFetch(u_relit_voxels, ivec3(voxel.x + r * u_voxels.x, voxel.y, voxel.z), 0);
   }
 }
@@ -98,14 +98,14 @@ out vec4 o_radiance;
 
 bool irradiance_at(MbdGrid g, highp sampler3D t, vec3 p, vec3 n, out vec3 e) {
   vec3 local = mbd_local(g, p);
-  vec4 sh[MBD_RELIT_GROUPS];
-  for (int r = 0; r < MBD_RELIT_GROUPS; r++) {
+  vec4 sh[MBD_LIT_GROUPS];
+  for (int r = 0; r < MBD_LIT_GROUPS; r++) {
     sh[r] = textureLod(t, mbd_tile_uvw(g, local, r), 0.0);
   }
-  float weight = sh[MBD_RELIT_GROUPS - 1].w;
+  float weight = sh[MBD_LIT_GROUPS - 1].w;
   e = vec3(0.0);
   if (weight <= 1e-4) return false;
-  for (int r = 0; r < MBD_RELIT_GROUPS; r++) sh[r] /= weight;
+  for (int r = 0; r < MBD_LIT_GROUPS; r++) sh[r] /= weight;
   e = mbd_irradiance(sh, n);
   return true;
 }
@@ -134,7 +134,7 @@ void main() {
 
 // Misses show the sky's radiance along the pixel's ray (alpha 0: not counted by auto exposure).
 export const SKY_FS = `
-uniform vec4 u_sky[MBD_RELIT_GROUPS];
+uniform vec4 u_sky[MBD_LIT_GROUPS];
 uniform vec3 u_forward;
 uniform vec3 u_right;
 uniform vec3 u_up;

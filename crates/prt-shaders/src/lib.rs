@@ -4,12 +4,12 @@
 //! Decomposition written by `prt bake` in the filterable layout (docs/formats.md), with no
 //! decompression step:
 //!
-//! * **the relighting pass**, run when the sky changes: every basis vector `B_{n,l}` (324-D
+//! * **the lighting pass**, run when the sky changes: every basis vector `B_{n,l}` (324-D
 //!   transfer) becomes incident radiance as SH9 RGB, `b̃_{n,l}[c·9+i] = Σ_j (D_ij + T^c_ij) s^c_j`,
 //!   written into a small tiled rgba16f volume over the basis grid (a WGSL compute shader; a
 //!   GLSL fragment pass drawn once per z slice, as WebGL2 has no compute);
 //! * **the per-pixel reconstruction** `f̃(x) = Σ_l c_l(x) b̃_l(x)`: ⌈L/4⌉ hardware-filtered
-//!   fetches of the coefficient volume and 7·L of the relit volume, the coefficients
+//!   fetches of the coefficient volume and 7·L of the lit volume, the coefficients
 //!   dequantised with their per-channel scale and bias;
 //! * **irradiance** from SH9 for a normal (clamped-cosine convolution);
 //! * **lightmap texels** in a sphere basis (`prt lightmap --basis sg:N | sh:N`): diffuse
@@ -23,11 +23,11 @@
 //!
 //! | item | what it is, when to use it |
 //! |---|---|
-//! | [`wgsl_reconstruct`], [`wgsl_relight`] | complete WGSL modules for a rank (reconstruction functions with their bindings; the relighting compute shader) |
-//! | [`glsl_reconstruct`], [`glsl_relight`] | GLSL ES 3.00 sources for a rank: the reconstruction functions (append your `main`), the relighting fragment shader |
+//! | [`wgsl_reconstruct`], [`wgsl_light`] | complete WGSL modules for a rank (reconstruction functions with their bindings; the lighting compute shader) |
+//! | [`glsl_reconstruct`], [`glsl_light`] | GLSL ES 3.00 sources for a rank: the reconstruction functions (append your `main`), the lighting fragment shader |
 //! | [`wgsl_reconstruct_for`], [`glsl_reconstruct_for`], [`CoefficientStorage`] | the reconstruction for a coefficient volume dense or in bricks (one indirection fetch per pixel) |
 //! | [`wgsl`], [`glsl`] | the source files as strings, for a page or an engine that assembles them itself |
-//! | [`RELIT_GROUPS`], [`BASIS_GROUPS`], [`coefficient_groups`] | texels per relit basis vector, per raw basis vector, per coefficient node |
+//! | [`LIT_GROUPS`], [`BASIS_GROUPS`], [`coefficient_groups`] | texels per lit basis vector, per raw basis vector, per coefficient node |
 //! | [`wgsl_lightmap_sg`], [`wgsl_lightmap_sh`], [`glsl_lightmap_sg`], [`glsl_lightmap_sh`] | the lightmap function libraries (`lm_sg_diffuse`, `lm_sg_specular`, `lm_sh_diffuse`, `lm_sh_specular`) for an SG lobe set or for SH |
 //! | [`lightmap`] | the same lightmap math on the CPU, operation for operation |
 //!
@@ -48,8 +48,8 @@ pub enum ShaderError {
     InvalidLobes(String),
 }
 
-/// Texels (RGBA) per relit basis vector: 27 values (SH9 RGB), the 28th is 0.
-pub const RELIT_GROUPS: usize = 7;
+/// Texels (RGBA) per lit basis vector: 27 values (SH9 RGB), the 28th is 0.
+pub const LIT_GROUPS: usize = 7;
 /// Texels (RGBA) per raw basis vector: 324 values.
 pub const BASIS_GROUPS: usize = 81;
 
@@ -79,8 +79,8 @@ pub mod wgsl {
     pub const COEFFICIENTS_DENSE: &str = include_str!("../shaders/wgsl/coefficients_dense.wgsl");
     /// The bricked coefficient volume's, with the indirection binding (group 0, binding 4).
     pub const COEFFICIENTS_BRICKS: &str = include_str!("../shaders/wgsl/coefficients_bricks.wgsl");
-    /// The relighting compute shader `mbd_relight_main` (group 0, bindings 0–3); needs [`COMMON`].
-    pub const RELIGHT: &str = include_str!("../shaders/wgsl/relight.wgsl");
+    /// The lighting compute shader `mbd_light_main` (group 0, bindings 0–3); needs [`COMMON`].
+    pub const LIGHT: &str = include_str!("../shaders/wgsl/light.wgsl");
     /// Lightmap texels: the tangent frame, SG integrals, Hill's SG irradiance, the warped GGX
     /// lobe (`lm_*`); needs nothing before it.
     pub const LIGHTMAP_COMMON: &str = include_str!("../shaders/wgsl/lightmap_common.wgsl");
@@ -107,10 +107,10 @@ pub mod glsl {
     pub const COEFFICIENTS_BRICKS: &str = include_str!("../shaders/glsl/coefficients_bricks.glsl");
     /// WebGL2 uniform and sampler of [`COEFFICIENTS_BRICKS`].
     pub const BRICKS_ES: &str = include_str!("../shaders/glsl/bricks_es.glsl");
-    /// The relighting fragment shader (with `main`); needs [`COMMON`] and [`RELIGHT_ES`].
-    pub const RELIGHT: &str = include_str!("../shaders/glsl/relight.glsl");
-    /// WebGL2 uniforms, samplers and output of [`RELIGHT`].
-    pub const RELIGHT_ES: &str = include_str!("../shaders/glsl/relight_es.glsl");
+    /// The lighting fragment shader (with `main`); needs [`COMMON`] and [`LIGHT_ES`].
+    pub const LIGHT: &str = include_str!("../shaders/glsl/light.glsl");
+    /// WebGL2 uniforms, samplers and output of [`LIGHT`].
+    pub const LIGHT_ES: &str = include_str!("../shaders/glsl/light_es.glsl");
     /// Lightmap texels: the shared `lm_*` functions (GLSL ES 3.00 and 4.50).
     pub const LIGHTMAP_COMMON: &str = include_str!("../shaders/glsl/lightmap_common.glsl");
     /// `lm_sg_diffuse` and `lm_sg_specular`; needs `LM_SG_LOBES`, `LM_SG_SHARPNESS`,
@@ -153,10 +153,10 @@ pub fn wgsl_reconstruct_for(rank: usize, layout: CoefficientStorage) -> String {
     .concat()
 }
 
-/// The WGSL relighting compute shader for rank `rank` (entry point `mbd_relight_main`,
-/// workgroup 4×4×4, one invocation per texel of the relit volume).
-pub fn wgsl_relight(rank: usize) -> String {
-    [&wgsl_header(rank), wgsl::COMMON, wgsl::RELIGHT].concat()
+/// The WGSL lighting compute shader for rank `rank` (entry point `mbd_light_main`,
+/// workgroup 4×4×4, one invocation per texel of the lit volume).
+pub fn wgsl_light(rank: usize) -> String {
+    [&wgsl_header(rank), wgsl::COMMON, wgsl::LIGHT].concat()
 }
 
 /// The GLSL ES 3.00 reconstruction functions for rank `rank` and a dense coefficient volume
@@ -190,13 +190,13 @@ pub fn glsl_reconstruct_for(rank: usize, layout: CoefficientStorage) -> String {
     parts.concat()
 }
 
-/// The GLSL ES 3.00 relighting fragment shader for rank `rank`, complete.
-pub fn glsl_relight(rank: usize) -> String {
+/// The GLSL ES 3.00 lighting fragment shader for rank `rank`, complete.
+pub fn glsl_light(rank: usize) -> String {
     [
         &glsl_header(rank),
         glsl::COMMON,
-        glsl::RELIGHT_ES,
-        glsl::RELIGHT,
+        glsl::LIGHT_ES,
+        glsl::LIGHT,
     ]
     .concat()
 }

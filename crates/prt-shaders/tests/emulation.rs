@@ -1,15 +1,15 @@
 //! A CPU emulation of exactly the shaders' math over the texels `prt_bake::write_container`
-//! writes: the relighting pass (dequantise, 18-term sums, rgba16f storage) and the per-pixel
+//! writes: the lighting pass (dequantise, 18-term sums, rgba16f storage) and the per-pixel
 //! reconstruction (texel-centre coordinates, trilinear filtering with clamp-to-edge, the
 //! coefficients' scale/bias decode, f32 throughout), against the model itself
 //! (`MbdModel::eval` then `prt_trace::incident_radiance`) within the quantisation bound.
 //!
-//! The bound at a point x, per relit value k (c = k / 9, i = k % 9), with φ and ψ the hat
+//! The bound at a point x, per lit value k (c = k / 9, i = k % 9), with φ and ψ the hat
 //! weights of the coefficient and basis grids:
 //!
 //! * a stored value v has error at most e(v): 0 (f32), |v|·2⁻¹¹ + 2⁻²⁵ (f16), half a step of its
 //!   channel plus f32 rounding (unorm/snorm);
-//! * a relit node value errs by E = Σ_j (e(D_ij) + e(T^c_ij))·|s^c_j| (the relighting map is
+//! * a lit node value errs by E = Σ_j (e(D_ij) + e(T^c_ij))·|s^c_j| (the lighting map is
 //!   linear, with coefficients ±s^c_j) plus its rgba16f rounding, |b̃|·2⁻¹¹ + 2⁻²⁵;
 //! * filtering is a convex combination, so the filtered errors are at most ē_l = Σ_m φ_m e(c_ml)
 //!   and Ē_lk = Σ_n ψ_n E_nlk, and |c_l| ≤ ĉ_l = Σ φ|c|, |b̃_lk| ≤ b̂_lk = Σ ψ|b̃|;
@@ -37,7 +37,7 @@ use prt_texture::container::{ArrayEntry, Bricks, MANIFEST_FILE, Manifest, atlas_
 use prt_texture::{Encoding, Ktx2Texture, Limits};
 
 const DIM: usize = 324;
-const RELIT: usize = 27;
+const LIT: usize = 27;
 
 fn scratch() -> PathBuf {
     static NEXT: AtomicUsize = AtomicUsize::new(0);
@@ -265,12 +265,12 @@ impl Stored {
     }
 }
 
-/// The relighting pass (relight.glsl / relight.wgsl) into an rgba16f atlas.
-fn relight_pass(basis: &Stored, rank: usize, sky: &Sky) -> (Texture, Grid) {
+/// The lighting pass (light.glsl / light.wgsl) into an rgba16f atlas.
+fn light_pass(basis: &Stored, rank: usize, sky: &Sky) -> (Texture, Grid) {
     let nodes = basis.entry.dims;
     let tiles = atlas_tiles(nodes, 7 * rank);
     // Over the basis grid's nodes and box, 7 tiles per basis vector.
-    let relit = Grid {
+    let lit = Grid {
         tiles: tiles.map(|t| t as f32),
         ..basis.grid
     };
@@ -286,7 +286,7 @@ fn relight_pass(basis: &Stored, rank: usize, sky: &Sky) -> (Texture, Grid) {
         let (scale, bias) = ranges[g];
         bias[d % 4] + scale[d % 4] * texel[d % 4]
     };
-    let size = relit.size();
+    let size = lit.size();
     let mut texels = vec![0.0f32; 4 * size.iter().product::<usize>()];
     for z in 0..size[2] {
         for y in 0..size[1] {
@@ -299,7 +299,7 @@ fn relight_pass(basis: &Stored, rank: usize, sky: &Sky) -> (Texture, Grid) {
                 let at = 4 * (x + size[0] * (y + size[1] * z));
                 for q in 0..4 {
                     let k = 4 * r + q;
-                    let value = if l >= rank || k >= RELIT {
+                    let value = if l >= rank || k >= LIT {
                         0.0
                     } else {
                         let (c, i) = (k / 9, k % 9);
@@ -317,20 +317,20 @@ fn relight_pass(basis: &Stored, rank: usize, sky: &Sky) -> (Texture, Grid) {
             }
         }
     }
-    (Texture { size, texels }, relit)
+    (Texture { size, texels }, lit)
 }
 
 /// `mbd_incident_radiance` (reconstruct.glsl / reconstruct.wgsl): 28 values, c·9 + i.
 fn reconstruct(
     x: [f32; 3],
     coefficients: &Stored,
-    relit: &Texture,
-    relit_grid: &Grid,
+    lit: &Texture,
+    lit_grid: &Grid,
     rank: usize,
 ) -> [f32; 28] {
     let ranges = coefficients.ranges();
     let site = coefficients.site(x);
-    let relit_local = relit_grid.local(x);
+    let lit_local = lit_grid.local(x);
     let mut out = [0.0f32; 28];
     for (g, (scale, bias)) in ranges.iter().enumerate() {
         let texel = coefficients.texel(site, g);
@@ -339,7 +339,7 @@ fn reconstruct(
             if l < rank {
                 let c = site[3] * (bias[k] + scale[k] * texel[k]);
                 for r in 0..7 {
-                    let b = relit.sample(relit_grid.tile_uvw(relit_local, 7 * l + r));
+                    let b = lit.sample(lit_grid.tile_uvw(lit_local, 7 * l + r));
                     for q in 0..4 {
                         out[4 * r + q] += c * b[q];
                     }
@@ -359,20 +359,20 @@ fn stored_error(encoding: Encoding, value: f32, range: prt_texture::ChannelRange
     }
 }
 
-/// The bound of the module docs at `x`, per relit value.
+/// The bound of the module docs at `x`, per lit value.
 fn bound(
     model: &MbdModel<HatGrid, HatGrid>,
     coefficients: &ArrayEntry,
     basis: &ArrayEntry,
     sky: &Sky,
     x: Vec3,
-) -> [f32; RELIT] {
+) -> [f32; LIT] {
     let rank = model.rank();
     let encoding = coefficients.encoding;
     let phi = model.coefficient_kernels().eval_local(x).unwrap();
     let psi = model.basis_kernels().eval_local(x).unwrap();
     let (c, b) = (model.coefficients(), model.basis());
-    let mut out = [0.0f32; RELIT];
+    let mut out = [0.0f32; LIT];
     for l in 0..rank {
         let mut c_hat = 0.0f32;
         let mut c_error = 0.0f32;
@@ -383,27 +383,27 @@ fn bound(
             c_error += w * stored_error(encoding, v, coefficients.range(l));
             c_max = c_max.max(v.abs());
         }
-        for k in 0..RELIT {
+        for k in 0..LIT {
             let (ch, i) = (k / 9, k % 9);
             let s = &sky.sh[ch];
             let (mut b_hat, mut b_error, mut b_max) = (0.0f32, 0.0f32, 0.0f32);
             for (&n, &w) in psi.indices().iter().zip(psi.weights()) {
                 let n = n as usize;
-                let mut relit = 0.0f32;
+                let mut lit = 0.0f32;
                 let mut error = 0.0f32;
                 for j in 0..9 {
                     let (d, t) = (9 * i + j, 81 * (ch + 1) + 9 * i + j);
                     let (vd, vt) = (b[[n, l, d]], b[[n, l, t]]);
-                    relit += (vd + vt) * s[j];
+                    lit += (vd + vt) * s[j];
                     let range = |dd: usize| basis.range(l * DIM + dd);
                     error += (stored_error(encoding, vd, range(d))
                         + stored_error(encoding, vt, range(t)))
                         * s[j].abs();
                 }
-                let storage = (relit.abs() + error) * 2f32.powi(-11) + 2f32.powi(-25);
-                b_hat += w * relit.abs();
+                let storage = (lit.abs() + error) * 2f32.powi(-11) + 2f32.powi(-25);
+                b_hat += w * lit.abs();
                 b_error += w * (error + storage);
-                b_max = b_max.max(relit.abs() + error);
+                b_max = b_max.max(lit.abs() + error);
             }
             out[k] += c_hat * b_error + c_error * (b_hat + b_error) + 1e-4 * c_max * b_max;
         }
@@ -441,21 +441,21 @@ fn worst_ratio(
     let coefficients = Stored::read(&folder, &manifest, "coefficients");
     let basis = Stored::read(&folder, &manifest, "basis");
     let rank = model.rank();
-    let (relit, relit_grid) = relight_pass(&basis, rank, sky);
+    let (lit, lit_grid) = light_pass(&basis, rank, sky);
     let domain = prt_core::SpatialKernels::domain(model.coefficient_kernels());
     let mut worst = 0.0f32;
     let mut transfer = vec![0.0f32; DIM];
     for p in points {
         let x = domain.min + (Vec3::from_array(*p) * 1.4 - 0.2) * domain.size();
-        let got = reconstruct(x.to_array(), &coefficients, &relit, &relit_grid, rank);
+        let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, rank);
         model.eval(x, &mut transfer).unwrap();
         let reference = prt_trace::incident_radiance(&transfer, sky);
         let limit = bound(model, &coefficients.entry, &basis.entry, sky, x);
-        for k in 0..RELIT {
+        for k in 0..LIT {
             let error = (got[k] - reference[k / 9][k % 9]).abs();
             worst = worst.max(error / limit[k]);
         }
-        assert_eq!(got[27], 0.0, "the 28th relit value is padding");
+        assert_eq!(got[27], 0.0, "the 28th lit value is padding");
     }
     let _ = std::fs::remove_dir_all(folder);
     worst
@@ -464,7 +464,7 @@ fn worst_ratio(
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(8))]
 
-    /// The emulated shaders reproduce the model's relit value within the bound, for every
+    /// The emulated shaders reproduce the model's lit value within the bound, for every
     /// encoding, ranks that do and do not fill their last texel, and any sky.
     #[test]
     fn the_shaders_math_matches_the_model_within_the_quantisation_bound(
@@ -526,16 +526,16 @@ fn a_half_texel_shift_is_caught() {
     .unwrap();
     let coefficients = Stored::read(&folder, &manifest, "coefficients");
     let basis = Stored::read(&folder, &manifest, "basis");
-    let (relit, relit_grid) = relight_pass(&basis, 3, &sky);
+    let (lit, lit_grid) = light_pass(&basis, 3, &sky);
     let mut worst = 0.0f32;
     let mut transfer = vec![0.0f32; DIM];
     for p in &points {
         let x = domain.min + Vec3::from_array(*p) * domain.size();
-        let got = reconstruct(x.to_array(), &coefficients, &relit, &relit_grid, 3);
+        let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, 3);
         wrong.eval(x, &mut transfer).unwrap();
         let reference = prt_trace::incident_radiance(&transfer, &sky);
         let limit = bound(&wrong, &coefficients.entry, &basis.entry, &sky, x);
-        for k in 0..RELIT {
+        for k in 0..LIT {
             worst = worst.max((got[k] - reference[k / 9][k % 9]).abs() / limit[k]);
         }
     }
@@ -651,7 +651,7 @@ proptest! {
             let (dense, _) =
                 write_layout(&model, grid, &valid, encoding, CoefficientLayout::Dense, brick_size);
             prop_assert!(coefficients.bricks.is_some());
-            let (relit, relit_grid) = relight_pass(&basis, rank, &sky);
+            let (lit, lit_grid) = light_pass(&basis, rank, &sky);
             let mut transfer = vec![0.0f32; DIM];
             let mut checked = 0;
             for unit in &points {
@@ -661,12 +661,12 @@ proptest! {
                 }
                 checked += 1;
                 let x = world(&model, p);
-                let got = reconstruct(x.to_array(), &coefficients, &relit, &relit_grid, rank);
-                let dense = reconstruct(x.to_array(), &dense, &relit, &relit_grid, rank);
+                let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, rank);
+                let dense = reconstruct(x.to_array(), &dense, &lit, &lit_grid, rank);
                 model.eval(x, &mut transfer).unwrap();
                 let reference = prt_trace::incident_radiance(&transfer, &sky);
                 let limit = bound(&model, &coefficients.entry, &basis.entry, &sky, x);
-                for k in 0..RELIT {
+                for k in 0..LIT {
                     let error = (got[k] - reference[k / 9][k % 9]).abs();
                     prop_assert!(error <= limit[k], "{encoding:?}: {error} > {} at {p:?}", limit[k]);
                     prop_assert!((got[k] - dense[k]).abs() <= 1e-4 * (1.0 + dense[k].abs()));
@@ -688,9 +688,9 @@ fn brick_borders_are_seamless() {
     let write = |layout| write_layout(&model, grid, &valid, Encoding::F16, layout, size);
     let (bricks, basis) = write(CoefficientLayout::Bricks);
     let (dense, _) = write(CoefficientLayout::Dense);
-    let (relit, relit_grid) = relight_pass(&basis, 3, &sky);
+    let (lit, lit_grid) = light_pass(&basis, 3, &sky);
     let eval = |stored: &Stored, p: [f32; 3]| {
-        reconstruct(world(&model, p).to_array(), stored, &relit, &relit_grid, 3)
+        reconstruct(world(&model, p).to_array(), stored, &lit, &lit_grid, 3)
     };
     let (mut jump_bricks, mut jump_dense, mut jump_value) = (0.0f64, 0.0f64, 0.0f64);
     let mut crossings = 0;
@@ -710,7 +710,7 @@ fn brick_borders_are_seamless() {
                 crossings += 1;
                 let (b0, b1) = (eval(&bricks, before), eval(&bricks, after));
                 let (d0, d1) = (eval(&dense, before), eval(&dense, after));
-                for k in 0..RELIT {
+                for k in 0..LIT {
                     jump_bricks += f64::from((b1[k] - b0[k]).abs());
                     jump_dense += f64::from((d1[k] - d0[k]).abs());
                     jump_value += f64::from(d0[k].abs());

@@ -44,14 +44,14 @@ fn the_wgsl_modules_validate() {
             assert!(module.entry_points.iter().any(|e| e.name == "fs_main"));
         }
 
-        let relight = prt_shaders::wgsl_relight(rank);
-        let module = parse_wgsl(&relight, &format!("relight.wgsl rank {rank}"));
-        validate(&module, &format!("relight.wgsl rank {rank}"));
+        let light = prt_shaders::wgsl_light(rank);
+        let module = parse_wgsl(&light, &format!("light.wgsl rank {rank}"));
+        validate(&module, &format!("light.wgsl rank {rank}"));
         let entry = module
             .entry_points
             .iter()
-            .find(|e| e.name == "mbd_relight_main")
-            .expect("the relighting entry point");
+            .find(|e| e.name == "mbd_light_main")
+            .expect("the lighting entry point");
         assert_eq!(entry.stage, naga::ShaderStage::Compute);
         assert_eq!(entry.workgroup_size, [4, 4, 4]);
     }
@@ -62,12 +62,12 @@ fn the_wgsl_modules_validate() {
 const GLSL_RECONSTRUCT_450: &str = "
 layout(std140, set = 0, binding = 0) uniform MbdReconstruction {
     MbdGrid u_mbd_coefficients;
-    MbdGrid u_mbd_relit;
+    MbdGrid u_mbd_lit;
     vec4 u_mbd_coefficient_scale[MBD_COEFFICIENT_GROUPS];
     vec4 u_mbd_coefficient_bias[MBD_COEFFICIENT_GROUPS];
 };
 layout(set = 0, binding = 1) uniform texture3D u_mbd_coefficient_texture;
-layout(set = 0, binding = 2) uniform texture3D u_mbd_relit_texture;
+layout(set = 0, binding = 2) uniform texture3D u_mbd_lit_texture;
 layout(set = 0, binding = 3) uniform sampler u_mbd_linear_clamp;
 #define MBD_SAMPLE3D(t, uvw) textureLod(sampler3D(t, u_mbd_linear_clamp), uvw, 0.0)
 ";
@@ -92,18 +92,18 @@ void main() {
 }
 ";
 
-/// The same for relight.glsl.
-const GLSL_RELIGHT_450: &str = "
-layout(std140, set = 0, binding = 0) uniform MbdRelight {
+/// The same for light.glsl.
+const GLSL_LIGHT_450: &str = "
+layout(std140, set = 0, binding = 0) uniform MbdLight {
     MbdGrid u_mbd_basis;
-    MbdGrid u_mbd_relit;
+    MbdGrid u_mbd_lit;
     vec4 u_mbd_sky[7];
     int u_mbd_slice;
 };
 layout(set = 0, binding = 1) uniform texture3D u_mbd_basis_texture;
 layout(set = 0, binding = 2) uniform texture2D u_mbd_basis_ranges;
 layout(set = 0, binding = 3) uniform sampler u_mbd_nearest;
-layout(location = 0) out vec4 mbd_relit;
+layout(location = 0) out vec4 mbd_lit;
 #define MBD_FETCH3D(t, p) texelFetch(sampler3D(t, u_mbd_nearest), p, 0)
 #define MBD_FETCH2D(t, p) texelFetch(sampler2D(t, u_mbd_nearest), p, 0)
 ";
@@ -150,10 +150,10 @@ fn the_glsl_bodies_validate() {
                 &what,
             );
         }
-        let relight = glsl_450(rank, &[glsl::COMMON, GLSL_RELIGHT_450, glsl::RELIGHT]);
-        let what = format!("relight.glsl rank {rank}");
+        let light = glsl_450(rank, &[glsl::COMMON, GLSL_LIGHT_450, glsl::LIGHT]);
+        let what = format!("light.glsl rank {rank}");
         validate(
-            &parse_glsl(&relight, naga::ShaderStage::Fragment, &what),
+            &parse_glsl(&light, naga::ShaderStage::Fragment, &what),
             &what,
         );
     }
@@ -164,15 +164,15 @@ fn the_glsl_bodies_validate() {
 fn the_glsl_es_sources_are_complete() {
     let reconstruct = prt_shaders::glsl_reconstruct(8);
     assert!(reconstruct.starts_with("#version 300 es\n"));
-    let relight = prt_shaders::glsl_relight(3);
-    assert!(relight.starts_with("#version 300 es\n"));
+    let light = prt_shaders::glsl_light(3);
+    assert!(light.starts_with("#version 300 es\n"));
     for name in [
         "u_mbd_coefficients",
-        "u_mbd_relit",
+        "u_mbd_lit",
         "u_mbd_coefficient_scale",
         "u_mbd_coefficient_bias",
         "u_mbd_coefficient_texture",
-        "u_mbd_relit_texture",
+        "u_mbd_lit_texture",
         "MBD_SAMPLE3D",
     ] {
         assert!(
@@ -198,20 +198,20 @@ fn the_glsl_es_sources_are_complete() {
     );
     for name in [
         "u_mbd_basis",
-        "u_mbd_relit",
+        "u_mbd_lit",
         "u_mbd_sky",
         "u_mbd_slice",
         "u_mbd_basis_texture",
         "u_mbd_basis_ranges",
-        "mbd_relit",
+        "mbd_lit",
         "MBD_FETCH3D",
         "MBD_FETCH2D",
     ] {
         assert!(
-            prt_shaders::glsl::RELIGHT_ES.contains(name),
-            "relight_es.glsl declares {name}"
+            prt_shaders::glsl::LIGHT_ES.contains(name),
+            "light_es.glsl declares {name}"
         );
-        assert!(GLSL_RELIGHT_450.contains(name));
+        assert!(GLSL_LIGHT_450.contains(name));
     }
 }
 
@@ -243,7 +243,7 @@ void main() {
                 "reconstruct_bricks",
                 prt_shaders::glsl_reconstruct_for(rank, CoefficientStorage::Bricks) + main,
             ),
-            ("relight", prt_shaders::glsl_relight(rank)),
+            ("light", prt_shaders::glsl_light(rank)),
         ] {
             let path = dir.join(format!("{name}_{rank}.frag"));
             std::fs::write(&path, &source).expect("write shader");

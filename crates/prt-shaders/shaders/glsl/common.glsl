@@ -21,8 +21,8 @@ struct MbdBricks {
 
 // Coefficient groups: L coefficients, four per texel.
 #define MBD_COEFFICIENT_GROUPS ((RANK + 3) / 4)
-// Texels per relit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.
-#define MBD_RELIT_GROUPS 7
+// Texels per lit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.
+#define MBD_LIT_GROUPS 7
 
 // Position inside any tile, in texels: node i sits at texel centre i + 0.5. Clamping to the
 // grid's box keeps the filter footprint inside the tile (no blending with the next tile).

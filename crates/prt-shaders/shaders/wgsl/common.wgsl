@@ -21,8 +21,8 @@ struct MbdBricks {
 
 // Coefficient groups: L coefficients, four per texel.
 const MBD_COEFFICIENT_GROUPS: u32 = (RANK + 3u) / 4u;
-// Texels per relit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.
-const MBD_RELIT_GROUPS: u32 = 7u;
+// Texels per lit basis vector: 27 values (SH9 RGB) in 7 texels, the 28th is 0.
+const MBD_LIT_GROUPS: u32 = 7u;
 
 // Position inside any tile, in texels: node i sits at texel centre i + 0.5. Clamping to the
 // grid's box keeps the filter footprint inside the tile (no blending with the next tile).

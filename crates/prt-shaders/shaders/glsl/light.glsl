@@ -1,9 +1,9 @@
-// prt filterable MBD layout: the relighting pass, run when the sky changes, as a fragment pass
-// (WebGL2 has no compute): draw one full-viewport quad per z slice of the relit volume (an
+// prt filterable MBD layout: the lighting pass, run when the sky changes, as a fragment pass
+// (WebGL2 has no compute): draw one full-viewport quad per z slice of the lit volume (an
 // rgba16f 3D texture attached with framebufferTextureLayer, viewport = its width x height,
-// u_mbd_slice = the slice). Each fragment writes one relit texel: group 7l + r holds values
+// u_mbd_slice = the slice). Each fragment writes one lit texel: group 7l + r holds values
 // 4r .. 4r+3 of b_{n,l}[c*9 + i] = sum_j (D_ij + T^c_ij) s^c_j. Needs common.glsl and the
-// declarations of u_mbd_*, mbd_relit, MBD_FETCH3D and MBD_FETCH2D (relight_es.glsl).
+// declarations of u_mbd_*, mbd_lit, MBD_FETCH3D and MBD_FETCH2D (light_es.glsl).
 
 // Raw basis value d (0..323) of vector l at node `node`, dequantised.
 float mbd_raw(ivec3 node, int l, int d) {
@@ -15,9 +15,9 @@ float mbd_raw(ivec3 node, int l, int d) {
     return (bias + scale * texel)[d % 4];
 }
 
-// Relit value k (0..27) of vector l at node `node`: row i of the direct block plus row i of
+// Lit value k (0..27) of vector l at node `node`: row i of the direct block plus row i of
 // channel c's indirect block, dotted with channel c's sky.
-float mbd_relit_value(ivec3 node, int l, int k) {
+float mbd_lit_value(ivec3 node, int l, int k) {
     if (k >= 27) {
         return 0.0;
     }
@@ -32,25 +32,25 @@ float mbd_relit_value(ivec3 node, int l, int k) {
     return sum;
 }
 
-// The relit texel at `texel` of the relit atlas.
-vec4 mbd_relight_texel(ivec3 texel) {
-    ivec3 nodes = ivec3(u_mbd_relit.nodes.xyz);
-    ivec3 tiles = ivec3(u_mbd_relit.tiles.xyz);
+// The lit texel at `texel` of the lit atlas.
+vec4 mbd_light_texel(ivec3 texel) {
+    ivec3 nodes = ivec3(u_mbd_lit.nodes.xyz);
+    ivec3 tiles = ivec3(u_mbd_lit.tiles.xyz);
     ivec3 tile = texel / nodes;
     ivec3 node = texel - tile * nodes;
     int group = tile.x + tiles.x * (tile.y + tiles.y * tile.z);
-    int l = group / MBD_RELIT_GROUPS;
-    int r = group - l * MBD_RELIT_GROUPS;
+    int l = group / MBD_LIT_GROUPS;
+    int r = group - l * MBD_LIT_GROUPS;
     if (l >= RANK) {
         return vec4(0.0);
     }
     return vec4(
-        mbd_relit_value(node, l, 4 * r),
-        mbd_relit_value(node, l, 4 * r + 1),
-        mbd_relit_value(node, l, 4 * r + 2),
-        mbd_relit_value(node, l, 4 * r + 3));
+        mbd_lit_value(node, l, 4 * r),
+        mbd_lit_value(node, l, 4 * r + 1),
+        mbd_lit_value(node, l, 4 * r + 2),
+        mbd_lit_value(node, l, 4 * r + 3));
 }
 
 void main() {
-    mbd_relit = mbd_relight_texel(ivec3(ivec2(gl_FragCoord.xy), u_mbd_slice));
+    mbd_lit = mbd_light_texel(ivec3(ivec2(gl_FragCoord.xy), u_mbd_slice));
 }
