@@ -378,7 +378,8 @@ fn trace_pass(
 }
 
 struct Solver<'b> {
-    /// Point, spot and directional lights seen directly from texels, added to every snapshot.
+    /// The sun and the point, spot and directional lights seen directly from texels, added to
+    /// every snapshot.
     punctual: Option<PunctualDirect<'b>>,
     basis: Option<&'b dyn SphericalBasis>,
     encoder: Encoder,
@@ -400,10 +401,9 @@ impl Solver<'_> {
             State::Sg(_) | State::Dyn(_) => {
                 let dirs: Vec<Vec3> = samples.iter().map(|s| s.local).collect();
                 let values: Vec<f32> = samples.iter().flat_map(|s| s.radiance.to_array()).collect();
-                let weights: Vec<f32> = samples.iter().map(|s| s.weight).collect();
                 match state {
-                    State::Sg(enc) => enc.add_sample_runs(n, &dirs, &values, Some(&weights))?,
-                    State::Dyn(enc) => enc.add_sample_runs(n, &dirs, &values, Some(&weights))?,
+                    State::Sg(enc) => enc.add_sample_runs(n, &dirs, &values, None)?,
+                    State::Dyn(enc) => enc.add_sample_runs(n, &dirs, &values, None)?,
                     State::Sums { .. } => {}
                 }
             }
@@ -416,13 +416,12 @@ impl Solver<'_> {
                         || vec![0.0f32; k],
                         |b, (acc, texel_samples)| {
                             for s in texel_samples {
-                                let w = f64::from(s.weight);
                                 let l = s.radiance.as_dvec3().to_array();
                                 let Some(basis) = self.basis else {
                                     for c in 0..3 {
-                                        acc[c] += w * l[c] * f64::from(s.local.y);
+                                        acc[c] += l[c] * f64::from(s.local.y);
                                     }
-                                    acc[3] += w;
+                                    acc[3] += 1.0;
                                     continue;
                                 };
                                 let gram_len = if self.gram_inverse.is_some() {
@@ -441,7 +440,7 @@ impl Solver<'_> {
                                         let mut at = 0;
                                         for i in 0..k {
                                             for j in i..k {
-                                                acc[at] += w * f64::from(b[i]) * f64::from(b[j]);
+                                                acc[at] += f64::from(b[i]) * f64::from(b[j]);
                                                 at += 1;
                                             }
                                         }
@@ -449,13 +448,12 @@ impl Solver<'_> {
                                     if sign > 0.0 {
                                         for i in 0..k {
                                             for c in 0..3 {
-                                                acc[gram_len + 3 * i + c] +=
-                                                    w * f64::from(b[i]) * l[c];
+                                                acc[gram_len + 3 * i + c] += f64::from(b[i]) * l[c];
                                             }
                                         }
                                     }
                                 }
-                                acc[gram_len + 3 * k] += w;
+                                acc[gram_len + 3 * k] += 1.0;
                             }
                         },
                     );

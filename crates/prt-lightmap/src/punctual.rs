@@ -1,5 +1,5 @@
-//! Punctual lights seen directly from texels: a delta in direction, which no hemisphere sample
-//! finds, so each texel adds it to its fit in closed form.
+//! The sun and punctual lights seen directly from texels: deltas in direction, which no
+//! hemisphere sample finds, so each texel adds them to its fit in closed form.
 //!
 //! A delta `E⊥ δ(ω − ω_l)` has the least-squares coefficients `c = E⊥ G⁻¹ B(ω_l)` (`G` the Gram
 //! matrix of the measure the samples fit over: the sphere under the hemisphere rule or for the
@@ -17,7 +17,7 @@ use prt_core::SphericalBasis;
 use crate::trace::{Transport, tangent_frame};
 use crate::{Encoder, LightmapError};
 
-/// What a texel adds for the punctual lights it sees.
+/// What a texel adds for the sun and the punctual lights it sees.
 pub(crate) struct PunctualDirect<'a> {
     transport: &'a Transport<'a>,
     /// `None` for the irradiance basis.
@@ -32,14 +32,14 @@ struct DeltaFit<'a> {
 }
 
 impl<'a> PunctualDirect<'a> {
-    /// `None` when the scene has no punctual light.
+    /// `None` without a sun or punctual light.
     pub fn new(
         transport: &'a Transport<'a>,
         basis: Option<&'a dyn SphericalBasis>,
         encoder: Encoder,
         hemisphere_rule: bool,
     ) -> Result<Option<Self>, LightmapError> {
-        if !transport.has_punctual_lights() {
+        if !transport.has_delta_lights() {
             return Ok(None);
         }
         let fit = match basis {
@@ -73,7 +73,7 @@ impl<'a> PunctualDirect<'a> {
         Ok(Some(Self { transport, fit }))
     }
 
-    /// Adds the punctual lights seen from `position` (unit `normal`) to the texel's
+    /// Adds the sun and punctual lights seen from `position` (unit `normal`) to the texel's
     /// coefficients (`k × 3`, in the tangent frame of [`tangent_frame`]) and irradiance.
     pub fn add(
         &self,
@@ -87,7 +87,7 @@ impl<'a> PunctualDirect<'a> {
         let mut result = Ok(());
         let mut values = Vec::new();
         self.transport
-            .punctual_direct(position, normal, |towards, arriving| {
+            .texel_deltas(position, normal, |towards, arriving| {
                 let Some(fit) = &self.fit else {
                     let e = arriving * normal.dot(towards);
                     for (o, v) in irradiance.iter_mut().zip(e.to_array()) {

@@ -6,9 +6,8 @@ use glam::Vec3;
 use prt_trace::manylight::SunAndUniformSky;
 use prt_trace::{Hit, LightKind, RayTracer, Scene};
 
-/// Sobol' dimensions of the texel ray: direction (2), sun-or-hemisphere choice (1), point in the
-/// sun's disk (2).
-const TEXEL_DIMS: u32 = 5;
+/// Sobol' dimensions of the texel ray: its direction.
+const TEXEL_DIMS: u32 = 2;
 /// Sobol' dimensions per bounce: emitter choice (1), point on it (2), cosine direction (2).
 const BOUNCE_DIMS: u32 = 5;
 /// Most diffuse bounces (the Sobol' tables have 256 dimensions).
@@ -17,14 +16,9 @@ pub(crate) const MAX_BOUNCES: u32 = (256 - TEXEL_DIMS) / BOUNCE_DIMS;
 /// The light of a bake: the scene's emitters and punctual lights, and optionally a sun and sky.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Lighting {
-    /// A sun (a disk of `sun_angular_radius_deg`) and a constant sky over the upper (+Y)
-    /// hemisphere; `None` for the scene's own lights only.
+    /// A sun (a directional light: texels add it in closed form, as the punctual lights) and a
+    /// constant sky over the upper (+Y) hemisphere; `None` for the scene's own lights only.
     pub sun_sky: Option<SunAndUniformSky>,
-    /// The sun's angular radius, degrees (the real sun: 0.27).
-    pub sun_angular_radius_deg: f32,
-    /// Fraction of texel rays aimed at the sun's disk when it is above a texel's horizon (the
-    /// rest are uniform over the hemisphere; the two are combined by their mixture density).
-    pub sun_ray_fraction: f32,
 }
 
 impl Lighting {
@@ -36,8 +30,6 @@ impl Lighting {
             || !scene.lights().is_empty();
         Self {
             sun_sky: (!emits).then(SunAndUniformSky::default),
-            sun_angular_radius_deg: 0.27,
-            sun_ray_fraction: 0.1,
         }
     }
 }
@@ -49,8 +41,6 @@ pub(crate) struct Sample {
     pub local: Vec3,
     /// Incident radiance (RGB).
     pub radiance: Vec3,
-    /// Weight relative to a uniform hemisphere sample (1 unless the sun's disk was aimed at).
-    pub weight: f32,
 }
 
 pub(crate) struct Transport<'a> {
@@ -62,7 +52,6 @@ pub(crate) struct Transport<'a> {
     /// Emissive triangles and the cumulative distribution over their power.
     emitters: Vec<(usize, f32)>,
     emitter_total: f32,
-    sun_cos: f32,
 }
 
 fn luminance(c: Vec3) -> f32 {
@@ -93,13 +82,42 @@ impl<'a> Transport<'a> {
             eps: 1e-4 * extent.max(1e-3),
             emitters,
             emitter_total: acc,
-            sun_cos: lighting.sun_angular_radius_deg.to_radians().cos(),
         }
     }
 
-    /// Whether the scene has `KHR_lights_punctual` lights (see [`Self::punctual_direct`]).
-    pub fn has_punctual_lights(&self) -> bool {
-        !self.scene.lights().is_empty()
+    /// Whether any light is a delta in direction (the sun, `KHR_lights_punctual` lights): see
+    /// [`Self::texel_deltas`].
+    pub fn has_delta_lights(&self) -> bool {
+        !self.scene.lights().is_empty() || self.sun().is_some()
+    }
+
+    /// The sun: direction towards it and its irradiance, if it shines.
+    fn sun(&self) -> Option<(Vec3, Vec3)> {
+        self.lighting
+            .sun_sky
+            .filter(|s| s.sun_irradiance.max_element() > 0.0)
+            .map(|s| (-s.sun_direction.normalize_or(Vec3::NEG_Y), s.sun_irradiance))
+    }
+
+    /// The sun and the punctual lights that reach `point` above the horizon of `normal`
+    /// unoccluded, as [`Self::punctual_direct`] gives them: the lights a texel's hemisphere
+    /// samples cannot find (the sun's 0.27° disk would be found by one sample in 10⁵, with
+    /// 10⁵ times the sky's radiance, which the progressive encoders cannot average out).
+    pub(crate) fn texel_deltas(
+        &self,
+        point: Vec3,
+        normal: Vec3,
+        mut arrive: impl FnMut(Vec3, Vec3),
+    ) {
+        if let Some((towards, irradiance)) = self.sun()
+            && normal.dot(towards) > 0.0
+            && !self
+                .tracer
+                .occluded(point + normal * self.eps, towards, 0.0, f32::INFINITY)
+        {
+            arrive(towards, irradiance);
+        }
+        self.punctual_direct(point, normal, arrive);
     }
 
     /// The offset that keeps ray origins off surfaces (1e-4 of the scene's diagonal).
@@ -113,80 +131,31 @@ impl<'a> Transport<'a> {
         let (tangent, bitangent) = tangent_frame(normal);
         let to_world = |l: Vec3| tangent * l.x + normal * l.y + bitangent * l.z;
         let to_local = |d: Vec3| Vec3::new(d.dot(tangent), d.dot(normal), d.dot(bitangent));
-        let hemisphere_pdf = 1.0 / TAU;
-        // The sun's disk, when above this texel's horizon, is aimed at by a share of the rays.
-        let sun = self.lighting.sun_sky.and_then(|s| {
-            let towards = -s.sun_direction.normalize_or(Vec3::NEG_Y);
-            let fraction = self.lighting.sun_ray_fraction;
-            (towards.dot(normal) > 0.0 && s.sun_irradiance.max_element() > 0.0 && fraction > 0.0)
-                .then_some((towards, s.sun_irradiance, fraction))
-        });
-        let cone_solid_angle = TAU * (1.0 - self.sun_cos);
-        let dir = match sun {
-            Some((towards, _, fraction)) if u(2) < fraction => {
-                let z = 1.0 - u(3) * (1.0 - self.sun_cos);
-                let r = (1.0 - z * z).max(0.0).sqrt();
-                let (a, b) = towards.any_orthonormal_pair();
-                let phi = TAU * u(4);
-                let d = (a * (r * phi.cos()) + b * (r * phi.sin()) + towards * z).normalize();
-                if d.dot(normal) <= 0.0 { towards } else { d }
-            }
-            _ => {
-                let cos_theta = u(0);
-                let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
-                let phi = TAU * u(1);
-                to_world(Vec3::new(
-                    sin_theta * phi.cos(),
-                    cos_theta,
-                    sin_theta * phi.sin(),
-                ))
-            }
-        };
-        let (weight, sun_radiance) = match sun {
-            Some((towards, irradiance, fraction)) => {
-                let in_cone = dir.dot(towards) >= self.sun_cos;
-                let pdf = (1.0 - fraction) * hemisphere_pdf
-                    + if in_cone {
-                        fraction / cone_solid_angle
-                    } else {
-                        0.0
-                    };
-                let radiance = if in_cone {
-                    irradiance / cone_solid_angle
-                } else {
-                    Vec3::ZERO
-                };
-                (hemisphere_pdf / pdf, radiance)
-            }
-            None => (1.0, Vec3::ZERO),
-        };
+        let cos_theta = u(0);
+        let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
+        let phi = TAU * u(1);
+        let dir = to_world(Vec3::new(
+            sin_theta * phi.cos(),
+            cos_theta,
+            sin_theta * phi.sin(),
+        ));
         let origin = position + normal * self.eps;
-        let radiance = self.radiance(origin, dir, sun_radiance, u);
+        let radiance = self.radiance(origin, dir, u);
         Sample {
             local: to_local(dir).normalize(),
             radiance,
-            weight,
         }
     }
 
-    /// Radiance arriving at `origin` from `dir` (emission and sky seen directly, the sun's disk
-    /// radiance `sun_radiance` if the ray escapes, and up to `bounces` diffuse reflections with
-    /// next-event estimation).
-    fn radiance(
-        &self,
-        mut origin: Vec3,
-        mut dir: Vec3,
-        sun_radiance: Vec3,
-        u: &dyn Fn(u32) -> f32,
-    ) -> Vec3 {
+    /// Radiance arriving at `origin` from `dir` (emission and sky seen directly, and up to
+    /// `bounces` diffuse reflections with next-event estimation; the sun and punctual lights
+    /// only after a bounce, see [`Self::texel_deltas`]).
+    fn radiance(&self, mut origin: Vec3, mut dir: Vec3, u: &dyn Fn(u32) -> f32) -> Vec3 {
         let mut total = Vec3::ZERO;
         let mut throughput = Vec3::ONE;
         for depth in 0..=self.bounces {
             let Some(hit) = self.tracer.closest_hit(origin, dir, 0.0, f32::INFINITY) else {
                 total += throughput * self.sky(dir);
-                if depth == 0 {
-                    total += sun_radiance;
-                }
                 break;
             };
             let material = self.scene.material_of(hit.triangle as usize);

@@ -29,8 +29,6 @@ fn sky_only(radiance: f32) -> Lighting {
             sun_irradiance: Vec3::ZERO,
             sky_radiance: Vec3::splat(radiance),
         }),
-        sun_angular_radius_deg: 0.27,
-        sun_ray_fraction: 0.1,
     }
 }
 

@@ -307,3 +307,42 @@ fn non_negative_encoders_keep_the_delta_non_negative() {
         );
     }
 }
+
+#[test]
+fn the_sun_gives_the_ground_its_irradiance_times_the_cosine_from_the_first_sample() {
+    // The sun is a delta too: every encoder shows it from the first pass, with no sample noise
+    // (a sun found by hemisphere samples would leave a few texels at 10⁵ times the sky).
+    let scene = Scene::ground_plane(1.0, Vec3::splat(0.5));
+    let sun = prt_trace::manylight::SunAndUniformSky {
+        sun_direction: Vec3::new(0.3, -1.0, 0.2).normalize(),
+        sun_irradiance: Vec3::new(3.0, 2.5, 2.0),
+        sky_radiance: Vec3::ZERO,
+    };
+    let cos = sun.sun_direction.y.abs();
+    let atlas = atlas(&scene);
+    for (basis, encoder, tolerance) in [
+        (LightmapBasis::Irradiance, Encoder::Naive, 1e-5),
+        // The SH fit of a delta has the irradiance of the law in the SH test.
+        (LightmapBasis::Sh { order: 3 }, Encoder::Plsq, 2e-3),
+    ] {
+        let config = LightmapConfig {
+            lighting: Some(prt_lightmap::Lighting { sun_sky: Some(sun) }),
+            ..direct_only(basis, encoder)
+        };
+        let bake = bake_lightmap(&scene, &atlas, &config, &NoProgress, &mut |_| {}).unwrap();
+        let lm = &bake.lightmap;
+        let p2 = 0.5 * (3.0 * cos * cos - 1.0);
+        let factor = match basis {
+            LightmapBasis::Irradiance => cos,
+            _ => 0.25 + 0.5 * cos + 5.0 / 16.0 * p2,
+        };
+        let want = sun.sun_irradiance * factor;
+        for i in (0..lm.covered.len()).filter(|&i| lm.covered[i]) {
+            let got = Vec3::from_slice(&lm.irradiance[3 * i..3 * i + 3]);
+            assert!(
+                ((got - want).abs() / want).max_element() <= tolerance,
+                "{basis:?}: texel {i}: {got} against {want}"
+            );
+        }
+    }
+}
