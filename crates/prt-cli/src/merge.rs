@@ -67,6 +67,9 @@ pub fn run(args: &MergeArgs) -> Result<()> {
     if args.sweeps.is_some() && !(args.stream || distributed) {
         bail!("--sweeps is an option of the streamed merge: --stream, --map or --reduce");
     }
+    if (args.stage.is_some() || args.tile.is_some()) && !distributed {
+        bail!("--stage and --tile are options of --map and --reduce");
+    }
     let sweeps = args.sweeps.unwrap_or(DEFAULT_SWEEPS);
     let stage = args.stage.unwrap_or(MergeStage::Coefficients);
     if args.map {
@@ -92,6 +95,11 @@ pub fn run(args: &MergeArgs) -> Result<()> {
             }
         }
         return Ok(());
+    }
+    if args.reduce && stage != MergeStage::Coefficients && args.out.is_some() {
+        bail!(
+            "--out goes with the coefficients' reduce, which writes the bake folder; {stage}'s writes PLAN_DIR/merge/{stage}.basis"
+        );
     }
     if args.reduce && stage != MergeStage::Coefficients {
         let stage_bar = StageBar::start("reduce");

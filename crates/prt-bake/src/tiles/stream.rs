@@ -1137,7 +1137,9 @@ pub fn map_tile(
         .map(|input| context.read_basis(plan_dir, input, limits))
         .transpose()?;
     let path = partial_path(plan_dir, stage, tile);
-    if let Ok(bytes) = std::fs::read(&path)
+    let model = basis.as_ref().map(|b| context.model(b)).transpose()?;
+    let expected = context.payload_bytes(stage, context.tile(tile)?, model.as_ref())?;
+    if let Ok(bytes) = read_merge_file(&path, expected, limits, stage, Some(tile))
         && context
             .decode_partial(stage, tile, basis.as_ref(), &path, &bytes, limits)
             .is_ok()
