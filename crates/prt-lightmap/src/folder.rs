@@ -182,7 +182,8 @@ impl LightmapFolder {
     /// Errors: a KTX2 that is malformed or over `limits`, not an RGBA32F 2D array of
     /// `1 + functions` layers of the manifest's size, or holding a NaN or infinite value
     /// (named by layer and texel); a UV file whose length is not a whole number of triangles
-    /// (24 bytes each), over `limits.max_bytes`, or holding a NaN or infinite UV.
+    /// (24 bytes each), over `limits.max_bytes`, or holding a NaN or infinite UV (or one that
+    /// overflows once scaled to texels).
     pub fn parse(
         manifest: LightmapManifest,
         ktx2: &[u8],
@@ -308,9 +309,10 @@ fn parse_uvs(
                     chunk[4 * k + 3],
                 ])
             };
-            let uv = [0, 1, 2].map(|p| Vec2::new(value(2 * p), value(2 * p + 1)));
+            // Checked after scaling: a finite UV near f32::MAX overflows to infinity in texels.
+            let uv = [0, 1, 2].map(|p| Vec2::new(value(2 * p), value(2 * p + 1)) * size);
             if uv.iter().all(|p| p.is_finite()) {
-                Ok(uv.map(|p| p * size))
+                Ok(uv)
             } else {
                 Err(LightmapError::NonFinite {
                     what: "lightmap UV",
@@ -421,6 +423,21 @@ mod tests {
             sh(),
             &ktx2(2, &values),
             &uv_bytes(&[0.0, 0.0, f32::INFINITY, 0.0, 0.0, 0.0]),
+            &Limits::small(),
+        )
+        .unwrap_err();
+        assert_eq!(
+            e,
+            LightmapError::NonFinite {
+                what: "lightmap UV",
+                index: 0
+            }
+        );
+        // A finite UV that overflows in texels (found by fuzzing).
+        let e = LightmapFolder::parse(
+            sh(),
+            &ktx2(2, &values),
+            &uv_bytes(&[0.0, 0.0, 0.0, 0.0, 3e38, 0.0]),
             &Limits::small(),
         )
         .unwrap_err();
