@@ -783,13 +783,11 @@ fn the_readme_shows_the_tested_loader_verbatim() {
 }
 
 #[test]
+// One attribute for both needs: two `ignore`s on one test are a duplicate-attribute warning.
 #[cfg_attr(
-    prt_skip_chromium,
-    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
-)]
-#[cfg_attr(
-    prt_skip_threejs,
-    ignore = "needs examples/threejs/node_modules (`npm ci` there), absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
+    any(prt_skip_chromium, prt_skip_threejs),
+    ignore = "needs chromium and examples/threejs/node_modules (`npm ci` there), one absent at \
+              build time (PRT_REQUIRE_CHROMIUM=1 requires them)"
 )]
 fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
     let example = example_dir();
@@ -1033,17 +1031,11 @@ fn materials_seen(
 /// shows from the same camera (`emission + albedo/π · E`), and the red and green walls must keep
 /// their colours (a lightmap read at the wrong UVs mixes them).
 #[test]
+// One attribute for the three needs: two `ignore`s on one test are a duplicate-attribute warning.
 #[cfg_attr(
-    prt_skip_chromium,
-    ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
-)]
-#[cfg_attr(
-    prt_skip_threejs,
-    ignore = "needs examples/threejs/node_modules (`npm ci` there), absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
-)]
-#[cfg_attr(
-    prt_skip_shared,
-    ignore = "needs ../shared/scenes, absent at build time (PRT_REQUIRE_SHARED=1 requires it)"
+    any(prt_skip_chromium, prt_skip_threejs, prt_skip_shared),
+    ignore = "needs chromium, examples/threejs/node_modules (`npm ci` there) and ../shared/scenes, \
+              one absent at build time (PRT_REQUIRE_CHROMIUM=1 and PRT_REQUIRE_SHARED=1 require them)"
 )]
 fn threejs_lightmap_shows_what_prt_lightmap_shows() {
     let example = example_dir();
