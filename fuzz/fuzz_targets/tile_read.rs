@@ -109,6 +109,7 @@ fuzz_target!(|data: &[u8]| {
         voxels: n,
         invalid_voxels: 0,
         skipped_voxels: 0,
+        rays_per_voxel: 12,
         voxel_rays: 0,
         cache_rays: 0,
         cache_points: 0,

@@ -5,11 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use prt_bake::memory::MemoryEstimate;
-use prt_bake::tiles::{PlanWritten, TilePlan};
+use prt_bake::tiles::{PlanWritten, SurfaceCacheWritten, TilePlan};
 use prt_bake::{BakeFolder, SceneInput};
 use prt_texture::Limits;
 
 use crate::bake::{BakeArgs, KeepVolumesArg, cli_error};
+use crate::progress::StageBar;
 
 /// Options of `prt plan`: the scene and every knob of `prt bake`, the tiling and the halo.
 #[derive(Debug, clap::Args)]
@@ -163,6 +164,27 @@ pub fn run(args: &PlanArgs) -> Result<()> {
         PlanWritten::Replaced { removed_tiles } => println!(
             "wrote {}, replacing the plan it held and removing its {removed_tiles} tile folders",
             path.display()
+        ),
+    }
+    let stage = StageBar::start("surface cache");
+    let (cache, cache_written) =
+        prt_bake::tiles::ensure_surface_cache(&plan, &out, &scene, true, &limits(), &stage)?;
+    stage.finish();
+    let cache_path = out.join(prt_bake::tiles::SURFACE_CACHE_FILE);
+    match cache_written {
+        SurfaceCacheWritten::Current => println!(
+            "{} is this plan's shared surface cache: kept",
+            cache_path.display()
+        ),
+        SurfaceCacheWritten::Evaluated { replaced } => println!(
+            "wrote {}: the surface cache every tile shares, {} points, {} entries evaluated with \
+             {:.2e} rays in {:.2} s{}",
+            cache_path.display(),
+            cache.points(),
+            cache.evaluated(),
+            cache.rays as f64,
+            cache.time.as_secs_f64(),
+            replaced.map_or(String::new(), |why| format!(" (replacing one: {why})"))
         ),
     }
     if let Some(note) = merge_note {

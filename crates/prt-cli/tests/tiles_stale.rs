@@ -1,7 +1,8 @@
 //! Never a stale tile (issue 40): a plan folder holding another plan is refused unless
 //! `--replace`; a tile traced for another plan is traced again by `bake-tile` and refused by
 //! `merge`, naming what differs; a tile whose floats were altered is refused naming it; a
-//! damaged plan.json is a clean error. Tiny bakes of the built-in Cornell box.
+//! damaged plan.json is a clean error; the tiles share the plan's surface cache, and a damaged
+//! one is refused. Tiny bakes of the built-in Cornell box.
 
 mod common;
 
@@ -240,5 +241,95 @@ fn a_damaged_plan_is_a_clean_error_for_bake_tile_and_merge() {
             );
         }
     }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `OUT/report.json`'s `bake` object.
+fn bake_counters(out: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(out.join("report.json")).unwrap();
+    serde_json::from_str::<serde_json::Value>(&text).unwrap()["bake"].clone()
+}
+
+/// The tiles share the plan's surface cache: a 2×2×1 tiling without halo or denoiser margin
+/// traces at most 1.1× the rays of one bake with the same knobs; the merged report counts the
+/// tiles' rays plus the cache's once, its points once, at a positive rate; a damaged cache is
+/// refused by the workers and the merge and evaluated again by `prt plan`.
+#[test]
+fn tiles_share_one_surface_cache_and_the_report_counts_it_once() {
+    let dir = scratch("shared-cache");
+    let knobs = [
+        "--res",
+        "8",
+        "--rays",
+        "48",
+        "--cache-rays",
+        "8",
+        "--denoise",
+        "off",
+    ];
+    let one = dir.join("one");
+    let mut args = vec!["bake", "--out", one.to_str().unwrap()];
+    args.extend(knobs);
+    args.extend(KNOBS);
+    ok(&prt(&args));
+    let plan_dir = dir.join("plan");
+    let plan_s = plan_dir.to_str().unwrap();
+    let mut args = vec!["plan", "--tiles", "2,2,1", "--out", plan_s];
+    args.extend(knobs);
+    args.extend(KNOBS);
+    let planned = prt(&args);
+    ok(&planned);
+    assert!(stdout(&planned).contains("the surface cache every tile shares"));
+    ok(&prt(&["bake-tile", plan_s, "--all", "--workers", "2"]));
+    let merged = dir.join("merged");
+    ok(&prt(&["merge", plan_s, "--out", merged.to_str().unwrap()]));
+
+    let limits = prt_texture::Limits::default();
+    let plan = prt_bake::tiles::TilePlan::read(&plan_dir, &limits).unwrap();
+    let (cache, _) = prt_bake::tiles::read_surface_cache_header(&plan, &plan_dir, &limits).unwrap();
+    let mut tile_rays = 0;
+    for i in 0..plan.tiles.len() {
+        let text =
+            std::fs::read_to_string(prt_bake::tiles::tile_dir(&plan_dir, i).join("tile.json"))
+                .unwrap();
+        let stats: prt_bake::tiles::TileStats = serde_json::from_str(&text).unwrap();
+        assert_eq!(stats.cache_rays, 0, "tile {i} traced no cache ray");
+        tile_rays += stats.rays();
+    }
+    let (single, tiled) = (bake_counters(&one), bake_counters(&merged));
+    let rays = |c: &serde_json::Value| c["rays"].as_u64().unwrap();
+    assert_eq!(rays(&tiled), tile_rays + cache.rays);
+    let ratio = rays(&tiled) as f64 / rays(&single) as f64;
+    assert!(ratio <= 1.1, "tiled / one bake's rays: {ratio:.3}");
+    assert!(tiled["mrays_per_second"].as_f64().unwrap() > 0.0);
+    let report = std::fs::read_to_string(merged.join("report.md")).unwrap();
+    assert!(
+        report.contains(&format!("{} surface-cache points", cache.points)) && cache.points > 0,
+        "{report}"
+    );
+
+    // A damaged cache: refused by a worker and by the merge, evaluated again by `prt plan`.
+    let file = plan_dir.join(prt_bake::tiles::SURFACE_CACHE_FILE);
+    let mut bytes = std::fs::read(&file).unwrap();
+    let last = bytes.len() - 2;
+    bytes[last] ^= 0x10;
+    std::fs::write(&file, &bytes).unwrap();
+    let worker = prt(&["bake-tile", plan_s, "--tile", "0", "--force"]);
+    assert_clean_failure(&worker, "is damaged");
+    let merge = prt(&["merge", plan_s, "--out", dir.join("m2").to_str().unwrap()]);
+    assert_clean_failure(&merge, "is damaged");
+    let again = prt(&args);
+    ok(&again);
+    assert!(
+        stdout(&again).contains("replacing one"),
+        "{}",
+        stdout(&again)
+    );
+    ok(&prt(&[
+        "merge",
+        plan_s,
+        "--out",
+        dir.join("m3").to_str().unwrap(),
+    ]));
     let _ = std::fs::remove_dir_all(&dir);
 }

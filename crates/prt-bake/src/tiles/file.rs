@@ -23,9 +23,11 @@ pub(crate) const TILE_FILE: &str = "tile.json";
 pub(crate) const TIMING_FILE: &str = "timing.json";
 /// Value of `tile.json`'s `format` field.
 pub const TILE_FORMAT: &str = "prt tile";
-/// Version of the tile files this crate writes and reads. Version 1 (a `tile.json` without
-/// `format`, `version`, fingerprint or checksums) reads as a stale tile, traced again.
-pub const TILE_VERSION: u32 = 2;
+/// Version of the tile files this crate writes and reads; a tile of another version reads as
+/// stale and is traced again. Version 1: a `tile.json` without `format`, `version`, fingerprint
+/// or checksums; version 2: tiles that each evaluated their own surface cache (3 reads the
+/// plan's shared one).
+pub const TILE_VERSION: u32 = 3;
 /// Largest `tile.json` or `timing.json` read (they are a few hundred bytes).
 const SMALL_FILE_MAX: u64 = 1 << 20;
 
@@ -134,13 +136,15 @@ pub struct TileStats {
     pub invalid_voxels: usize,
     /// Voxels outside the scene bounds (not traced).
     pub skipped_voxels: usize,
+    /// Directions per valid voxel as the tracer rounds them (the cap with adaptive sampling).
+    pub rays_per_voxel: usize,
     /// Rays traced from voxels.
     pub voxel_rays: u64,
-    /// Rays traced for the surface cache.
+    /// Rays traced for the surface cache (0: the tile read the plan's shared cache).
     pub cache_rays: u64,
-    /// Surface-cache points allocated.
+    /// Points of the surface cache the tile used (the plan's shared one).
     pub cache_points: usize,
-    /// Surface-cache entries evaluated.
+    /// Its entries evaluated.
     pub cache_evaluated: usize,
 }
 

@@ -10,6 +10,7 @@ use prt_trace::{BakeStats, TransferVolume};
 
 use prt_texture::Limits;
 
+use super::cache::read_surface_cache_header;
 use super::file::{TileData, read_tile, read_timing};
 use super::plan::{TileError, TilePlan, flat, voxels};
 use crate::seams::BLUR_SIGMA;
@@ -28,9 +29,10 @@ pub struct HaloAgreement {
 /// The global volume assembled from the tiles' cores.
 #[derive(Debug, Clone)]
 pub struct AssembledVolume {
-    /// The transfer volume on the plan's lattice; its statistics are the tiles' sums (rays,
-    /// surface-cache points, and the workers' times from their `timing.json`, so its rays per
-    /// second are a worker's), but the invalid voxels, counted over the assembled cores.
+    /// The transfer volume on the plan's lattice; its statistics are the tiles' sums (rays and
+    /// the workers' times from their `timing.json`, so its rays per second are a worker's) plus
+    /// the shared surface cache's points, rays and time, but the invalid voxels, counted over
+    /// the assembled cores.
     pub volume: TransferVolume,
     /// The tile owning each voxel (x fastest): the labels of the seam measures across tile
     /// borders.
@@ -66,7 +68,8 @@ fn malformed(path: &Path, why: impl Into<String>) -> TileError {
 /// ([`TileError::NotDone`]), was traced for another plan ([`TileError::StaleTile`]), has a file
 /// whose checksum is not the recorded one ([`TileError::Damaged`]), is over `limits`
 /// ([`TileError::TooLarge`]), or has a file of the wrong size or a non-finite value (named by
-/// voxel; [`TileError::Malformed`]).
+/// voxel; [`TileError::Malformed`]); and when the plan's shared surface cache, whose counts the
+/// statistics take, is missing, stale or damaged.
 pub fn assemble(
     plan: &TilePlan,
     plan_dir: &Path,
@@ -102,14 +105,18 @@ pub fn assemble(
         stats.skipped_voxels += info.skipped_voxels;
         stats.voxel_rays += info.voxel_rays;
         stats.cache_rays += info.cache_rays;
-        stats.cache_points += info.cache_points;
-        stats.cache_evaluated += info.cache_evaluated;
-        stats.rays_per_voxel = plan.config.rays_per_voxel.div_ceil(12) * 12;
+        stats.rays_per_voxel = info.rays_per_voxel;
         let [bvh, cache, voxel] = read_timing(plan_dir, tile.index);
         stats.bvh_time += bvh;
         stats.cache_time += cache;
         stats.voxel_time += voxel;
     }
+    // The tiles share the plan's surface cache: its points and rays once, its time as a stage.
+    let (cache, cache_time) = read_surface_cache_header(plan, plan_dir, limits)?;
+    stats.cache_points = cache.points;
+    stats.cache_evaluated = cache.evaluated;
+    stats.cache_rays += cache.rays;
+    stats.cache_time += cache_time;
     // The tiles counted their halos too; recount over the assembled cores.
     stats.invalid_voxels = valid.iter().filter(|&&v| !v).count();
     stats.skipped_voxels = 0;

@@ -12,6 +12,7 @@
 //!
 //! The plan (`plan.json`) and a tile's files are described in docs/formats.md.
 
+mod cache;
 mod checksum;
 pub(crate) use checksum::Fnv1a64;
 mod file;
@@ -22,20 +23,25 @@ mod report;
 mod stream;
 mod worker;
 
+pub use cache::{
+    SURFACE_CACHE_FILE, SURFACE_CACHE_MAGIC, SURFACE_CACHE_VERSION, SurfaceCacheFingerprint,
+    SurfaceCacheHeader, SurfaceCacheWritten, decode_surface_cache, encode_surface_cache,
+    ensure_surface_cache, evaluate_surface_cache, read_surface_cache, read_surface_cache_header,
+};
 pub use file::{
     TILE_FORMAT, TILE_VERSION, TileChecksums, TileData, TileFingerprint, TileStats, TileStatus,
     decode_tile, tile_status,
 };
 pub use merge::{AssembledVolume, HaloAgreement, TileSeams, assemble, tile_seams};
+pub use partial::{
+    BASIS_FORMAT, MERGE_FILE_VERSION, MERGE_MAGIC, MergeStage, PARTIAL_FORMAT, PartialError,
+    basis_path, merge_dir, partial_path,
+};
 pub use plan::{
     PLAN_FILE, PLAN_FORMAT, PLAN_VERSION, PlanWritten, PlannedScene, TileError, TilePlan, TileSpec,
     VoxelRange, plan_tiles, write_plan,
 };
 pub use report::{HaloRecord, SeamRatios, StreamedRecord, TilesReport};
-pub use partial::{
-    BASIS_FORMAT, MERGE_FILE_VERSION, MERGE_MAGIC, MergeStage, PARTIAL_FORMAT, PartialError,
-    basis_path, merge_dir, partial_path,
-};
 pub use stream::{
     BasisState, MapOutcome, MergeContext, Partial, ReduceOutcome, StageSums, StreamedMerge,
     map_tile, merge_from_partials, merge_streamed, reduce_stage,
@@ -184,7 +190,7 @@ mod tests {
     }
 
     /// A 2×2 tiled bake with the denoiser is as far from the one-machine bake as another seed
-    /// of the one-machine bake (its tiles traced with a margin of the denoiser's radius, every
+    /// of the one-machine bake's voxel rays over the same surface cache (its tiles traced with a margin of the denoiser's radius, every
     /// kept voxel filtered with all its neighbours); the same tiles without the denoiser are
     /// not.
     #[test]
@@ -195,7 +201,9 @@ mod tests {
             cache_rays: 16,
             ..config(12)
         };
-        let one_machine = |seed: u64| {
+        // The tiles share the one-machine bake's surface cache (the plan's, of the bake's
+        // seed): the other seed traces other voxel rays over that same cache.
+        let one_machine = |seed: u64, cache: Option<&prt_trace::expert::SharedSurfaceCache>| {
             let options = prt_trace::BakeOptions {
                 resolution: denoised
                     .grid_resolution(scene.scene.bounds().unwrap().size().to_array()),
@@ -205,10 +213,13 @@ mod tests {
                 denoise: denoised.denoise_options(),
                 ..prt_trace::BakeOptions::default()
             };
-            prt_trace::TransferBaker::new(&scene.scene, options)
-                .unwrap()
-                .bake(&NoProgress)
-                .unwrap()
+            let baker = prt_trace::TransferBaker::new(&scene.scene, options).unwrap();
+            match cache {
+                Some(cache) => baker.with_surface_cache(cache).unwrap(),
+                None => baker,
+            }
+            .bake(&NoProgress)
+            .unwrap()
         };
         let tiled = |config: &BakeConfig, name: &str| {
             let plan = plan_tiles(&scene, None, config, [2, 2, 1], 0).unwrap();
@@ -221,7 +232,13 @@ mod tests {
             let _ = std::fs::remove_dir_all(&dir);
             assembled.volume
         };
-        let (b, c) = (one_machine(0), one_machine(1));
+        let shared = evaluate_surface_cache(
+            &plan_tiles(&scene, None, &denoised, [1, 1, 1], 0).unwrap(),
+            &scene,
+            &NoProgress,
+        )
+        .unwrap();
+        let (b, c) = (one_machine(0, None), one_machine(1, Some(&shared)));
         let a = tiled(&denoised, "denoised");
         assert_eq!(a.field.bounds(), b.field.bounds());
         let (tiled_error, seed_error, same) = equally_far(&a, &c, &b);

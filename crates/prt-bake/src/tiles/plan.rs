@@ -107,6 +107,42 @@ pub enum TileError {
         /// The checksum of the file's bytes.
         found: String,
     },
+    /// The plan folder has no shared surface cache (`prt plan` writes it).
+    #[error(
+        "{} is missing: write it with `prt plan` (the same plan again keeps the finished tiles)",
+        path.display()
+    )]
+    NoSurfaceCache {
+        /// The missing file.
+        path: PathBuf,
+    },
+    /// The plan folder's shared surface cache was evaluated for another plan.
+    #[error(
+        "{} was evaluated for another plan: {} (cache → plan); evaluate it again with `prt plan`",
+        path.display(),
+        differences.join("; ")
+    )]
+    StaleSurfaceCache {
+        /// The file.
+        path: PathBuf,
+        /// What differs, as `field: cache's value → plan's value`.
+        differences: Vec<String>,
+    },
+    /// The shared surface cache's bytes are not those written: their checksum differs from the
+    /// one its header records.
+    #[error(
+        "{} is damaged: its checksum is {found}, its header records {recorded}; evaluate it \
+         again with `prt plan`",
+        path.display()
+    )]
+    DamagedSurfaceCache {
+        /// The file.
+        path: PathBuf,
+        /// The checksum the header records.
+        recorded: String,
+        /// The checksum of the payload's bytes.
+        found: String,
+    },
     /// The plan folder already holds a different plan (see [`write_plan`]).
     #[error(
         "{} already holds a different plan ({}); replace it and remove its tiles with \

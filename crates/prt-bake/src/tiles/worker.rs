@@ -5,8 +5,10 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use prt_core::{GridField, Progress};
+use prt_texture::Limits;
 use prt_trace::{BakeOptions, BakeStats, TransferBaker, TransferVolume};
 
+use super::cache::ensure_surface_cache;
 use super::checksum::Fnv1a64;
 use super::file::{
     TILE_FILE, TILE_FORMAT, TILE_VERSION, TIMING_FILE, TRANSFER_FILE, TileChecksums,
@@ -130,7 +132,8 @@ fn crop(
 }
 
 /// Traces tile `index` of `plan` (whose folder is `plan_dir`) from `scene`, which must hash as
-/// the plan's, and writes `transfer.f32`, `valid.u8`, `tile.json` (with the tile's
+/// the plan's, with the plan's shared surface cache (`surface_cache.bin`, evaluated and written
+/// first when the folder has none; a stale or damaged one is an error), and writes `transfer.f32`, `valid.u8`, `tile.json` (with the tile's
 /// [`TileFingerprint`] and the checksums of the two others), `timing.json` and then the done
 /// marker into [`tile_dir`], each file atomically. A tile finished for this plan is skipped
 /// unless `force`; one finished for another plan ([`TileStatus::Stale`]) is traced again. The
@@ -157,6 +160,10 @@ pub fn bake_tile(
             found,
         });
     }
+    let start = Instant::now();
+    // Before the marker goes: a damaged or stale cache leaves a finished tile finished.
+    let (cache, _) =
+        ensure_surface_cache(plan, plan_dir, scene, false, &Limits::default(), progress)?;
     let dir = tile_dir(plan_dir, index);
     // A rerun first withdraws the marker, so a crash mid-write never leaves a "finished" tile
     // with mixed files.
@@ -170,8 +177,8 @@ pub fn bake_tile(
         }
         _ => {}
     }
-    let start = Instant::now();
     let volume = TransferBaker::new(&scene.scene, tile_options(plan, index)?)
+        .and_then(|baker| baker.with_surface_cache(&cache))
         .map_err(BakeError::TracerSetup)?
         .bake(progress)
         .map_err(BakeError::Trace)?;
@@ -244,6 +251,7 @@ fn write_tile(
         voxels: s.voxels,
         invalid_voxels: s.invalid_voxels,
         skipped_voxels: s.skipped_voxels,
+        rays_per_voxel: s.rays_per_voxel,
         voxel_rays: s.voxel_rays,
         cache_rays: s.cache_rays,
         cache_points: s.cache_points,
