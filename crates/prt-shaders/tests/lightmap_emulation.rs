@@ -197,7 +197,8 @@ fn sg_diffuse_matches_the_exact_irradiance() {
 
 /// The shader's irradiance at the texel's normal is the irradiance the bake stores (its cosine
 /// integral of the fit) for a real lightmap of the Cornell box: within Hill's error for SG,
-/// float rounding for SH of order ≤ 3, and band 4's missing term for sh:5.
+/// float rounding for SH of order ≤ 3, and bands 3–4's missing terms for sh:5 (4.0–4.5e-2 of
+/// the largest irradiance measured, depending on the bake's samples).
 #[test]
 fn the_shaders_reproduce_a_bakes_irradiance() {
     use prt_lightmap::{LightmapConfig, UnwrapConfig, bake_lightmap, unwrap_charts};
@@ -215,7 +216,7 @@ fn the_shaders_reproduce_a_bakes_irradiance() {
         ("sg:9", 1e-3),
         ("sh:2", 6e-5),
         ("sh:3", 6e-5),
-        ("sh:5", 0.045),
+        ("sh:5", 0.06),
     ] {
         let basis = LightmapBasis::parse(label).unwrap();
         let config = LightmapConfig {
