@@ -340,19 +340,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
             &config,
             &NoProgress,
         )?;
-        if let Some(rmse) = image.rmse(&base) {
-            let mean = base
-                .pixels
-                .iter()
-                .flatten()
-                .map(|&v| f64::from(v))
-                .sum::<f64>()
-                / (3 * base.pixels.len()).max(1) as f64;
-            println!(
-                "RMSE against the reference render: {rmse:.4e} ({:.2} % of its mean radiance {mean:.4e})",
-                100.0 * rmse / mean.max(f64::MIN_POSITIVE)
-            );
-        }
+        print_rmse(&image, &base, "the reference render");
         if args.compare {
             let m = image_metrics(&base, &image, &ToneMap::auto(&base))?;
             println!(
@@ -587,22 +575,27 @@ fn run_lightmap(dir: &Path, args: &RenderArgs) -> Result<()> {
             &view.view,
             args.size,
         );
-        if let Some(rmse) = image.rmse(&base) {
-            let mean = base
-                .pixels
-                .iter()
-                .flatten()
-                .map(|&v| f64::from(v))
-                .sum::<f64>()
-                / (3 * base.pixels.len()).max(1) as f64;
-            println!(
-                "RMSE against the stored irradiance's render: {rmse:.4e} ({:.3} % of its mean radiance {mean:.4e})",
-                100.0 * rmse / mean.max(f64::MIN_POSITIVE)
-            );
-        }
+        print_rmse(&image, &base, "the stored irradiance's render");
     }
     println!("wrote {}", args.out.display());
     Ok(())
+}
+
+/// Prints the RMSE of `image` against `base` and its share of `base`'s mean radiance.
+fn print_rmse(image: &Rendered, base: &Rendered, against: &str) {
+    if let Some(rmse) = image.rmse(base) {
+        let mean = base
+            .pixels
+            .iter()
+            .flatten()
+            .map(|&v| f64::from(v))
+            .sum::<f64>()
+            / (3 * base.pixels.len()).max(1) as f64;
+        println!(
+            "RMSE against {against}: {rmse:.4e} ({:.3} % of its mean radiance {mean:.4e})",
+            100.0 * rmse / mean.max(f64::MIN_POSITIVE)
+        );
+    }
 }
 
 #[cfg(test)]
