@@ -168,11 +168,13 @@ impl Encoder {
     }
 }
 
-/// `∫ B_i(ω) max(ω_y, 0) dω` per function (the irradiance at the normal of each function), by
-/// a 128 × 256 midpoint rule in `cos θ` and `φ` over the upper hemisphere.
-pub(crate) fn cosine_weights(basis: &dyn SphericalBasis) -> Vec<f32> {
+/// Visits the cells of a 128 × 256 midpoint rule in `cos θ` and `φ` over the upper hemisphere
+/// (y up): `visit(cos θ, the basis at the cell's centre, the cell's solid angle)`.
+pub(crate) fn for_each_hemisphere_cell(
+    basis: &dyn SphericalBasis,
+    mut visit: impl FnMut(f64, &[f32], f64),
+) {
     let (rings, sectors) = (128, 256);
-    let mut out = vec![0.0f64; basis.len()];
     let mut b = vec![0.0f32; basis.len()];
     let cell = TAU / (rings * sectors) as f64;
     for r in 0..rings {
@@ -184,11 +186,20 @@ pub(crate) fn cosine_weights(basis: &dyn SphericalBasis) -> Vec<f32> {
                 Vec3::new((s * phi.cos()) as f32, y as f32, (s * phi.sin()) as f32),
                 &mut b,
             );
-            for (o, v) in out.iter_mut().zip(&b) {
-                *o += f64::from(*v) * y * cell;
-            }
+            visit(y, &b, cell);
         }
     }
+}
+
+/// `∫ B_i(ω) max(ω_y, 0) dω` per function (the irradiance at the normal of each function), by
+/// [`for_each_hemisphere_cell`].
+pub(crate) fn cosine_weights(basis: &dyn SphericalBasis) -> Vec<f32> {
+    let mut out = vec![0.0f64; basis.len()];
+    for_each_hemisphere_cell(basis, |y, b, cell| {
+        for (o, v) in out.iter_mut().zip(b) {
+            *o += f64::from(*v) * y * cell;
+        }
+    });
     out.into_iter().map(|v| v as f32).collect()
 }
 

@@ -8,12 +8,11 @@
 //! least-squares coefficients of the delta instead (the sum of two non-negative fits stays
 //! non-negative). The irradiance basis adds `E⊥ cos θ` exactly.
 
-use std::f64::consts::TAU;
-
 use glam::Vec3;
 use ndarray::{Array1, Array2};
 use prt_core::SphericalBasis;
 
+use crate::basis::for_each_hemisphere_cell;
 use crate::trace::{Transport, tangent_frame};
 use crate::{Encoder, LightmapError};
 
@@ -130,28 +129,16 @@ impl<'a> PunctualDirect<'a> {
     }
 }
 
-/// `∫_{ω_y > 0} B_i B_j dω`, by the 128 × 256 midpoint rule of `cosine_weights`.
+/// `∫_{ω_y > 0} B_i B_j dω`, by the midpoint rule of `cosine_weights`.
 fn hemisphere_gram(basis: &dyn SphericalBasis) -> Array2<f64> {
-    let (rings, sectors) = (128, 256);
     let k = basis.len();
     let mut g = Array2::<f64>::zeros((k, k));
-    let mut b = vec![0.0f32; k];
-    let cell = TAU / (rings * sectors) as f64;
-    for r in 0..rings {
-        let y = (r as f64 + 0.5) / rings as f64;
-        let s = (1.0 - y * y).sqrt();
-        for q in 0..sectors {
-            let phi = TAU * (q as f64 + 0.5) / sectors as f64;
-            basis.eval(
-                Vec3::new((s * phi.cos()) as f32, y as f32, (s * phi.sin()) as f32),
-                &mut b,
-            );
-            for i in 0..k {
-                for j in 0..k {
-                    g[[i, j]] += f64::from(b[i]) * f64::from(b[j]) * cell;
-                }
+    for_each_hemisphere_cell(basis, |_, b, cell| {
+        for i in 0..k {
+            for j in 0..k {
+                g[[i, j]] += f64::from(b[i]) * f64::from(b[j]) * cell;
             }
         }
-    }
+    });
     g
 }
