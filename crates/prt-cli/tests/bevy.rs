@@ -261,6 +261,46 @@ impl std::fmt::Display for SurfaceStats {
     }
 }
 
+/// Prints each surface's statistics and returns what breaks the bounds: a pixel darker than
+/// [`MIN_RATIO`] × prt's (a black wall), or, on surfaces of [`MIN_PIXELS`]+ pixels, a median or
+/// 90th-percentile relative error above [`MAX_MEDIAN_ERROR`] / [`MAX_P90_ERROR`].
+fn surface_failures(by_surface: &BTreeMap<String, SurfaceStats>) -> Vec<String> {
+    let mut failures = Vec::new();
+    for (name, stats) in by_surface {
+        eprintln!("{name:>14}: {stats}");
+        if stats.darkest < MIN_RATIO {
+            failures.push(format!(
+                "{name}: a pixel at {:.3} × prt's luminance (a black wall?)",
+                stats.darkest
+            ));
+        }
+        if stats.pixels >= MIN_PIXELS
+            && (stats.median > MAX_MEDIAN_ERROR || stats.p90 > MAX_P90_ERROR)
+        {
+            failures.push(format!(
+                "{name}: relative error median {:.2} % p90 {:.2} % (at most {:.2} % / {:.2} %)",
+                100.0 * stats.median,
+                100.0 * stats.p90,
+                100.0 * MAX_MEDIAN_ERROR,
+                100.0 * MAX_P90_ERROR
+            ));
+        }
+    }
+    failures
+}
+
+/// At least five surfaces are large enough in view to be judged.
+fn assert_enough_surfaces(by_surface: &BTreeMap<String, SurfaceStats>) {
+    let judged = by_surface
+        .values()
+        .filter(|stats| stats.pixels >= MIN_PIXELS)
+        .count();
+    assert!(
+        judged >= 5,
+        "only {judged} surfaces with {MIN_PIXELS}+ pixels in view"
+    );
+}
+
 /// Per surface ([`surfaces_of`]), over its [`interior`] pixels.
 fn compare_by_surface(
     bevy: &Rendered,
@@ -410,35 +450,8 @@ fn bevy_on_lavapipe_shows_what_prt_render_shows_and_no_black_walls() {
     }
 
     let by_surface = compare_by_surface(&bevy, &cpu, &surface);
-    let mut failures = Vec::new();
-    for (name, stats) in &by_surface {
-        eprintln!("{name:>14}: {stats}");
-        if stats.darkest < MIN_RATIO {
-            failures.push(format!(
-                "{name}: a pixel at {:.3} × prt's luminance (black walls, issue 36?)",
-                stats.darkest
-            ));
-        }
-        if stats.pixels >= MIN_PIXELS
-            && (stats.median > MAX_MEDIAN_ERROR || stats.p90 > MAX_P90_ERROR)
-        {
-            failures.push(format!(
-                "{name}: relative error median {:.2} % p90 {:.2} % (at most {:.2} % / {:.2} %)",
-                100.0 * stats.median,
-                100.0 * stats.p90,
-                100.0 * MAX_MEDIAN_ERROR,
-                100.0 * MAX_P90_ERROR
-            ));
-        }
-    }
-    let judged = by_surface
-        .values()
-        .filter(|stats| stats.pixels >= MIN_PIXELS)
-        .count();
-    assert!(
-        judged >= 5,
-        "only {judged} surfaces with {MIN_PIXELS}+ pixels in view"
-    );
+    let failures = surface_failures(&by_surface);
+    assert_enough_surfaces(&by_surface);
     assert!(
         failures.is_empty(),
         "{} (images in {})",
@@ -534,27 +547,7 @@ fn bevy_lightmap_on_lavapipe_shows_what_prt_lightmap_shows() {
     }
 
     let by_surface = compare_by_surface(&bevy, &cpu, &surface);
-    let mut failures = Vec::new();
-    for (name, stats) in &by_surface {
-        eprintln!("{name:>14}: {stats}");
-        if stats.darkest < MIN_RATIO {
-            failures.push(format!(
-                "{name}: a pixel at {:.3} × prt's luminance",
-                stats.darkest
-            ));
-        }
-        if stats.pixels >= MIN_PIXELS
-            && (stats.median > MAX_MEDIAN_ERROR || stats.p90 > MAX_P90_ERROR)
-        {
-            failures.push(format!(
-                "{name}: relative error median {:.2} % p90 {:.2} % (at most {:.2} % / {:.2} %)",
-                100.0 * stats.median,
-                100.0 * stats.p90,
-                100.0 * MAX_MEDIAN_ERROR,
-                100.0 * MAX_P90_ERROR
-            ));
-        }
-    }
+    let mut failures = surface_failures(&by_surface);
     // The walls keep their colours: a lightmap read at the wrong UVs or channel mixes them.
     for (wall, channel, other) in [("leftWall +x", 0, 1), ("rightWall -x", 1, 0)] {
         let stats = by_surface
@@ -565,14 +558,7 @@ fn bevy_lightmap_on_lavapipe_shows_what_prt_lightmap_shows() {
             failures.push(format!("{wall}: Bevy's mean {mean:?} lost its colour"));
         }
     }
-    let judged = by_surface
-        .values()
-        .filter(|stats| stats.pixels >= MIN_PIXELS)
-        .count();
-    assert!(
-        judged >= 5,
-        "only {judged} surfaces with {MIN_PIXELS}+ pixels in view"
-    );
+    assert_enough_surfaces(&by_surface);
     assert!(
         failures.is_empty(),
         "{} (images in {})",
