@@ -944,35 +944,11 @@ fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
         .fold(0.0, f64::max);
     eprintln!("WebGL 2 and WebGPU whole-scene renders differ by at most {apart:.2e}");
 
-    if let Some(shots) = std::env::var_os("PRT_THREEJS_SHOTS") {
-        let shots = PathBuf::from(shots);
-        std::fs::create_dir_all(&shots).expect("shots folder");
-        let three = &scene_errors[0].4;
-        let hit: Vec<bool> = three.iter().map(|p| p[3] > 0.5).collect();
-        let cpu32: Vec<[f32; 3]> = cpu.iter().map(|p| p.map(|v| v as f32)).collect();
-        let tone = prt_render::ToneMap::auto(&prt_render::Rendered {
-            width: SIZE,
-            height: SIZE,
-            pixels: cpu32.clone(),
-            hit: hit.clone(),
-            unlit: 0,
-        });
-        save_png(
-            &shots.join("threejs-cornell.png"),
-            three
-                .iter()
-                .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32])
-                .collect(),
-            &hit,
-            &tone,
-        );
-        save_png(&shots.join("prt-render-cornell.png"), cpu32, &hit, &tone);
-        eprintln!(
-            "saved the renders in {} (exposure {:.4})",
-            shots.display(),
-            tone.exposure
-        );
-    }
+    save_shots(
+        &scene_errors[0].4,
+        &cpu,
+        ["threejs-cornell.png", "prt-render-cornell.png"],
+    );
     for (renderer, error, error_prt, drawn, _) in &scene_errors {
         assert!(
             *drawn > 0.5,
@@ -1118,7 +1094,14 @@ fn threejs_lightmap_shows_what_prt_lightmap_shows() {
                 .map(|f| format!("{renderer}: {f}")),
         );
         if renderer == "webgl" {
-            save_lightmap_shots(&three, &cpu);
+            save_shots(
+                &three,
+                &cpu,
+                [
+                    "threejs-lightmap-cornell.png",
+                    "prt-lightmap-view-cornell.png",
+                ],
+            );
         }
     }
     drop(server);
@@ -1233,8 +1216,8 @@ fn judge_lightmap(three: &[[f64; 4]], cpu: &[[f64; 3]], seen: &[Option<String>])
     failures
 }
 
-/// With `PRT_THREEJS_SHOTS=DIR`: three.js's lightmapped render and prt's view, one exposure.
-fn save_lightmap_shots(three: &[[f64; 4]], cpu: &[[f64; 3]]) {
+/// With `PRT_THREEJS_SHOTS=DIR`: three.js's render and prt's, one exposure, as `names`.
+fn save_shots(three: &[[f64; 4]], cpu: &[[f64; 3]], names: [&str; 2]) {
     let Some(shots) = std::env::var_os("PRT_THREEJS_SHOTS") else {
         return;
     };
@@ -1250,7 +1233,7 @@ fn save_lightmap_shots(three: &[[f64; 4]], cpu: &[[f64; 3]]) {
         unlit: 0,
     });
     save_png(
-        &shots.join("threejs-lightmap-cornell.png"),
+        &shots.join(names[0]),
         three
             .iter()
             .map(|p| [p[0] as f32, p[1] as f32, p[2] as f32])
@@ -1258,10 +1241,10 @@ fn save_lightmap_shots(three: &[[f64; 4]], cpu: &[[f64; 3]]) {
         &hit,
         &tone,
     );
-    save_png(
-        &shots.join("prt-lightmap-view-cornell.png"),
-        cpu32,
-        &hit,
-        &tone,
+    save_png(&shots.join(names[1]), cpu32, &hit, &tone);
+    eprintln!(
+        "saved the renders in {} (exposure {:.4})",
+        shots.display(),
+        tone.exposure
     );
 }
