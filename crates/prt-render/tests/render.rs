@@ -19,6 +19,13 @@ fn open_sky(dims: [usize; 3], bounds: Aabb, scale: f32) -> GridField {
     .expect("field")
 }
 
+/// [`open_sky`] lit by `sky`, every voxel valid.
+fn lit_open_sky(dims: [usize; 3], bounds: Aabb, scale: f32, sky: &Sky) -> LitVolume {
+    let valid = vec![true; dims.iter().product()];
+    LitVolume::from_transfer(&open_sky(dims, bounds, scale), &valid, sky, &NoProgress)
+        .expect("volume")
+}
+
 fn looking_down() -> PinholeView {
     PinholeView {
         position: Vec3::new(0.0, 2.0, 0.0),
@@ -57,13 +64,7 @@ fn a_plane_under_a_constant_sky_shows_albedo_times_radiance() {
     let bounds = Aabb::new(Vec3::new(-2.0, -1.0, -2.0), Vec3::new(2.0, 1.0, 2.0));
     let radiance = [1.5f32, 1.0, 0.5];
     let sky = Sky::constant(radiance);
-    let volume = LitVolume::from_transfer(
-        &open_sky([4, 3, 4], bounds, 1.0),
-        &[true; 48],
-        &sky,
-        &NoProgress,
-    )
-    .expect("volume");
+    let volume = lit_open_sky([4, 3, 4], bounds, 1.0, &sky);
     let image = draw(&scene, &looking_down(), &volume, &sky, 16);
     assert!(image.hit.iter().all(|&h| h), "the plane fills the view");
     assert_eq!(image.unlit, 0);
@@ -81,13 +82,7 @@ fn the_default_sky_lights_an_upward_surface_with_its_cosine_weighted_mean() {
     let scene = Scene::ground_plane(2.0, albedo);
     let bounds = Aabb::new(Vec3::splat(-2.0), Vec3::splat(2.0));
     let sky = Sky::default();
-    let volume = LitVolume::from_transfer(
-        &open_sky([2, 2, 2], bounds, 1.0),
-        &[true; 8],
-        &sky,
-        &NoProgress,
-    )
-    .expect("volume");
+    let volume = lit_open_sky([2, 2, 2], bounds, 1.0, &sky);
     let image = draw(&scene, &looking_down(), &volume, &sky, 8);
     let want = [0.9f32, 1.0, 1.2].map(|c| 1.4 * 0.5 * c);
     for p in &image.pixels {
@@ -100,13 +95,7 @@ fn a_miss_shows_the_sky_along_the_ray() {
     let scene = Scene::ground_plane(1.0, Vec3::ONE);
     let sky = Sky::default();
     let bounds = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
-    let volume = LitVolume::from_transfer(
-        &open_sky([2, 2, 2], bounds, 1.0),
-        &[true; 8],
-        &sky,
-        &NoProgress,
-    )
-    .expect("volume");
+    let volume = lit_open_sky([2, 2, 2], bounds, 1.0, &sky);
     let up = PinholeView {
         position: Vec3::new(0.0, 1.0, 0.0),
         forward: Vec3::Y,
@@ -214,13 +203,7 @@ fn an_emitter_seen_directly_shows_its_emission() {
     let scene = Scene::cornell_box();
     let bounds = scene.bounds().expect("bounds");
     let sky = Sky::constant([1.0; 3]);
-    let volume = LitVolume::from_transfer(
-        &open_sky([2, 2, 2], bounds, 0.0),
-        &[true; 8],
-        &sky,
-        &NoProgress,
-    )
-    .expect("volume");
+    let volume = lit_open_sky([2, 2, 2], bounds, 0.0, &sky);
     // Looking up at the light from below it.
     let view = PinholeView {
         position: Vec3::new(0.0, 1.0, -0.03),
