@@ -2,8 +2,10 @@
 //! never raise its error, an error close to the in-memory merge's, and a container that reads
 //! back.
 
+use std::path::PathBuf;
+
 use prt_bake::tiles::{
-    MapOutcome, MergeStage, PartialError, TileError, assemble, bake_tile, map_tile,
+    MapOutcome, MergeStage, PartialError, TileError, TilePlan, assemble, bake_tile, map_tile,
     merge_from_partials, merge_streamed, partial_path, plan_tiles, reduce_stage,
 };
 use prt_bake::{BakeConfig, SceneInput, bake_volume, read_container};
@@ -35,25 +37,37 @@ fn centre_error(model: &dyn FieldModel, field: &GridField, valid: &[bool]) -> f6
     num / den
 }
 
-#[test]
-fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory_merge() {
+/// A small Cornell bake planned as 2 × 2 × 1 tiles in the scratch folder `name`, every tile
+/// traced: the bake's knobs, the plan and its folder.
+fn traced_tiles(
+    resolution: usize,
+    basis_nodes: usize,
+    max_iterations: usize,
+    name: &str,
+) -> (BakeConfig, TilePlan, PathBuf) {
     let scene = SceneInput::cornell_box();
     let config = BakeConfig {
-        resolution: 16,
+        resolution,
         rays_per_voxel: 24,
         cache_rays: 8,
         rank: 4,
-        basis_nodes: 4,
-        max_iterations: 24,
+        basis_nodes,
+        max_iterations,
         baselines: false,
         ..BakeConfig::default()
     };
     let plan = plan_tiles(&scene, None, &config, [2, 2, 1], 1).expect("plan");
-    let dir = scratch("stream");
+    let dir = scratch(name);
     plan.write(&dir).expect("plan written");
     for index in 0..plan.tiles.len() {
         bake_tile(&plan, &dir, &scene, index, false, &NoProgress).expect("tile");
     }
+    (config, plan, dir)
+}
+
+#[test]
+fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory_merge() {
+    let (config, plan, dir) = traced_tiles(16, 4, 24, "stream");
     let out = scratch("stream-out");
     let streamed_config = BakeConfig {
         container: Some(out.join("mbd")),
@@ -137,23 +151,7 @@ fn tree(dir: &std::path::Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
 
 #[test]
 fn the_distributed_merge_writes_the_streamed_merges_bytes_and_refuses_stale_partials() {
-    let scene = SceneInput::cornell_box();
-    let config = BakeConfig {
-        resolution: 12,
-        rays_per_voxel: 24,
-        cache_rays: 8,
-        rank: 4,
-        basis_nodes: 3,
-        max_iterations: 16,
-        baselines: false,
-        ..BakeConfig::default()
-    };
-    let plan = plan_tiles(&scene, None, &config, [2, 2, 1], 1).expect("plan");
-    let dir = scratch("distributed");
-    plan.write(&dir).expect("plan written");
-    for index in 0..plan.tiles.len() {
-        bake_tile(&plan, &dir, &scene, index, false, &NoProgress).expect("tile");
-    }
+    let (config, plan, dir) = traced_tiles(12, 3, 16, "distributed");
     let limits = Limits::default();
     let sweeps = 2;
     let with_container = |name: &str| BakeConfig {
