@@ -2,6 +2,7 @@
 //! determines the tile's bytes, the checksums of its payload files) and the payload
 //! (`transfer.f32`, `valid.u8`), and their checked reading.
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -319,37 +320,53 @@ fn payload_bytes(tile: &TileSpec, path: &Path, limits: &Limits) -> Result<u64, T
     Ok(bytes)
 }
 
-/// The payload checked against `stats`: sizes, checksums, 0 / 1 validity, finite values.
+/// `values` little-endian f32s read from `source` a chunk at a time, hashed as they pass, so
+/// that the file's bytes are never held beside the decoded values; and the bytes' checksum.
+fn decode_f32s(
+    mut source: impl Read,
+    values: usize,
+    path: &Path,
+) -> Result<(Vec<f32>, String), TileError> {
+    let mut out = Vec::with_capacity(values);
+    let mut hash = Fnv1a64::default();
+    let mut chunk = vec![0u8; (values * 4).min(1 << 20)];
+    let mut left = values * 4;
+    while left > 0 {
+        let bytes = &mut chunk[..left.min(1 << 20)];
+        source.read_exact(bytes).map_err(io(path))?;
+        hash.update(bytes);
+        out.extend(
+            bytes
+                .chunks_exact(4)
+                .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+        );
+        left -= bytes.len();
+    }
+    Ok((out, hash.label()))
+}
+
+/// The payload checked against `stats`: `transfer` holds the tile's voxels × 324 f32s (its size
+/// checked by the caller); checksums, the size of `valid`, 0 / 1 validity, finite values.
 fn decode_payload(
     tile: &TileSpec,
     stats: TileStats,
     dir: &Path,
-    transfer: &[u8],
+    transfer: impl Read,
     valid: &[u8],
 ) -> Result<TileData, TileError> {
     let n = tile.traced.len();
     let (transfer_path, valid_path) = (dir.join(TRANSFER_FILE), dir.join(VALID_FILE));
-    if transfer.len() as u64 != n as u64 * TRANSFER_DIM as u64 * 4 {
-        return Err(malformed(
-            &transfer_path,
-            format!(
-                "{} bytes, the tile's {n} voxels need {}",
-                transfer.len(),
-                n * TRANSFER_DIM * 4
-            ),
-        ));
-    }
     if valid.len() != n {
         return Err(malformed(
             &valid_path,
             format!("{} bytes, the tile's {n} voxels need {n}", valid.len()),
         ));
     }
-    for (path, bytes, recorded) in [
-        (&transfer_path, transfer, &stats.checksums.transfer),
-        (&valid_path, valid, &stats.checksums.valid),
+    let (transfer, transfer_checksum) = decode_f32s(transfer, n * TRANSFER_DIM, &transfer_path)?;
+    for (path, found, recorded) in [
+        (&transfer_path, transfer_checksum, &stats.checksums.transfer),
+        (&valid_path, Fnv1a64::of(valid), &stats.checksums.valid),
     ] {
-        let found = Fnv1a64::of(bytes);
         if &found != recorded {
             return Err(TileError::Damaged {
                 index: tile.index,
@@ -362,10 +379,6 @@ fn decode_payload(
     if valid.iter().any(|&b| b > 1) {
         return Err(malformed(&valid_path, format!("not {n} bytes of 0 or 1")));
     }
-    let transfer: Vec<f32> = transfer
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
     if let Some(i) = transfer.iter().position(|x| !x.is_finite()) {
         let v = voxels(&tile.traced)
             .nth(i / TRANSFER_DIM)
@@ -398,7 +411,18 @@ pub fn decode_tile(
     let tile = plan.tile(index)?;
     let dir = Path::new("tiles").join(index.to_string());
     let stats = stats_of(plan, tile, &dir.join(TILE_FILE), tile_json)?;
-    payload_bytes(tile, &dir.join(TRANSFER_FILE), limits)?;
+    let transfer_path = dir.join(TRANSFER_FILE);
+    let expected = payload_bytes(tile, &transfer_path, limits)?;
+    if transfer.len() as u64 != expected {
+        return Err(malformed(
+            &transfer_path,
+            format!(
+                "{} bytes, the tile's {} voxels need {expected}",
+                transfer.len(),
+                tile.traced.len()
+            ),
+        ));
+    }
     decode_payload(tile, stats, &dir, transfer, valid)
 }
 
@@ -436,9 +460,9 @@ pub(crate) fn read_tile(
             ));
         }
     }
-    let transfer = std::fs::read(&transfer_path).map_err(io(&transfer_path))?;
+    let transfer = std::fs::File::open(&transfer_path).map_err(io(&transfer_path))?;
     let valid = std::fs::read(&valid_path).map_err(io(&valid_path))?;
-    decode_payload(tile, stats, &dir, &transfer, &valid)
+    decode_payload(tile, stats, &dir, transfer, &valid)
 }
 
 /// A worker's times from its `timing.json` (zero when absent or unreadable): BVH, surface
