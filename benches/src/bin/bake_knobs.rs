@@ -20,7 +20,8 @@ use std::path::{Path, PathBuf};
 
 use clap::{Parser, ValueEnum};
 use glam::Vec3;
-use prt_bake::{BakeConfig, Method, Quality, SceneInput, Stage, bake, read_container};
+use prt_bake::container::read_container;
+use prt_bake::{BakeConfig, Method, Quality, SceneInput, Stage, bake};
 use prt_benches::mbd::{read_cached, write_cached};
 use prt_benches::{RelativeError, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene};
 use prt_core::{FieldModel, GridField, NoProgress};

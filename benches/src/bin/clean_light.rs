@@ -22,7 +22,8 @@
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
-use prt_bake::{BakeConfig, Quality, SceneInput, Stage, bake, read_container};
+use prt_bake::container::read_container;
+use prt_bake::{BakeConfig, Quality, SceneInput, Stage, bake};
 use prt_benches::mbd::{read_cached, write_cached};
 use prt_benches::{
     PlotLabels, PlotPoint, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene,

@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use prt_bake::read_container;
+use prt_bake::container::read_container;
 use prt_bake::volumes::{REFERENCE, read_volumes};
 use prt_benches::Table;
 use prt_core::{NoProgress, SpatialKernels, glam::Vec3};

@@ -9,10 +9,10 @@
 //!
 //! The traced volume is `prt bake`'s (256 rays, 64 cache rays, seed 0), cached in
 //! `target/mbd_cache/`. MBD is fitted as `prt bake` fits it (5 basis nodes per axis, λ 1e-4,
-//! 64 iterations), written with `prt_bake::write_container` in each encoding and read back
+//! 64 iterations), written with `prt_bake::container::write_container` in each encoding and read back
 //! with `read_container` (the layout's own decode). Errors are relative squared errors
 //! `Σ‖f̂ − f‖² / Σ‖f‖²` over every voxel centre, `f` the traced volume (raw) or its relit SH9
-//! (relit, with `prt_trace::incident_radiance`); MBD's relit value is `prt_bake::light_basis` then
+//! (relit, with `prt_trace::incident_radiance`); MBD's relit value is `prt_bake::light_basis::light_basis` then
 //! the relit model, the renderer's path. BPCA and CPCA have the same number of bases (one per
 //! basis node) and rank, so the same scalars; their bytes are counted at the encoding's bytes
 //! per scalar (plus one byte per voxel of CPCA labels), not written. The relighting pass is
@@ -23,7 +23,8 @@ use std::time::Duration;
 
 use clap::Parser;
 use prt_bake::container::ContainerContents;
-use prt_bake::{LightBasisConfig, light_basis, read_container, write_container};
+use prt_bake::container::{read_container, write_container};
+use prt_bake::light_basis::{LightBasisConfig, light_basis};
 use prt_benches::mbd::traced_field;
 use prt_benches::{RelativeError, Table, cache_dir, fmt_duration, median_time};
 use prt_core::{Compressor, FieldModel, GridField, NoProgress};

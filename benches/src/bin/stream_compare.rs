@@ -16,7 +16,7 @@
 use std::path::PathBuf;
 
 use clap::Parser;
-use prt_bake::read_container;
+use prt_bake::container::read_container;
 use prt_bake::tiles::{TilePlan, assemble};
 use prt_benches::{Table, relative_mse_at_centres};
 use prt_core::FieldModel;

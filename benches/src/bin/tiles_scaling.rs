@@ -149,7 +149,7 @@ fn border_seams(dir: &Path, kept: &prt_bake::volumes::KeptVolumes, labels: &[u32
         valid: Some(&kept.valid),
     };
     let trace = prt_mbd::error_seams(field, field, labels, &options).unwrap();
-    let model = prt_bake::read_container(&dir.join("mbd"), &Limits::default())
+    let model = prt_bake::container::read_container(&dir.join("mbd"), &Limits::default())
         .unwrap()
         .model;
     let recon = prt_core::resample_to_grid(&model, field.dims(), field.bounds()).unwrap();

@@ -7,11 +7,11 @@
 use std::error::Error;
 use std::path::PathBuf;
 
+use prt_bake::container::read_container;
 use prt_bake::container::{
     CoefficientLayout, ContainerContents, LayoutConfig, layout_bytes, node_liveness,
     write_container_with,
 };
-use prt_bake::read_container;
 use prt_core::FieldModel;
 use prt_texture::Limits;
 

@@ -6,7 +6,8 @@
 use std::error::Error;
 use std::path::{Path, PathBuf};
 
-use prt_bake::{BakeConfig, MbdContainer, SceneInput, bake, read_container};
+use prt_bake::container::{MbdContainer, read_container};
+use prt_bake::{BakeConfig, SceneInput, bake};
 use prt_core::{FieldModel, NoProgress, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;

@@ -3,13 +3,10 @@
 use std::path::PathBuf;
 
 use prt_texture::Encoding;
+use prt_trace::TRANSFER_DIM;
 use serde::{Deserialize, Serialize};
 
 use crate::BakeError;
-
-/// Dimension of the transfer vectors the tracer produces (four 9 × 9 operators): prt-trace's,
-/// re-exported so that users of the pipeline need not name the tracer.
-pub use prt_trace::TRANSFER_DIM;
 
 /// Every knob of a bake; `Default` gives the defaults of `prt bake`. Serialised (a tiled bake's
 /// plan records it) without the memory budget and the container folder, which belong to the
@@ -44,8 +41,8 @@ pub struct BakeConfig {
     pub max_iterations: usize,
     /// MBD's coarse start ([`prt_mbd::Mbd::coarse_start`]): times the volume is halved and
     /// fitted before the full-resolution solve (`None`: until it has fewer than
-    /// [`SPARSE_FROM_VOXELS`] voxels, so none below 64³). It trades a little error for a
-    /// several-fold shorter solve.
+    /// [`Layout::SPARSE_FROM_VOXELS`] voxels, so none below 64³). It trades a little error for
+    /// a several-fold shorter solve.
     pub coarse_levels: Option<usize>,
     /// With a coarse start, the iteration cap of the full-resolution solve.
     pub full_iterations: usize,
@@ -86,22 +83,24 @@ pub enum Layout {
     /// Bricks of 4³ voxels: only bricks with a valid voxel are traced (after a probe pass) and
     /// MBD and clustered PCA fit the valid voxels only (a masked loss).
     Sparse,
-    /// [`Layout::Sparse`] from [`SPARSE_FROM_VOXELS`] voxels up, else [`Layout::Dense`].
+    /// [`Layout::Sparse`] from [`Layout::SPARSE_FROM_VOXELS`] voxels up, else
+    /// [`Layout::Dense`].
     #[default]
     Auto,
 }
 
-/// The grid size from which [`Layout::Auto`] bakes sparse bricks (64³ voxels): smaller grids
-/// (the default Cornell and Sponza bakes) take seconds either way and keep their dense figures.
-pub const SPARSE_FROM_VOXELS: usize = 1 << 18;
-
 impl Layout {
+    /// The grid size from which [`Layout::Auto`] bakes sparse bricks (64³ voxels): smaller grids
+    /// (the default Cornell and Sponza bakes) take seconds either way and keep their dense
+    /// figures.
+    pub const SPARSE_FROM_VOXELS: usize = 1 << 18;
+
     /// Whether a grid of `dims` voxels is baked in sparse bricks.
     pub fn is_sparse(self, dims: [usize; 3]) -> bool {
         match self {
             Layout::Dense => false,
             Layout::Sparse => true,
-            Layout::Auto => dims.iter().product::<usize>() >= SPARSE_FROM_VOXELS,
+            Layout::Auto => dims.iter().product::<usize>() >= Layout::SPARSE_FROM_VOXELS,
         }
     }
 }
@@ -317,12 +316,13 @@ impl BakeConfig {
     }
 
     /// The coarse levels MBD fits on a grid of `dims` voxels before the full-resolution solve:
-    /// `coarse_levels`, else as many halvings as bring the grid below [`SPARSE_FROM_VOXELS`].
+    /// `coarse_levels`, else as many halvings as bring the grid below
+    /// [`Layout::SPARSE_FROM_VOXELS`].
     pub fn coarse_levels(&self, dims: [usize; 3]) -> usize {
         self.coarse_levels.unwrap_or_else(|| {
             let mut voxels = dims.iter().product::<usize>();
             let mut levels = 0;
-            while voxels >= SPARSE_FROM_VOXELS {
+            while voxels >= Layout::SPARSE_FROM_VOXELS {
                 voxels /= 8;
                 levels += 1;
             }

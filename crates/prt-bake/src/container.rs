@@ -16,7 +16,7 @@ use prt_texture::container::{
 use prt_texture::{Encoding, Limits};
 use serde_json::json;
 
-use crate::ContainerError;
+pub use crate::error::ContainerError;
 
 /// Name of the validity array.
 pub const VALIDITY: &str = "validity";

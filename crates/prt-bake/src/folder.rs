@@ -10,8 +10,9 @@ use thiserror::Error;
 use prt_texture::Encoding;
 use prt_texture::container::WriteReport;
 
+use crate::Bake;
+use crate::container::{ContainerError, MbdContainer, read_container};
 use crate::volumes::{KeptVolumes, kept_volume_bytes, read_volumes, write_volumes};
-use crate::{Bake, ContainerError, MbdContainer, read_container};
 
 /// A bake folder's layout. Only the paths: nothing is read until asked, so a folder being
 /// written can be named too.

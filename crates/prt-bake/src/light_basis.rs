@@ -5,8 +5,9 @@ use ndarray::Array3;
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_sphere::Sky;
+use prt_trace::TRANSFER_DIM;
 
-use crate::{BakeError, TRANSFER_DIM};
+use crate::BakeError;
 
 /// SH coefficients per operator row and column (order 3).
 const SH9: usize = 9;

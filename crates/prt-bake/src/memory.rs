@@ -17,7 +17,9 @@
 //! valid is known only after the probe pass, so the estimate counts every voxel valid (an
 //! upper bound; what a sparse bake saves in memory is measured in docs/results.md).
 
-use crate::{BakeConfig, BakeError, TRANSFER_DIM};
+use prt_trace::TRANSFER_DIM;
+
+use crate::{BakeConfig, BakeError};
 
 /// Bytes of the process before any bake-sized allocation: code, thread stacks, fonts, the
 /// allocator's slack (measured: 110 MB at 32 voxels, which is mostly this).

@@ -22,8 +22,7 @@ use prt_trace::{TRANSFER_DIM, incident_radiance};
 use serde_json::json;
 use thiserror::Error;
 
-use crate::ContainerError;
-use crate::container::{coefficient_encoding, kernel_description};
+use crate::container::{ContainerError, coefficient_encoding, kernel_description};
 
 /// Values per voxel of the irradiance target: L0 and the three L1 coefficients of R, G and B.
 pub const IRRADIANCE_L1_DIM: usize = 12;

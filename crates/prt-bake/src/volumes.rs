@@ -10,10 +10,11 @@ use ndarray::Array2;
 use prt_core::{Aabb, GridField};
 use prt_texture::container::{ArrayLayout, Container, GridArray, LoadedContainer, WriteReport};
 use prt_texture::{Encoding, Limits, TextureError};
+use prt_trace::TRANSFER_DIM;
 use serde_json::json;
 
-use crate::container::VALIDITY;
-use crate::{Bake, ContainerError, TRANSFER_DIM};
+use crate::Bake;
+use crate::container::{ContainerError, VALIDITY};
 
 /// Value of the `model` attribute of a kept-volumes container.
 pub const KEPT_VOLUMES: &str = "kept transfer volumes";

@@ -8,10 +8,10 @@ use common::scratch;
 
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
+use prt_bake::container::read_container;
 use prt_bake::container::{
     CoefficientLayout, ContainerContents, LayoutConfig, node_liveness, write_container_with,
 };
-use prt_bake::read_container;
 use prt_core::{Aabb, FieldModel, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
@@ -60,7 +60,7 @@ fn write_read(
     model: &MbdModel<HatGrid, HatGrid>,
     layout: CoefficientLayout,
     brick_size: u32,
-) -> (prt_bake::MbdContainer, ArrayLayout) {
+) -> (prt_bake::container::MbdContainer, ArrayLayout) {
     let folder = scratch("bricks");
     let contents = ContainerContents {
         model,

@@ -9,7 +9,7 @@ use std::path::Path;
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
 use prt_bake::container::ContainerContents;
-use prt_bake::{ContainerError, MbdContainer, read_container, write_container};
+use prt_bake::container::{ContainerError, MbdContainer, read_container, write_container};
 use prt_core::{Aabb, FieldModel, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;

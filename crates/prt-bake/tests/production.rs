@@ -6,7 +6,7 @@ mod common;
 
 use common::scratch;
 
-use prt_bake::ContainerError;
+use prt_bake::container::ContainerError;
 use prt_bake::production::{
     IRRADIANCE_L1_DIM, ProductionConfig, ProductionContents, ProductionError, fill_invalid,
     fit_production, irradiance_l1, read_production, write_production,
@@ -212,6 +212,6 @@ fn production_fit_writes_and_reads_back_within_the_8_bit_bound() {
         Err(ProductionError::Container(ContainerError::Texture(_)))
     ));
     // A container of another kind is refused by name.
-    assert!(prt_bake::read_container(&folder, &Limits::default()).is_err());
+    assert!(prt_bake::container::read_container(&folder, &Limits::default()).is_err());
     let _ = std::fs::remove_dir_all(&folder);
 }

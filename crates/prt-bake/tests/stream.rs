@@ -4,11 +4,12 @@
 
 use std::path::PathBuf;
 
+use prt_bake::container::read_container;
 use prt_bake::tiles::{
     MapOutcome, MergeStage, PartialError, TileError, TilePlan, assemble, bake_tile, map_tile,
     merge_from_partials, merge_streamed, partial_path, plan_tiles, reduce_stage,
 };
-use prt_bake::{BakeConfig, SceneInput, bake_volume, read_container};
+use prt_bake::{BakeConfig, SceneInput, bake_volume};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_texture::Limits;
 

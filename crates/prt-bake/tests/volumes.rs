@@ -1,8 +1,9 @@
 //! Kept volumes: a small bake's traced volume and baselines round trip through their container
 //! within f16 rounding, and damaged containers are typed errors.
 
+use prt_bake::container::ContainerError;
 use prt_bake::volumes::{REFERENCE, kept_volume_bytes, read_volumes, write_volumes};
-use prt_bake::{BakeConfig, ContainerError, SceneInput, bake};
+use prt_bake::{BakeConfig, SceneInput, bake};
 use prt_core::NoProgress;
 use prt_texture::container::MANIFEST_FILE;
 use prt_texture::{Encoding, Limits};

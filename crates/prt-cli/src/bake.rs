@@ -5,10 +5,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
+use prt_bake::folder::{KeepVolumes, KeptOutcome};
 use prt_bake::memory::MemoryEstimate;
-use prt_bake::{
-    Bake, BakeConfig, BakeError, BakeFolder, KeepVolumes, KeptOutcome, Layout, Quality, SceneInput,
-};
+use prt_bake::{Bake, BakeConfig, BakeError, BakeFolder, Layout, Quality, SceneInput};
 use prt_texture::Encoding;
 
 use crate::progress::{StageBar, StageBars};
@@ -38,7 +37,7 @@ impl From<EncodingArg> for Encoding {
     }
 }
 
-/// `--keep-volumes`: [`prt_bake::KeepVolumes`].
+/// `--keep-volumes`: [`prt_bake::folder::KeepVolumes`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum)]
 pub enum KeepVolumesArg {
     /// Keep them when they take at most 512 MiB (f16).

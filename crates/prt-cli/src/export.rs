@@ -7,7 +7,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
-use prt_bake::{BakeFolder, FolderVolume};
+use prt_bake::BakeFolder;
+use prt_bake::folder::FolderVolume;
 use prt_export::{
     AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
     dilate, export_bevy, export_sh, export_threejs, light_container, remove_negative_light,

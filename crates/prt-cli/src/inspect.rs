@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use prt_bake::container::MBD_MODEL;
-use prt_bake::read_container;
+use prt_bake::container::read_container;
 use prt_core::{FieldModel, SpatialKernels};
 use prt_kernels::HatGrid;
 use prt_texture::container::{MANIFEST_FILE, Manifest};

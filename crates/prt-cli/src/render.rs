@@ -6,8 +6,9 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
+use prt_bake::BakeFolder;
+use prt_bake::folder::FolderVolume;
 use prt_bake::volumes::REFERENCE;
-use prt_bake::{BakeFolder, FolderVolume};
 use prt_core::glam::Vec3;
 use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};

@@ -62,7 +62,8 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
     let merged = prt(&["merge", plan_s, "--out", tiled.to_str().unwrap()]);
     ok(&merged);
     // The same bake folder as `prt bake`: a container that reads back, and the report.
-    let container = prt_bake::read_container(&tiled.join("mbd"), &Limits::default()).unwrap();
+    let container =
+        prt_bake::container::read_container(&tiled.join("mbd"), &Limits::default()).unwrap();
     assert_eq!(container.grid, [8, 8, 8]);
     assert!(tiled.join("report.md").is_file());
 
@@ -121,7 +122,8 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
         "--sweeps",
         "1",
     ]));
-    let back = prt_bake::read_container(&streamed.join("mbd"), &Limits::default()).unwrap();
+    let back =
+        prt_bake::container::read_container(&streamed.join("mbd"), &Limits::default()).unwrap();
     assert_eq!((back.grid, &back.valid), (container.grid, &container.valid));
     let report: prt_bake::tiles::TilesReport =
         serde_json::from_str(&std::fs::read_to_string(streamed.join("tiles.json")).unwrap())

@@ -173,8 +173,9 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
 fn write_in_bricks(bake: &Path, out: &Path) {
     std::fs::create_dir_all(out).expect("folder");
     std::fs::copy(bake.join("scene.mesh"), out.join("scene.mesh")).expect("copy the mesh");
-    let dense = prt_bake::read_container(&bake.join("mbd"), &prt_texture::Limits::default())
-        .expect("read the bake");
+    let dense =
+        prt_bake::container::read_container(&bake.join("mbd"), &prt_texture::Limits::default())
+            .expect("read the bake");
     let contents = prt_bake::container::ContainerContents {
         model: &dense.model,
         grid: dense.grid,

@@ -1,4 +1,4 @@
-use prt_bake::ContainerError;
+use prt_bake::container::ContainerError;
 use prt_core::CoreError;
 use prt_sphere::SphereError;
 use prt_texture::TextureError;

@@ -1,9 +1,10 @@
 //! An MBD container lit by a sky, each basis vector relit once.
 
 use glam::Vec3;
-use prt_bake::{MbdContainer, TRANSFER_DIM};
+use prt_bake::container::MbdContainer;
 use prt_core::{Aabb, KernelWeights, Progress, SpatialKernels};
 use prt_sphere::Sky;
+use prt_trace::TRANSFER_DIM;
 use prt_trace::{LitVolume, RadianceSh, incident_radiance};
 use rayon::prelude::*;
 

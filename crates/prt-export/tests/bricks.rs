@@ -8,7 +8,7 @@ use ndarray::{Array2, Array3};
 use prt_bake::container::{
     CoefficientLayout, ContainerContents, LayoutConfig, write_container_with,
 };
-use prt_bake::{MbdContainer, read_container};
+use prt_bake::container::{MbdContainer, read_container};
 use prt_core::{Aabb, NoProgress, glam::Vec3};
 use prt_export::{DilateConfig, dilate, light_container};
 use prt_kernels::HatGrid;

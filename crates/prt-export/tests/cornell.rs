@@ -6,7 +6,8 @@ mod common;
 
 use common::*;
 use glam::Vec3;
-use prt_bake::{BakeConfig, SceneInput, bake, read_container};
+use prt_bake::container::read_container;
+use prt_bake::{BakeConfig, SceneInput, bake};
 use prt_core::{FieldModel, NoProgress};
 use prt_export::layout::*;
 use prt_export::*;

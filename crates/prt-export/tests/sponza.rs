@@ -5,7 +5,8 @@
 use std::path::PathBuf;
 
 use glam::Vec3;
-use prt_bake::{BakeConfig, SceneInput, bake, read_container};
+use prt_bake::container::read_container;
+use prt_bake::{BakeConfig, SceneInput, bake};
 use prt_core::NoProgress;
 use prt_export::layout::SIDES;
 use prt_export::{DilateConfig, dilate, light_container};

@@ -1,4 +1,4 @@
-//! A CPU emulation of exactly the shaders' math over the texels `prt_bake::write_container`
+//! A CPU emulation of exactly the shaders' math over the texels `prt_bake::container::write_container`
 //! writes: the lighting pass (dequantise, 18-term sums, rgba16f storage) and the per-pixel
 //! reconstruction (texel-centre coordinates, trilinear filtering with clamp-to-edge, the
 //! coefficients' scale/bias decode, f32 throughout), against the model itself
@@ -25,10 +25,10 @@ use glam::Vec3;
 use half::f16;
 use ndarray::{Array2, Array3};
 use proptest::prelude::*;
+use prt_bake::container::write_container;
 use prt_bake::container::{
     CoefficientLayout, ContainerContents, LayoutConfig, write_container_with,
 };
-use prt_bake::write_container;
 use prt_core::{Aabb, FieldModel};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;

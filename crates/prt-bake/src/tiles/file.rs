@@ -7,12 +7,12 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use prt_texture::Limits;
+use prt_trace::TRANSFER_DIM;
 use serde::{Deserialize, Serialize};
 
 use super::checksum::Fnv1a64;
 use super::plan::{TileError, TilePlan, TileSpec, VoxelRange, as_json, json_differences, voxels};
 use super::worker::{DONE_MARKER, tile_dir, tile_options};
-use crate::TRANSFER_DIM;
 
 /// The tile's traced transfer vectors: little-endian f32, traced voxels × 324, x fastest.
 pub(crate) const TRANSFER_FILE: &str = "transfer.f32";

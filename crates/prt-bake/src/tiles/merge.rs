@@ -6,7 +6,7 @@ use std::path::Path;
 use ndarray::Array2;
 use prt_core::{GridField, resample_to_grid};
 use prt_mbd::{LocalBasis, SeamOptions};
-use prt_trace::{BakeStats, TransferVolume};
+use prt_trace::{BakeStats, TRANSFER_DIM, TransferVolume};
 
 use prt_texture::Limits;
 
@@ -14,7 +14,7 @@ use super::cache::read_surface_cache_header;
 use super::file::{TileData, read_tile, read_timing};
 use super::plan::{TileError, TilePlan, flat, voxels};
 use crate::seams::BLUR_SIGMA;
-use crate::{Bake, BakeError, TRANSFER_DIM};
+use crate::{Bake, BakeError};
 
 /// How well two tiles agree on the voxels both traced (a tile's halo lies in its neighbours'
 /// cores): independent traces of the same voxels, so their difference is Monte Carlo noise.

@@ -23,6 +23,7 @@ use prt_mbd::{
 };
 use prt_texture::Limits;
 use prt_texture::container::WriteReport;
+use prt_trace::TRANSFER_DIM;
 use rayon::prelude::*;
 
 use super::Fnv1a64;
@@ -34,7 +35,7 @@ use super::partial::{
 };
 use super::plan::{TileError, TilePlan, TileSpec, VoxelRange, flat, voxels};
 use crate::container::{ContainerContents, write_container};
-use crate::{BakeConfig, BakeError, TRANSFER_DIM};
+use crate::{BakeConfig, BakeError};
 
 /// Voxels per work unit of the passes over a tile (fixed, so that every sum is the same on any
 /// number of threads).

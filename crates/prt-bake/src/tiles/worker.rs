@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use prt_core::{GridField, Progress};
 use prt_texture::Limits;
-use prt_trace::{BakeOptions, BakeStats, TransferBaker, TransferVolume};
+use prt_trace::{BakeOptions, BakeStats, TRANSFER_DIM, TransferBaker, TransferVolume};
 
 use super::cache::ensure_surface_cache;
 use super::checksum::Fnv1a64;
@@ -16,7 +16,7 @@ use super::file::{
 };
 use super::plan::{TileError, TilePlan, VoxelRange, flat, voxels};
 use crate::scene_hash;
-use crate::{BakeError, SceneInput, TRANSFER_DIM};
+use crate::{BakeError, SceneInput};
 
 /// Name of the file whose presence says a tile finished (written last).
 pub const DONE_MARKER: &str = "done";

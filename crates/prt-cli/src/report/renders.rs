@@ -5,8 +5,9 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use prt_bake::Bake;
+use prt_bake::container::read_container;
 use prt_bake::seams::BLUR_SIGMA;
-use prt_bake::{Bake, read_container};
 use prt_core::{GridField, NoProgress};
 use prt_mbd::LocalBasis;
 use prt_mbd::expert::{blur_valid, projection_residuals};
