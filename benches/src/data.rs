@@ -3,7 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
+use prt_bake::SceneInput;
 use prt_sphere::LatLongMap;
+use prt_texture::Limits;
 use prt_trace::{LoadOptions, Scene};
 
 /// The benches package's folder.
@@ -67,6 +69,24 @@ pub fn load_scene(name: &str) -> Result<Scene, String> {
     };
     let path = shared_dir().join("scenes").join(file);
     Scene::load_gltf(&path, &LoadOptions::default()).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// [`load_scene`] with its name, as `prt_bake::bake` takes a scene.
+pub fn load_scene_input(name: &str) -> Result<SceneInput, String> {
+    Ok(SceneInput {
+        name: name.to_string(),
+        scene: load_scene(name)?,
+    })
+}
+
+/// Reading limits for the large files the experiments read back from their own runs (bakes,
+/// kept volumes, caches): 16 GiB instead of prt-texture's default, which guards against
+/// untrusted files.
+pub fn large_file_limits() -> Limits {
+    Limits {
+        max_bytes: 16 << 30,
+        ..Limits::default()
+    }
 }
 
 /// Writes `image` as a PNG at `path`: under a temporary name first, then renamed, so that a

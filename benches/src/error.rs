@@ -1,6 +1,6 @@
 //! The relative error every comparison in the experiments reports.
 
-use prt_core::GridField;
+use prt_core::{CoreError, FieldModel, GridField};
 
 /// `Σ‖approx − reference‖² / Σ‖reference‖²`, accumulated in f64 over any number of value slices.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -39,6 +39,14 @@ impl RelativeError {
     }
 }
 
+/// `‖approx − reference‖ / ‖reference‖` of two slices of the same length (an image, a volume): the
+/// relative RMS error of [`RelativeError`] in one call.
+pub fn relative_rms(approx: &[f32], reference: &[f32]) -> f64 {
+    let mut sum = RelativeError::default();
+    sum.add(approx, reference);
+    sum.relative_rms()
+}
+
 /// The relative MSE of `value(v, out)` against `reference` at the centres of the voxels `valid`
 /// marks (the error a bake's model makes where the volume is meaningful).
 pub fn relative_mse_at_centres(
@@ -55,6 +63,23 @@ pub fn relative_mse_at_centres(
     sum.relative_mse()
 }
 
+/// The relative MSE of `model` against `reference` at the centres of the voxels `valid` marks:
+/// a container's error as written, where the volume is meaningful; the first evaluation error
+/// if any.
+pub fn model_error_at_centres(
+    model: &(impl FieldModel + ?Sized),
+    reference: &GridField,
+    valid: &[bool],
+) -> Result<f64, CoreError> {
+    let mut failed = None;
+    let error = relative_mse_at_centres(reference, valid, |v, out| {
+        if let Err(e) = model.eval(reference.centre_of(v), out) {
+            failed.get_or_insert(e);
+        }
+    });
+    failed.map_or(Ok(error), Err)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -66,5 +91,38 @@ mod tests {
         assert_eq!(sum.relative_mse(), 0.25);
         assert_eq!(sum.relative_rms(), 0.5);
         assert_eq!(RelativeError::default().relative_mse(), 0.0);
+    }
+
+    /// The reference's trilinear samples times a factor.
+    struct Scaled<'a>(&'a GridField, f32);
+
+    impl FieldModel for Scaled<'_> {
+        fn dim(&self) -> usize {
+            self.0.dim()
+        }
+
+        fn eval(&self, x: prt_core::glam::Vec3, out: &mut [f32]) -> Result<(), CoreError> {
+            self.0.sample(x, out)?;
+            out.iter_mut().for_each(|o| *o *= self.1);
+            Ok(())
+        }
+
+        fn stored_scalars(&self) -> usize {
+            0
+        }
+
+        fn name(&self) -> String {
+            "scaled".into()
+        }
+    }
+
+    #[test]
+    fn model_error_counts_only_valid_voxels() {
+        let mut reference =
+            GridField::new([2, 1, 1], prt_core::Aabb::UNIT, 2).expect("a small field");
+        reference.voxel_mut(0).copy_from_slice(&[1.0, 2.0]);
+        reference.voxel_mut(1).copy_from_slice(&[5.0, -3.0]);
+        let error = model_error_at_centres(&Scaled(&reference, 1.5), &reference, &[true, false]);
+        assert!((error.expect("evaluates") - 0.25).abs() < 1e-12);
     }
 }

@@ -19,8 +19,11 @@ pub mod manylight;
 pub mod mbd;
 
 pub use cli::BvhQuality;
-pub use data::{Scratch, cache_dir, envmap_names, load_envmap, load_scene, save_png, shared_dir};
-pub use error::{RelativeError, relative_mse_at_centres};
+pub use data::{
+    Scratch, cache_dir, envmap_names, large_file_limits, load_envmap, load_scene, load_scene_input,
+    save_png, shared_dir,
+};
+pub use error::{RelativeError, model_error_at_centres, relative_mse_at_centres, relative_rms};
 pub use measure::{
     Stopwatch, cpu_seconds, load_average, median_time, peak_resident_bytes, read_bandwidth,
     resident_bytes, thread_cpu_ns,

@@ -23,7 +23,9 @@ use glam::Vec3;
 use prt_bake::container::read_container;
 use prt_bake::{BakeConfig, Method, Quality, SceneInput, Stage, bake};
 use prt_benches::mbd::{read_cached, write_cached};
-use prt_benches::{RelativeError, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene};
+use prt_benches::{
+    RelativeError, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene_input,
+};
 use prt_core::{FieldModel, GridField, NoProgress};
 use prt_mbd::{EvalOptions, evaluate};
 use prt_texture::{Encoding, Limits};
@@ -398,16 +400,10 @@ fn interior_relative_mse(model: &dyn FieldModel, reference: &Reference, seed: u6
 
 fn main() {
     let cli = Cli::parse();
-    let scene = match load_scene(&cli.scene) {
-        Ok(scene) => SceneInput {
-            name: cli.scene.clone(),
-            scene,
-        },
-        Err(e) => {
-            eprintln!("cannot load the scene: {e}");
-            std::process::exit(2);
-        }
-    };
+    let scene = load_scene_input(&cli.scene).unwrap_or_else(|e| {
+        eprintln!("cannot load the scene: {e}");
+        std::process::exit(2)
+    });
     let encodings = cli
         .encoding
         .iter()

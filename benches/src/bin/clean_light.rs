@@ -26,7 +26,7 @@ use prt_bake::container::read_container;
 use prt_bake::{BakeConfig, Quality, SceneInput, Stage, bake};
 use prt_benches::mbd::{read_cached, write_cached};
 use prt_benches::{
-    PlotLabels, PlotPoint, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene,
+    PlotLabels, PlotPoint, Scratch, Stopwatch, Table, cache_dir, load_average, load_scene_input,
     plot_lines,
 };
 use prt_core::{GridField, NoProgress};
@@ -271,16 +271,10 @@ fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str)
 
 fn main() {
     let cli = Cli::parse();
-    let scene = match load_scene(&cli.scene) {
-        Ok(scene) => SceneInput {
-            name: cli.scene.clone(),
-            scene,
-        },
-        Err(e) => {
-            eprintln!("cannot load the scene: {e}");
-            std::process::exit(2);
-        }
-    };
+    let scene = load_scene_input(&cli.scene).unwrap_or_else(|e| {
+        eprintln!("cannot load the scene: {e}");
+        std::process::exit(2)
+    });
     let base = BakeConfig {
         resolution: cli.res,
         ..BakeConfig::default()

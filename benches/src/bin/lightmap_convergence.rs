@@ -26,7 +26,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use glam::Vec3;
-use prt_benches::{PlotLabels, PlotPoint, Table, load_scene, plot_lines, save_png};
+use prt_benches::{PlotLabels, PlotPoint, RelativeError, Table, load_scene, plot_lines, save_png};
 use prt_core::{NoProgress, SphericalBasis};
 use prt_lightmap::{
     Encoder, Lightmap, LightmapBasis, LightmapConfig, UnwrapConfig, bake_lightmap, render_view,
@@ -207,12 +207,11 @@ fn irradiance(lightmap: &Lightmap) -> Vec<Vec3> {
 }
 
 fn relative_rms(a: &[Vec3], reference: &[Vec3]) -> f64 {
-    let (mut num, mut den) = (0.0f64, 0.0f64);
+    let mut sum = RelativeError::default();
     for (x, r) in a.iter().zip(reference) {
-        num += f64::from((*x - *r).length_squared());
-        den += f64::from(r.length_squared());
+        sum.add(&x.to_array(), &r.to_array());
     }
-    (num / den.max(f64::MIN_POSITIVE)).sqrt()
+    sum.relative_rms()
 }
 
 fn main() -> Result<(), String> {

@@ -18,11 +18,10 @@ use std::path::PathBuf;
 use clap::Parser;
 use prt_bake::volumes::read_volumes;
 use prt_benches::Table;
-use prt_benches::load_average;
 use prt_benches::mbd::{Cost, FieldArgs, basis_nodes};
+use prt_benches::{large_file_limits, load_average};
 use prt_core::NoProgress;
 use prt_mbd::{Basis, ClusteredPca, CoarseStart, EvalOptions, Mbd, SolverOptions, evaluate};
-use prt_texture::Limits;
 
 #[derive(Debug, Parser)]
 #[command(about = "MBD's coarse start against the paper's start and clustered PCA")]
@@ -57,11 +56,7 @@ fn main() {
     let cli = Cli::parse();
     let (name, field, valid) = match &cli.volumes {
         Some(folder) => {
-            let limits = Limits {
-                max_bytes: 16 << 30,
-                ..Limits::default()
-            };
-            let mut kept = read_volumes(folder, &limits).expect("kept volumes");
+            let mut kept = read_volumes(folder, &large_file_limits()).expect("kept volumes");
             let (_, field) = kept.volumes.swap_remove(0);
             (format!("{}", folder.display()), field, kept.valid)
         }

@@ -37,8 +37,11 @@ use prt_bake::production::{
     irradiance_l1, read_production, texel_bytes, write_production,
 };
 use prt_benches::mbd::{read_cached, write_cached};
-use prt_benches::{Stopwatch, Table, cache_dir, load_average, load_scene, relative_mse_at_centres};
-use prt_core::{Aabb, Compressor, FieldModel, GridField, NoProgress, SpatialKernels, glam::Vec3};
+use prt_benches::{
+    Stopwatch, Table, cache_dir, load_average, load_scene, model_error_at_centres,
+    relative_mse_at_centres,
+};
+use prt_core::{Aabb, Compressor, GridField, NoProgress, SpatialKernels, glam::Vec3};
 use prt_kernels::HatGrid;
 use prt_mbd::{BlockPca, ClusteredPca, KMeansVq, MbdModel, PiecewisePcaModel, SolverOptions};
 use prt_sphere::Sky;
@@ -201,10 +204,6 @@ fn enabled(cli: &Cli, key: &str) -> bool {
 }
 
 /// Evaluates an MBD model at voxel `v`'s centre.
-fn model_at<M: FieldModel>(model: &M, target: &GridField) -> impl Fn(usize, &mut [f32]) {
-    move |v, out| model.eval(target.centre_of(v), out).expect("eval")
-}
-
 fn main() {
     let cli = Cli::parse();
     let sky = sky(&cli.sky);
@@ -282,7 +281,7 @@ fn main() {
         let watch = Stopwatch::start();
         let fit = fit_production(&target, &config, &NoProgress).expect("fit");
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
-        let error = relative_mse_at_centres(&raw, &valid, model_at(&fit.model, &target));
+        let error = model_error_at_centres(&fit.model, &raw, &valid).expect("eval");
         let folder = out.join(key);
         let contents = ProductionContents {
             model: &fit.model,
@@ -294,7 +293,7 @@ fn main() {
         let report = write_production(&folder, &contents).expect("write");
         let back = read_production(&folder, &Limits::default()).expect("read back");
         let written: &ProductionModel = &back.model;
-        let error_8bit = relative_mse_at_centres(&raw, &valid, model_at(written, &target));
+        let error_8bit = model_error_at_centres(written, &raw, &valid).expect("eval");
         let [cx, cy, cz] = config.coefficient_nodes;
         let [bx, bz] = config.basis_nodes;
         rows.push(Row {
@@ -337,7 +336,7 @@ fn main() {
         )
         .expect("fit");
         let seconds = (watch.wall().as_secs_f64(), watch.cpu());
-        let error = relative_mse_at_centres(&raw, &valid, model_at(&model, &target));
+        let error = model_error_at_centres(&model, &raw, &valid).expect("eval");
         let rank = production.rank;
         let (c, b) = (model.coefficients(), model.basis());
         let padded = rank.div_ceil(4) * 4;
@@ -357,7 +356,7 @@ fn main() {
             ndarray::Array3::from_shape_vec(b.dim(), b8).expect("shape"),
         )
         .expect("model");
-        let error_8bit = relative_mse_at_centres(&raw, &valid, model_at(&quantised, &target));
+        let error_8bit = model_error_at_centres(&quantised, &raw, &valid).expect("eval");
         let bytes = c.nrows() * padded + b.len();
         rows.push(Row {
             config: format!(

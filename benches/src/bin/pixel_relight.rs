@@ -10,9 +10,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::Parser;
-use prt_benches::{Table, cache_dir, cpu_seconds, load_average, load_envmap, load_scene};
+use prt_benches::{
+    Table, cache_dir, cpu_seconds, large_file_limits, load_average, load_envmap, load_scene,
+    relative_rms,
+};
 use prt_core::NoProgress;
-use prt_texture::Limits;
 use prt_trace::relight::{
     Bounce, MethodRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions,
     RelightMethod, Sparsify,
@@ -107,10 +109,7 @@ fn timed_transport(
         "{scene_name}_{}_{}_{}_{}_b{gathers}.prtpx",
         options.width, options.cube_size, options.sparsify.energy, options.sparsify.max_terms
     ));
-    let limits = Limits {
-        max_bytes: 16 << 30,
-        ..Limits::default()
-    };
+    let limits = large_file_limits();
     let scene = load_scene(scene_name).unwrap_or_else(|e| panic!("{e}"));
     let view = PinholeView::for_scene(&scene).expect("view");
     if let Ok(t) = PixelTransport::read(&path, &limits)
@@ -154,15 +153,6 @@ struct Run {
     seconds: Vec<f64>,
 }
 
-fn relative_rmse(a: &[[f32; 3]], reference: &[[f32; 3]]) -> f64 {
-    let (mut d, mut r) = (0.0f64, 0.0f64);
-    for (x, y) in a.iter().flatten().zip(reference.iter().flatten()) {
-        d += (*x as f64 - *y as f64).powi(2);
-        r += (*y as f64).powi(2);
-    }
-    (d / r.max(1e-300)).sqrt()
-}
-
 fn run(cli: &Cli, t: &PixelTransport, map: &str, methods: &[RelightMethod]) -> Run {
     let latlong = load_envmap(map).unwrap_or_else(|e| panic!("{e}"));
     let rotation = Rotation::new(latlong, cli.cube, cli.rotate.to_radians(), cli.stop).unwrap();
@@ -181,7 +171,10 @@ fn run(cli: &Cli, t: &PixelTransport, map: &str, methods: &[RelightMethod]) -> R
         let reference = exact.frame(&coefficients, &texels).unwrap();
         for (m, r) in relighters.iter_mut().enumerate() {
             let frame = r.frame(&coefficients, &texels).unwrap();
-            errors[m].push(relative_rmse(&frame.image, &reference.image));
+            errors[m].push(relative_rms(
+                frame.image.as_flattened(),
+                reference.image.as_flattened(),
+            ));
             seconds[m] += frame.seconds / cli.frames as f64;
         }
     }
@@ -411,7 +404,7 @@ fn curve(cli: &Cli) {
         let err: f64 = images(&t)
             .iter()
             .zip(&reference)
-            .map(|(a, b)| relative_rmse(a, b))
+            .map(|(a, b)| relative_rms(a.as_flattened(), b.as_flattened()))
             .sum::<f64>()
             / frames.len() as f64;
         table.row(vec![

@@ -31,7 +31,7 @@ use std::time::Instant;
 use clap::Parser;
 use glam::{Mat3, Vec3};
 use ndarray::Array2;
-use prt_benches::{Table, load_envmap, load_scene};
+use prt_benches::{Table, load_envmap, load_scene, relative_rms};
 use prt_core::{Aabb, CoreError, GridField, MatrixOracle, NoProgress};
 use prt_mbd::ClusteredPca;
 use prt_sphere::envmap::cube_to_direction;
@@ -165,15 +165,6 @@ impl MatrixOracle for SparseRows {
     fn elements_evaluated(&self) -> u64 {
         0
     }
-}
-
-fn relative_rmse(a: &[f32], reference: &[f32]) -> f64 {
-    let (mut e, mut r) = (0.0f64, 0.0f64);
-    for (x, y) in a.iter().zip(reference) {
-        e += ((x - y) as f64).powi(2);
-        r += (*y as f64).powi(2);
-    }
-    (e / r.max(1e-30)).sqrt()
 }
 
 fn main() {
@@ -531,8 +522,8 @@ fn main() {
                     f.to_string(),
                     format!("{:.0}", rotation.angle(f).to_degrees()),
                     name.clone(),
-                    format!("{:.4}", relative_rmse(image, &truth)),
-                    format!("{:.4}", relative_rmse(image, &exact)),
+                    format!("{:.4}", relative_rms(image, &truth)),
+                    format!("{:.4}", relative_rms(image, &exact)),
                     terms.to_string(),
                     format!("{ms:.1}"),
                 ]);
@@ -585,7 +576,7 @@ fn main() {
             spent.to_string(),
             format!("{:.2e}", diff / scale.max(1e-30)),
             format!("{same} / {}", a.len()),
-            format!("{:.4}", relative_rmse(&a, &reference(last_texel, view))),
+            format!("{:.4}", relative_rms(&a, &reference(last_texel, view))),
         ]);
     }
     let term_diff = inc_terms
@@ -708,7 +699,7 @@ fn main() {
                 table.row(vec![
                     f.to_string(),
                     name.clone(),
-                    format!("{:.4}", relative_rmse(engine.image(), &truth)),
+                    format!("{:.4}", relative_rms(engine.image(), &truth)),
                     work.total().to_string(),
                     format!("{ms:.2}"),
                 ]);
