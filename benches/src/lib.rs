@@ -11,6 +11,8 @@
 mod cli;
 mod data;
 mod error;
+#[cfg(test)]
+mod experiments_index;
 mod measure;
 mod plot;
 mod table;

@@ -1,10 +1,10 @@
-//! Whether adaptive resolution pays: how many bricks of B³ voxels of a bake could be stored at
-//! half resolution ((B/2)³ coefficient nodes instead of B³) for a given rise of the error as
-//! written, and what the brick layout would then store.
+//! `compare bricks-adaptive`: whether adaptive resolution pays: how many bricks of B³ voxels of
+//! a bake could be stored at half resolution ((B/2)³ coefficient nodes instead of B³) for a
+//! given rise of the error as written, and what the brick layout would then store.
 //!
 //! ```text
 //! prt bake ../shared/scenes/sponza/Sponza.gltf --res 128 --layout sparse --keep-volumes always --out /tmp/sponza128
-//! cargo run --release -p prt-benches --bin bricks_adaptive -- /tmp/sponza128 --edge 4   # and 8
+//! cargo run --release -p prt-benches --bin compare -- bricks-adaptive /tmp/sponza128 --edge 4   # and 8
 //! ```
 //!
 //! Per brick with a valid voxel, over its valid voxels: MBD's squared error as written (the
@@ -15,19 +15,15 @@
 //! MBD's; the saving is 7/8 of each coarsened brick's coefficient nodes. The brick layout adds
 //! an apron: (B+1)³ texels a full brick, (B/2+1)³ a half one, against B³ a brick dense.
 
+use std::error::Error;
 use std::path::PathBuf;
 
-use clap::Parser;
-use prt_bake::container::read_container;
-use prt_bake::volumes::{REFERENCE, read_volumes};
 use prt_benches::Table;
 use prt_core::{FieldModel, GridField};
 use prt_mbd::expert::halved_grid;
-use prt_texture::Limits;
 
-#[derive(Debug, Parser)]
-#[command(about = "How many bricks could be stored at half resolution, for what error")]
-struct Cli {
+#[derive(Debug, clap::Args)]
+pub struct Args {
     /// Output folder of a `prt bake --keep-volumes always`.
     bake: PathBuf,
     /// Brick edge B in voxels (the sparse bake's is 4).
@@ -38,18 +34,11 @@ struct Cli {
     rises: Vec<f64>,
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let cli = Cli::parse();
-    let limits = Limits {
-        max_bytes: 16 << 30,
-        ..Limits::default()
-    };
-    let kept = read_volumes(&cli.bake.join("volumes"), &limits)?;
-    let field = kept
-        .get(REFERENCE)
-        .ok_or("the bake kept no reference volume")?;
+pub fn run(args: &Args) -> Result<(), Box<dyn Error>> {
+    let kept = super::kept_volumes(&args.bake)?;
+    let field = super::traced(&kept)?;
     let valid = &kept.valid;
-    let container = read_container(&cli.bake.join("mbd"), &limits)?;
+    let container = super::container(&args.bake)?;
     let dims = field.dims();
     let d = field.dim();
 
@@ -72,7 +61,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
 
     // Per brick: (MBD's squared error, the half-resolution squared error).
-    let edge = cli.edge.max(2);
+    let edge = args.edge.max(2);
     let bricks = dims.map(|n| n.div_ceil(edge));
     let mut errors = vec![(0.0f64, 0.0f64, false); bricks.iter().product()];
     let (mut mbd_total, mut energy) = (0.0f64, 0.0f64);
@@ -107,7 +96,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!(
         "{}: {} live bricks of {}; MBD's relative error as written at the valid voxel centres \
          {:.4e}; bricks whose half-resolution error is at most MBD's: {:.1} %",
-        cli.bake.display(),
+        args.bake.display(),
         live.len(),
         errors.len(),
         mbd_total / energy,
@@ -121,7 +110,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "relative error",
     ]);
     let (full, half) = ((edge + 1).pow(3) as f64, (edge / 2 + 1).pow(3) as f64);
-    for &rise in &cli.rises {
+    for &rise in &args.rises {
         let budget = mbd_total * (1.0 + rise);
         let (mut total, mut coarsened) = (mbd_total, 0usize);
         for &(_, h) in &live {

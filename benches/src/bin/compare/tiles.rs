@@ -1,23 +1,25 @@
-//! Tiled bakes measured: for each tile count, `prt plan`, every tile's worker run one after
-//! another and the merge, each under `/usr/bin/time -v` (wall, user + system CPU, peak RSS);
-//! and, with `--single`, two single-process bakes (seeds 0 and 1) against the last tiled one:
-//! the per-voxel difference of the traced volumes and the MBD errors, to tell the tiled bake's
-//! difference from Monte Carlo noise.
+//! `compare tiles`: tiled bakes measured: for each tile count, `prt plan`, every tile's worker
+//! run one after another and the merge, each under `/usr/bin/time -v` (wall, user + system CPU,
+//! peak RSS); and, with `--single`, two single-process bakes (seeds 0 and 1) against the last
+//! tiled one: the per-voxel difference of the traced volumes and the MBD errors, to tell the
+//! tiled bake's difference from Monte Carlo noise.
 //!
-//! `cargo run --release -p prt-benches --bin tiles_scaling -- --prt target/release/prt --scene ../shared/scenes/sponza/Sponza.gltf --res 48 --tiles 1,2,4,8,16 --single [--csv DIR]`
+//! `cargo run --release -p prt-benches --bin compare -- tiles --prt target/release/prt --scene ../shared/scenes/sponza/Sponza.gltf --res 48 --tiles 1,2,4,8,16 --single [--csv DIR]`
 //!
 //! Tile counts map to grids 1 = 1×1×1, 2 = 2×1×1, 4 = 2×2×1, 8 = 4×2×1, 16 = 4×4×1 (x, y, z;
 //! y is up). The machine is shared: the load average is printed beside every row.
+use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use clap::Parser;
+use prt_bake::BakeFolder;
+use prt_bake::tiles::TilePlan;
+use prt_bake::volumes::KeptVolumes;
 use prt_benches::{RelativeError, Table, load_average};
 use prt_texture::Limits;
 
-#[derive(Debug, Parser)]
-#[command(about = "Measures tiled bakes: per-tile and merge wall, CPU and peak RSS")]
-struct Cli {
+#[derive(Debug, clap::Args)]
+pub struct Args {
     /// The prt binary (build it with `cargo build --release -p prt-cli`).
     #[arg(long, default_value = "target/release/prt")]
     prt: PathBuf,
@@ -107,24 +109,21 @@ fn knobs(res: &str) -> Vec<&str> {
     vec!["--res", res, "--no-baselines", "--keep-volumes", "always"]
 }
 
-/// A bake folder's kept traced volume (f16) and validity.
-fn traced(dir: &Path) -> prt_bake::volumes::KeptVolumes {
-    prt_bake::volumes::read_volumes(&dir.join("volumes"), &Limits::default()).unwrap()
-}
-
-/// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` of two traced volumes over voxels valid in both.
-fn difference(a: &prt_bake::volumes::KeptVolumes, b: &prt_bake::volumes::KeptVolumes) -> f64 {
-    assert_eq!(a.grid, b.grid);
-    let (fa, fb) = (a.get("reference").unwrap(), b.get("reference").unwrap());
+/// `sqrt(Σ‖a − b‖² / Σ‖b‖²)` of two bakes' traced volumes over voxels valid in both.
+fn difference(a: &KeptVolumes, b: &KeptVolumes) -> Result<f64, Box<dyn Error>> {
+    if a.grid != b.grid {
+        return Err(format!("grids differ: {:?} vs {:?}", a.grid, b.grid).into());
+    }
+    let (fa, fb) = (super::traced(a)?, super::traced(b)?);
     let mut sum = RelativeError::default();
     for v in (0..fa.num_voxels()).filter(|&v| a.valid[v] && b.valid[v]) {
         sum.add(fa.voxel(v), fb.voxel(v));
     }
-    sum.relative_rms()
+    Ok(sum.relative_rms())
 }
 
 /// The tile of every voxel of the plan's lattice (x fastest).
-fn tile_labels(plan: &prt_bake::tiles::TilePlan) -> Vec<u32> {
+fn tile_labels(plan: &TilePlan) -> Vec<u32> {
     let [nx, ny, nz] = plan.lattice_dims;
     let mut labels = vec![0u32; nx * ny * nz];
     for tile in &plan.tiles {
@@ -142,27 +141,32 @@ fn tile_labels(plan: &prt_bake::tiles::TilePlan) -> Vec<u32> {
 /// The seam ratios across the plan's tile borders of a bake folder (tiled or not): of its
 /// traced volume against itself blurred, and of its MBD container's error, as `prt merge`
 /// measures them.
-fn border_seams(dir: &Path, kept: &prt_bake::volumes::KeptVolumes, labels: &[u32]) -> (f64, f64) {
-    let field = kept.get("reference").unwrap();
+fn border_seams(
+    dir: &Path,
+    kept: &KeptVolumes,
+    labels: &[u32],
+) -> Result<(f64, f64), Box<dyn Error>> {
+    let field = super::traced(kept)?;
     let options = prt_mbd::SeamOptions {
         denoise_sigma: prt_bake::seams::BLUR_SIGMA,
         valid: Some(&kept.valid),
     };
-    let trace = prt_mbd::error_seams(field, field, labels, &options).unwrap();
-    let model = prt_bake::container::read_container(&dir.join("mbd"), &Limits::default())
-        .unwrap()
-        .model;
-    let recon = prt_core::resample_to_grid(&model, field.dims(), field.bounds()).unwrap();
-    let mbd = prt_mbd::error_seams(field, &recon, labels, &options).unwrap();
-    (trace.ratio(), mbd.ratio())
+    let trace = prt_mbd::error_seams(field, field, labels, &options)?;
+    let model = super::container(dir)?.model;
+    let recon = prt_core::resample_to_grid(&model, field.dims(), field.bounds())?;
+    let mbd = prt_mbd::error_seams(field, &recon, labels, &options)?;
+    Ok((trace.ratio(), mbd.ratio()))
 }
 
 /// MBD's relative MSE (as written) from a bake folder's report.json.
-fn mbd_error(dir: &Path) -> f64 {
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
-    let rows = report["methods"].as_array().expect("method rows");
-    rows.iter()
+fn mbd_error(dir: &Path) -> Result<f64, Box<dyn Error>> {
+    let text = std::fs::read_to_string(BakeFolder::new(dir).report_json())?;
+    let report: serde_json::Value = serde_json::from_str(&text)?;
+    let rows = report["methods"]
+        .as_array()
+        .ok_or("report.json has no method rows")?;
+    let error = rows
+        .iter()
         .find(|r| {
             r["method"]
                 .as_str()
@@ -170,14 +174,14 @@ fn mbd_error(dir: &Path) -> f64 {
         })
         .or(rows.first())
         .and_then(|r| r["relative_mse"].as_f64())
-        .expect("relative_mse")
+        .ok_or("report.json has no relative_mse")?;
+    Ok(error)
 }
 
-fn main() {
-    let cli = Cli::parse();
-    std::fs::create_dir_all(&cli.work).unwrap();
+pub fn run(cli: &Args) -> Result<(), Box<dyn Error>> {
+    std::fs::create_dir_all(&cli.work)?;
     let res = cli.res.to_string();
-    let scene = cli.scene.to_str().unwrap();
+    let scene = cli.scene.to_str().ok_or("--scene: not UTF-8")?;
     let mut table = Table::new(&[
         "tiles",
         "largest tile (voxels traced)",
@@ -194,7 +198,7 @@ fn main() {
         let plan = cli.work.join(format!("plan-{tiles}"));
         let out = cli.work.join(format!("bake-{tiles}"));
         let _ = std::fs::remove_dir_all(&plan);
-        let (plan_s, out_s) = (plan.to_str().unwrap(), out.to_str().unwrap());
+        let (plan_s, out_s) = (utf8(&plan)?, utf8(&out)?);
         let halo = cli.halo.to_string();
         let mut args = vec!["plan", scene, "--tiles", grid(tiles), "--halo", &halo];
         args.extend(["--out", plan_s]);
@@ -206,7 +210,7 @@ fn main() {
         let log = cli.work.join("time.log");
         timed(&cli.prt, &args, &log);
         let load = load_average();
-        let plan_data = prt_bake::tiles::TilePlan::read(&plan, &Limits::default()).unwrap();
+        let plan_data = TilePlan::read(&plan, &Limits::default())?;
         let runs: Vec<Measured> = (0..tiles)
             .map(|i| {
                 let index = i.to_string();
@@ -243,9 +247,7 @@ fn main() {
         println!("{}", table.markdown());
         last = Some(out);
     }
-    table
-        .write_csv(cli.csv.as_deref(), "tiles_scaling")
-        .unwrap();
+    table.write_csv(cli.csv.as_deref(), "tiles_scaling")?;
     if let (true, Some(tiled)) = (cli.single, last) {
         let mut single = Table::new(&[
             "bake",
@@ -259,40 +261,38 @@ fn main() {
         let mut dirs = Vec::new();
         for seed in ["0", "1"] {
             let out = cli.work.join(format!("single-{seed}"));
-            let mut args = vec![
-                "bake",
-                scene,
-                "--out",
-                out.to_str().unwrap(),
-                "--seed",
-                seed,
-            ];
+            let mut args = vec!["bake", scene, "--out", utf8(&out)?, "--seed", seed];
             args.extend(knobs(&res));
             let m = timed(&cli.prt, &args, &cli.work.join("time.log"));
             dirs.push((format!("single process, seed {seed}"), out, Some(m)));
         }
         let plan = cli.work.join(format!("plan-{}", cli.tiles.last().unwrap()));
-        let labels =
-            tile_labels(&prt_bake::tiles::TilePlan::read(&plan, &Limits::default()).unwrap());
+        let labels = tile_labels(&TilePlan::read(&plan, &Limits::default())?);
         dirs.push(("tiled (last row above)".into(), tiled, None));
-        let reference = traced(&dirs[0].1);
+        let reference = super::kept_volumes(&dirs[0].1)?;
         for (name, dir, m) in &dirs {
             let m = m.unwrap_or_default();
-            let kept = traced(dir);
-            let (trace_seam, mbd_seam) = border_seams(dir, &kept, &labels);
+            let kept = super::kept_volumes(dir)?;
+            let (trace_seam, mbd_seam) = border_seams(dir, &kept, &labels)?;
             single.row(vec![
                 name.clone(),
                 format!("{:.1}", m.wall),
                 format!("{:.1}", m.cpu),
                 format!("{:.0}", m.peak_rss_mib),
-                format!("{:.4}", difference(&kept, &reference)),
-                format!("{:.4e}", mbd_error(dir)),
+                format!("{:.4}", difference(&kept, &reference)?),
+                format!("{:.4e}", mbd_error(dir)?),
                 format!("{trace_seam:.3} / {mbd_seam:.3}"),
             ]);
         }
         println!("{}", single.markdown());
-        single
-            .write_csv(cli.csv.as_deref(), "tiles_vs_single")
-            .unwrap();
+        single.write_csv(cli.csv.as_deref(), "tiles_vs_single")?;
     }
+    Ok(())
+}
+
+/// A path as the UTF-8 argument `prt` takes.
+fn utf8(path: &Path) -> Result<&str, Box<dyn Error>> {
+    Ok(path
+        .to_str()
+        .ok_or_else(|| format!("{}: not UTF-8", path.display()))?)
 }

@@ -1,10 +1,11 @@
-//! A sparse-brick bake against a dense one of the same scene and seed: voxels, validity, and
-//! each method's error against the dense bake's traced volume over its valid voxels.
+//! `compare bricks`: a sparse-brick bake against a dense one of the same scene and seed: voxels,
+//! validity, and each method's error against the dense bake's traced volume over its valid
+//! voxels.
 //!
 //! ```text
 //! prt bake ../shared/scenes/sponza/Sponza.gltf --res 128 --layout dense --keep-volumes always --out /tmp/bricks/dense128
 //! prt bake ../shared/scenes/sponza/Sponza.gltf --res 128 --layout sparse --keep-volumes always --out /tmp/bricks/sparse128
-//! cargo run --release -p prt-benches --bin bricks_compare -- --dense /tmp/bricks/dense128 --sparse /tmp/bricks/sparse128
+//! cargo run --release -p prt-benches --bin compare -- bricks --dense /tmp/bricks/dense128 --sparse /tmp/bricks/sparse128
 //! ```
 //!
 //! Both bakes keep their volumes (`--keep-volumes always`, f16). The error of a method is
@@ -12,20 +13,14 @@
 //! written (each bake's container read back) and CPCA (each bake's kept reconstruction). The
 //! traced volumes are compared bit for bit (f16) on those voxels. The voxels bricks of 2, 4, 8
 //! and 16 voxels would store are counted from the dense bake's validity.
-
+use std::error::Error;
 use std::path::PathBuf;
 
-use clap::Parser;
-use prt_bake::container::read_container;
-use prt_bake::volumes::{REFERENCE, read_volumes};
-use prt_benches::{Table, relative_mse_at_centres};
-use prt_core::FieldModel;
-use prt_texture::Limits;
+use prt_benches::{Table, model_error_at_centres, relative_mse_at_centres};
 use prt_trace::bricks::BrickMap;
 
-#[derive(Debug, Parser)]
-#[command(about = "A sparse-brick bake against a dense one: voxels, validity, errors")]
-struct Cli {
+#[derive(Debug, clap::Args)]
+pub struct Args {
     /// Output folder of the dense `prt bake` (with kept volumes).
     #[arg(long)]
     dense: PathBuf,
@@ -34,19 +29,14 @@ struct Cli {
     sparse: PathBuf,
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let cli = Cli::parse();
-    let limits = Limits {
-        max_bytes: 16 << 30,
-        ..Limits::default()
-    };
-    let dense = read_volumes(&cli.dense.join("volumes"), &limits)?;
-    let sparse = read_volumes(&cli.sparse.join("volumes"), &limits)?;
+pub fn run(args: &Args) -> Result<(), Box<dyn Error>> {
+    let dense = super::kept_volumes(&args.dense)?;
+    let sparse = super::kept_volumes(&args.sparse)?;
     if dense.grid != sparse.grid {
         return Err(format!("grids differ: {:?} vs {:?}", dense.grid, sparse.grid).into());
     }
-    let reference = dense.get(REFERENCE).expect("the reference is kept");
-    let sparse_reference = sparse.get(REFERENCE).expect("the reference is kept");
+    let reference = super::traced(&dense)?;
+    let sparse_reference = super::traced(&sparse)?;
     let valid = &dense.valid;
     let count = |m: &[bool]| m.iter().filter(|&&b| b).count();
     let same_validity = dense.valid == sparse.valid;
@@ -88,15 +78,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ]);
     };
     let mut written = Vec::new();
-    for folder in [&cli.dense, &cli.sparse] {
-        let container = read_container(&folder.join("mbd"), &limits)?;
-        let centres: Vec<_> = (0..valid.len()).map(|v| reference.centre_of(v)).collect();
-        written.push(relative_mse_at_centres(reference, valid, |v, out| {
-            container
-                .model
-                .eval(centres[v], out)
-                .expect("a voxel centre evaluates");
-        }));
+    for folder in [&args.dense, &args.sparse] {
+        let container = super::container(folder)?;
+        written.push(model_error_at_centres(&container.model, reference, valid)?);
     }
     row("MBD as written", written[0], written[1]);
     for name in ["cpca", "bpca"] {
