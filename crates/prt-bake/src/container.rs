@@ -10,10 +10,11 @@ use prt_core::{Aabb, SpatialKernels};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_texture::container::{
-    ArrayLayout, BrickRequest, Container, DEFAULT_BRICK_SIZE, GridArray, KernelDescription,
-    LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest, WriteReport, live_bricks,
+    ArrayEntry, ArrayLayout, ArrayStream, BrickRequest, Container, DEFAULT_BRICK_SIZE, GridArray,
+    KernelDescription, LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest, WriteReport,
+    live_bricks,
 };
-use prt_texture::{Encoding, Limits};
+use prt_texture::{Encoding, Limits, RangeFit};
 use serde_json::json;
 
 pub use crate::error::ContainerError;
@@ -253,110 +254,301 @@ pub fn write_container_with(
     let model = contents.model;
     let coefficient_kernels = model.coefficient_kernels();
     let basis_kernels = model.basis_kernels();
-    let (_, rank, dim) = model.basis().dim();
-    let to_u32 = |d: [usize; 3]| d.map(|n| n as u32);
+    let (_, rank, _) = model.basis().dim();
     let coefficients = GridArray::new(
-        to_u32(coefficient_kernels.nodes()),
+        coefficient_kernels.nodes().map(|n| n as u32),
         rank,
         model.coefficients().iter().copied().collect(),
     )?;
-    let basis = GridArray::new(
-        to_u32(basis_kernels.nodes()),
-        rank * dim,
-        model.basis().iter().copied().collect(),
+    let parts = MbdParts::new(
+        &ContainerParts {
+            coefficient_kernels,
+            basis_kernels,
+            basis: model.basis(),
+            grid: contents.grid,
+            valid: contents.valid,
+            scene: contents.scene,
+            lambda: contents.lambda,
+            encoding: contents.encoding,
+        },
+        layout,
     )?;
-    let validity = GridArray::new(
-        to_u32(contents.grid),
-        1,
-        contents
-            .valid
-            .iter()
-            .map(|&v| if v { 1.0 } else { 0.0 })
-            .collect(),
-    )?;
-    let mut attributes = BTreeMap::new();
-    attributes.insert("model".into(), json!(MBD_MODEL));
-    attributes.insert("scene".into(), json!(contents.scene));
-    attributes.insert("rank".into(), json!(rank));
-    attributes.insert("dimension".into(), json!(dim));
-    attributes.insert(
-        "vector_layout".into(),
-        json!("[direct 9x9 | indirect R 9x9 | G 9x9 | B 9x9], each row-major T[i*9+j], i = incident-radiance SH, j = sky SH"),
-    );
-    attributes.insert(
-        "basis_channel_order".into(),
-        json!("channel = l * dimension + d (rank-major)"),
-    );
-    attributes.insert(
-        "texture_coordinates".into(),
-        json!("hat node i = texel centre i of its tile: uvw = (tile * nodes + clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1) + 0.5) / texture_size"),
-    );
-    attributes.insert("lambda".into(), json!(contents.lambda));
-    attributes.insert(
-        "validity".into(),
-        json!("1 = valid voxel, 0 = inside geometry or outside the scene"),
-    );
-    let mut kernels = BTreeMap::new();
-    kernels.insert(
-        MBD_COEFFICIENTS.to_string(),
-        hat_description(coefficient_kernels),
-    );
-    kernels.insert(MBD_BASIS.to_string(), hat_description(basis_kernels));
-    let encoding = contents.encoding;
-    let nodes = coefficient_kernels.nodes();
-    let live_nodes = match layout.live_nodes {
-        Some(live) => live.to_vec(),
-        None => node_liveness(coefficient_kernels, contents.grid, contents.valid)?,
-    };
-    let use_bricks = match layout.layout {
-        CoefficientLayout::Dense => false,
-        CoefficientLayout::Bricks => true,
-        CoefficientLayout::Auto => {
-            layout_bytes(nodes, rank, encoding, layout.brick_size, &live_nodes)?.bricks_pay()
-        }
-    };
-    let mut bricks = BTreeMap::new();
-    let coefficient_layout = if use_bricks {
-        bricks.insert(
+    let mut container = parts.container()?;
+    container.bricks = parts.bricks.into_iter().collect();
+    container.arrays.insert(
+        0,
+        (
             MBD_COEFFICIENTS.to_string(),
-            BrickRequest {
-                size: layout.brick_size,
-                live_nodes,
-            },
+            coefficients,
+            contents.encoding,
+            parts.coefficient_layout,
+        ),
+    );
+    container.arrays.push((
+        VALIDITY.to_string(),
+        validity_array(contents.grid, contents.valid)?,
+        Encoding::Unorm8,
+        ArrayLayout::Volume,
+    ));
+    Ok(container.write(folder)?)
+}
+
+/// The validity as an array (1 valid, 0 not).
+fn validity_array(grid: [usize; 3], valid: &[bool]) -> Result<GridArray, ContainerError> {
+    Ok(GridArray::new(
+        grid.map(|n| n as u32),
+        1,
+        valid.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect(),
+    )?)
+}
+
+/// What an MBD container holds besides its coefficient and validity arrays: the attributes,
+/// the kernels, the basis, and the coefficients' layout (with its brick request).
+struct MbdParts {
+    attributes: BTreeMap<String, serde_json::Value>,
+    kernels: BTreeMap<String, KernelDescription>,
+    basis: GridArray,
+    encoding: Encoding,
+    coefficient_layout: ArrayLayout,
+    bricks: Option<(String, BrickRequest)>,
+}
+
+impl MbdParts {
+    fn new(
+        contents: &ContainerParts<'_>,
+        layout: &LayoutConfig<'_>,
+    ) -> Result<MbdParts, ContainerError> {
+        let (coefficient_kernels, basis_kernels) =
+            (contents.coefficient_kernels, contents.basis_kernels);
+        let (_, rank, dim) = contents.basis.dim();
+        let basis = GridArray::new(
+            basis_kernels.nodes().map(|n| n as u32),
+            rank * dim,
+            contents.basis.iter().copied().collect(),
+        )?;
+        let mut attributes = BTreeMap::new();
+        attributes.insert("model".into(), json!(MBD_MODEL));
+        attributes.insert("scene".into(), json!(contents.scene));
+        attributes.insert("rank".into(), json!(rank));
+        attributes.insert("dimension".into(), json!(dim));
+        attributes.insert(
+            "vector_layout".into(),
+            json!("[direct 9x9 | indirect R 9x9 | G 9x9 | B 9x9], each row-major T[i*9+j], i = incident-radiance SH, j = sky SH"),
         );
         attributes.insert(
-            "live_nodes".into(),
-            json!("coefficient nodes whose hat support holds a valid voxel centre; the bricks without one read as 0"),
+            "basis_channel_order".into(),
+            json!("channel = l * dimension + d (rank-major)"),
         );
         attributes.insert(
             "texture_coordinates".into(),
-            json!("hat node coordinate p = clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1); brick b = min(floor(p / size), grid - 1); its indirection texel (x, y, z, live) * 255 gives the atlas brick a; uvw = (a * (size + 1) + p - b * size + 0.5 + (0, 0, group * atlas_z * (size + 1))) / texture_size"),
+            json!("hat node i = texel centre i of its tile: uvw = (tile * nodes + clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1) + 0.5) / texture_size"),
         );
-        ArrayLayout::Bricks
-    } else {
-        ArrayLayout::Volume
-    };
-    let container = Container {
-        bricks,
-        attributes,
-        kernels,
-        arrays: vec![
+        attributes.insert("lambda".into(), json!(contents.lambda));
+        attributes.insert(
+            "validity".into(),
+            json!("1 = valid voxel, 0 = inside geometry or outside the scene"),
+        );
+        let mut kernels = BTreeMap::new();
+        kernels.insert(
+            MBD_COEFFICIENTS.to_string(),
+            hat_description(coefficient_kernels),
+        );
+        kernels.insert(MBD_BASIS.to_string(), hat_description(basis_kernels));
+        let encoding = contents.encoding;
+        let nodes = coefficient_kernels.nodes();
+        let live_nodes = match layout.live_nodes {
+            Some(live) => live.to_vec(),
+            None => node_liveness(coefficient_kernels, contents.grid, contents.valid)?,
+        };
+        let use_bricks = match layout.layout {
+            CoefficientLayout::Dense => false,
+            CoefficientLayout::Bricks => true,
+            CoefficientLayout::Auto => {
+                layout_bytes(nodes, rank, encoding, layout.brick_size, &live_nodes)?.bricks_pay()
+            }
+        };
+        let (coefficient_layout, bricks) = if use_bricks {
+            attributes.insert(
+                "live_nodes".into(),
+                json!("coefficient nodes whose hat support holds a valid voxel centre; the bricks without one read as 0"),
+            );
+            attributes.insert(
+                "texture_coordinates".into(),
+                json!("hat node coordinate p = clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1); brick b = min(floor(p / size), grid - 1); its indirection texel (x, y, z, live) * 255 gives the atlas brick a; uvw = (a * (size + 1) + p - b * size + 0.5 + (0, 0, group * atlas_z * (size + 1))) / texture_size"),
+            );
+            let request = BrickRequest {
+                size: layout.brick_size,
+                live_nodes,
+            };
             (
-                MBD_COEFFICIENTS.to_string(),
-                coefficients,
-                encoding,
-                coefficient_layout,
-            ),
-            (MBD_BASIS.to_string(), basis, encoding, ArrayLayout::Atlas),
-            (
-                VALIDITY.to_string(),
-                validity,
-                Encoding::Unorm8,
-                ArrayLayout::Volume,
-            ),
-        ],
-    };
-    Ok(container.write(folder)?)
+                ArrayLayout::Bricks,
+                Some((MBD_COEFFICIENTS.to_string(), request)),
+            )
+        } else {
+            (ArrayLayout::Volume, None)
+        };
+        Ok(MbdParts {
+            attributes,
+            kernels,
+            basis,
+            encoding,
+            coefficient_layout,
+            bricks,
+        })
+    }
+
+    /// The container of the basis alone, with the attributes and kernels.
+    fn container(&self) -> Result<Container, ContainerError> {
+        Ok(Container {
+            bricks: BTreeMap::new(),
+            attributes: self.attributes.clone(),
+            kernels: self.kernels.clone(),
+            arrays: vec![(
+                MBD_BASIS.to_string(),
+                self.basis.clone(),
+                self.encoding,
+                ArrayLayout::Atlas,
+            )],
+        })
+    }
+}
+
+/// An MBD container's contents but the coefficients: the model's kernels and basis, and the
+/// rest of [`ContainerContents`] (for [`ContainerWriter`]).
+#[derive(Debug, Clone, Copy)]
+pub struct ContainerParts<'a> {
+    /// The coefficients' kernels (their nodes are the coefficient volume's).
+    pub coefficient_kernels: &'a HatGrid,
+    /// The basis's kernels.
+    pub basis_kernels: &'a HatGrid,
+    /// The basis, `basis nodes × L × D`.
+    pub basis: &'a Array3<f32>,
+    /// Voxels of the baked grid along x, y, z.
+    pub grid: [usize; 3],
+    /// Per voxel of `grid` (x fastest): whether its transfer is meaningful.
+    pub valid: &'a [bool],
+    /// The scene's name (the `scene` attribute).
+    pub scene: &'a str,
+    /// The ridge weight the model was fitted with (the `lambda` attribute).
+    pub lambda: f32,
+    /// Encoding of the coefficient and basis volumes (validity is always 8-bit).
+    pub encoding: Encoding,
+}
+
+/// Writes the container [`write_container_with`] writes with the coefficients given a block of
+/// nodes at a time ([`ContainerWriter::write_coefficients`]), for a model too large to hold:
+/// in memory bounded by a block, a write buffer, the basis and about two bytes per voxel (the
+/// validity and which coefficient nodes are live). The validity is written at once, the
+/// coefficients' file under a temporary name renamed once every node has been written, the
+/// basis and the manifest (last) by [`ContainerWriter::finish`].
+#[derive(Debug)]
+pub struct ContainerWriter {
+    folder: std::path::PathBuf,
+    coefficients: ArrayStream,
+    validity: ArrayEntry,
+    container: Container,
+}
+
+impl ContainerWriter {
+    /// Starts the container in `folder` (created if missing), the coefficients laid out as
+    /// `layout` says; `ranges` of every coefficient channel over every node (zeros included),
+    /// as the normalised encodings store them (unused by the others).
+    ///
+    /// # Errors
+    /// As [`write_container_with`].
+    pub fn create(
+        folder: &Path,
+        contents: &ContainerParts<'_>,
+        ranges: &RangeFit,
+        layout: &LayoutConfig<'_>,
+    ) -> Result<ContainerWriter, ContainerError> {
+        let (_, rank, _) = contents.basis.dim();
+        let parts = MbdParts::new(contents, layout)?;
+        let validity = write_validity(folder, contents.grid, contents.valid)?;
+        let coefficients = ArrayStream::create(
+            folder,
+            MBD_COEFFICIENTS,
+            contents.coefficient_kernels.nodes().map(|n| n as u32),
+            rank,
+            contents.encoding,
+            parts.coefficient_layout,
+            parts.bricks.as_ref().map(|(_, request)| request),
+            ranges.ranges(contents.encoding),
+        )?;
+        Ok(ContainerWriter {
+            folder: folder.to_path_buf(),
+            coefficients,
+            validity,
+            container: parts.container()?,
+        })
+    }
+
+    /// Writes the coefficients of the box of nodes at `min` of `size` nodes: L values per node
+    /// of the box, x fastest.
+    ///
+    /// # Errors
+    /// A box outside the coefficient grid or with a node already written; values of another
+    /// length, non-finite or outside the encoding's range; writing.
+    pub fn write_coefficients(
+        &mut self,
+        min: [usize; 3],
+        size: [usize; 3],
+        coefficients: &[f32],
+    ) -> Result<(), ContainerError> {
+        let to_u32 = |v: [usize; 3]| v.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
+        Ok(self
+            .coefficients
+            .write_block(to_u32(min), to_u32(size), coefficients)?)
+    }
+
+    /// Writes the basis and the manifest once every coefficient node is written.
+    ///
+    /// # Errors
+    /// A coefficient node never written; writing.
+    pub fn finish(self) -> Result<WriteReport, ContainerError> {
+        let coefficients = self.coefficients.finish()?;
+        Ok(self
+            .container
+            .write_with_streamed(&self.folder, vec![(0, coefficients), (2, self.validity)])?)
+    }
+}
+
+/// Writes the validity array's file as [`write_container_with`] does, a z plane at a time.
+fn write_validity(
+    folder: &Path,
+    grid: [usize; 3],
+    valid: &[bool],
+) -> Result<ArrayEntry, ContainerError> {
+    let voxels = grid.iter().product::<usize>();
+    if valid.len() != voxels {
+        return Err(ContainerError::Inconsistent(format!(
+            "{} validity flags for {voxels} voxels",
+            valid.len()
+        )));
+    }
+    let mut ranges = RangeFit::new(1);
+    for value in [true, false] {
+        if valid.contains(&value) {
+            ranges.add(&[if value { 1.0 } else { 0.0 }]);
+        }
+    }
+    let dims = grid.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
+    let mut stream = ArrayStream::create(
+        folder,
+        VALIDITY,
+        dims,
+        1,
+        Encoding::Unorm8,
+        ArrayLayout::Volume,
+        None,
+        ranges.ranges(Encoding::Unorm8),
+    )?;
+    let plane = grid[0] * grid[1];
+    for (z, flags) in valid.chunks(plane.max(1)).enumerate() {
+        let values: Vec<f32> = flags.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect();
+        stream.write_block([0, 0, z as u32], [dims[0], dims[1], 1], &values)?;
+    }
+    Ok(stream.finish()?)
 }
 
 /// Reads a container written by [`write_container`] (or an older one with the basis in

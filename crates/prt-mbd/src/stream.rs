@@ -285,18 +285,30 @@ impl StreamedMbd {
         self,
         coefficients: Array2<f32>,
     ) -> Result<MbdModel<HatGrid, HatGrid>, MbdError> {
-        let centres = crate::baselines::voxel_centre_box_of(self.dims, self.bounds);
-        let coefficient_kernels =
-            HatGrid::new(self.dims, centres).map_err(|e| MbdError::InvalidKernels {
-                which: "coefficient",
-                why: e.to_string(),
-            })?;
         MbdModel::new(
-            coefficient_kernels,
+            self.coefficient_kernels()?,
             self.basis_kernels,
             coefficients,
             self.basis,
         )
+    }
+
+    /// The kernels of the coefficients: a node at every voxel centre (those of the model
+    /// [`StreamedMbd::into_model`] makes).
+    ///
+    /// # Errors
+    /// A grid the hat kernels refuse.
+    pub fn coefficient_kernels(&self) -> Result<HatGrid, MbdError> {
+        let centres = crate::baselines::voxel_centre_box_of(self.dims, self.bounds);
+        HatGrid::new(self.dims, centres).map_err(|e| MbdError::InvalidKernels {
+            which: "coefficient",
+            why: e.to_string(),
+        })
+    }
+
+    /// The kernels of the basis.
+    pub fn basis_kernels(&self) -> &HatGrid {
+        &self.basis_kernels
     }
 
     /// Empty normal equations over every node of this model's basis: the sum the basis step

@@ -28,7 +28,8 @@
 //! sees a manifest naming missing files), and reports the bytes actually written.
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
@@ -572,48 +573,23 @@ impl Container {
     /// Quantises every array and encodes the textures; returns the manifest (with file sizes)
     /// and `(file name, bytes)` of every texture.
     pub fn encode(&self) -> Result<(Manifest, Vec<EncodedFile>), TextureError> {
+        let (entries, files) = self.encode_arrays()?;
+        Ok((self.manifest(entries)?, files))
+    }
+
+    fn encode_arrays(&self) -> Result<(Vec<ArrayEntry>, Vec<EncodedFile>), TextureError> {
         let mut entries = Vec::with_capacity(self.arrays.len());
         let mut files = Vec::with_capacity(self.arrays.len());
         for (name, array, encoding, layout) in &self.arrays {
             array.check()?;
-            let mut entry = ArrayEntry {
-                name: name.clone(),
-                file: format!("{name}.ktx2"),
-                dims: array.dims,
-                channels: array.channels,
-                encoding: *encoding,
-                layout: *layout,
-                tiles: None,
-                bricks: None,
-                ranges: Vec::new(),
-                single_channel: array.channels == 1 && single_channel_format(*encoding).is_some(),
-                bytes: 0,
-            };
-            if *layout == ArrayLayout::Atlas {
-                entry.tiles = Some(atlas_tiles(array.dims, entry.groups()));
-            }
-            let live = match (*layout, self.bricks.get(name)) {
-                (ArrayLayout::Bricks, Some(request)) => {
-                    let live = live_bricks(array.dims, request.size, &request.live_nodes)?;
-                    let count = live.iter().filter(|&&l| l).count() as u64;
-                    entry.bricks = Some(Bricks {
-                        size: request.size,
-                        grid: brick_grid(array.dims, request.size),
-                        live: count,
-                        atlas: brick_atlas(count)?,
-                        indirection: format!("{name}.bricks.ktx2"),
-                        indirection_bytes: 0,
-                    });
-                    Some(live)
-                }
-                (ArrayLayout::Bricks, None) => {
-                    return Err(TextureError::invalid(
-                        "container",
-                        format!("array {name:?} has the bricks layout but no brick request"),
-                    ));
-                }
-                _ => None,
-            };
+            let (mut entry, live) = new_entry(
+                name,
+                array.dims,
+                array.channels,
+                *encoding,
+                *layout,
+                self.bricks.get(name),
+            )?;
             let (texture, ranges) = encode_array(&entry, array, live.as_deref())?;
             entry.ranges = ranges;
             if let (Some(live), Some(bricks)) = (&live, &entry.bricks) {
@@ -624,26 +600,18 @@ impl Container {
                 files.push((format!("{name}.bricks.ktx2"), bytes));
             }
             let mut texture = texture;
-            // The file names its entry so that a reader can tell it from another container's;
-            // the decode ranges stay in the manifest alone (they can be most of an entry).
-            let embedded = ArrayEntry {
-                ranges: Vec::new(),
-                ..entry.clone()
-            };
-            let json =
-                serde_json::to_vec(&embedded).map_err(|e| TextureError::Json(e.to_string()))?;
-            texture.set_key(KEY_PRT_ARRAY, json);
+            texture.set_key(KEY_PRT_ARRAY, embedded_entry(&entry)?);
             let bytes = texture.to_bytes()?;
             entry.bytes = bytes.len() as u64;
-            entry.validate(&Limits {
-                max_dimension: u32::MAX,
-                max_layers: u32::MAX,
-                max_levels: 32,
-                max_bytes: u64::MAX,
-            })?;
+            entry.validate(&UNBOUNDED)?;
             files.push((entry.file.clone(), bytes));
             entries.push(entry);
         }
+        Ok((entries, files))
+    }
+
+    /// The manifest of `entries` with this container's attributes and kernels, validated.
+    fn manifest(&self, entries: Vec<ArrayEntry>) -> Result<Manifest, TextureError> {
         let manifest = Manifest {
             format: CONTAINER_FORMAT.into(),
             version: CONTAINER_VERSION,
@@ -651,21 +619,38 @@ impl Container {
             kernels: self.kernels.clone(),
             arrays: entries,
         };
-        manifest.validate(&Limits {
-            max_dimension: u32::MAX,
-            max_layers: u32::MAX,
-            max_levels: 32,
-            max_bytes: u64::MAX,
-        })?;
-        Ok((manifest, files))
+        manifest.validate(&UNBOUNDED)?;
+        Ok(manifest)
     }
 
     /// Writes the container into `folder` (created if missing): textures first, manifest last,
     /// each atomically.
     pub fn write(&self, folder: &Path) -> Result<WriteReport, TextureError> {
-        let (manifest, files) = self.encode()?;
-        std::fs::create_dir_all(folder).map_err(|e| TextureError::io(folder, e))?;
+        self.write_with_streamed(folder, Vec::new())
+    }
+
+    /// [`Container::write`] with arrays [`ArrayStream`] has already written into `folder`:
+    /// `(i, entry)` puts `entry` at index `i` of the manifest's arrays (in increasing `i`), the
+    /// container's own arrays filling the other places in order.
+    pub fn write_with_streamed(
+        &self,
+        folder: &Path,
+        streamed: Vec<(usize, ArrayEntry)>,
+    ) -> Result<WriteReport, TextureError> {
+        let (mut entries, files) = self.encode_arrays()?;
         let mut total = 0u64;
+        for (i, entry) in streamed {
+            if i > entries.len() || entries.iter().any(|e| e.name == entry.name) {
+                return Err(TextureError::invalid(
+                    "container",
+                    format!("streamed array {:?} at index {i}", entry.name),
+                ));
+            }
+            total += entry.bytes + entry.bricks.as_ref().map_or(0, |b| b.indirection_bytes);
+            entries.insert(i, entry);
+        }
+        let manifest = self.manifest(entries)?;
+        std::fs::create_dir_all(folder).map_err(|e| TextureError::io(folder, e))?;
         for (file, bytes) in &files {
             crate::write_atomic(&folder.join(file), bytes)?;
             total += bytes.len() as u64;
@@ -677,6 +662,418 @@ impl Container {
             total_bytes: total + json.len() as u64,
             manifest,
         })
+    }
+}
+
+/// Limits that check a manifest's consistency only (for what this crate writes).
+const UNBOUNDED: Limits = Limits {
+    max_dimension: u32::MAX,
+    max_layers: u32::MAX,
+    max_levels: 32,
+    max_bytes: u64::MAX,
+};
+
+/// The manifest entry of an array (sizes and ranges still to fill in) and, for the bricks
+/// layout, which bricks are live.
+fn new_entry(
+    name: &str,
+    dims: [u32; 3],
+    channels: usize,
+    encoding: Encoding,
+    layout: ArrayLayout,
+    request: Option<&BrickRequest>,
+) -> Result<(ArrayEntry, Option<Vec<bool>>), TextureError> {
+    let mut entry = ArrayEntry {
+        name: name.to_string(),
+        file: format!("{name}.ktx2"),
+        dims,
+        channels,
+        encoding,
+        layout,
+        tiles: None,
+        bricks: None,
+        ranges: Vec::new(),
+        single_channel: channels == 1 && single_channel_format(encoding).is_some(),
+        bytes: 0,
+    };
+    if layout == ArrayLayout::Atlas {
+        entry.tiles = Some(atlas_tiles(dims, entry.groups()));
+    }
+    let live = match (layout, request) {
+        (ArrayLayout::Bricks, Some(request)) => {
+            let live = live_bricks(dims, request.size, &request.live_nodes)?;
+            let count = live.iter().filter(|&&l| l).count() as u64;
+            entry.bricks = Some(Bricks {
+                size: request.size,
+                grid: brick_grid(dims, request.size),
+                live: count,
+                atlas: brick_atlas(count)?,
+                indirection: format!("{name}.bricks.ktx2"),
+                indirection_bytes: 0,
+            });
+            Some(live)
+        }
+        (ArrayLayout::Bricks, None) => {
+            return Err(TextureError::invalid(
+                "container",
+                format!("array {name:?} has the bricks layout but no brick request"),
+            ));
+        }
+        _ => None,
+    };
+    Ok((entry, live))
+}
+
+/// The entry a texture embeds to name its manifest entry (a reader tells it from another
+/// container's); the decode ranges stay in the manifest alone (they can be most of an entry).
+fn embedded_entry(entry: &ArrayEntry) -> Result<Vec<u8>, TextureError> {
+    let embedded = ArrayEntry {
+        ranges: Vec::new(),
+        ..entry.clone()
+    };
+    serde_json::to_vec(&embedded).map_err(|e| TextureError::Json(e.to_string()))
+}
+
+/// Bytes of texels [`ArrayStream`] holds before writing them out (sorted by file offset).
+const STREAM_BUFFER_BYTES: usize = 16 << 20;
+
+/// One array's texture written a block of nodes at a time, in memory bounded by the block and a
+/// write buffer, for an array too large to hold: the file [`Container::write`] writes for the
+/// same values, encoding and layout, given the channel ranges of the whole array up front
+/// ([`crate::RangeFit`]; ignored by the encodings without ranges). The file is written under a
+/// temporary name, its texels placed by offset, and renamed by [`ArrayStream::finish`] once
+/// every node has been written exactly once; then [`Container::write_with_streamed`] writes
+/// the rest of the container and the manifest.
+#[derive(Debug)]
+pub struct ArrayStream {
+    entry: ArrayEntry,
+    /// One per quantised channel (the array's channels padded to whole texels).
+    ranges: Vec<ChannelRange>,
+    path: PathBuf,
+    tmp: PathBuf,
+    /// `None` once finished.
+    file: Option<std::fs::File>,
+    /// Where the level's texels begin in the file.
+    level_offset: u64,
+    placement: Placement,
+    /// One bit per node: written.
+    written: Vec<u64>,
+    /// Texels waiting to be written: (file offset, index into `buffer` in texels).
+    pending: Vec<(u64, usize)>,
+    buffer: Vec<u8>,
+}
+
+/// Where a node's texels go in the level.
+#[derive(Debug)]
+enum Placement {
+    /// Node-major: node `n`'s group `g` is texel `n · groups + g`.
+    Rows,
+    Tiles(TileMap),
+    Bricks {
+        map: BrickMap,
+        atlas: [u32; 3],
+        grid: [usize; 3],
+        /// Per brick (x fastest): its atlas slot, `None` when empty.
+        slots: Vec<Option<u32>>,
+        /// Per axis, per node: the (brick, position) pairs that hold it, apron included.
+        holders: [Vec<Vec<(u32, u32)>>; 3],
+    },
+}
+
+impl ArrayStream {
+    /// Starts `name`'s texture in `folder` (created if missing): `dims` nodes of `channels`
+    /// values in `encoding` and `layout` (`bricks` for [`ArrayLayout::Bricks`], whose
+    /// indirection file is written at once), `ranges` one per channel.
+    ///
+    /// # Errors
+    /// What [`Container::encode`] refuses; ranges other than one per channel; writing.
+    pub fn create(
+        folder: &Path,
+        name: &str,
+        dims: [u32; 3],
+        channels: usize,
+        encoding: Encoding,
+        layout: ArrayLayout,
+        bricks: Option<&BrickRequest>,
+        ranges: Vec<ChannelRange>,
+    ) -> Result<ArrayStream, TextureError> {
+        if ranges.len() != channels {
+            return Err(TextureError::LengthMismatch {
+                what: "channel ranges",
+                expected: channels,
+                got: ranges.len(),
+            });
+        }
+        let (mut entry, live) = new_entry(name, dims, channels, encoding, layout, bricks)?;
+        let nodes = checked_product("array nodes", &dims.map(u64::from))?;
+        if nodes == 0 || channels == 0 {
+            return Err(TextureError::invalid(
+                "array",
+                format!("{name:?}: {dims:?} nodes of {channels} channels"),
+            ));
+        }
+        std::fs::create_dir_all(folder).map_err(|e| TextureError::io(folder, e))?;
+        let padded = entry.groups() * entry.group_size();
+        let mut quantised_ranges = ranges.clone();
+        if encoding.is_normalized() {
+            entry.ranges = ranges;
+            // The padding channels are zeros: their ranges as quantize fits them.
+            let mut zeros = crate::RangeFit::new(1);
+            zeros.add(&[0.0]);
+            quantised_ranges.resize(padded, zeros.ranges(encoding)[0]);
+        } else {
+            quantised_ranges = vec![ChannelRange::IDENTITY; padded];
+        }
+        let shape = entry.texture_shape()?;
+        let placement = match (&entry.bricks, live) {
+            (Some(b), Some(live)) => {
+                let indirection = indirection_texture(b, &live)?.to_bytes()?;
+                crate::write_atomic(&folder.join(&b.indirection), &indirection)?;
+                let mut slot = 0u32;
+                let slots = live
+                    .iter()
+                    .map(|&l| {
+                        l.then(|| {
+                            slot += 1;
+                            slot - 1
+                        })
+                    })
+                    .collect();
+                let holders = [0, 1, 2].map(|a| {
+                    let (d, g) = (dims[a], b.grid[a]);
+                    let mut holders = vec![Vec::new(); d as usize];
+                    for brick in 0..g {
+                        for p in 0..=b.size {
+                            let node = (brick * b.size + p).min(d - 1);
+                            holders[node as usize].push((brick, p));
+                        }
+                    }
+                    holders
+                });
+                let map = BrickMap::new(&entry, b, &shape);
+                let placement = Placement::Bricks {
+                    map,
+                    atlas: b.atlas,
+                    grid: b.grid.map(|g| g as usize),
+                    slots,
+                    holders,
+                };
+                if let Some(stored) = entry.bricks.as_mut() {
+                    stored.indirection_bytes = indirection.len() as u64;
+                }
+                placement
+            }
+            _ => match TileMap::new(&entry, &shape) {
+                Some(map) => Placement::Tiles(map),
+                None => Placement::Rows,
+            },
+        };
+        let (prefix, level) = Ktx2Texture::level_prefix(
+            entry.texture_format(),
+            shape,
+            vec![(KEY_PRT_ARRAY, embedded_entry(&entry)?)],
+        )?;
+        entry.bytes = prefix.len() as u64 + level;
+        entry.validate(&UNBOUNDED)?;
+        let path = folder.join(&entry.file);
+        let tmp = crate::atomic::temporary_name(&path);
+        let io = |e| TextureError::io(&path, e);
+        let mut file = std::fs::File::create(&tmp).map_err(io)?;
+        let mut stream = ArrayStream {
+            ranges: quantised_ranges,
+            path: path.clone(),
+            tmp,
+            level_offset: prefix.len() as u64,
+            placement,
+            written: vec![0; nodes.div_ceil(64) as usize],
+            pending: Vec::new(),
+            buffer: Vec::new(),
+            entry,
+            file: None,
+        };
+        // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
+        file.write_all(&prefix).map_err(io)?;
+        file.set_len(stream.entry.bytes).map_err(io)?;
+        stream.file = Some(file);
+        Ok(stream)
+    }
+
+    /// Writes the nodes of the box at node `min` of `size` nodes: `values` holds `channels`
+    /// values per node of the box, x fastest.
+    ///
+    /// # Errors
+    /// A box outside the array or with a node already written; values of another length,
+    /// non-finite or outside the encoding's range; writing.
+    pub fn write_block(
+        &mut self,
+        min: [u32; 3],
+        size: [u32; 3],
+        values: &[f32],
+    ) -> Result<(), TextureError> {
+        let dims = self.entry.dims;
+        let name = self.entry.name.clone();
+        if (0..3).any(|a| u64::from(min[a]) + u64::from(size[a]) > u64::from(dims[a])) {
+            return Err(TextureError::invalid(
+                "array block",
+                format!("{size:?} nodes at {min:?} outside {name:?}'s {dims:?}"),
+            ));
+        }
+        let [sx, sy, sz] = size.map(|s| s as usize);
+        let channels = self.entry.channels;
+        if values.len() != sx * sy * sz * channels {
+            return Err(TextureError::LengthMismatch {
+                what: "array block values",
+                expected: sx * sy * sz * channels,
+                got: values.len(),
+            });
+        }
+        let (groups, padded) = (self.entry.groups(), self.ranges.len());
+        let mut padded_values = vec![0.0f32; sx * sy * sz * padded];
+        for (dst, src) in padded_values
+            .chunks_exact_mut(padded)
+            .zip(values.chunks_exact(channels))
+        {
+            dst[..channels].copy_from_slice(src);
+        }
+        let q = if self.entry.encoding == Encoding::Rgb9e5 {
+            // Shared-exponent texels hold 3 channels each.
+            crate::quantize_with_ranges(&padded_values, 3, self.entry.encoding, self.ranges.clone())
+        } else {
+            crate::quantize_with_ranges(
+                &padded_values,
+                padded,
+                self.entry.encoding,
+                self.ranges.clone(),
+            )
+        }?;
+        drop(padded_values);
+        let texel = self.entry.texture_format().bytes_per_texel();
+        let [nx, ny, _] = dims.map(|d| d as usize);
+        for (local, node_texels) in q.bytes.chunks_exact(groups * texel).enumerate() {
+            let node = [
+                min[0] as usize + local % sx,
+                min[1] as usize + local / sx % sy,
+                min[2] as usize + local / (sx * sy),
+            ];
+            let n = node[0] + nx * (node[1] + ny * node[2]);
+            let (word, bit) = (n / 64, 1u64 << (n % 64));
+            if self.written[word] & bit != 0 {
+                return Err(TextureError::invalid(
+                    "array block",
+                    format!("node {node:?} of {name:?} written twice"),
+                ));
+            }
+            self.written[word] |= bit;
+            for (g, bytes) in node_texels.chunks_exact(texel).enumerate() {
+                match &self.placement {
+                    Placement::Rows => self.pending.push((
+                        self.level_offset + ((n * groups + g) * texel) as u64,
+                        self.buffer.len() / texel,
+                    )),
+                    Placement::Tiles(map) => self.pending.push((
+                        self.level_offset + (map.texel(n, g) * texel) as u64,
+                        self.buffer.len() / texel,
+                    )),
+                    Placement::Bricks {
+                        map,
+                        atlas,
+                        grid,
+                        slots,
+                        holders,
+                    } => {
+                        for &(bz, pz) in &holders[2][node[2]] {
+                            for &(by, py) in &holders[1][node[1]] {
+                                for &(bx, px) in &holders[0][node[0]] {
+                                    let brick = bx as usize
+                                        + grid[0] * (by as usize + grid[1] * bz as usize);
+                                    if let Some(slot) = slots[brick] {
+                                        let at = slot_coordinate(slot as usize, *atlas);
+                                        let to = map.texel(at, [px, py, pz], g) * texel;
+                                        self.pending.push((
+                                            self.level_offset + to as u64,
+                                            self.buffer.len() / texel,
+                                        ));
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                self.buffer.extend_from_slice(bytes);
+            }
+            if self.buffer.len() >= STREAM_BUFFER_BYTES {
+                self.flush()?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the pending texels, sorted by offset, contiguous runs in one write each.
+    fn flush(&mut self) -> Result<(), TextureError> {
+        use std::io::{Seek, SeekFrom, Write};
+        let texel = self.entry.texture_format().bytes_per_texel();
+        let path = &self.path;
+        let file = self
+            .file
+            .as_mut()
+            .ok_or_else(|| TextureError::invalid("array stream", "already finished"))?;
+        self.pending.sort_unstable();
+        let mut run: Vec<u8> = Vec::new();
+        let mut run_start = 0u64;
+        for &(offset, at) in &self.pending {
+            if run.is_empty() || offset != run_start + run.len() as u64 {
+                if !run.is_empty() {
+                    file.seek(SeekFrom::Start(run_start))
+                        .and_then(|_| file.write_all(&run))
+                        .map_err(|e| TextureError::io(path, e))?;
+                }
+                run.clear();
+                run_start = offset;
+            }
+            run.extend_from_slice(&self.buffer[at * texel..(at + 1) * texel]);
+        }
+        if !run.is_empty() {
+            file.seek(SeekFrom::Start(run_start))
+                .and_then(|_| file.write_all(&run))
+                .map_err(|e| TextureError::io(path, e))?;
+        }
+        self.pending.clear();
+        self.buffer.clear();
+        Ok(())
+    }
+
+    /// Writes what is pending, checks that every node was written, and renames the file into
+    /// place; returns the array's manifest entry.
+    ///
+    /// # Errors
+    /// A node never written; writing.
+    pub fn finish(mut self) -> Result<ArrayEntry, TextureError> {
+        self.flush()?;
+        let nodes: u64 = self.entry.dims.iter().map(|&d| u64::from(d)).product();
+        let written: u64 = self.written.iter().map(|w| u64::from(w.count_ones())).sum();
+        if written != nodes {
+            return Err(TextureError::invalid(
+                "array stream",
+                format!(
+                    "{} of {nodes} nodes of {:?} written",
+                    written, self.entry.name
+                ),
+            ));
+        }
+        let file = self.file.take().expect("flush checked the file");
+        file.sync_all()
+            .and_then(|()| std::fs::rename(&self.tmp, &self.path))
+            .map_err(|e| TextureError::io(&self.path, e))?;
+        Ok(self.entry.clone())
+    }
+}
+
+impl Drop for ArrayStream {
+    /// An unfinished stream leaves no file behind.
+    fn drop(&mut self) {
+        if self.file.take().is_some() {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
     }
 }
 
@@ -1007,6 +1404,7 @@ fn entry_bricks(entry: &ArrayEntry) -> usize {
 }
 
 /// Where node `(i, j, k)`'s group `g` lives in a brick atlas.
+#[derive(Debug)]
 struct BrickMap {
     dims: [usize; 3],
     side: usize,
@@ -1048,6 +1446,7 @@ impl BrickMap {
 }
 
 /// Where node `n`'s group `g` lives in a tiled (filterable) texture.
+#[derive(Debug)]
 struct TileMap {
     dims: [usize; 3],
     tiles: [usize; 2],

@@ -203,12 +203,20 @@ impl Ktx2Texture {
             levels,
             key_values: Vec::new(),
         };
-        texture.set_key(KEY_ORIENTATION, nul_terminated(shape.default_orientation()));
-        texture.set_key(
+        texture.set_default_keys();
+        Ok(texture)
+    }
+
+    /// The orientation key (the shape's natural value) and `KTXwriter` (this crate).
+    fn set_default_keys(&mut self) {
+        self.set_key(
+            KEY_ORIENTATION,
+            nul_terminated(self.shape.default_orientation()),
+        );
+        self.set_key(
             KEY_WRITER,
             nul_terminated(concat!("prt-texture ", env!("CARGO_PKG_VERSION"))),
         );
-        Ok(texture)
     }
 
     /// A texture from `f32` values per level (channel-interleaved, `format.channels()` per
@@ -278,7 +286,45 @@ impl Ktx2Texture {
 
     /// Serialises the texture as a KTX2 file.
     pub fn to_bytes(&self) -> Result<Vec<u8>, TextureError> {
-        let level_count = self.levels.len();
+        let lengths: Vec<u64> = self.levels.iter().map(|l| l.len() as u64).collect();
+        let (mut out, offsets) = self.header(&lengths)?;
+        for (level, &offset) in self.levels.iter().zip(&offsets).rev() {
+            out.resize(offset as usize, 0);
+            out.extend_from_slice(level);
+        }
+        Ok(out)
+    }
+
+    /// The bytes before the texels of the one-level texture [`Ktx2Texture::new`] makes of
+    /// `format` and `shape` with `keys` set as [`Ktx2Texture::set_key`] sets them, and the
+    /// level's length: the level's bytes written after them make the file
+    /// [`Ktx2Texture::to_bytes`] writes. For a level too large to hold in memory.
+    pub fn level_prefix(
+        format: PixelFormat,
+        shape: Shape,
+        keys: Vec<(&str, Vec<u8>)>,
+    ) -> Result<(Vec<u8>, u64), TextureError> {
+        shape.validate()?;
+        let length = level_bytes(format, &shape, 0)?;
+        let mut texture = Ktx2Texture {
+            format,
+            shape,
+            levels: Vec::new(),
+            key_values: Vec::new(),
+        };
+        texture.set_default_keys();
+        for (key, value) in keys {
+            texture.set_key(key, value);
+        }
+        let (mut out, offsets) = texture.header(&[length])?;
+        out.resize(offsets[0] as usize, 0);
+        Ok((out, length))
+    }
+
+    /// The file's bytes before the first level's texels, and each level's offset, for levels of
+    /// `lengths` bytes.
+    fn header(&self, lengths: &[u64]) -> Result<(Vec<u8>, Vec<u64>), TextureError> {
+        let level_count = lengths.len();
         let dfd = self.format.dfd_bytes();
         let mut kvd = Vec::new();
         for (key, value) in &self.key_values {
@@ -298,9 +344,7 @@ impl Ktx2Texture {
         }
         let dfd_offset = HEADER_LEN + LEVEL_INDEX_ENTRY * level_count;
         let kvd_offset = dfd_offset + dfd.len();
-        let mut out = Vec::with_capacity(
-            kvd_offset + kvd.len() + self.levels.iter().map(|l| l.len() + 16).sum::<usize>(),
-        );
+        let mut out = Vec::with_capacity(kvd_offset + kvd.len() + 16);
         out.extend_from_slice(&KTX2_IDENTIFIER);
         let s = &self.shape;
         for v in [
@@ -324,20 +368,21 @@ impl Ktx2Texture {
         out.resize(dfd_offset, 0); // level index, filled below
         out.extend_from_slice(&dfd);
         out.extend_from_slice(&kvd);
-        let align = lcm(self.format.bytes_per_texel(), 4);
-        let mut index = vec![(0u64, 0u64); level_count];
-        for (i, level) in self.levels.iter().enumerate().rev() {
-            pad_to(&mut out, align);
-            index[i] = (out.len() as u64, level.len() as u64);
-            out.extend_from_slice(level);
+        // Levels are stored smallest first, each aligned.
+        let align = lcm(self.format.bytes_per_texel(), 4) as u64;
+        let mut offsets = vec![0u64; level_count];
+        let mut end = out.len() as u64;
+        for (i, &len) in lengths.iter().enumerate().rev() {
+            offsets[i] = end.next_multiple_of(align);
+            end = offsets[i] + len;
         }
-        for (i, (offset, len)) in index.into_iter().enumerate() {
+        for (i, (&offset, &len)) in offsets.iter().zip(lengths).enumerate() {
             let at = HEADER_LEN + LEVEL_INDEX_ENTRY * i;
             out[at..at + 8].copy_from_slice(&offset.to_le_bytes());
             out[at + 8..at + 16].copy_from_slice(&len.to_le_bytes());
             out[at + 16..at + 24].copy_from_slice(&len.to_le_bytes());
         }
-        Ok(out)
+        Ok((out, offsets))
     }
 
     /// Writes the texture to `path` atomically (temporary file, then rename).

@@ -77,4 +77,6 @@ pub use error::TextureError;
 pub use format::PixelFormat;
 pub use ktx2::{Ktx2Texture, Shape};
 pub use limits::Limits;
-pub use quant::{ChannelRange, Encoding, Quantized, dequantize, quantize};
+pub use quant::{
+    ChannelRange, Encoding, Quantized, RangeFit, dequantize, quantize, quantize_with_ranges,
+};

@@ -143,6 +143,26 @@ pub fn quantize(
     channels: usize,
     encoding: Encoding,
 ) -> Result<Quantized, TextureError> {
+    let ranges = if encoding.is_normalized() {
+        let mut fit = RangeFit::new(channels);
+        fit.add(values);
+        fit.ranges(encoding)
+    } else {
+        vec![ChannelRange::IDENTITY; channels]
+    };
+    quantize_with_ranges(values, channels, encoding, ranges)
+}
+
+/// Quantises `values` (`channels` interleaved values per element) with given per-channel
+/// `ranges` (ignored by the encodings without ranges): what [`quantize`] does after fitting
+/// them, for an array quantised a part at a time with the ranges of the whole ([`RangeFit`]).
+/// The same errors as [`quantize`]; ranges other than one per channel.
+pub fn quantize_with_ranges(
+    values: &[f32],
+    channels: usize,
+    encoding: Encoding,
+    ranges: Vec<ChannelRange>,
+) -> Result<Quantized, TextureError> {
     if channels == 0 {
         return Err(TextureError::invalid("channels", "must be at least 1"));
     }
@@ -153,6 +173,13 @@ pub fn quantize(
             got: values.len(),
         });
     }
+    if ranges.len() != channels {
+        return Err(TextureError::LengthMismatch {
+            what: "channel ranges",
+            expected: channels,
+            got: ranges.len(),
+        });
+    }
     if encoding == Encoding::Rgb9e5 && channels != 3 {
         return Err(TextureError::invalid(
             "channels",
@@ -160,11 +187,6 @@ pub fn quantize(
         ));
     }
     TextureError::check_finite("quantised values", values)?;
-    let ranges = if encoding.is_normalized() {
-        fit_ranges(values, channels, encoding)
-    } else {
-        vec![ChannelRange::IDENTITY; channels]
-    };
     let bytes = match encoding {
         Encoding::F32 => values.iter().flat_map(|v| v.to_le_bytes()).collect(),
         Encoding::F16 => {
@@ -222,36 +244,61 @@ pub fn quantize(
     })
 }
 
-fn fit_ranges(values: &[f32], channels: usize, encoding: Encoding) -> Vec<ChannelRange> {
-    let mut lo = vec![f64::INFINITY; channels];
-    let mut hi = vec![f64::NEG_INFINITY; channels];
-    for element in values.chunks_exact(channels) {
-        for (c, &v) in element.iter().enumerate() {
-            lo[c] = lo[c].min(f64::from(v));
-            hi[c] = hi[c].max(f64::from(v));
+/// The per-channel min-max ranges [`quantize`] fits, accumulated over an array's parts in any
+/// order (for [`quantize_with_ranges`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RangeFit {
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+}
+
+impl RangeFit {
+    /// No values yet, `channels` per element.
+    pub fn new(channels: usize) -> RangeFit {
+        RangeFit {
+            lo: vec![f64::INFINITY; channels],
+            hi: vec![f64::NEG_INFINITY; channels],
         }
     }
-    (0..channels)
-        .map(|c| {
-            if lo[c] > hi[c] {
-                return ChannelRange::IDENTITY; // no elements
+
+    /// Adds whole elements of `values` (`channels` interleaved values each).
+    pub fn add(&mut self, values: &[f32]) {
+        if self.lo.is_empty() {
+            return;
+        }
+        for element in values.chunks_exact(self.lo.len()) {
+            for (c, &v) in element.iter().enumerate() {
+                self.lo[c] = self.lo[c].min(f64::from(v));
+                self.hi[c] = self.hi[c].max(f64::from(v));
             }
-            let (scale, bias) = if encoding.is_signed() {
-                ((hi[c] - lo[c]) * 0.5, (hi[c] + lo[c]) * 0.5)
-            } else {
-                (hi[c] - lo[c], lo[c])
-            };
-            // Round the scale up to the next f32 so that the extreme values stay within [-1, 1].
-            let mut s = scale as f32;
-            if f64::from(s) < scale {
-                s = f32::from_bits(s.to_bits() + 1);
-            }
-            ChannelRange {
-                scale: s,
-                bias: bias as f32,
-            }
-        })
-        .collect()
+        }
+    }
+
+    /// The ranges of the values added, as `encoding` stores them (identity without values).
+    pub fn ranges(&self, encoding: Encoding) -> Vec<ChannelRange> {
+        let (lo, hi) = (&self.lo, &self.hi);
+        (0..lo.len())
+            .map(|c| {
+                if lo[c] > hi[c] {
+                    return ChannelRange::IDENTITY; // no elements
+                }
+                let (scale, bias) = if encoding.is_signed() {
+                    ((hi[c] - lo[c]) * 0.5, (hi[c] + lo[c]) * 0.5)
+                } else {
+                    (hi[c] - lo[c], lo[c])
+                };
+                // Round the scale up to the next f32 so that the extreme values stay within [-1, 1].
+                let mut s = scale as f32;
+                if f64::from(s) < scale {
+                    s = f32::from_bits(s.to_bits() + 1);
+                }
+                ChannelRange {
+                    scale: s,
+                    bias: bias as f32,
+                }
+            })
+            .collect()
+    }
 }
 
 /// Decodes a [`Quantized`] array back to `f32` values, channel-interleaved.
