@@ -5,10 +5,11 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
 use prt_core::NoProgress;
 use prt_sphere::LatLongMap;
+use prt_trace::camera::PinholeView;
 use prt_trace::relight::{
     MethodRelighter, PixelTransportBaker, PixelTransportOptions, RelightMethod,
 };
-use prt_trace::{PinholeView, RayTracer, Scene};
+use prt_trace::{RayTracer, Scene};
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 

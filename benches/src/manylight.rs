@@ -5,10 +5,11 @@ use std::path::{Path, PathBuf};
 
 use crate::{cache_dir, load_scene, save_png};
 use prt_core::{MatrixOracle, NoProgress};
+use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::manylight::{
     DirectionalLight, SunAndUniformSky, Vpl, VplOptions, VplOracle, directional_lights, trace_vpls,
 };
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
+use prt_trace::{RayTracer, Scene};
 
 /// A sampling budget, `rows/columns` on the command line (`300/900`): sampled rows (or slices)
 /// and columns (or clusters).

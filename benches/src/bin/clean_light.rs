@@ -190,7 +190,7 @@ fn reference(scene_name: &str, scene: &SceneInput, res: usize) -> (GridField, Ve
 struct Target<'a> {
     scene: &'a SceneInput,
     tracer: RayTracer,
-    view: prt_trace::PinholeView,
+    view: prt_trace::camera::PinholeView,
     sky: Sky,
     image: Rendered,
     tone: ToneMap,

@@ -34,7 +34,7 @@ use prt_lightmap::{
 };
 use prt_render::{Rendered, ToneMap};
 use prt_sphere::{AmbientDiceSrbf, SgBasis, ShBasis};
-use prt_trace::PinholeView;
+use prt_trace::camera::PinholeView;
 
 #[derive(Parser)]
 struct Args {

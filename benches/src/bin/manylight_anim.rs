@@ -16,8 +16,9 @@ use prt_benches::{Table, cache_dir, fmt_duration};
 use prt_core::metrics::relative_frobenius_error;
 use prt_core::{MatrixOracle, NoProgress};
 use prt_manylight::{RowColumnConfig, TensorConfig, row_column_sampling, tensor_clustering};
+use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::manylight::{VplOptions, VplOracle, trace_vpls};
-use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
+use prt_trace::{RayTracer, Scene};
 
 const CONFIGS: [(usize, usize); 3] = [(50, 100), (100, 200), (200, 400)];
 

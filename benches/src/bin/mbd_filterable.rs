@@ -12,7 +12,7 @@
 //! 64 iterations), written with `prt_bake::container::write_container` in each encoding and read back
 //! with `read_container` (the layout's own decode). Errors are relative squared errors
 //! `Σ‖f̂ − f‖² / Σ‖f‖²` over every voxel centre, `f` the traced volume (raw) or its relit SH9
-//! (relit, with `prt_trace::incident_radiance`); MBD's relit value is `prt_bake::light_basis::light_basis` then
+//! (relit, with `prt_trace::lit::incident_radiance`); MBD's relit value is `prt_bake::light_basis::light_basis` then
 //! the relit model, the renderer's path. BPCA and CPCA have the same number of bases (one per
 //! basis node) and rank, so the same scalars; their bytes are counted at the encoding's bytes
 //! per scalar (plus one byte per voxel of CPCA labels), not written. The relighting pass is
@@ -95,7 +95,7 @@ fn errors(
         raw(v, &mut values);
         raw_sum.add(&values, reference);
         relit(v, &values, &mut lit);
-        let target = prt_trace::incident_radiance(reference, sky);
+        let target = prt_trace::lit::incident_radiance(reference, sky);
         relit_sum.add(&lit, target.as_flattened());
     }
     (raw_sum.relative_mse(), relit_sum.relative_mse())
@@ -103,7 +103,7 @@ fn errors(
 
 /// The relit value of a 324-D vector.
 fn relit_of(values: &[f32], sky: &Sky, out: &mut [f32; 27]) {
-    out.copy_from_slice(prt_trace::incident_radiance(values, sky).as_flattened());
+    out.copy_from_slice(prt_trace::lit::incident_radiance(values, sky).as_flattened());
 }
 
 fn fit_mbd(field: &GridField, rank: usize, nodes: [usize; 3]) -> MbdModel<HatGrid, HatGrid> {

@@ -46,7 +46,8 @@ use prt_kernels::HatGrid;
 use prt_mbd::{BlockPca, ClusteredPca, KMeansVq, MbdModel, PiecewisePcaModel, SolverOptions};
 use prt_sphere::Sky;
 use prt_texture::{Encoding, Limits, dequantize, quantize};
-use prt_trace::{BakeOptions, Scene, TransferBaker, sh9};
+use prt_trace::sh::sh9;
+use prt_trace::{BakeOptions, Scene, TransferBaker};
 
 #[derive(Debug, Parser)]
 #[command(

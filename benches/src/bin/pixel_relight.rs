@@ -15,11 +15,12 @@ use prt_benches::{
     relative_rms,
 };
 use prt_core::NoProgress;
+use prt_trace::RayTracer;
+use prt_trace::camera::PinholeView;
 use prt_trace::relight::{
     Bounce, MethodRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions,
     RelightMethod, Sparsify,
 };
-use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 

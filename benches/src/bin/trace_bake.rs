@@ -15,7 +15,8 @@ use prt_benches::{
 };
 use prt_core::NoProgress;
 use prt_trace::expert::BuildQuality;
-use prt_trace::{BakeOptions, RayTracer, TransferBaker, TransferVolume, constant_sky};
+use prt_trace::lit::constant_sky;
+use prt_trace::{BakeOptions, RayTracer, TransferBaker, TransferVolume};
 
 /// A scene to bake.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -62,7 +63,7 @@ fn write_slice(volume: &TransferVolume, iy: usize, path: &Path) {
     let (w, h) = (nx as u32 * scale, nz as u32 * scale);
     let mut img = image::RgbImage::new(2 * w + scale, h);
     let sky = [constant_sky(1.0); 3];
-    let y0 = prt_trace::sh9(glam::Vec3::Y)[0];
+    let y0 = prt_trace::sh::sh9(glam::Vec3::Y)[0];
     let to8 = |x: f32| (255.0 * x.clamp(0.0, 1.0).powf(1.0 / 2.2)).round() as u8;
     for ix in 0..nx {
         for iz in 0..nz {

@@ -14,10 +14,11 @@ use glam::Vec3;
 use prt_benches::{Table, load_envmap, load_scene, save_png};
 use prt_core::NoProgress;
 use prt_render::{Rendered, ToneMap, luminance, views};
+use prt_trace::RayTracer;
+use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::relight::{
     CubeRays, HalfAngleOptions, HalfAngleTransport, trace_half_angle_transport,
 };
-use prt_trace::{GBuffer, PinholeView, RayTracer};
 use prt_wavelet::brdf::{
     CurveEditor, CurveRelighter, CurveTransport, beckmann_curve, brush_stroke,
 };

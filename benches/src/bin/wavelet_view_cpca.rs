@@ -35,8 +35,9 @@ use prt_benches::{Table, load_envmap, load_scene, relative_rms};
 use prt_core::{Aabb, CoreError, GridField, MatrixOracle, NoProgress};
 use prt_mbd::ClusteredPca;
 use prt_sphere::envmap::cube_to_direction;
+use prt_trace::RayTracer;
+use prt_trace::camera::PinholeView;
 use prt_trace::relight::CubeRays;
-use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::sequence::Rotation;
 use prt_wavelet::{
     Approximator, BandStrategy, BrdfFactorisation, CpcaModel, CpcaRelighter, CubemapHaar,

@@ -18,7 +18,7 @@ const BLOCK: usize = SH9 * SH9;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum LitBasisTarget {
     /// Order-3 SH (9 coefficients) per channel, `[R 9 | G 9 | B 9]`: 27 values, what
-    /// [`prt_trace::incident_radiance`] gives for a transfer vector.
+    /// [`prt_trace::lit::incident_radiance`] gives for a transfer vector.
     #[default]
     Sh9Rgb,
     /// Linear SH (bands 0 and 1, 4 coefficients) per channel, `[R 4 | G 4 | B 4]`: 12 values.
@@ -80,7 +80,7 @@ impl LitBasis {
 
 /// Lights every basis vector of `model` (324-D transfer, prt-trace's layout) by `config.sky`:
 /// `b̃_{n,l}[c·k + i] = Σ_j (D_ij + T^c_ij) s^c_j` for the kept SH coefficients `i` of channel
-/// `c`, exactly [`prt_trace::incident_radiance`] applied to `B_{n,l}`, truncated to the target.
+/// `c`, exactly [`prt_trace::lit::incident_radiance`] applied to `B_{n,l}`, truncated to the target.
 ///
 /// Each output reads 18 of the 324 inputs (one row of the direct block and one of the
 /// channel's indirect block), so the pass costs `N·L·K·18` multiply-adds, f32 throughout (each
@@ -176,7 +176,7 @@ mod tests {
             let x = domain.min + Vec3::from_array(point) * domain.size();
             let mut transfer = vec![0.0; TRANSFER_DIM];
             model.eval(x, &mut transfer).unwrap();
-            let reference = prt_trace::incident_radiance(&transfer, &sky);
+            let reference = prt_trace::lit::incident_radiance(&transfer, &sky);
             let mut got = vec![0.0; target.dim()];
             relit_model.eval(x, &mut got).unwrap();
             let k = target.coefficients_per_channel();

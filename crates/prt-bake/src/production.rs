@@ -18,7 +18,8 @@ use prt_texture::container::{
     WriteReport,
 };
 use prt_texture::{Encoding, Limits};
-use prt_trace::{TRANSFER_DIM, incident_radiance};
+use prt_trace::TRANSFER_DIM;
+use prt_trace::lit::incident_radiance;
 use serde_json::json;
 use thiserror::Error;
 
@@ -69,7 +70,7 @@ pub enum ProductionError {
 
 /// The linear-SH irradiance (`IRRADIANCE_L1_DIM` = 12 values per voxel) of a 324-D transfer
 /// volume lit by `sky`: the incident radiance's SH bands 0 and 1
-/// ([`prt_trace::incident_radiance`]) convolved with the clamped cosine (× π for L0, × 2π/3
+/// ([`prt_trace::lit::incident_radiance`]) convolved with the clamped cosine (× π for L0, × 2π/3
 /// for L1), so that `E_c(n) = Σ_k e[4c + k] Y_k(n)` is the irradiance on a surface of normal `n`
 /// (divide by π for the exit radiance of a white Lambertian surface). Layout `d = 4c + k`:
 /// colour c = R, G, B major, then k = L0, L1 m = −1 (y), m = 0 (z), m = +1 (x) in prt's SH

@@ -14,7 +14,8 @@ use prt_lightmap::{
 use prt_render::{Rendered, ToneMap};
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
 use prt_texture::{Ktx2Texture, PixelFormat, Shape, write_atomic};
-use prt_trace::{PinholeView, Scene};
+use prt_trace::Scene;
+use prt_trace::camera::PinholeView;
 use serde_json::json;
 
 use crate::progress::StageBar;

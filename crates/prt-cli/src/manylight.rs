@@ -14,11 +14,12 @@ use prt_manylight::{
     light_slice, row_column_sampling, tensor_clustering, visibility_clustering,
 };
 use prt_render::{NamedView, Rendered, ToneMap, image_metrics, views};
+use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::manylight::{
     DirectionalLight, LightsBudget, SunAndUniformSky, Vpl, VplOptions, VplOracle,
     directional_lights, read_lights_file, trace_vpls, write_lights_file,
 };
-use prt_trace::{GBuffer, LoadOptions, PinholeView, RayTracer, Scene};
+use prt_trace::{LoadOptions, RayTracer, Scene};
 
 use crate::progress::StageBar;
 use crate::render::{format_of, save_render};

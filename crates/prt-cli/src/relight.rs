@@ -10,11 +10,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use prt_render::{Rendered, ToneMap};
 use prt_texture::{Limits, write_atomic};
+use prt_trace::RayTracer;
+use prt_trace::camera::PinholeView;
 use prt_trace::relight::{
     Bounce, MethodRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions,
     RelightMethod, Sparsify,
 };
-use prt_trace::{PinholeView, RayTracer};
 use prt_wavelet::CubemapHaar;
 use prt_wavelet::sequence::Rotation;
 

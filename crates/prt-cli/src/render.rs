@@ -453,7 +453,7 @@ fn render_lightmapped(
     folder: &LightmapFolder,
     shading: &LightmapShading<'_>,
     roughness: Option<f32>,
-    view: &prt_trace::PinholeView,
+    view: &prt_trace::camera::PinholeView,
     size: usize,
 ) -> Rendered {
     use rayon::prelude::*;

@@ -36,8 +36,9 @@ use std::process::Command;
 use glam::Vec3;
 use prt_render::{Rendered, ToneMap, luminance, views};
 use prt_texture::Limits;
+use prt_trace::RayTracer;
+use prt_trace::camera::PinholeView;
 use prt_trace::mesh::read_mesh;
-use prt_trace::{PinholeView, RayTracer};
 
 /// Image side in pixels.
 const SIZE: usize = 256;

@@ -987,7 +987,7 @@ const MAX_LIGHTMAP_P90: f64 = 2.5e-2;
 /// The material each pixel of `view` shows (prt's ray), or `None` for a miss.
 fn materials_seen(
     scene: &prt_trace::Scene,
-    view: &prt_trace::PinholeView,
+    view: &prt_trace::camera::PinholeView,
     size: usize,
 ) -> Vec<Option<String>> {
     let tracer = prt_trace::RayTracer::new(scene.triangles());
@@ -1039,7 +1039,7 @@ fn threejs_lightmap_shows_what_prt_lightmap_shows() {
     let manifest = json_file(&out.join("manifest.json"));
     let camera = &manifest["view"];
     let as_vec3 = |v: &Value| glam::Vec3::from_array(vec3(v).map(|x| x as f32));
-    let view = prt_trace::PinholeView {
+    let view = prt_trace::camera::PinholeView {
         position: as_vec3(&camera["position"]),
         forward: as_vec3(&camera["forward"]),
         up: as_vec3(&camera["up"]),

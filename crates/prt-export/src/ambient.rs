@@ -5,7 +5,7 @@ use std::sync::OnceLock;
 use glam::Vec3;
 use prt_sphere::eval_sh_f64;
 
-use prt_trace::RadianceSh;
+use prt_trace::lit::RadianceSh;
 
 /// Side order of an ambient cube: +X, -X, +Y, -Y, +Z, -Z (prt_texture's `AMBIENT_CUBE_SIDES`).
 pub const SIDES: [Vec3; 6] = [

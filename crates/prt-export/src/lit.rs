@@ -4,8 +4,9 @@ use glam::Vec3;
 use prt_bake::container::MbdContainer;
 use prt_core::{Aabb, KernelWeights, Progress, SpatialKernels};
 use prt_sphere::Sky;
+use prt_trace::LitVolume;
 use prt_trace::TRANSFER_DIM;
-use prt_trace::{LitVolume, RadianceSh, incident_radiance};
+use prt_trace::lit::{RadianceSh, incident_radiance};
 use rayon::prelude::*;
 
 use crate::ExportError;

@@ -2,8 +2,9 @@
 //! before an engine sees it.
 
 use glam::Vec3;
+use prt_trace::LitVolume;
 use prt_trace::expert::CLAMPED_COSINE;
-use prt_trace::{LitVolume, SH9, sh9};
+use prt_trace::sh::{SH9, sh9};
 
 use crate::ExportError;
 

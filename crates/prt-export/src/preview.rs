@@ -4,7 +4,8 @@
 use std::f32::consts::PI;
 
 use glam::Vec3;
-use prt_trace::{LitVolume, irradiance};
+use prt_trace::LitVolume;
+use prt_trace::lit::irradiance;
 
 use crate::ambient::ambient_cube;
 use crate::threejs::ENGINE_PADDING;

@@ -48,7 +48,7 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     let mut t = vec![0.0; 324];
     for v in (0..lit.voxels()).step_by(7) {
         container.model.eval(lit.voxel_centre(v), &mut t).unwrap();
-        let direct = prt_trace::incident_radiance(&t, &sky);
+        let direct = prt_trace::lit::incident_radiance(&t, &sky);
         for c in 0..3 {
             for j in 0..9 {
                 let (a, b) = (lit.radiance[v][c][j], direct[c][j]);
@@ -175,7 +175,7 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
         for &d in &dirs {
             let want = lit.irradiance(v, d);
             for c in 0..3 {
-                let got = prt_trace::irradiance(&l[c], d);
+                let got = prt_trace::lit::irradiance(&l[c], d);
                 let bound = f16_irradiance_bound(&lit.radiance[v][c]) + 1e-5;
                 assert!(
                     (got - want[c]).abs() <= bound,

@@ -91,17 +91,17 @@ proptest! {
         let bound = Vec3::from(ambient_cube_error_bound(&l));
         for (k, &d) in SIDES.iter().enumerate() {
             let e = Vec3::new(
-                prt_trace::irradiance(&l[0], d),
-                prt_trace::irradiance(&l[1], d),
-                prt_trace::irradiance(&l[2], d),
+                prt_trace::lit::irradiance(&l[0], d),
+                prt_trace::lit::irradiance(&l[1], d),
+                prt_trace::lit::irradiance(&l[2], d),
             ) / std::f32::consts::PI;
             prop_assert!((Vec3::from(cube[k]) - e).abs().max_element() < 1e-4);
         }
         for d in random_directions(64, seed) {
             let e = Vec3::new(
-                prt_trace::irradiance(&l[0], d),
-                prt_trace::irradiance(&l[1], d),
-                prt_trace::irradiance(&l[2], d),
+                prt_trace::lit::irradiance(&l[0], d),
+                prt_trace::lit::irradiance(&l[1], d),
+                prt_trace::lit::irradiance(&l[2], d),
             ) / std::f32::consts::PI;
             let err = (ambient_cube_blend(&cube, d) - e).abs();
             prop_assert!(err.cmple(bound + 1e-4).all(), "error {err} bound {bound}");

@@ -4,7 +4,8 @@ use std::f32::consts::{PI, TAU};
 
 use glam::Vec3;
 use prt_trace::manylight::SunAndUniformSky;
-use prt_trace::{Hit, LightKind, RayTracer, Scene};
+use prt_trace::scene::LightKind;
+use prt_trace::{Hit, RayTracer, Scene};
 
 /// Sobol' dimensions of the texel ray: its direction.
 const TEXEL_DIMS: u32 = 2;

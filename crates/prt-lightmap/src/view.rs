@@ -1,7 +1,8 @@
 //! Looking at a lightmap: bilinear lookups and a pinhole view of the lightmapped scene.
 
 use glam::{Vec2, Vec3};
-use prt_trace::{PinholeView, RayTracer, Scene};
+use prt_trace::camera::PinholeView;
+use prt_trace::{RayTracer, Scene};
 use rayon::prelude::*;
 
 use crate::{Atlas, Lightmap, LightmapError};

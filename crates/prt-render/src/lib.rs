@@ -1,8 +1,8 @@
 //! # prt-render — the lit scene on the CPU
 //!
 //! Renders what a baked transfer volume looks like on the scene's surfaces: one primary ray per
-//! pixel (prt-trace's [`GBuffer`](prt_trace::GBuffer) through a
-//! [`PinholeView`](prt_trace::PinholeView)), each hit shaded as a diffuse surface lit by the
+//! pixel (prt-trace's [`GBuffer`](prt_trace::camera::GBuffer) through a
+//! [`PinholeView`](prt_trace::camera::PinholeView)), each hit shaded as a diffuse surface lit by the
 //! volume, `L = emission + albedo/π · E(n, p)`, where `E` is the irradiance of the volume's
 //! incident-radiance SH at the hit point. The volume is the 324-D transfer of a bake (the traced
 //! reference, an MBD container read back, or a baseline's reconstruction) lit by a sky
@@ -27,7 +27,8 @@
 //! use prt_core::{Aabb, GridField, NoProgress, glam::Vec3};
 //! use prt_render::{RenderConfig, render};
 //! use prt_sphere::Sky;
-//! use prt_trace::{LitVolume, PinholeView, RayTracer, Scene, TRANSFER_DIM};
+//! use prt_trace::camera::PinholeView;
+//! use prt_trace::{LitVolume, RayTracer, Scene, TRANSFER_DIM};
 //!
 //! // A volume that lets the whole sky through (direct transfer = identity) over a grey plane.
 //! let scene = Scene::ground_plane(1.0, Vec3::splat(0.5));

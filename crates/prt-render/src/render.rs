@@ -5,7 +5,8 @@ use std::f32::consts::PI;
 use glam::Vec3;
 use prt_core::{GridField, Progress};
 use prt_sphere::Sky;
-use prt_trace::{GBuffer, LitVolume, PinholeView, RayTracer, Scene};
+use prt_trace::camera::{GBuffer, PinholeView};
+use prt_trace::{LitVolume, RayTracer, Scene};
 use rayon::prelude::*;
 
 use crate::RenderError;

@@ -1,7 +1,8 @@
 //! The views a scene offers: its glTF cameras, then two automatic ones.
 
 use glam::Vec3;
-use prt_trace::{PinholeView, Scene};
+use prt_trace::Scene;
+use prt_trace::camera::PinholeView;
 
 /// Vertical field of view of the automatic views (radians): 40°.
 const AUTO_FOV_DEGREES: f32 = 40.0;

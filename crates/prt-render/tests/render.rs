@@ -4,9 +4,9 @@ use glam::{Mat4, Vec3};
 use prt_core::{Aabb, AtomicProgress, GridField, NoProgress};
 use prt_render::{RenderConfig, Rendered, SurfaceLight, ToneMap, image_metrics, render, views};
 use prt_sphere::Sky;
-use prt_trace::{
-    BakeOptions, Camera, LitVolume, PinholeView, RayTracer, Scene, TRANSFER_DIM, TransferBaker,
-};
+use prt_trace::camera::PinholeView;
+use prt_trace::scene::Camera;
+use prt_trace::{BakeOptions, LitVolume, RayTracer, Scene, TRANSFER_DIM, TransferBaker};
 
 /// A transfer volume that passes the sky through unchanged (direct transfer = identity,
 /// no bounce) everywhere, times `scale`.

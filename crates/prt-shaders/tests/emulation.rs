@@ -2,7 +2,7 @@
 //! writes: the lighting pass (dequantise, 18-term sums, rgba16f storage) and the per-pixel
 //! reconstruction (texel-centre coordinates, trilinear filtering with clamp-to-edge, the
 //! coefficients' scale/bias decode, f32 throughout), against the model itself
-//! (`MbdModel::eval` then `prt_trace::incident_radiance`) within the quantisation bound.
+//! (`MbdModel::eval` then `prt_trace::lit::incident_radiance`) within the quantisation bound.
 //!
 //! The bound at a point x, per lit value k (c = k / 9, i = k % 9), with φ and ψ the hat
 //! weights of the coefficient and basis grids:
@@ -449,7 +449,7 @@ fn worst_ratio(
         let x = domain.min + (Vec3::from_array(*p) * 1.4 - 0.2) * domain.size();
         let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, rank);
         model.eval(x, &mut transfer).unwrap();
-        let reference = prt_trace::incident_radiance(&transfer, sky);
+        let reference = prt_trace::lit::incident_radiance(&transfer, sky);
         let limit = bound(model, &coefficients.entry, &basis.entry, sky, x);
         for k in 0..LIT {
             let error = (got[k] - reference[k / 9][k % 9]).abs();
@@ -533,7 +533,7 @@ fn a_half_texel_shift_is_caught() {
         let x = domain.min + Vec3::from_array(*p) * domain.size();
         let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, 3);
         wrong.eval(x, &mut transfer).unwrap();
-        let reference = prt_trace::incident_radiance(&transfer, &sky);
+        let reference = prt_trace::lit::incident_radiance(&transfer, &sky);
         let limit = bound(&wrong, &coefficients.entry, &basis.entry, &sky, x);
         for k in 0..LIT {
             worst = worst.max((got[k] - reference[k / 9][k % 9]).abs() / limit[k]);
@@ -664,7 +664,7 @@ proptest! {
                 let got = reconstruct(x.to_array(), &coefficients, &lit, &lit_grid, rank);
                 let dense = reconstruct(x.to_array(), &dense, &lit, &lit_grid, rank);
                 model.eval(x, &mut transfer).unwrap();
-                let reference = prt_trace::incident_radiance(&transfer, &sky);
+                let reference = prt_trace::lit::incident_radiance(&transfer, &sky);
                 let limit = bound(&model, &coefficients.entry, &basis.entry, &sky, x);
                 for k in 0..LIT {
                     let error = (got[k] - reference[k / 9][k % 9]).abs();

@@ -20,8 +20,9 @@ use glam::Vec3;
 use prt_core::Progress;
 use rayon::prelude::*;
 
+use crate::camera::GBuffer;
 use crate::cube::CubeRays;
-use crate::{GBuffer, RayTracer, TraceError};
+use crate::{RayTracer, TraceError};
 
 /// Options of [`trace_half_angle_transport`].
 #[derive(Debug, Clone, PartialEq)]

@@ -1,5 +1,5 @@
-//! The camera of the per-pixel methods: a pinhole view and the G-buffer of surface points its
-//! pixels see.
+//! The camera of the per-pixel methods (many lights, wavelet relighting, BRDF editing, renders):
+//! a pinhole view and the G-buffer of surface points its pixels see.
 
 use std::f32::consts::PI;
 
@@ -7,7 +7,8 @@ use glam::Vec3;
 use prt_core::Aabb;
 use rayon::prelude::*;
 
-use crate::{Camera, RayTracer, Scene, TraceError};
+use crate::scene::Camera;
+use crate::{RayTracer, Scene, TraceError};
 
 /// A pinhole view: where the camera is, where it looks, its vertical field of view.
 #[derive(Debug, Clone, Copy, PartialEq)]

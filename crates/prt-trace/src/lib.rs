@@ -14,7 +14,7 @@
 //!   LZCNT, POPCNT; detected at run time, see [`RayTracer::instruction_set`]) the traversal runs
 //!   compiled for it with an 8-wide child-box test, with bit-identical results.
 //! * **The baker** ([`TransferBaker`]): for every voxel centre `x` of a grid, with real SH of
-//!   order 3 (9 coefficients, [`sh9`], evaluated by `prt-sphere`) for distant sky light,
+//!   order 3 (9 coefficients, [`sh::sh9`], evaluated by `prt-sphere`) for distant sky light,
 //!   - direct transfer `D_ij = ∫ V(x, ω) Y_i(ω) Y_j(ω) dω` (sky visibility), and
 //!   - one-bounce direct-to-indirect transfer per colour channel
 //!     `T^c_ij = ∫ Y_i(ω) L^c_j(h(x, ω), -ω) dω`, where `h` is the first hit and
@@ -25,9 +25,9 @@
 //!   voxels; bricks without a valid voxel (opt-in: far from geometry) are neither traced nor
 //!   stored, and the kept voxels equal the dense bake's bit for bit. For large grids with much
 //!   solid or outside space.
-//! * **Many lights** ([`trace_vpls`](manylight::trace_vpls), [`GBuffer`], [`VplOracle`](manylight::VplOracle)): virtual point lights by
+//! * **Many lights** ([`trace_vpls`](manylight::trace_vpls), [`GBuffer`](camera::GBuffer), [`VplOracle`](manylight::VplOracle)): virtual point lights by
 //!   particle tracing from the emitters (instant radiosity, Keller 1997; a sun and sky for
-//!   scenes without emitters), a pinhole view ([`PinholeView`]: the glTF camera or a framing of
+//!   scenes without emitters), a pinhole view ([`PinholeView`](camera::PinholeView): the glTF camera or a framing of
 //!   the bounds) with a G-buffer of gather points, and the pixel × VPL matrix with shadow rays as
 //!   a [`prt_core::MatrixOracle`] (RGB) for the row-column sampling of Hašan et al. 2007, plus
 //!   its brute-force reference image. Lights files ([`read_lights_file`](manylight::read_lights_file)) bring user-made
@@ -46,6 +46,24 @@
 //! * **BRDF-editing transport** ([`trace_half_angle_transport`](relight::trace_half_angle_transport)): per pixel, the glossy
 //!   transport against the bins of an editable half-angle BRDF curve under fixed view and cube-map
 //!   lighting (Ben-Artzi et al. 2006), so that the image is linear in the curve.
+//!
+//! ## Where things are
+//! The front door is at the root: [`Scene`] and [`LoadOptions`], [`RayTracer`] and [`Hit`],
+//! [`TransferBaker`] with [`BakeOptions`] (and its [`AdaptiveSampling`] and [`DenoiseOptions`])
+//! giving a [`TransferVolume`] of [`TRANSFER_DIM`] per voxel and its [`BakeStats`], the
+//! [`LitVolume`] a sky lights it to, and [`TraceError`]. The rest, by concern:
+//!
+//! | module | what it holds, when to use it |
+//! |---|---|
+//! | [`scene`] | a scene's parts (materials, punctual lights, glTF cameras): when you build or inspect a scene |
+//! | [`sh`] | the order-3 SH basis of every transfer vector (`sh9`, `SH9`): when you project or evaluate a direction yourself |
+//! | [`lit`] | lighting a transfer by a sky: incident radiance and irradiance per voxel, a constant sky, the lit volume |
+//! | [`camera`] | the per-pixel methods' pinhole view and G-buffer of gather points |
+//! | [`bricks`] | sparse bricks: trace and store only the bricks that hold a valid voxel |
+//! | [`mesh`] | the scene mesh file (`scene.mesh`) that `prt render` and a browser read |
+//! | [`manylight`] | virtual point lights and the pixel × light matrix for prt-manylight |
+//! | [`relight`] | per-pixel transport over a cube map of light for wavelet relighting (prt-wavelet) |
+//! | [`expert`] | the baker's and the ray tracer's details, for tests and benches |
 //!
 //! ## Output layout
 //! A [`GridField`](prt_core::GridField) of dimension [`TRANSFER_DIM`] = 324 per voxel, laid out
@@ -111,7 +129,8 @@
 //!
 //! ```
 //! use prt_core::NoProgress;
-//! use prt_trace::{BakeOptions, Scene, TransferBaker, constant_sky};
+//! use prt_trace::lit::constant_sky;
+//! use prt_trace::{BakeOptions, Scene, TransferBaker};
 //!
 //! let scene = Scene::cornell_box();
 //! let options = BakeOptions { resolution: [6, 6, 6], rays_per_voxel: 96, cache_rays: 32, seed: 7, ..Default::default() };
@@ -131,42 +150,37 @@ mod bake;
 mod brdf_transport;
 pub mod bricks;
 mod bvh;
-mod camera;
+pub mod camera;
 mod cube;
 mod denoise;
 mod error;
 mod gltf_load;
 mod lights_file;
-mod lit;
+pub mod lit;
 pub mod mesh;
 mod outdoor;
 mod pixel;
 mod sampling;
-mod scene;
-mod sh;
+pub mod scene;
+pub mod sh;
 mod vpl;
 
-pub use bake::{
-    AdaptiveSampling, BakeOptions, BakeStats, TransferBaker, TransferVolume, constant_sky,
-    incident_radiance, irradiance,
-};
+pub use bake::{AdaptiveSampling, BakeOptions, BakeStats, TransferBaker, TransferVolume};
 pub use bvh::{Hit, RayTracer};
-pub use camera::{GBuffer, PinholeView};
 pub use denoise::DenoiseOptions;
 pub use error::TraceError;
 pub use gltf_load::LoadOptions;
-pub use lit::{LitVolume, RadianceSh};
-pub use scene::{Camera, LightKind, Material, PunctualLight, Scene};
-pub use sh::{SH9, TRANSFER_DIM, sh9};
+pub use lit::LitVolume;
+pub use scene::Scene;
+pub use sh::TRANSFER_DIM;
 
 /// The baker's and the ray tracer's details, for tests, benches and callers who need them: the
 /// clamped-cosine SH weights, the indirect estimator's mode, the number of independent ray
-/// streams per voxel, one 9×9 block of a transfer vector, the BVH's build quality, a brute-force
-/// ray query to check the BVH against, and the gather points of a G-buffer.
+/// streams per voxel, one 9×9 block of a transfer vector, the BVH's build quality and a
+/// brute-force ray query to check the BVH against.
 pub mod expert {
     pub use crate::bake::{CLAMPED_COSINE, IndirectMode, REPLICATES, SharedSurfaceCache, block};
     pub use crate::bvh::{BuildQuality, brute_force_closest};
-    pub use crate::camera::GatherPoint;
 }
 
 /// Many lights: virtual point lights traced from a scene's emitters, or its sun and sky, or read

@@ -1,12 +1,15 @@
-//! A transfer volume lit by a sky: incident-radiance SH per voxel, what renders, previews and
-//! engine exports sample.
+//! Lighting a transfer by a sky: a voxel's incident-radiance SH and its irradiance toward a
+//! normal, a constant sky, and the lit volume (incident radiance per voxel) that renders,
+//! previews and engine exports sample. Use it to turn a traced or compressed transfer into light.
 
 use glam::Vec3;
 use prt_core::{Aabb, FieldModel, GridField, Progress, TrilinearWeights, resample_to_grid};
 use prt_sphere::Sky;
 use rayon::prelude::*;
 
-use crate::{SH9, TRANSFER_DIM, TraceError, incident_radiance, irradiance};
+use crate::TraceError;
+pub use crate::bake::{constant_sky, incident_radiance, irradiance};
+use crate::sh::{SH9, TRANSFER_DIM};
 
 /// Incident radiance of one voxel: order-3 SH (prt's convention) per colour channel R, G, B.
 pub type RadianceSh = [[f32; SH9]; 3];

@@ -8,7 +8,8 @@ use std::path::Path;
 use glam::{Mat4, Vec3};
 use prt_texture::{Limits, TextureError, write_atomic};
 
-use crate::{Camera, Material, Scene, TraceError};
+use crate::scene::{Camera, Material};
+use crate::{Scene, TraceError};
 
 /// The first eight bytes of a scene mesh file.
 pub const MESH_MAGIC: [u8; 8] = *b"PRTMESH\0";

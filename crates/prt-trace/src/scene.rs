@@ -1,4 +1,5 @@
-//! Scenes as flat world-space triangle lists with per-triangle materials.
+//! Scenes as flat world-space triangle lists with per-triangle materials, and their parts
+//! (materials, punctual lights, glTF cameras): use it to build a scene or read what one holds.
 
 use glam::{Mat4, Vec2, Vec3};
 use prt_core::Aabb;

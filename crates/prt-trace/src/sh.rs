@@ -1,4 +1,5 @@
-//! Real spherical harmonics of order 3 (bands 0..=2, nine functions), evaluated by `prt-sphere`.
+//! Real spherical harmonics of order 3 (bands 0..=2, nine functions), evaluated by `prt-sphere`:
+//! the basis of a transfer vector's rows and columns; use it to evaluate or project a direction.
 //!
 //! Orthonormal over the sphere, Condon–Shortley phase included (Sloan, "Stupid Spherical
 //! Harmonics (SH) Tricks", 2008). prt's convention (prt-sphere's docs): the textbook frame

@@ -27,9 +27,10 @@ use prt_core::{Aabb, CoreError, MatrixOracle, Progress};
 use prt_manylight::{GatherGeometry, SliceOracle, VisibilityOracle};
 use rayon::prelude::*;
 
-use crate::camera::GatherPoint;
+use crate::camera::{GBuffer, GatherPoint};
 use crate::sampling::{cosine_hemisphere, hash_seed};
-use crate::{GBuffer, LightKind, RayTracer, Scene, TraceError};
+use crate::scene::LightKind;
+use crate::{RayTracer, Scene, TraceError};
 
 /// A virtual point light: an oriented point that radiates its flux like a Lambertian emitter.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -528,7 +529,8 @@ enum Light<'a> {
 /// ```
 /// use prt_core::{MatrixOracle, NoProgress};
 /// use prt_trace::manylight::{VplOptions, VplOracle, trace_vpls};
-/// use prt_trace::{GBuffer, PinholeView, RayTracer, Scene};
+/// use prt_trace::camera::{GBuffer, PinholeView};
+/// use prt_trace::{RayTracer, Scene};
 ///
 /// let scene = Scene::cornell_box();
 /// let tracer = RayTracer::new(scene.triangles());

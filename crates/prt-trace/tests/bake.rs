@@ -4,10 +4,9 @@ use proptest::prelude::*;
 use prt_core::{Aabb, AtomicProgress, NoProgress};
 use prt_sphere::Sky;
 use prt_trace::expert::{IndirectMode, block};
-use prt_trace::{
-    BakeOptions, SH9, Scene, TRANSFER_DIM, TraceError, TransferBaker, TransferVolume, constant_sky,
-    incident_radiance, sh9,
-};
+use prt_trace::lit::{constant_sky, incident_radiance};
+use prt_trace::sh::{SH9, sh9};
+use prt_trace::{BakeOptions, Scene, TRANSFER_DIM, TraceError, TransferBaker, TransferVolume};
 
 fn bake(scene: &Scene, options: BakeOptions) -> TransferVolume {
     TransferBaker::new(scene, options)

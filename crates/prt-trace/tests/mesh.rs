@@ -3,8 +3,9 @@
 use glam::{Mat4, Vec3};
 use proptest::prelude::*;
 use prt_texture::Limits;
+use prt_trace::Scene;
 use prt_trace::mesh::{MeshError, decode_mesh, encode_mesh, read_mesh, write_mesh};
-use prt_trace::{Camera, Scene};
+use prt_trace::scene::Camera;
 
 fn cornell_with_cameras() -> Scene {
     Scene::cornell_box().with_cameras([

@@ -5,10 +5,11 @@ use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::NoProgress;
 use prt_texture::Limits;
+use prt_trace::camera::PinholeView;
 use prt_trace::relight::{
     Bounce, PixelRelighter, PixelTransport, PixelTransportBaker, PixelTransportOptions, Sparsify,
 };
-use prt_trace::{PinholeView, RayTracer, Scene};
+use prt_trace::{RayTracer, Scene};
 use prt_wavelet::{BandMode, CubemapHaar, FrameUpdate, Term};
 use rand::{Rng, SeedableRng};
 
@@ -162,7 +163,7 @@ fn the_bounce_matches_a_brute_force_estimate() {
     let t = bake(&scene, options);
     let tracer = RayTracer::new(scene.triangles());
     let view = PinholeView::for_scene(&scene).unwrap();
-    let gbuffer = prt_trace::GBuffer::render(&scene, &tracer, &view, 4, 4).unwrap();
+    let gbuffer = prt_trace::camera::GBuffer::render(&scene, &tracer, &view, 4, 4).unwrap();
     let offset = 1e-4 * scene.bounds().unwrap().size().length();
     // Constant light 1 in the wavelet domain: the scaling coefficient of every face.
     let mut ones = vec![1.0f32; t.cols()];

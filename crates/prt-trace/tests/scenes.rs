@@ -2,7 +2,8 @@
 mod common;
 
 use glam::Vec3;
-use prt_trace::{LoadOptions, Material, Scene, TraceError};
+use prt_trace::scene::Material;
+use prt_trace::{LoadOptions, Scene, TraceError};
 
 fn write_gltf(dir: &std::path::Path, json: &str, bin: Option<&[u8]>) -> std::path::PathBuf {
     if let Some(b) = bin {

@@ -8,12 +8,14 @@ use std::sync::OnceLock;
 use glam::Vec3;
 use proptest::prelude::*;
 use prt_core::{CoreError, MatrixOracle, NoProgress};
-use prt_trace::expert::GatherPoint;
+use prt_trace::camera::GatherPoint;
+use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::manylight::{
     DirectionalLight, SunAndUniformSky, Vpl, VplOptions, VplOracle, directional_lights,
     emitted_power, trace_vpls,
 };
-use prt_trace::{GBuffer, Material, PinholeView, RayTracer, Scene, TraceError};
+use prt_trace::scene::Material;
+use prt_trace::{RayTracer, Scene, TraceError};
 
 struct Cornell {
     scene: Scene,

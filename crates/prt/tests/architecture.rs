@@ -7,7 +7,8 @@
 //! * no crate's top-level modules import each other in a cycle;
 //! * only prt-cli prints (library code returns data and reports through `Progress`);
 //! * files are written only through prt-texture's atomic writer (write to a temporary file in
-//!   the same folder, then rename), so no reader ever sees a half-written file.
+//!   the same folder, then rename), so no reader ever sees a half-written file;
+//! * prt-bake's and prt-trace's roots are front doors of 15–25 names, the rest in modules.
 //!
 //! Test modules (`#[cfg(test)]` blocks), comments and doc comments are not checked.
 
@@ -457,8 +458,122 @@ fn the_crates_depend_as_the_architecture_page_draws() {
     );
 }
 
+/// The names reachable at a crate root from its `lib.rs` (comments and test items removed): its
+/// `pub mod`s, the names of its `pub use`s, and its other `pub` items; items behind
+/// `#[cfg(doctest)]` (README doctests) do not count.
+fn root_items(lib_rs: &str) -> BTreeSet<String> {
+    let code = production_code(lib_rs);
+    // Top-level statements: text up to a `;` or a closed `{ .. }` at brace depth 0.
+    let mut statements = Vec::new();
+    let (mut depth, mut current) = (0usize, String::new());
+    for c in code.chars() {
+        current.push(c);
+        match c {
+            '{' => depth += 1,
+            '}' => {
+                depth = depth.saturating_sub(1);
+                if depth == 0 && !current.trim_start().starts_with("pub use") {
+                    statements.push(std::mem::take(&mut current));
+                }
+            }
+            ';' if depth == 0 => statements.push(std::mem::take(&mut current)),
+            _ => {}
+        }
+    }
+    let mut out = BTreeSet::new();
+    for statement in statements {
+        let mut rest = statement.trim();
+        let mut doctest_only = false;
+        while let Some(attribute) = rest.strip_prefix("#[") {
+            let end = attribute.find(']').unwrap_or(attribute.len());
+            doctest_only |= attribute[..end].contains("cfg(doctest)");
+            rest = attribute[(end + 1).min(attribute.len())..].trim_start();
+        }
+        if doctest_only {
+            continue;
+        }
+        if let Some(tree) = rest.strip_prefix("pub use ") {
+            out.extend(use_tree_names(tree.trim_end_matches(';')));
+            continue;
+        }
+        let Some(item) = rest.strip_prefix("pub ") else {
+            continue;
+        };
+        let mut words = item.split(|c: char| !(c.is_alphanumeric() || c == '_'));
+        let words: Vec<&str> = words.by_ref().filter(|w| !w.is_empty()).take(3).collect();
+        let name = match words.as_slice() {
+            ["unsafe" | "async" | "const", "fn" | "trait", name, ..] => name,
+            [
+                "mod" | "fn" | "struct" | "enum" | "const" | "static" | "type" | "trait" | "union"
+                | "macro",
+                name,
+                ..,
+            ] => name,
+            _ => continue,
+        };
+        out.insert(name.to_string());
+    }
+    out
+}
+
+/// The names a `use` tree brings in: `a::b` gives `b`, `a::{b, c::{d, e as f}}` gives `b`, `d`,
+/// `f`, and `a::{self, b}` gives `a` and `b`.
+fn use_tree_names(tree: &str) -> Vec<String> {
+    let tree = tree.trim();
+    if let Some(open) = tree.find('{') {
+        let prefix = tree[..open].trim_end_matches("::");
+        let inner = &tree[open + 1..tree.rfind('}').unwrap_or(tree.len())];
+        let (mut depth, mut start, mut parts) = (0usize, 0, Vec::new());
+        for (i, c) in inner.char_indices() {
+            match c {
+                '{' => depth += 1,
+                '}' => depth -= 1,
+                ',' if depth == 0 => {
+                    parts.push(&inner[start..i]);
+                    start = i + 1;
+                }
+                _ => {}
+            }
+        }
+        parts.push(&inner[start..]);
+        return parts
+            .into_iter()
+            .filter(|part| !part.trim().is_empty())
+            .flat_map(|part| match part.trim() {
+                "self" => vec![prefix.rsplit("::").next().unwrap_or(prefix).to_string()],
+                part => use_tree_names(part),
+            })
+            .collect();
+    }
+    let name = match tree.split_once(" as ") {
+        Some((_, alias)) => alias,
+        None => tree.rsplit("::").next().unwrap_or(tree),
+    };
+    vec![name.trim().to_string()]
+}
+
+/// prt-bake's and prt-trace's roots are front doors: what a newcomer needs first (about 15–25
+/// names), the rest in a module per concern (docs/architecture.md, "API boundaries").
+#[test]
+fn the_front_door_crates_have_small_roots() {
+    let mut offenders = Vec::new();
+    for name in ["prt-bake", "prt-trace"] {
+        let lib =
+            std::fs::read_to_string(crates_dir().join(name).join("src/lib.rs")).expect("lib.rs");
+        let items = root_items(&lib);
+        if !(15..=25).contains(&items.len()) {
+            offenders.push(format!("{name}: {} root items {items:?}", items.len()));
+        }
+    }
+    assert!(
+        offenders.is_empty(),
+        "crate roots outside 15..=25 items (move the rest into a module by concern):\n{}",
+        offenders.join("\n")
+    );
+}
+
 /// The checks themselves: a cycle, a print, a write and an upward dependency are found where
-/// they are, and test code is left out.
+/// they are, test code is left out, and a crate root's names are counted.
 #[test]
 fn the_checks_find_what_they_look_for() {
     let manifest = "[package]\nname = \"x\"\n[dependencies]\nprt-core = { workspace = true }\n\
@@ -515,4 +630,14 @@ fn the_checks_find_what_they_look_for() {
         "fn f() { println!(\"x\"); } // eprintln!\n#[cfg(test)]\nmod tests {\n    fn g() { dbg!(1); }\n}\n",
     );
     assert!(code.contains("println!") && !code.contains("eprintln!") && !code.contains("dbg!"));
+    let lib = "//! docs: pub use hidden::Nope;\nmod private;\npub mod front;\n\
+               pub use a::{B, c::{D, E as F}, g::{self, H}};\npub use i::J;\n\
+               /// doc\n#[derive(Debug)]\npub struct K {\n    pub field: u8,\n}\n\
+               pub mod inline {\n    pub use crate::private::L;\n}\npub const fn m() {}\n\
+               #[doc = include_str!(\"../README.md\")]\n#[cfg(doctest)]\npub struct Readme;\n";
+    let names: Vec<String> = root_items(lib).into_iter().collect();
+    assert_eq!(
+        names,
+        ["B", "D", "F", "H", "J", "K", "front", "g", "inline", "m"]
+    );
 }

@@ -14,7 +14,8 @@ use std::time::Duration;
 use prt_core::Progress;
 use prt_texture::Limits;
 use prt_trace::expert::SharedSurfaceCache;
-use prt_trace::{BakeOptions, SH9, TransferBaker};
+use prt_trace::sh::SH9;
+use prt_trace::{BakeOptions, TransferBaker};
 use serde::{Deserialize, Serialize};
 
 use super::checksum::Fnv1a64;

@@ -11,7 +11,7 @@ use prt_bake::{Bake, Method};
 use prt_core::{FieldModel, GridField};
 use prt_sphere::Sky;
 use prt_texture::write_atomic;
-use prt_trace::{incident_radiance, irradiance};
+use prt_trace::lit::{incident_radiance, irradiance};
 
 use crate::report::plots::{draw_text, seam_profile_png};
 

@@ -138,7 +138,7 @@ pub fn write_renders(
         height: RENDER_SIZE,
     };
     // Every method's render of one view, the reference first.
-    let render_all = |view: &prt_trace::PinholeView| -> Result<Vec<(String, Rendered)>> {
+    let render_all = |view: &prt_trace::camera::PinholeView| -> Result<Vec<(String, Rendered)>> {
         volumes
             .iter()
             .map(|(key, volume)| {

@@ -15,7 +15,8 @@ use std::time::UNIX_EPOCH;
 use anyhow::{Context, Result};
 use prt_lightmap::{Atlas, Lightmap};
 use prt_texture::write_atomic;
-use prt_trace::{PinholeView, Scene};
+use prt_trace::Scene;
+use prt_trace::camera::PinholeView;
 use serde_json::json;
 
 /// The scene with its lightmap UVs, as the page draws it.

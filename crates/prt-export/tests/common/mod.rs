@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use glam::Vec3;
-use prt_trace::RadianceSh;
+use prt_trace::lit::RadianceSh;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 

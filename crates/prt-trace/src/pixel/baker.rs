@@ -8,9 +8,10 @@ use prt_core::Progress;
 use prt_wavelet::{CubemapHaar, SparseTransport};
 use rayon::prelude::*;
 
+use crate::camera::{GBuffer, PinholeView};
 use crate::cube::CubeRays;
 use crate::sampling::{cosine_hemisphere, hash_seed};
-use crate::{GBuffer, PinholeView, RayTracer, Scene, TraceError};
+use crate::{RayTracer, Scene, TraceError};
 
 use super::{Bounce, PixelBakeEstimate, PixelTransport, PixelTransportOptions};
 

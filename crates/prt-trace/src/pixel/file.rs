@@ -8,7 +8,8 @@ use glam::Vec3;
 use prt_texture::{Limits, write_atomic};
 use prt_wavelet::{SparseTransport, TransportParts};
 
-use crate::{PinholeView, TraceError};
+use crate::TraceError;
+use crate::camera::PinholeView;
 
 use super::{Bounce, PixelTransport, PixelTransportOptions, Sparsify};
 

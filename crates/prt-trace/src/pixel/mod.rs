@@ -36,7 +36,8 @@
 
 use prt_wavelet::SparseTransport;
 
-use crate::{PinholeView, TraceError};
+use crate::TraceError;
+use crate::camera::PinholeView;
 
 mod baker;
 mod file;
