@@ -53,6 +53,11 @@ pub struct BakeConfig {
     /// the rendered images favour); `None`: the papers' loss. In a plan file: `[exponent, floor]` or null (absent in older plans: null).
     #[serde(default, with = "loss_weighting_serde")]
     pub loss_weighting: Option<prt_mbd::LossWeighting>,
+    /// MBD's centre projection ([`prt_mbd::Mbd::centre_projection`]): each voxel's coefficients
+    /// re-fitted on its own vector at its centre after the solve. In a plan file: a bool
+    /// (absent in older plans: false).
+    #[serde(default)]
+    pub centre_projection: bool,
     /// Storage encoding of the container's coefficient and basis volumes.
     pub encoding: Encoding,
     /// Whether to fit and score the blockwise and clustered PCA baselines.
@@ -130,6 +135,7 @@ impl Default for BakeConfig {
             full_iterations: 16,
             lambda: 1e-4,
             loss_weighting: Some(prt_mbd::LossWeighting::default()),
+            centre_projection: false,
             encoding: Encoding::F16,
             baselines: true,
             seed: 0,

@@ -36,6 +36,7 @@ pub(crate) fn fit_mbd(
             iterations: config.max_iterations,
         }),
         loss_weighting: config.loss_weighting,
+        centre_projection: config.centre_projection,
         ..Mbd::new(config.rank, Basis::HatGrid { nodes: basis_nodes })
     };
     let fit = match valid {

@@ -205,6 +205,11 @@ pub struct BakeArgs {
     /// undone exactly after the fit).
     #[arg(long, value_name = "none|relative[:EXPONENT[,FLOOR]]", value_parser = parse_loss_weighting)]
     pub loss_weighting: Option<LossWeightingArg>,
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off, help = knob_help(
+        "MBD's centre projection: after the solve, each voxel's coefficients re-fitted on its own vector at its centre",
+        |c| if c.centre_projection { "on" } else { "off" }.to_string(),
+    ))]
+    pub centre_projection: Option<bool>,
     #[arg(long, value_enum, help = knob_help("Storage encoding of the written volumes", encoding_name))]
     pub encoding: Option<EncodingArg>,
     /// Skip the blockwise / clustered PCA baselines (faster; the report then has MBD only).
@@ -315,6 +320,15 @@ fn parse_off_or(spec: &str) -> Result<OffOr, String> {
         .map_err(|e| format!("{spec}: expected a number or off ({e})"))
 }
 
+/// `on` or `off` (`--centre-projection`).
+fn parse_on_off(spec: &str) -> Result<bool, String> {
+    match spec {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{spec}: expected on or off")),
+    }
+}
+
 fn off_or(value: Option<f32>) -> String {
     value.map_or("off".into(), |v| v.to_string())
 }
@@ -342,6 +356,7 @@ impl BakeArgs {
             loss_weighting: self
                 .loss_weighting
                 .map_or(preset.loss_weighting, |arg| arg.0),
+            centre_projection: self.centre_projection.unwrap_or(preset.centre_projection),
             encoding: self.encoding.map_or(preset.encoding, Encoding::from),
             baselines: !self.no_baselines,
             seed: self.seed,

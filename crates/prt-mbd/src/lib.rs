@@ -65,6 +65,7 @@
 #![deny(missing_docs)]
 
 mod baselines;
+mod centre_projection;
 mod clustered;
 mod coarse;
 mod error;

@@ -251,6 +251,7 @@ fn cluster_basis_follows_stripes_the_hat_grid_cannot() {
         polish: None,
         coarse_start: None,
         loss_weighting: None,
+        centre_projection: false,
     };
     let fit = clustered.fit(&field, &NoProgress).unwrap();
     assert!(fit.polish.is_none());

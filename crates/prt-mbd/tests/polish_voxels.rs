@@ -63,6 +63,7 @@ proptest! {
             polish: None,
             coarse_start: None,
             loss_weighting: None,
+            centre_projection: false,
         };
         let model = clustered.fit(&field, &NoProgress).unwrap().model;
         let options = PolishOptions { iterations: 4, tolerance: 0.0, ..PolishOptions::default() };
