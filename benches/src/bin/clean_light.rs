@@ -246,17 +246,9 @@ fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str)
         .map_or(0.0, |(_, t)| t.as_secs_f64());
     let field = &baked.volume.field;
     let read = read_container(folder, &Limits::default()).expect("container reads back");
-    let mbd = LitVolume::from_model(
-        &read.model,
-        read.grid,
-        field.bounds(),
-        &read.valid,
-        &target.sky,
-        &NoProgress,
-    )
-    .expect("relit model");
+    let mbd = read.light(&target.sky, &NoProgress).expect("lit container");
     let traced = LitVolume::from_transfer(field, &baked.volume.valid, &target.sky, &NoProgress)
-        .expect("relit trace");
+        .expect("lit trace");
     let stats = &baked.volume.stats;
     Row {
         label: label.to_string(),

@@ -19,12 +19,11 @@ use clap::Parser;
 use prt_bake::container::read_container;
 use prt_bake::volumes::{REFERENCE, read_volumes};
 use prt_benches::Table;
-use prt_core::{NoProgress, SpatialKernels, glam::Vec3};
+use prt_core::{NoProgress, glam::Vec3};
 use prt_export::{
-    AmbientCubeFit, DilateConfig, Engine, EngineLookup, dilate, light_container,
-    remove_negative_light,
+    AmbientCubeFit, DilateConfig, Engine, EngineLookup, dilate, remove_negative_light,
 };
-use prt_render::{RenderConfig, Rendered, SurfaceLight, grid_bounds, luminance, render, views};
+use prt_render::{RenderConfig, Rendered, SurfaceLight, luminance, render, views};
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_trace::mesh::read_mesh;
@@ -94,19 +93,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let reference = kept.get(REFERENCE).ok_or("no kept reference volume")?;
     let container = read_container(&cli.bake.join("mbd"), &limits)?;
     let truth = LitVolume::from_transfer(reference, &kept.valid, &sky, &NoProgress)?;
-    let mbd_bounds = grid_bounds(
-        container.model.coefficient_kernels().domain(),
-        container.grid,
-    );
-    let mbd = LitVolume::from_model(
-        &container.model,
-        container.grid,
-        mbd_bounds,
-        &container.valid,
-        &sky,
-        &NoProgress,
-    )?;
-    let lit_mbd = light_container(&container, &sky, &NoProgress)?;
+    let lit_mbd = container.light(&sky, &NoProgress)?;
     let lights: Vec<(&str, &str, Box<dyn SurfaceLight>)> = vec![
         ("reference", "bevy", Box::new(engine(&truth, Engine::Bevy)?)),
         (
@@ -114,7 +101,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "threejs",
             Box::new(engine(&truth, Engine::Threejs)?),
         ),
-        ("mbd", "prt", Box::new(mbd)),
+        ("mbd", "prt", Box::new(lit_mbd.clone())),
         ("mbd", "bevy", Box::new(engine(&lit_mbd, Engine::Bevy)?)),
         (
             "mbd",

@@ -3,8 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use prt_core::GridField;
+use prt_core::{GridField, Progress};
+use prt_sphere::Sky;
 use prt_texture::Limits;
+use prt_trace::{LitVolume, TraceError};
 use thiserror::Error;
 
 use prt_texture::Encoding;
@@ -126,6 +128,15 @@ pub enum FolderError {
         /// Why.
         #[source]
         source: ContainerError,
+    },
+    /// A volume read back cannot be lit (not a transfer volume, inconsistent, cancelled).
+    #[error("cannot light the `{name}` volume")]
+    Light {
+        /// The volume's name (`mbd`, `reference`, ...).
+        name: String,
+        /// Why.
+        #[source]
+        source: TraceError,
     },
 }
 
@@ -263,6 +274,23 @@ impl BakeFolder {
             });
         };
         Ok(FolderVolume::Kept { name, field, valid })
+    }
+
+    /// The volume named `name` (as [`read_volume`](Self::read_volume) takes it) lit by `sky`:
+    /// what `prt render`, `prt export` and the bake's report light, read the one way.
+    pub fn lit_volume(
+        &self,
+        name: &str,
+        sky: &Sky,
+        limits: &Limits,
+        progress: &dyn Progress,
+    ) -> Result<LitVolume, FolderError> {
+        self.read_volume(name, limits)?
+            .light(sky, progress)
+            .map_err(|source| FolderError::Light {
+                name: name.to_string(),
+                source,
+            })
     }
 }
 

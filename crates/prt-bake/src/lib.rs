@@ -55,6 +55,7 @@ pub mod container;
 mod error;
 pub mod folder;
 pub mod light_basis;
+mod lit;
 pub mod memory;
 mod methods;
 pub mod pipeline;

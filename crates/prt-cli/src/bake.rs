@@ -485,12 +485,7 @@ pub(crate) fn write_outputs(
 
     let stage = StageBar::start("report");
     let images = report::write_images(out_dir, baked)?;
-    let renders = report::write_renders(
-        out_dir,
-        baked,
-        &scene.scene,
-        &BakeFolder::new(out_dir).container_dir(),
-    )?;
+    let renders = report::write_renders(out_dir, baked, &scene.scene, &BakeFolder::new(out_dir))?;
     let report_time = stage.finish();
     let stage_seconds = std::iter::once(("load".to_string(), load))
         .chain(

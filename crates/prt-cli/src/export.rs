@@ -8,10 +8,9 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::BakeFolder;
-use prt_bake::folder::FolderVolume;
 use prt_export::{
     AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
-    dilate, export_bevy, export_sh, export_threejs, light_container, remove_negative_light,
+    dilate, export_bevy, export_sh, export_threejs, remove_negative_light,
 };
 use prt_sphere::Sky;
 use prt_texture::Limits;
@@ -105,17 +104,11 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
     }
 }
 
-/// The bake in `bake_dir` lit by `sky`: the MBD container (`from` = `mbd`) or a kept volume
-/// (`reference`, `bpca`, `cpca`).
-pub fn light_bake(bake_dir: &Path, from: &str, sky: &Sky) -> Result<LitVolume> {
-    let volume = BakeFolder::new(bake_dir).read_volume(from, &Limits::default())?;
+/// The bake in `bake_dir` lit by `sky`: the MBD container (`name` = `mbd`) or a kept volume
+/// (`reference`, `bpca`, `cpca`); what `prt export` and `prt render` light.
+pub fn light_bake(bake_dir: &Path, name: &str, sky: &Sky) -> Result<LitVolume> {
     let stage = StageBar::start("light");
-    let lit = match volume {
-        FolderVolume::Mbd(container) => light_container(&container, sky, &stage)?,
-        FolderVolume::Kept { field, valid, .. } => {
-            LitVolume::from_transfer(&field, &valid, sky, &stage)?
-        }
-    };
+    let lit = BakeFolder::new(bake_dir).lit_volume(name, sky, &Limits::default(), &stage)?;
     stage.finish();
     Ok(lit)
 }

@@ -7,24 +7,22 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::BakeFolder;
-use prt_bake::folder::FolderVolume;
 use prt_bake::volumes::REFERENCE;
+use prt_core::NoProgress;
 use prt_core::glam::Vec3;
-use prt_core::{NoProgress, SpatialKernels};
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
 use prt_lightmap::{
     LIGHTMAP_MANIFEST, LightmapBasis, LightmapFolder, LightmapManifest, MAX_MANIFEST_BYTES,
 };
 use prt_render::{
-    NamedView, RenderConfig, Rendered, SurfaceLight, ToneMap, grid_bounds, image_metrics, render,
-    views,
+    NamedView, RenderConfig, Rendered, SurfaceLight, ToneMap, image_metrics, render, views,
 };
 use prt_shaders::lightmap as lm;
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
 use prt_trace::mesh::read_mesh;
-use prt_trace::{LitVolume, RayTracer, Scene};
+use prt_trace::{RayTracer, Scene};
 
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;
@@ -178,33 +176,6 @@ pub fn load_scene(bake_dir: &Path) -> Result<Scene> {
     read_mesh(&path, &Limits::default()).with_context(|| format!("cannot read {}", path.display()))
 }
 
-/// The volume of `method` in a bake folder, lit by `sky`.
-fn load_volume(bake_dir: &Path, method: MethodArg, sky: &Sky) -> Result<LitVolume> {
-    let volume = BakeFolder::new(bake_dir)
-        .read_volume(method.key(), &Limits::default())
-        .with_context(|| format!("--method {}", method.key()))?;
-    let relit = match volume {
-        FolderVolume::Mbd(container) => {
-            let bounds = grid_bounds(
-                container.model.coefficient_kernels().domain(),
-                container.grid,
-            );
-            LitVolume::from_model(
-                &container.model,
-                container.grid,
-                bounds,
-                &container.valid,
-                sky,
-                &NoProgress,
-            )
-        }
-        FolderVolume::Kept { field, valid, .. } => {
-            LitVolume::from_transfer(&field, &valid, sky, &NoProgress)
-        }
-    };
-    relit.with_context(|| format!("cannot relight the {} volume", method.key()))
-}
-
 /// What lights the render: the volume of `method` read by `lookup`.
 fn load_light(
     bake_dir: &Path,
@@ -212,12 +183,13 @@ fn load_light(
     lookup: LookupArg,
     sky: &Sky,
 ) -> Result<Box<dyn SurfaceLight>> {
+    let lit = crate::export::light_bake(bake_dir, method.key(), sky)
+        .with_context(|| format!("--method {}", method.key()))?;
     let engine = match lookup {
-        LookupArg::Prt => return Ok(Box::new(load_volume(bake_dir, method, sky)?)),
+        LookupArg::Prt => return Ok(Box::new(lit)),
         LookupArg::Bevy => Engine::Bevy,
         LookupArg::Threejs => Engine::Threejs,
     };
-    let lit = crate::export::light_bake(bake_dir, method.key(), sky)?;
     let volume = crate::export::prepare_for_engines(&lit, &DilateConfig::default())?;
     Ok(Box::new(EngineLight(EngineLookup::new(
         &volume,

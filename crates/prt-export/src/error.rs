@@ -1,4 +1,3 @@
-use prt_bake::container::ContainerError;
 use prt_core::CoreError;
 use prt_sphere::SphereError;
 use prt_texture::TextureError;
@@ -12,9 +11,6 @@ pub enum ExportError {
     /// Reading or writing a texture or file failed.
     #[error(transparent)]
     Texture(#[from] TextureError),
-    /// The MBD container is unreadable or inconsistent.
-    #[error(transparent)]
-    Container(#[from] ContainerError),
     /// A sky was refused (non-finite coefficient, bad parameter).
     #[error(transparent)]
     Sphere(#[from] SphereError),

@@ -1,12 +1,12 @@
 //! # prt-export — bakes lit by a sky, written as probe volumes engines load unchanged
 //!
 //! A prt bake stores light *transport* (324 values per voxel); engines load baked
-//! *irradiance*. This crate lights a bake with a sky ([`prt_sphere::Sky`]) and writes what
-//! Bevy, three.js and custom engines sample with no code of ours:
+//! *irradiance*. This crate takes a bake lit by a sky (a [`prt_trace::LitVolume`]; prt-bake's
+//! `BakeFolder::lit_volume` lights a bake folder's volume) and writes what Bevy, three.js and
+//! custom engines sample with no code of ours:
 //!
 //! | item | what it is, when to use it |
 //! |---|---|
-//! | [`light_container`] | light an MBD container (each basis vector relit once) → a [`prt_trace::LitVolume`]; a traced volume: [`prt_trace::LitVolume::from_transfer`] |
 //! | [`dilate`], [`DilateConfig`], [`Dilated`] | fill invalid voxels from valid neighbours before export |
 //! | [`remove_negative_light`], [`NonNegative`] | make every voxel's irradiance non-negative before export |
 //! | [`EngineLookup`], [`Engine`] | what Bevy's or three.js's shader computes from an export, on the CPU (previews) |
@@ -53,7 +53,6 @@ mod bevy;
 mod dilate;
 mod error;
 mod lightmap;
-mod lit;
 mod nonneg;
 mod preview;
 mod sh;
@@ -67,7 +66,6 @@ pub use bevy::{BevyConfig, BevyExport, BevyFormat, export_bevy};
 pub use dilate::{DilateConfig, Dilated, dilate};
 pub use error::ExportError;
 pub use lightmap::{LightmapEngine, LightmapExport, LightmapTexels, export_lightmap};
-pub use lit::light_container;
 pub use nonneg::{NonNegative, remove_negative_light};
 pub use preview::{Engine, EngineLookup};
 pub use sh::{ShConfig, ShExport, export_sh};

@@ -10,7 +10,7 @@ use prt_bake::container::{
 };
 use prt_bake::container::{MbdContainer, read_container};
 use prt_core::{Aabb, NoProgress, glam::Vec3};
-use prt_export::{DilateConfig, dilate, light_container};
+use prt_export::{DilateConfig, dilate};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_sphere::Sky;
@@ -69,7 +69,7 @@ fn exports_from_bricks_equal_those_from_the_dense_volume_where_they_are_known() 
     assert_eq!(layout(&bricks), ArrayLayout::Bricks);
     let sky = Sky::default();
     let lit = |c: &MbdContainer| {
-        let volume = light_container(c, &sky, &NoProgress).unwrap();
+        let volume = c.light(&sky, &NoProgress).unwrap();
         dilate(&volume, &DilateConfig::default()).unwrap()
     };
     let (dense, bricks) = (lit(&dense), lit(&bricks));

@@ -36,7 +36,7 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     let sky = Sky::sun_sky(&SunSky::default())
         .unwrap()
         .rotated_about_y(20.0);
-    let lit = light_container(&container, &sky, &NoProgress).unwrap();
+    let lit = container.light(&sky, &NoProgress).unwrap();
     let reference =
         LitVolume::from_transfer(&baked.volume.field, &baked.volume.valid, &sky, &NoProgress)
             .unwrap();
@@ -44,7 +44,7 @@ fn exports_of_a_cornell_bake_give_back_its_irradiance() {
     assert!((lit.bounds.min - reference.bounds.min).length() < 1e-4);
     assert!((lit.bounds.max - reference.bounds.max).length() < 1e-4);
 
-    // Relighting the basis once equals relighting the model's evaluation at each voxel.
+    // Lighting the basis once equals lighting the model's evaluation at each voxel.
     let mut t = vec![0.0; 324];
     for v in (0..lit.voxels()).step_by(7) {
         container.model.eval(lit.voxel_centre(v), &mut t).unwrap();

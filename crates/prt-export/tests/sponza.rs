@@ -9,7 +9,7 @@ use prt_bake::container::read_container;
 use prt_bake::{BakeConfig, SceneInput, bake};
 use prt_core::NoProgress;
 use prt_export::layout::SIDES;
-use prt_export::{DilateConfig, dilate, light_container};
+use prt_export::{DilateConfig, dilate};
 use prt_sphere::Sky;
 use prt_texture::Limits;
 use prt_trace::LitVolume;
@@ -133,7 +133,7 @@ fn dilation_stops_walls_from_darkening_sponzas_probes() {
     )
     .unwrap();
     let container = read_container(&dir.join("mbd"), &Limits::default()).unwrap();
-    let lit = light_container(&container, &Sky::default(), &NoProgress).unwrap();
+    let lit = container.light(&Sky::default(), &NoProgress).unwrap();
     let (before, before_p99, before_mean, points) = wall_drops(&lit, &lit.valid);
     let dilated = dilate(&lit, &DilateConfig::default()).unwrap();
     let (after, after_p99, after_mean, _) = wall_drops(&dilated.volume, &lit.valid);

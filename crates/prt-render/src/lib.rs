@@ -16,7 +16,6 @@
 //! | [`image_metrics`], [`ImageMetrics`] | a render against a reference as a person sees them: ꟻLIP and tone-mapped grey-level errors |
 //! | [`ToneMap`] | exposure (fixed or [`ToneMap::auto`]), ACES filmic curve, sRGB: 8-bit display values |
 //! | [`views`], [`NamedView`] | the scene's glTF cameras, then the automatic `front` and `inside` views |
-//! | [`grid_bounds`] | a voxel grid's box from the box of its voxel centres (an MBD container's coefficient kernels) |
 //! | [`RenderError`] | what can go wrong |
 //!
 //! Renders are deterministic: every pixel is a pure function of the scene, view, volume and sky,
@@ -55,14 +54,12 @@ mod metrics;
 mod render;
 mod tonemap;
 mod views;
-mod volume;
 
 pub use error::RenderError;
 pub use metrics::{ImageMetrics, VISIBLE_LEVELS, image_metrics};
 pub use render::{RenderConfig, Rendered, SurfaceLight, render, voxels_read};
 pub use tonemap::{MIDDLE_GREY, ToneMap, luminance};
 pub use views::{NamedView, views};
-pub use volume::grid_bounds;
 
 /// The README's Rust snippet, compiled as a doc test so it stays true.
 #[doc = include_str!("../README.md")]

@@ -17,7 +17,8 @@ pub type RadianceSh = [[f32; SH9]; 3];
 /// A transfer volume lit by a sky: per voxel of a regular grid, the incident radiance as order-3
 /// SH per colour channel, and whether the voxel was valid (outside geometry) in the bake. Built
 /// from a traced volume ([`LitVolume::from_transfer`]) or a model of one
-/// ([`LitVolume::from_model`]); prt-export lights an MBD container directly.
+/// ([`LitVolume::from_model`]); prt-bake lights an MBD container or a bake folder's volume
+/// (`MbdContainer::light`, `BakeFolder::lit_volume`).
 ///
 /// Two lookups: [`LitVolume::irradiance_at`] interpolates every voxel, as an engine does after
 /// invalid voxels were filled; [`LitVolume::incident`] and [`LitVolume::valid_irradiance_at`]

@@ -5,9 +5,8 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use prt_bake::Bake;
-use prt_bake::container::read_container;
 use prt_bake::seams::BLUR_SIGMA;
+use prt_bake::{Bake, BakeFolder};
 use prt_core::{GridField, NoProgress};
 use prt_mbd::LocalBasis;
 use prt_mbd::expert::{blur_valid, projection_residuals};
@@ -78,14 +77,14 @@ pub fn rank_by_flip(views: &[ViewMetrics]) -> Vec<(String, f64)> {
 }
 
 /// Renders the bake's scene from its first view under the default sky, lit by the traced
-/// volume, by MBD as written (the container in `container`, read back, else the fitted model)
-/// and by each baseline; writes each render, each difference from the
+/// volume, by MBD as written (`folder`'s container, lit as `prt render` lights it; else the
+/// fitted model) and by each baseline; writes each render, each difference from the
 /// reference and `rendered.png` (all of them) into `out_dir`.
 pub fn write_renders(
     out_dir: &Path,
     bake: &Bake,
     scene: &Scene,
-    container: &Path,
+    folder: &BakeFolder,
 ) -> Result<Option<RenderSummary>> {
     let Some(view) = views(scene).into_iter().next() else {
         return Ok(None); // no triangles and no camera: nothing to look at
@@ -97,17 +96,8 @@ pub fn write_renders(
         "reference".to_string(),
         LitVolume::from_transfer(field, valid, &sky, &NoProgress)?,
     )];
-    let mbd = if container.join("manifest.json").is_file() {
-        let read = read_container(container, &Limits::default())
-            .with_context(|| format!("cannot read back {}", container.display()))?;
-        LitVolume::from_model(
-            &read.model,
-            read.grid,
-            field.bounds(),
-            &read.valid,
-            &sky,
-            &NoProgress,
-        )?
+    let mbd = if folder.has_container() {
+        folder.lit_volume(BakeFolder::CONTAINER, &sky, &Limits::default(), &NoProgress)?
     } else {
         LitVolume::from_model(
             &bake.mbd.model,
