@@ -292,13 +292,12 @@ fn main() {
         width: RENDER_SIZE,
         height: RENDER_SIZE,
     };
-    let relit =
-        LitVolume::from_transfer(&field, &valid, &sky, &NoProgress).expect("relit reference");
+    let lit = LitVolume::from_transfer(&field, &valid, &sky, &NoProgress).expect("lit reference");
     let image = prt_render::render(
         &scene.scene,
         &tracer,
         &view.view,
-        &relit,
+        &lit,
         &sky,
         &config,
         &NoProgress,

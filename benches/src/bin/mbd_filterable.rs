@@ -1,6 +1,6 @@
-//! The filterable MBD layout as written: bytes per voxel and error of the relit target
+//! The filterable MBD layout as written: bytes per voxel and error of the lit target
 //! (incident radiance SH9 RGB under the default sky) and of the raw 324-D transfer, against
-//! BPCA and CPCA at equal storage; and the time of the relighting pass per sky change.
+//! BPCA and CPCA at equal storage; and the time of the lighting pass per sky change.
 //!
 //! ```text
 //! cargo run --release -p prt-benches --bin mbd_filterable -- --scene cornell --res 32
@@ -11,11 +11,11 @@
 //! `target/mbd_cache/`. MBD is fitted as `prt bake` fits it (5 basis nodes per axis, λ 1e-4,
 //! 64 iterations), written with `prt_bake::container::write_container` in each encoding and read back
 //! with `read_container` (the layout's own decode). Errors are relative squared errors
-//! `Σ‖f̂ − f‖² / Σ‖f‖²` over every voxel centre, `f` the traced volume (raw) or its relit SH9
-//! (relit, with `prt_trace::lit::incident_radiance`); MBD's relit value is `prt_bake::light_basis::light_basis` then
-//! the relit model, the renderer's path. BPCA and CPCA have the same number of bases (one per
+//! `Σ‖f̂ − f‖² / Σ‖f‖²` over every voxel centre, `f` the traced volume (raw) or its lit SH9
+//! (lit, with `prt_trace::lit::incident_radiance`); MBD's lit value is `prt_bake::light_basis::light_basis` then
+//! the lit model, the renderer's path. BPCA and CPCA have the same number of bases (one per
 //! basis node) and rank, so the same scalars; their bytes are counted at the encoding's bytes
-//! per scalar (plus one byte per voxel of CPCA labels), not written. The relighting pass is
+//! per scalar (plus one byte per voxel of CPCA labels), not written. The lighting pass is
 //! timed on one thread (median of `--reps`).
 
 use std::path::PathBuf;
@@ -35,7 +35,7 @@ use prt_texture::{Encoding, Limits};
 
 #[derive(Debug, Parser)]
 #[command(
-    about = "The filterable MBD layout as written: bytes per voxel, relit and raw error against BPCA / CPCA, relighting time"
+    about = "The filterable MBD layout as written: bytes per voxel, lit and raw error against BPCA / CPCA, lighting time"
 )]
 struct Cli {
     /// Scene: `cornell` or `town` (built in) or `sponza` (../shared/scenes/sponza).
@@ -53,7 +53,7 @@ struct Cli {
     /// Encodings to write (f32, f16, unorm16, unorm8).
     #[arg(long, value_delimiter = ',', default_value = "f16,unorm16,unorm8")]
     encodings: Vec<String>,
-    /// Repetitions of the timed relighting pass.
+    /// Repetitions of the timed lighting pass.
     #[arg(long, default_value_t = 200)]
     reps: usize,
     /// Also write the tables as CSV into this folder.
@@ -79,30 +79,30 @@ fn bytes_per_scalar(encoding: Encoding) -> f64 {
     }
 }
 
-/// Relative squared errors `(raw, relit)` against the field over its voxels: `raw(v, out)` gives
-/// a method's 324-D value at voxel `v`, `relit(v, raw value, out)` its relit SH9 RGB.
+/// Relative squared errors `(raw, lit)` against the field over its voxels: `raw(v, out)` gives
+/// a method's 324-D value at voxel `v`, `light(v, raw value, out)` its lit SH9 RGB.
 fn errors(
     field: &GridField,
     sky: &Sky,
     mut raw: impl FnMut(usize, &mut [f32]),
-    mut relit: impl FnMut(usize, &[f32], &mut [f32; 27]),
+    mut light: impl FnMut(usize, &[f32], &mut [f32; 27]),
 ) -> (f64, f64) {
-    let (mut raw_sum, mut relit_sum) = (RelativeError::default(), RelativeError::default());
+    let (mut raw_sum, mut lit_sum) = (RelativeError::default(), RelativeError::default());
     let mut values = vec![0.0f32; field.dim()];
     let mut lit = [0.0f32; 27];
     for v in 0..field.num_voxels() {
         let reference = field.voxel(v);
         raw(v, &mut values);
         raw_sum.add(&values, reference);
-        relit(v, &values, &mut lit);
+        light(v, &values, &mut lit);
         let target = prt_trace::lit::incident_radiance(reference, sky);
-        relit_sum.add(&lit, target.as_flattened());
+        lit_sum.add(&lit, target.as_flattened());
     }
-    (raw_sum.relative_mse(), relit_sum.relative_mse())
+    (raw_sum.relative_mse(), lit_sum.relative_mse())
 }
 
-/// The relit value of a 324-D vector.
-fn relit_of(values: &[f32], sky: &Sky, out: &mut [f32; 27]) {
+/// The lit value of a 324-D vector.
+fn lit_of(values: &[f32], sky: &Sky, out: &mut [f32; 27]) {
     out.copy_from_slice(prt_trace::lit::incident_radiance(values, sky).as_flattened());
 }
 
@@ -140,30 +140,30 @@ fn main() {
         "rank",
         "method",
         "bytes/voxel",
-        "relit rel. sq. error",
+        "lit rel. sq. error",
         "raw 324-D rel. sq. error",
     ]);
-    let mut timing = Table::new(&["rank", "basis nodes × rank", "relight pass (1 thread)"]);
+    let mut timing = Table::new(&["rank", "basis nodes × rank", "lighting pass (1 thread)"]);
     let valid = vec![true; voxels];
     for &rank in &cli.ranks {
         eprintln!("rank {rank}: fitting MBD, BPCA, CPCA");
         let model = fit_mbd(&field, rank, nodes);
         let mut eval = |m: &MbdModel<HatGrid, HatGrid>, name: String, bytes: Option<f64>| {
-            let relit = light_basis(
+            let lit_model = light_basis(
                 m,
                 &LightBasisConfig {
                     sky,
                     ..LightBasisConfig::default()
                 },
             )
-            .expect("relight")
+            .expect("light")
             .model(m)
-            .expect("relit model");
+            .expect("lit model");
             let (raw, lit) = errors(
                 &field,
                 &sky,
                 |v, out| m.eval(field.centre_of(v), out).expect("eval"),
-                |v, _, out| relit.eval(field.centre_of(v), out).expect("relit eval"),
+                |v, _, out| lit_model.eval(field.centre_of(v), out).expect("lit eval"),
             );
             table.row(vec![
                 rank.to_string(),
@@ -215,7 +215,7 @@ fn main() {
                 &field,
                 &sky,
                 |v, out| out.copy_from_slice(recon.voxel(v)),
-                |_, values, out| relit_of(values, &sky, out),
+                |_, values, out| lit_of(values, &sky, out),
             );
             let scalars = baseline.stored_scalars() as f64 / voxels as f64;
             let bytes: Vec<String> = encodings
@@ -240,7 +240,7 @@ fn main() {
             .build()
             .expect("one thread");
         let time: Duration = pool
-            .install(|| median_time(cli.reps, || light_basis(&model, &config).expect("relight")));
+            .install(|| median_time(cli.reps, || light_basis(&model, &config).expect("light")));
         timing.row(vec![
             rank.to_string(),
             format!("{} × {rank}", nodes.iter().product::<usize>()),
@@ -251,6 +251,6 @@ fn main() {
     println!("{}", timing.markdown());
     if let Some(dir) = &cli.csv {
         let _ = table.write_csv(Some(dir), &format!("mbd_filterable_{}", cli.scene));
-        let _ = timing.write_csv(Some(dir), &format!("mbd_filterable_{}_relight", cli.scene));
+        let _ = timing.write_csv(Some(dir), &format!("mbd_filterable_{}_light", cli.scene));
     }
 }

@@ -14,7 +14,7 @@ const SH9: usize = 9;
 /// Values of one 9 × 9 operator block of a transfer vector.
 const BLOCK: usize = SH9 * SH9;
 
-/// What the relit basis holds per basis vector: incident radiance as SH per colour channel.
+/// What the lit basis holds per basis vector: incident radiance as SH per colour channel.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum LitBasisTarget {
     /// Order-3 SH (9 coefficients) per channel, `[R 9 | G 9 | B 9]`: 27 values, what
@@ -34,7 +34,7 @@ impl LitBasisTarget {
         }
     }
 
-    /// Values per relit basis vector (27 or 12).
+    /// Values per lit basis vector (27 or 12).
     pub fn dim(self) -> usize {
         3 * self.coefficients_per_channel()
     }
@@ -45,25 +45,25 @@ impl LitBasisTarget {
 pub struct LightBasisConfig {
     /// The distant lighting, as order-3 SH per channel.
     pub sky: Sky,
-    /// What each relit basis vector holds.
+    /// What each lit basis vector holds.
     pub target: LitBasisTarget,
 }
 
 /// A model's basis lit by a sky: `b̃_{n,l} = M(sky) B_{n,l}` on every basis node.
 ///
-/// Paired with the model's coefficients it is the relit model
+/// Paired with the model's coefficients it is the lit model
 /// `f̃(x) = Σ_l c_l(x) b̃_l(x)` (both trilinear hat sums); [`LitBasis::model`] builds it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LitBasis {
     /// The target the values follow.
     pub target: LitBasisTarget,
-    /// `N × L × K` (basis node, basis vector, relit value; `K = target.dim()`).
+    /// `N × L × K` (basis node, basis vector, lit value; `K = target.dim()`).
     pub basis: Array3<f32>,
 }
 
 impl LitBasis {
-    /// The relit model `f̃(x) = Σ_l c_l(x) b̃_l(x)`: `model`'s kernels and coefficients with this
-    /// basis; evaluate it with [`prt_core::FieldModel::eval`]. `model` must be the one relit.
+    /// The lit model `f̃(x) = Σ_l c_l(x) b̃_l(x)`: `model`'s kernels and coefficients with this
+    /// basis; evaluate it with [`prt_core::FieldModel::eval`]. `model` must be the one lit.
     pub fn model(
         &self,
         model: &MbdModel<HatGrid, HatGrid>,
@@ -105,12 +105,12 @@ pub fn light_basis(
         .expect("an MbdModel's basis is contiguous");
     let mut out = vec![0.0f32; nodes * rank * out_dim];
     let sky = &config.sky.sh;
-    for (row, relit) in input
+    for (row, lit) in input
         .chunks_exact(TRANSFER_DIM)
         .zip(out.chunks_exact_mut(out_dim))
     {
         let direct = &row[..BLOCK];
-        for (c, (channel_out, s)) in relit.chunks_exact_mut(k).zip(sky).enumerate() {
+        for (c, (channel_out, s)) in lit.chunks_exact_mut(k).zip(sky).enumerate() {
             let indirect = &row[(c + 1) * BLOCK..(c + 2) * BLOCK];
             for (i, value) in channel_out.iter_mut().enumerate() {
                 let d = &direct[i * SH9..(i + 1) * SH9];
@@ -160,7 +160,7 @@ mod tests {
         /// Linearity: lighting the basis and then reconstructing equals reconstructing the
         /// transfer and then lighting it, to float rounding.
         #[test]
-        fn relighting_the_basis_commutes_with_reconstruction(
+        fn lighting_the_basis_commutes_with_reconstruction(
             seed in any::<u64>(),
             rank in 1usize..6,
             point in prop::array::uniform3(-0.2f32..1.2),
@@ -170,15 +170,15 @@ mod tests {
             let model = random_model(seed, rank);
             let sky = Sky::default().rotated_about_y(degrees);
             let target = if l1 { LitBasisTarget::L1Rgb } else { LitBasisTarget::Sh9Rgb };
-            let relit = light_basis(&model, &LightBasisConfig { sky, target }).unwrap();
-            let relit_model = relit.model(&model).unwrap();
+            let lit = light_basis(&model, &LightBasisConfig { sky, target }).unwrap();
+            let lit_model = lit.model(&model).unwrap();
             let domain = model.coefficient_kernels().domain();
             let x = domain.min + Vec3::from_array(point) * domain.size();
             let mut transfer = vec![0.0; TRANSFER_DIM];
             model.eval(x, &mut transfer).unwrap();
             let reference = prt_trace::lit::incident_radiance(&transfer, &sky);
             let mut got = vec![0.0; target.dim()];
-            relit_model.eval(x, &mut got).unwrap();
+            lit_model.eval(x, &mut got).unwrap();
             let k = target.coefficients_per_channel();
             // The scale of the sums: rounding is a few ulps of Σ|terms|.
             let magnitude: f32 = transfer.iter().map(|v| v.abs()).sum::<f32>()
@@ -188,7 +188,7 @@ mod tests {
                     let (a, b) = (got[c * k + i], reference[c][i]);
                     prop_assert!(
                         (a - b).abs() <= 1e-5 * magnitude.max(1.0),
-                        "channel {c} coefficient {i}: relit {a}, reference {b}"
+                        "channel {c} coefficient {i}: lit {a}, reference {b}"
                     );
                 }
             }

@@ -13,7 +13,7 @@
 //!   camera and renders a turning environment map frame by frame with NWA, BI and PBI lighting
 //!   approximations against the exact product (frames, animated preview, table, error plot).
 //! * `prt view BAKE_DIR` serves a bake folder on 127.0.0.1 with a WebGL2 page that draws its
-//!   scene lit by the MBD container (decoded by prt-shaders' GLSL) and relights it as the sky turns.
+//!   scene lit by the MBD container (decoded by prt-shaders' GLSL), lit anew as the sky turns.
 //! * `prt plan SCENE --tiles X,Y,Z --out PLAN_DIR`, `prt bake-tile PLAN_DIR [--tile I | --all]`
 //!   and `prt merge PLAN_DIR --out BAKE_DIR` split a bake into tiles traced by independent
 //!   workers (a Kubernetes Indexed Job, a Slurm job array, or local processes) and merge them
@@ -80,7 +80,8 @@ enum Command {
     Relight(relight::RelightArgs),
     /// Render a bake folder's scene lit by its reference, MBD, BPCA or CPCA volume (PNG / EXR).
     Render(render::RenderArgs),
-    /// Serve a bake folder and a WebGL2 viewer that relights it in real time, on 127.0.0.1.
+    /// Serve a bake folder and a WebGL2 viewer that lights it by a turning sky in real time, on
+    /// 127.0.0.1.
     View(view::ViewArgs),
     /// Cut a bake into tiles of its voxel lattice for independent workers (writes PLAN_DIR).
     Plan(plan::PlanArgs),

@@ -77,7 +77,7 @@ impl SurfaceLight for EngineLight {
 #[derive(Debug, clap::Args)]
 #[command(
     after_help = "Each pixel traces one primary ray through the scene mesh (BAKE_DIR/scene.mesh) \
-and shows emission + albedo/π · E, where E is the diffuse irradiance of the chosen volume relit \
+and shows emission + albedo/π · E, where E is the diffuse irradiance of the chosen volume lit \
 by the sky (incident-radiance SH9 per voxel; --lookup prt: trilinear between voxel centres over \
 the valid voxels, looked up half a voxel off the surface along its normal; --lookup bevy or \
 threejs: that engine's shader on the export's data); rays that miss show the sky. \

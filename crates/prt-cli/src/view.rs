@@ -62,7 +62,7 @@ const MAX_SHADER_RANK: usize = 256;
 #[command(
     after_help = "Open the printed URL in a browser with WebGL2. The page draws the scene \
 mesh (BAKE_DIR/scene.mesh) lit by the MBD container (BAKE_DIR/mbd/), decoded on the GPU with \
-prt-shaders' GLSL: the raw basis is relit for the sky by a fragment pass whenever the sky turns, \
+prt-shaders' GLSL: the raw basis is lit by the sky in a fragment pass whenever the sky turns, \
 then each voxel's incident radiance is Σ c_l(x) b̃_l(x) (valid voxels only, as `prt render` \
 does) and each pixel shows emission + albedo/π · E(n). With BAKE_DIR/volumes/ (prt bake \
 --keep-volumes) the reference, BPCA and CPCA volumes and a difference view are offered too.\n\n\
@@ -70,7 +70,7 @@ URL parameters fix a frame for screenshots: ?camera=N&rotate=DEG&method=mbd|refe
 &size=PX, optionally &sky=K (0 = default, then the --envmap skies in order), &exposure=E (else \
 automatic, as prt render), &diff=1&diffScale=S (|method − reference| · S); the canvas then fills \
 the page and the title becomes `ready` once that frame is drawn. &bench=N then also times N \
-frames with the sky turning, N with it still and N relighting passes, and this server prints \
+frames with the sky turning, N with it still and N lighting passes, and this server prints \
 the means (wall clock). `prt render BAKE_DIR --camera N --rotate DEG --method M --size PX` \
 renders the same frame on the CPU. Ctrl-C stops the server."
 )]

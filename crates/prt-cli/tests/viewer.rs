@@ -194,7 +194,7 @@ fn write_in_bricks(bake: &Path, out: &Path) {
 }
 
 /// A lat-long sky that is not symmetric about +Y: a warm lobe low towards +X over a dim blue
-/// dome, so that turning it about +Y relights the box through its open side.
+/// dome, so that turning it about +Y lights the box anew through its open side.
 fn write_lobe_sky(path: &Path) {
     let (w, h) = (64usize, 32usize);
     let mut data = Vec::with_capacity(3 * w * h);
@@ -224,7 +224,7 @@ fn write_lobe_sky(path: &Path) {
     prt_skip_chromium,
     ignore = "needs chromium, absent at build time (PRT_REQUIRE_CHROMIUM=1 requires it)"
 )]
-fn the_viewer_draws_what_prt_render_renders_and_relights_like_it() {
+fn the_viewer_draws_what_prt_render_renders_and_lights_like_it() {
     let dir = scratch("cornell");
     let bake = dir.join("bake");
     bake_cornell(16, &bake);

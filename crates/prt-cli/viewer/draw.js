@@ -4,7 +4,7 @@
 import { fail } from './page.js';
 import { setSampling } from './gl.js';
 import { add, cross, normalize, packSky, scale3, sub, viewProjection } from './math.js';
-import { relight } from './methods.js';
+import { light } from './methods.js';
 
 const MIDDLE_GREY = 0.18;
 
@@ -69,24 +69,24 @@ function hdrTargets(gl) {
   };
 }
 
-// Relights method `name` unless it is already lit for `key` (the sky and its rotation); true if
-// it relit.
-export function ensureRelit(renderer, relitFor, name, skySh, key) {
-  if (relitFor.get(name) === key) return false;
+// Lights method `name` unless it is already lit for `key` (the sky and its rotation); true if
+// it lit it.
+export function ensureLit(renderer, litFor, name, skySh, key) {
+  if (litFor.get(name) === key) return false;
   const { gl, programs, emptyVao, methods } = renderer;
-  relight(gl, programs, emptyVao, methods.get(name), skySh);
-  relitFor.set(name, key);
+  light(gl, programs, emptyVao, methods.get(name), skySh);
+  litFor.set(name, key);
   return true;
 }
 
-// Relights what the frame shows (the method, and the reference for a difference) unless it is
-// lit for this sky already; returns how long that took in ms (0: nothing relit).
-export function relightShown(renderer, state, skySh) {
+// Lights what the frame shows (the method, and the reference for a difference) unless it is
+// lit for this sky already; returns how long that took in ms (0: nothing lit).
+export function lightShown(renderer, state, skySh) {
   const key = `${state.sky}/${state.rotate}`;
   const t0 = performance.now();
-  let relit = ensureRelit(renderer, state.relitFor, state.method, skySh, key);
-  if (state.diff) relit = ensureRelit(renderer, state.relitFor, 'reference', skySh, key) || relit;
-  if (!relit) return 0;
+  let lit = ensureLit(renderer, state.litFor, state.method, skySh, key);
+  if (state.diff) lit = ensureLit(renderer, state.litFor, 'reference', skySh, key) || lit;
+  if (!lit) return 0;
   sync(renderer.gl);
   return performance.now() - t0;
 }

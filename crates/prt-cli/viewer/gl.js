@@ -181,16 +181,16 @@ function program(gl, vs, fs, what) {
 // Every program the viewer draws with, for a container of `rank` (`bricked`: its coefficients
 // in bricks), with prt-shaders' GLSL from the server.
 export async function compilePrograms(gl, rank, bricked) {
-  const [common1, relight1, relightRank, reconstructRank] = await Promise.all([
+  const [common1, light1, lightRank, reconstructRank] = await Promise.all([
     fetchText('shaders/common.glsl?rank=1'),
     fetchText('shaders/light.glsl?rank=1'), fetchText(`shaders/light.glsl?rank=${rank}`),
     fetchText(`shaders/reconstruct.glsl?rank=${rank}${bricked ? '&layout=bricks' : ''}`),
   ]);
   return {
-    // By rank: kept volumes relight with rank 1, the container with its own.
-    relight: new Map([
-      [1, program(gl, FULLSCREEN_VS, relight1, 'relight (rank 1)')],
-      [rank, program(gl, FULLSCREEN_VS, relightRank, `relight (rank ${rank})`)],
+    // By rank: kept volumes are lit with rank 1, the container with its own.
+    light: new Map([
+      [1, program(gl, FULLSCREEN_VS, light1, 'light (rank 1)')],
+      [rank, program(gl, FULLSCREEN_VS, lightRank, `light (rank ${rank})`)],
     ]),
     mbdVoxel: program(gl, FULLSCREEN_VS, reconstructRank + VOXEL_MAIN + MBD_VOXEL, 'MBD voxel'),
     keptVoxel: program(gl, FULLSCREEN_VS, common1 + VOXEL_MAIN + KEPT_VOXEL, 'kept-volume voxel'),

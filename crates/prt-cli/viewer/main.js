@@ -1,9 +1,9 @@
-// prt view: the scene of a bake folder lit by its compressed transfer volume, relit on the GPU.
+// prt view: the scene of a bake folder lit by its compressed transfer volume, on the GPU.
 //
-// Per sky change: the raw basis (324-D per basis node) is relit by prt-shaders' relight pass into
+// Per sky change: the raw basis (324-D per basis node) is lit by prt-shaders' lighting pass into
 // SH9 RGB per node; a voxel pass evaluates Σ_l c_l(x) b̃_l(x) with prt-shaders' reconstruction at
 // every valid voxel centre (what `prt render --method mbd` samples). Kept volumes (reference,
-// BPCA, CPCA) go through the same relight pass with rank 1 over the voxel grid. Each pixel then
+// BPCA, CPCA) go through the same lighting pass with rank 1 over the voxel grid. Each pixel then
 // samples the result trilinearly over valid voxels (value·valid and valid, divided) and shows
 // emission + albedo/π · E(n), tone-mapped like prt-render (exposure, ACES fit, sRGB).
 //
@@ -19,7 +19,7 @@ import { compilePrograms } from './gl.js';
 import { LIT_GROUPS } from './shaders.js';
 import { orbit, rotateSky, scale3, sub } from './math.js';
 import { containerLayout, loadMethods } from './methods.js';
-import { autoExposure, createRenderer, drawHdr, ensureRelit, relightShown, sync, toneMap } from './draw.js';
+import { autoExposure, createRenderer, drawHdr, ensureLit, lightShown, sync, toneMap } from './draw.js';
 
 async function main() {
   const canvas = document.getElementById('canvas');
@@ -73,7 +73,7 @@ function initialState(views, skies, methods) {
     diff: false,
     diffScale: 8,
     exposure: null, // null: automatic at the next frame
-    relitFor: new Map(), // method name → the sky it is relit for
+    litFor: new Map(), // method name → the sky it is lit for
   };
   if (PARAMS.has('method')) {
     state.method = PARAMS.get('method');
@@ -111,23 +111,23 @@ const currentSky = (state, skies) => rotateSky(skies[state.sky].sh, state.rotate
 
 // ---------------------------------------------------------------- frames
 
-// Draws `state` (relit first if its sky changed) and shows the times in the stats box.
+// Draws `state` (lit first if its sky changed) and shows the times in the stats box.
 function frameDrawer(renderer, state, skies, rank) {
   const { gl, canvas } = renderer;
-  let lastRelightMs = 0;
+  let lastLightMs = 0;
   return () => {
     const t0 = performance.now();
     const skySh = currentSky(state, skies);
-    const relightMs = relightShown(renderer, state, skySh);
+    const lightMs = lightShown(renderer, state, skySh);
     drawHdr(renderer, state, skySh);
     if (state.exposure === null) state.exposure = autoExposure(renderer);
     toneMap(renderer, state.exposure);
     sync(gl);
     const frameMs = performance.now() - t0;
-    if (relightMs > 0) lastRelightMs = relightMs;
+    if (lightMs > 0) lastLightMs = lightMs;
     ui('exposure').value = Math.log2(state.exposure);
     ui('exposureValue').textContent = Math.log2(state.exposure).toFixed(2);
-    ui('stats').textContent = `frame ${frameMs.toFixed(1)} ms\nrelight ${lastRelightMs.toFixed(1)} ms` +
+    ui('stats').textContent = `frame ${frameMs.toFixed(1)} ms\nlight ${lastLightMs.toFixed(1)} ms` +
       ` (last)\n${canvas.width}×${canvas.height}, rank ${rank}\n${gl.getParameter(gl.RENDERER)}`;
   };
 }
@@ -143,7 +143,7 @@ function capture(renderer, state, skies, frame) {
 }
 
 // ?bench=N: times N steps of each kind at the server's wall clock, for docs/results.md: a frame
-// whose sky turned (relight + draw), a frame with the sky still (draw only), and the relighting
+// whose sky turned (light + draw), a frame with the sky still (draw only), and the lighting
 // pass alone. Each mark is a synchronous request, so the server's clock sees each step end.
 function runBench(renderer, state, skies, frame, bench) {
   const mark = (label) => {
@@ -164,14 +164,14 @@ function runBench(renderer, state, skies, frame, bench) {
     mark(`frame with the sky still (${state.method}, ${width}²)`);
   }
   for (let i = 0; i < bench; i++) {
-    state.relitFor.clear();
-    ensureRelit(renderer, state.relitFor, state.method, currentSky(state, skies), 'bench');
+    state.litFor.clear();
+    ensureLit(renderer, state.litFor, state.method, currentSky(state, skies), 'bench');
     sync(renderer.gl);
-    mark(`relighting pass (${state.method})`);
+    mark(`lighting pass (${state.method})`);
   }
   mark('done');
   state.rotate = rotate;
-  state.relitFor.clear();
+  state.litFor.clear();
   frame();
 }
 

@@ -1,6 +1,6 @@
 // The volumes the viewer can show ("methods"): the MBD container and the kept volumes
-// (reference, BPCA, CPCA), each a raw 324-D grid to relight and the 7-tile voxel atlas the
-// relighting pass ends in.
+// (reference, BPCA, CPCA), each a raw 324-D grid to light and the 7-tile voxel atlas the
+// lighting pass ends in.
 
 import { checkGl, fail, fetchBytes } from './page.js';
 import { parseKtx2 } from './formats.js';
@@ -66,7 +66,7 @@ async function loadMbd(gl, { manifest, rank, coefficientKernel, basisKernel }) {
   if (!coefficients.linear) fail('the coefficient volume needs float filtering (OES_texture_float_linear)');
   if (coefficients.bricks) coefficients.indirection = await loadIndirection(gl, 'mbd', coefficients.bricks);
   const voxels = validity.size;
-  const relitTiles = [LIT_GROUPS, rank, 1];
+  const litTiles = [LIT_GROUPS, rank, 1];
   const basisNodes = basisKernel.nodes;
   const { domain_min: lo, domain_max: hi } = coefficientKernel;
   const step = coefficientKernel.nodes.map((n, k) => (n > 1 ? (hi[k] - lo[k]) / (n - 1) : 0));
@@ -78,8 +78,8 @@ async function loadMbd(gl, { manifest, rank, coefficientKernel, basisKernel }) {
     basis,
     basisRanges: rangesTexture(gl, basis.scale, basis.bias),
     basisGrid: grid(basisKernel.domain_min, basisKernel.domain_max, basisNodes, basis.tiles),
-    relitGrid: grid(basisKernel.domain_min, basisKernel.domain_max, basisNodes, relitTiles),
-    relit: targetTexture(gl, basisNodes.map((n, k) => n * relitTiles[k])),
+    litGrid: grid(basisKernel.domain_min, basisKernel.domain_max, basisNodes, litTiles),
+    lit: targetTexture(gl, basisNodes.map((n, k) => n * litTiles[k])),
     coefficients,
     coefficientGrid: grid(lo, hi, coefficientKernel.nodes, coefficients.tiles),
     step,
@@ -108,8 +108,8 @@ async function loadKeptVolumes(gl, keptManifest) {
       basis: { texture },
       basisRanges: rangesTexture(gl, scale, bias),
       basisGrid: grid(first, last, voxels, [9, 9, 1]),
-      relitGrid: grid(first, last, voxels, [LIT_GROUPS, 1, 1]),
-      relit: targetTexture(gl, [LIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
+      litGrid: grid(first, last, voxels, [LIT_GROUPS, 1, 1]),
+      lit: targetTexture(gl, [LIT_GROUPS * voxels[0], voxels[1], voxels[2]]),
       atlas: targetTexture(gl, [voxels[0], voxels[1], LIT_GROUPS * voxels[2]]),
       atlasGrid: grid(first, last, voxels, [1, 1, LIT_GROUPS]),
       offset: edge.map((e) => 0.5 * e),
@@ -145,19 +145,19 @@ async function keptBasis(gl, keptManifest, name, voxels) {
   return { texture, scale, bias };
 }
 
-// ---------------------------------------------------------------- relighting
+// ---------------------------------------------------------------- lighting
 
-// The relighting pass of method `m` for a sky: raw basis → relit basis → voxel atlas.
+// The lighting pass of method `m` for a sky: raw basis → lit basis → voxel atlas.
 // `emptyVao`: the fullscreen passes draw without attributes.
-export function relight(gl, programs, emptyVao, m, skySh) {
+export function light(gl, programs, emptyVao, m, skySh) {
   gl.bindVertexArray(emptyVao);
-  const relightProgram = programs.relight.get(m.rank).use()
-    .grid('u_mbd_basis', m.basisGrid).grid('u_mbd_lit', m.relitGrid)
+  const lightProgram = programs.light.get(m.rank).use()
+    .grid('u_mbd_basis', m.basisGrid).grid('u_mbd_lit', m.litGrid)
     .vec4s('u_mbd_sky', packSky(skySh))
     .texture('u_mbd_basis_texture', 0, gl.TEXTURE_3D, m.basis.texture)
     .texture('u_mbd_basis_ranges', 1, gl.TEXTURE_2D, m.basisRanges);
-  const relitSize = m.relitGrid.nodes.map((n, k) => n * m.relitGrid.tiles[k]);
-  drawSlices(gl, relightProgram, m.relit, relitSize, 'u_mbd_slice');
+  const litSize = m.litGrid.nodes.map((n, k) => n * m.litGrid.tiles[k]);
+  drawSlices(gl, lightProgram, m.lit, litSize, 'u_mbd_slice');
   const voxel = m.coefficients ? mbdVoxelPass(gl, programs.mbdVoxel, m) : keptVoxelPass(gl, programs.keptVoxel, m);
   voxel.texture('u_validity', 2, gl.TEXTURE_3D, m.validity.texture);
   gl.uniform3iv(gl.getUniformLocation(voxel.p, 'u_voxels'), m.voxels);
@@ -165,14 +165,14 @@ export function relight(gl, programs, emptyVao, m, skySh) {
   drawVoxelSlices(gl, voxel, m.atlas, m.voxels);
 }
 
-// The MBD voxel pass, bound: Σ c_l b̃_l from the coefficients and the relit basis.
+// The MBD voxel pass, bound: Σ c_l b̃_l from the coefficients and the lit basis.
 function mbdVoxelPass(gl, prog, m) {
   const voxel = prog.use()
-    .grid('u_mbd_coefficients', m.coefficientGrid).grid('u_mbd_lit', m.relitGrid)
+    .grid('u_mbd_coefficients', m.coefficientGrid).grid('u_mbd_lit', m.litGrid)
     .vec4s('u_mbd_coefficient_scale', m.coefficients.scale)
     .vec4s('u_mbd_coefficient_bias', m.coefficients.bias)
     .texture('u_mbd_coefficient_texture', 0, gl.TEXTURE_3D, m.coefficients.texture)
-    .texture('u_mbd_lit_texture', 1, gl.TEXTURE_3D, m.relit)
+    .texture('u_mbd_lit_texture', 1, gl.TEXTURE_3D, m.lit)
     .vec3('u_node_step', m.step);
   const b = m.coefficients.bricks;
   if (b) {
@@ -182,7 +182,7 @@ function mbdVoxelPass(gl, prog, m) {
   return voxel;
 }
 
-// A kept volume's voxel pass, bound: its relit voxels are already the values.
+// A kept volume's voxel pass, bound: its lit voxels are already the values.
 function keptVoxelPass(gl, prog, m) {
-  return prog.use().texture('u_relit_voxels', 0, gl.TEXTURE_3D, m.relit);
+  return prog.use().texture('u_lit_voxels', 0, gl.TEXTURE_3D, m.lit);
 }

@@ -1,6 +1,6 @@
 // The viewer's own GLSL (prt-shaders' comes from the server, /shaders/*.glsl).
 
-// Relit SH9 RGB (27 values) is 7 vec4 per node: prt-shaders' MBD_LIT_GROUPS.
+// Lit SH9 RGB (27 values) is 7 vec4 per node: prt-shaders' MBD_LIT_GROUPS.
 export const LIT_GROUPS = 7;
 
 // One triangle over the whole viewport, from gl_VertexID alone (no vertex buffer).
@@ -32,7 +32,7 @@ void main() {
   for (int r = 0; r < ${LIT_GROUPS}; r++) v[r] = vec4(0.0);
   if (stored > 0.5) {
     voxel_values(voxel, v);
-    // Slot 28 (always 0 in a relit texel) carries the validity, so filtering gives its weight.
+    // Slot 28 (always 0 in a lit texel) carries the validity, so filtering gives its weight.
     v[${LIT_GROUPS - 1}].w = 1.0;
   }
   o_0 = v[0]; o_1 = v[1]; o_2 = v[2]; o_3 = v[3]; o_4 = v[4]; o_5 = v[5]; o_6 = v[6];
@@ -47,12 +47,12 @@ void voxel_values(ivec3 voxel, out vec4 v[MBD_LIT_GROUPS]) {
 }
 `;
 
-// Kept volumes: the voxel's relit texels.
+// Kept volumes: the voxel's lit texels.
 export const KEPT_VOXEL = `
-uniform highp sampler3D u_relit_voxels;
+uniform highp sampler3D u_lit_voxels;
 void voxel_values(ivec3 voxel, out vec4 v[MBD_LIT_GROUPS]) {
   for (int r = 0; r < MBD_LIT_GROUPS; r++) {
-    v[r] = texelFetch(u_relit_voxels, ivec3(voxel.x + r * u_voxels.x, voxel.y, voxel.z), 0);
+    v[r] = texelFetch(u_lit_voxels, ivec3(voxel.x + r * u_voxels.x, voxel.y, voxel.z), 0);
   }
 }
 `;

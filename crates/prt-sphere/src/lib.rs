@@ -14,7 +14,7 @@
 //! plus SH rotation of any order (Ivanic & Ruedenberg 1996) and zonal convolution with the
 //! clamped cosine (Ramamoorthi & Hanrahan 2001), sphere point sets ([`sampling`]) and
 //! lat-long / cube environment maps with exact texel solid angles ([`envmap`]), and [`Sky`]:
-//! distant lighting as order-3 SH per colour channel, the input that relights a transfer volume.
+//! distant lighting as order-3 SH per colour channel, the input that lights a transfer volume.
 //!
 //! Conventions (prt's conventions.md): right-handed, +Y up; SH polar axis = +Y with the
 //! explicit polynomials listed in [`sh`]; SG `G(v) = μ exp(λ (p·v − 1))`; lat-long texel

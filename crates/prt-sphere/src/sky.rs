@@ -1,4 +1,4 @@
-//! Distant lighting as order-3 SH per colour channel: what relights a transfer volume.
+//! Distant lighting as order-3 SH per colour channel: what lights a transfer volume.
 
 use glam::{Mat3, Vec3};
 

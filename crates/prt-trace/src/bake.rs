@@ -230,7 +230,7 @@ pub fn constant_sky(radiance: f32) -> [f32; SH9] {
 
 /// Incident-radiance SH at a point (per channel R, G, B) from its 324-D transfer vector `t`
 /// (layout of [`TransferVolume::field`]) lit by `sky`: `l^c_i = Σ_j (D_ij + T^c_ij) s^c_j`,
-/// accumulated in f64. Linear in `t`, so it also relights any linear combination of transfer
+/// accumulated in f64. Linear in `t`, so it also lights any linear combination of transfer
 /// vectors (an MBD basis vector, a PCA mean).
 ///
 /// # Panics
