@@ -877,8 +877,9 @@ impl ArrayStream {
         entry.validate(&UNBOUNDED)?;
         let path = folder.join(&entry.file);
         let tmp = crate::atomic::temporary_name(&path);
-        let io = |e| TextureError::io(&path, e);
-        let mut file = std::fs::File::create(&tmp).map_err(io)?;
+        let file = std::fs::File::create(&tmp).map_err(|e| TextureError::io(&path, e))?;
+        let total = entry.bytes;
+        // From here on, dropping the stream removes the temporary file.
         let mut stream = ArrayStream {
             ranges: quantised_ranges,
             path: path.clone(),
@@ -889,12 +890,14 @@ impl ArrayStream {
             pending: Vec::new(),
             buffer: Vec::new(),
             entry,
-            file: None,
+            file: Some(file),
         };
-        // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
-        file.write_all(&prefix).map_err(io)?;
-        file.set_len(stream.entry.bytes).map_err(io)?;
-        stream.file = Some(file);
+        if let Some(file) = stream.file.as_mut() {
+            // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
+            file.write_all(&prefix)
+                .and_then(|()| file.set_len(total))
+                .map_err(|e| TextureError::io(&path, e))?;
+        }
         Ok(stream)
     }
 
