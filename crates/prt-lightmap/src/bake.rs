@@ -564,7 +564,7 @@ impl Solver<'_> {
         }
         seams.stitch(&mut layers, 3, 2);
         let mut filled = covered.clone();
-        crate::dilate(&mut layers, 3, &mut filled, w, config.dilation as usize);
+        crate::dilate_texels(&mut layers, 3, &mut filled, w, config.dilation as usize);
         let irradiance = layers.pop().unwrap_or_default();
         Ok(Lightmap {
             width: map.width,

@@ -12,7 +12,7 @@
 //!   density and packing efficiency ([`Atlas`]); degenerate or out-of-range UVs are warnings,
 //!   overlapping ones are counted per texel ([`TexelMap::overlapping`]).
 //! * **Texels** — [`TexelMap`]: the surface point of every texel a triangle touches;
-//!   [`dilate`] fills the padding around charts, [`Seams`] stitches texels across UV seams.
+//!   [`dilate_texels`] fills the padding around charts, [`Seams`] stitches texels across UV seams.
 //! * **Bake** — [`bake_lightmap`] with [`LightmapConfig`] → [`LightmapBake`]: samples over the
 //!   hemisphere around the texel's normal ([`Lighting`]: sky, sun, emitters, punctual lights,
 //!   diffuse bounces), the paper's hemisphere rule (zero-radiance mirror samples), decorrelated
@@ -63,6 +63,6 @@ pub use basis::{Encoder, LightmapBasis};
 pub use error::LightmapError;
 pub use folder::{LIGHTMAP_MANIFEST, LightmapFolder, LightmapManifest, MAX_MANIFEST_BYTES};
 pub use pack::{Packing, pack_shelves};
-pub use raster::{Seams, Texel, TexelMap, dilate};
+pub use raster::{Seams, Texel, TexelMap, dilate_texels};
 pub use trace::Lighting;
 pub use view::render_view;

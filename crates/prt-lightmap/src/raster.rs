@@ -139,7 +139,7 @@ fn nearest_on_triangle(uv: &[Vec2; 3], area: f32, p: Vec2) -> (f32, glam::Vec3) 
 /// `rings` times (each ring reads the previous one), so that bilinear filtering and mip levels
 /// near chart borders read lit values. `layers` are images of `channels` values per texel;
 /// `filled` marks the texels with values and is updated.
-pub fn dilate(
+pub fn dilate_texels(
     layers: &mut [Vec<f32>],
     channels: usize,
     filled: &mut [bool],
@@ -336,7 +336,7 @@ mod tests {
         filled[12] = true;
         let mut layers = vec![vec![0.0f32; w * h]];
         layers[0][12] = 3.0;
-        dilate(&mut layers, 1, &mut filled, w, 1);
+        dilate_texels(&mut layers, 1, &mut filled, w, 1);
         assert_eq!(filled.iter().filter(|&&f| f).count(), 9);
         assert!(
             layers[0]

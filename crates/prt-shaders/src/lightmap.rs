@@ -38,14 +38,16 @@ pub fn to_tangent(frame: Mat3, d: Vec3) -> Vec3 {
     )
 }
 
-/// `lm_sg_integral`: `∫ exp(λ (p·v − 1)) dv = 2π (1 − e^{−2λ}) / λ`.
-pub fn sg_integral(lambda: f32) -> f32 {
+/// `lm_sg_integral`: `∫ exp(λ (p·v − 1)) dv = 2π (1 − e^{−2λ}) / λ` (the shader's f32 form of
+/// `prt_sphere::sg_integral`).
+fn sg_integral(lambda: f32) -> f32 {
     let l = lambda.max(1e-4);
     2.0 * PI * (1.0 - (-2.0 * l).exp()) / l
 }
 
-/// `lm_sg_inner_product`: `∫ G₁ G₂` of two unit-amplitude SGs.
-pub fn sg_inner_product(p1: Vec3, l1: f32, p2: Vec3, l2: f32) -> f32 {
+/// `lm_sg_inner_product`: `∫ G₁ G₂` of two unit-amplitude SGs (the shader's f32 form of
+/// `prt_sphere::sg_inner_product`).
+fn sg_inner_product(p1: Vec3, l1: f32, p2: Vec3, l2: f32) -> f32 {
     let r = (l1 * p1 + l2 * p2).length().max(1e-4);
     2.0 * PI * (r - l1 - l2).exp() * (1.0 - (-2.0 * r).exp()) / r
 }
@@ -144,8 +146,9 @@ pub fn sg_specular(
     (s * (1.0 / (PI * a2)) * ggx_rest(n, v, axis, a2, f0)).max(Vec3::ZERO)
 }
 
-/// `lm_sh9`: the real SH of bands 0..2 at `d` (prt's convention, +Y up).
-pub fn sh9(d: Vec3) -> [f32; SH_COEFFICIENTS] {
+/// `lm_sh9`: the real SH of bands 0..2 at `d` (prt's convention, +Y up; the shader's
+/// polynomials for what `prt_trace::sh::sh9` evaluates through prt-sphere).
+fn sh9(d: Vec3) -> [f32; SH_COEFFICIENTS] {
     [
         0.282_094_8,
         -0.488_602_5 * d.x,
