@@ -75,7 +75,7 @@ fuzz_target!(|data: &[u8]| {
         let basis = Array3::from_shape_fn((27, 2, 324), |(n, l, d)| {
             ((n * 7 + l * 3 + d) % 11) as f32 * 0.1 - 0.5
         });
-        context.basis_state(input, basis).expect("a basis")
+        context.basis_state(input, basis, 0.5).expect("a basis")
     });
     let limits = Limits::small();
     let path = Path::new("tile.part");
@@ -106,6 +106,9 @@ fuzz_target!(|data: &[u8]| {
             "fingerprint": context.partial_fingerprint(stage, tile, basis.as_ref()),
             "residual": f64::from(rest[0]),
             "energy": 1.0,
+            "weighted_residual": f64::from(rest[0]) * 0.5,
+            "weighted_energy": 0.25,
+            "magnitude": f64::from(rest[rest.len() - 1]),
             "payload_bytes": payload.len(),
             "checksum": fnv1a64(&payload),
         });

@@ -1,6 +1,6 @@
 //! The streamed merge (`merge_streamed`): the same model on any number of threads, sweeps that
-//! never raise its error, an error close to the in-memory merge's, and a container that reads
-//! back.
+//! never raise its (loss-weighted) error, an error close to the in-memory merge's, a container
+//! that reads back, the in-memory fit's loss weighting, and the distributed merge's bytes.
 
 use std::path::PathBuf;
 
@@ -11,6 +11,7 @@ use prt_bake::tiles::{
 };
 use prt_bake::{BakeConfig, SceneInput, bake_volume};
 use prt_core::{FieldModel, GridField, NoProgress};
+use prt_mbd::LossWeighting;
 use prt_texture::Limits;
 
 mod common;
@@ -92,12 +93,19 @@ fn the_streamed_merge_is_deterministic_descends_and_comes_close_to_the_in_memory
     assert_eq!(one.model.coefficients(), three.model.coefficients());
     assert_eq!(one.model.basis(), three.model.basis());
     assert_eq!(one.relative_errors, three.relative_errors);
+    assert_eq!(one.weighted_errors, three.weighted_errors);
 
-    // Each sweep lowers the loss (its residual term may rise by the ridge's order only).
+    // Each sweep lowers the loss, weighted per voxel by default (its residual term may rise by
+    // the ridge's order only).
+    assert!(config.loss_weighting.is_some());
     let errors = &one.relative_errors;
-    assert_eq!(errors.len(), 4);
-    for pair in errors.windows(2) {
-        assert!(pair[1] <= pair[0] * (1.0 + 1e-3), "{errors:?}");
+    assert_eq!((errors.len(), one.weighted_errors.len()), (4, 4));
+    for pair in one.weighted_errors.windows(2) {
+        assert!(
+            pair[1] <= pair[0] * (1.0 + 1e-3),
+            "{:?}",
+            one.weighted_errors
+        );
     }
 
     // Against the in-memory merge of the same tiles, on the same voxels.
@@ -185,6 +193,8 @@ fn the_distributed_merge_writes_the_streamed_merges_bytes_and_refuses_stale_part
     )
     .expect("reduce of the coefficients");
     assert_eq!(merged.relative_errors, streamed.relative_errors);
+    assert_eq!(merged.weighted_errors, streamed.weighted_errors);
+    assert_eq!(merged.mean_magnitude, streamed.mean_magnitude);
     assert_eq!(merged.basis_solves, streamed.basis_solves);
     let (a, b) = (
         tree(local.container.as_ref().unwrap()),
@@ -293,4 +303,63 @@ fn the_distributed_merge_writes_the_streamed_merges_bytes_and_refuses_stale_part
     for config in [local, distributed] {
         let _ = std::fs::remove_dir_all(config.container.unwrap().parent().unwrap());
     }
+}
+
+#[test]
+fn the_streamed_merge_weights_as_the_in_memory_fit_and_exponent_zero_is_the_papers_loss() {
+    let (config, plan, dir) = traced_tiles(12, 3, 16, "weighting");
+    let merge = |loss_weighting, name: &str| {
+        let config = BakeConfig {
+            loss_weighting,
+            container: Some(scratch(name).join("mbd")),
+            ..config.clone()
+        };
+        let merged = merge_streamed(
+            &plan,
+            &dir,
+            "cornell",
+            &config,
+            1,
+            &Limits::default(),
+            &NoProgress,
+        )
+        .expect("streamed merge");
+        let folder = config.container.unwrap();
+        let files = tree(&folder);
+        let _ = std::fs::remove_dir_all(folder.parent().unwrap());
+        (merged, files)
+    };
+    // The weights' normalisation is the in-memory fit's: the valid voxels' mean magnitude.
+    let weighted = merge(Some(LossWeighting::default()), "weighting-relative");
+    let volume = assemble(&plan, &dir, &Limits::default())
+        .expect("assembled")
+        .volume;
+    let magnitudes: Vec<f64> = (0..volume.field.num_voxels())
+        .filter(|&v| volume.valid[v])
+        .map(|v| LossWeighting::magnitude(volume.field.voxel(v)))
+        .collect();
+    let mean = magnitudes.iter().sum::<f64>() / magnitudes.len() as f64;
+    assert!(
+        (weighted.0.mean_magnitude - mean).abs() <= 1e-12 * mean,
+        "{} vs {mean}",
+        weighted.0.mean_magnitude
+    );
+    // Exponent 0 weighs every voxel 1: the bytes of the paper's loss.
+    let paper = merge(None, "weighting-none");
+    let zero = merge(
+        Some(LossWeighting {
+            exponent: 0.0,
+            ..LossWeighting::default()
+        }),
+        "weighting-zero",
+    );
+    assert!(
+        paper.1.len() >= 2 && paper.1 == zero.1,
+        "exponent 0 is not the paper's loss"
+    );
+    assert_eq!(paper.0.relative_errors, paper.0.weighted_errors);
+    assert_eq!(paper.0.relative_errors, zero.0.relative_errors);
+    // The weighting changes the fit.
+    assert!(weighted.1 != paper.1);
+    let _ = std::fs::remove_dir_all(&dir);
 }

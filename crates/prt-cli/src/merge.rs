@@ -259,18 +259,24 @@ fn run_streamed(
     let path = BakeFolder::new(out).tiles_report();
     prt_texture::write_atomic(&path, serde_json::to_string_pretty(&report)?.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
-    let errors: Vec<String> = merged
-        .relative_errors
-        .iter()
-        .map(|e| format!("{e:.3e}"))
-        .collect();
+    let history = |errors: &[f64]| {
+        let errors: Vec<String> = errors.iter().map(|e| format!("{e:.3e}")).collect();
+        errors.join(" → ")
+    };
     println!(
         "streamed merge of {} tiles: basis fitted on {:?} voxels, relative error at the valid \
-         voxel centres {} (coarse fit, then after each sweep); {} valid voxels, {} bytes \
+         voxel centres {} (coarse fit, then after each sweep){}; {} valid voxels, {} bytes \
          written; total {:.1} s",
         plan.tiles.len(),
         merged.coarse_dims,
-        errors.join(" → "),
+        history(&merged.relative_errors),
+        match config.loss_weighting {
+            Some(_) => format!(
+                ", of the loss-weighted vectors {}",
+                history(&merged.weighted_errors)
+            ),
+            None => String::new(),
+        },
         valid,
         bytes.unwrap_or(0),
         total.elapsed().as_secs_f64()

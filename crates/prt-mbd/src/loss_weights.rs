@@ -38,6 +38,49 @@ impl LossWeighting {
     /// Errors: [`MbdError::InvalidOption`] for an exponent outside `[0, 4]` or a floor outside
     /// `(0, 1]`; [`MbdError::ShapeMismatch`] for a mask of the wrong length.
     pub fn weights(&self, field: &GridField, valid: Option<&[bool]>) -> Result<Vec<f32>, MbdError> {
+        self.validate()?;
+        let n = field.num_voxels();
+        if let Some(valid) = valid
+            && valid.len() != n
+        {
+            return Err(MbdError::ShapeMismatch {
+                what: "validity mask",
+                expected: vec![n],
+                got: vec![valid.len()],
+            });
+        }
+        let fitted = |v: usize| valid.is_none_or(|m| m[v]);
+        let norms: Vec<f64> = (0..n).map(|v| Self::magnitude(field.voxel(v))).collect();
+        let (sum, count) = (0..n)
+            .filter(|&v| fitted(v))
+            .fold((0.0f64, 0usize), |(s, c), v| (s + norms[v], c + 1));
+        let mean = if count > 0 { sum / count as f64 } else { 0.0 };
+        Ok((0..n)
+            .map(|v| {
+                if fitted(v) {
+                    self.weight(norms[v], mean)
+                } else {
+                    1.0
+                }
+            })
+            .collect())
+    }
+
+    /// The weight of a voxel of magnitude `norm` ([`LossWeighting::magnitude`]) among fitted
+    /// voxels of mean magnitude `mean`: what [`LossWeighting::weights`] gives each fitted voxel,
+    /// for fits that see the field a piece at a time and learn the mean first. 1 when `mean` is
+    /// not positive (an all-zero field).
+    pub fn weight(&self, norm: f64, mean: f64) -> f32 {
+        if mean <= 0.0 || mean.is_nan() {
+            return 1.0;
+        }
+        let floor = f64::from(self.floor) * mean;
+        (norm.max(floor) / mean).powf(-f64::from(self.exponent)) as f32
+    }
+
+    /// Refuses an exponent outside `[0, 4]` or a floor outside `(0, 1]`
+    /// ([`MbdError::InvalidOption`]).
+    pub fn validate(&self) -> Result<(), MbdError> {
         if !(0.0..=4.0).contains(&self.exponent) {
             return Err(MbdError::InvalidOption {
                 what: "loss weighting exponent",
@@ -50,44 +93,16 @@ impl LossWeighting {
                 why: format!("{} is not in (0, 1]", self.floor),
             });
         }
-        let n = field.num_voxels();
-        if let Some(valid) = valid
-            && valid.len() != n
-        {
-            return Err(MbdError::ShapeMismatch {
-                what: "validity mask",
-                expected: vec![n],
-                got: vec![valid.len()],
-            });
-        }
-        let fitted = |v: usize| valid.is_none_or(|m| m[v]);
-        let norms: Vec<f64> = (0..n)
-            .map(|v| {
-                field
-                    .voxel(v)
-                    .iter()
-                    .map(|&x| f64::from(x) * f64::from(x))
-                    .sum::<f64>()
-                    .sqrt()
-            })
-            .collect();
-        let (sum, count) = (0..n)
-            .filter(|&v| fitted(v))
-            .fold((0.0f64, 0usize), |(s, c), v| (s + norms[v], c + 1));
-        let mean = if count > 0 { sum / count as f64 } else { 0.0 };
-        if mean <= 0.0 {
-            return Ok(vec![1.0; n]);
-        }
-        let floor = f64::from(self.floor) * mean;
-        Ok((0..n)
-            .map(|v| {
-                if fitted(v) {
-                    (norms[v].max(floor) / mean).powf(-f64::from(self.exponent)) as f32
-                } else {
-                    1.0
-                }
-            })
-            .collect())
+        Ok(())
+    }
+
+    /// A voxel's magnitude `‖f‖`, summed in f64: what the weights are a function of.
+    pub fn magnitude(vector: &[f32]) -> f64 {
+        vector
+            .iter()
+            .map(|&x| f64::from(x) * f64::from(x))
+            .sum::<f64>()
+            .sqrt()
     }
 }
 

@@ -24,8 +24,8 @@ pub const MERGE_MAGIC: &[u8; 8] = b"PRTMERGE";
 pub const PARTIAL_FORMAT: &str = "prt merge partial";
 /// `format` of a basis file's header.
 pub const BASIS_FORMAT: &str = "prt merge basis";
-/// The version of both.
-pub const MERGE_FILE_VERSION: u32 = 1;
+/// The version of both (2: the loss weighting's sums and normalisation).
+pub const MERGE_FILE_VERSION: u32 = 2;
 /// The largest header read (the basis's carries one number per sweep).
 const HEADER_MAX: u64 = 1 << 20;
 
@@ -218,6 +218,11 @@ pub(crate) struct PartialHeader {
     /// `Σ‖f − f̂‖²` and `Σ‖f‖²` over the tile's valid core voxels (0 for the coarse stage).
     pub residual: f64,
     pub energy: f64,
+    /// The same of the loss-weighted vectors.
+    pub weighted_residual: f64,
+    pub weighted_energy: f64,
+    /// `Σ‖f‖` over them (the coarse stage's; 0 for the others).
+    pub magnitude: f64,
     pub payload_bytes: u64,
     pub checksum: String,
 }
@@ -238,6 +243,10 @@ pub(crate) struct BasisHeader {
     pub coarse_iterations: usize,
     /// The relative error at the valid voxel centres of each basis before this one.
     pub relative_errors: Vec<f64>,
+    /// The same of the loss-weighted vectors.
+    pub weighted_errors: Vec<f64>,
+    /// The valid voxels' mean magnitude: the loss weights' normalisation.
+    pub mean_magnitude: f64,
     /// Each sweep's conjugate-gradient iterations and relative residual.
     pub basis_solves: Vec<(usize, f64)>,
     pub payload_bytes: u64,

@@ -62,6 +62,10 @@ pub struct StreamedRecord {
     pub sweeps: usize,
     /// The relative error at the valid voxel centres after the coarse fit, then after each sweep.
     pub relative_error_at_valid_voxel_centres: Vec<f64>,
+    /// The same of the loss-weighted vectors: the loss the sweeps descend (equal to the above
+    /// without a loss weighting).
+    #[serde(default)]
+    pub weighted_relative_error: Vec<f64>,
     /// Valid voxels of the lattice.
     pub valid_voxels: usize,
     /// Bytes of the container written, if one was.
@@ -115,6 +119,7 @@ impl TilesReport {
                 basis_solve_iterations: merged.basis_solves.iter().map(|s| s.iterations).collect(),
                 sweeps,
                 relative_error_at_valid_voxel_centres: merged.relative_errors.clone(),
+                weighted_relative_error: merged.weighted_errors.clone(),
                 valid_voxels: valid,
                 container_bytes: bytes,
                 bytes_per_valid_voxel: bytes.map(|b| b as f64 / valid.max(1) as f64),

@@ -4,6 +4,12 @@
 //! tiles' normal equations, and every voxel's coefficients are its own least-squares fit on that
 //! basis.
 //!
+//! MBD's per-voxel loss weighting ([`BakeConfig::loss_weighting`]) is the in-memory fit's: each
+//! voxel's vector is scaled by its weight as it is read and its coefficients are divided by it
+//! after the fit. The weights' normalisation, the valid voxels' mean magnitude, is summed by the
+//! coarse stage's maps, so every later stage knows it; the coarse fit weights the coarse volume
+//! as [`Mbd`] weights any field.
+//!
 //! Every stage ([`MergeStage`]) is a map over tiles (a function of one tile and the current
 //! basis giving a small [`Partial`]) and a reduce (the partials summed in tile order, then
 //! solved). [`merge_streamed`] runs them all in one process; `prt merge --map` / `--reduce` run
@@ -18,8 +24,8 @@ use prt_core::{Aabb, GridField, Progress};
 use prt_kernels::HatGrid;
 use prt_mbd::expert::{can_halve, halved_grid};
 use prt_mbd::{
-    Basis, BasisNormals, BasisSolve, Mbd, MbdError, MbdModel, ProjectScratch, SolverOptions,
-    StreamedMbd,
+    Basis, BasisNormals, BasisSolve, LossWeighting, Mbd, MbdError, MbdModel, ProjectScratch,
+    SolverOptions, StreamedMbd,
 };
 use prt_texture::Limits;
 use prt_texture::container::WriteReport;
@@ -59,6 +65,11 @@ pub struct StreamedMerge {
     /// `Σ‖f − f̂‖² / Σ‖f‖²` over the valid voxel centres: after the coarse fit (the basis
     /// as fitted at half resolution) and after each alternating sweep.
     pub relative_errors: Vec<f64>,
+    /// The same of the loss-weighted vectors `w f`: the loss the sweeps descend (equal to
+    /// `relative_errors` without a loss weighting).
+    pub weighted_errors: Vec<f64>,
+    /// The valid voxels' mean magnitude `‖f‖`: the loss weighting's normalisation.
+    pub mean_magnitude: f64,
     /// The container written, when the config names a folder.
     pub container: Option<WriteReport>,
     /// Wall time of each step this process ran: "coarse volume", "coarse fit", "sweep", ...,
@@ -88,6 +99,11 @@ pub struct BasisState {
     pub basis: Array3<f32>,
     /// The relative error at the valid voxel centres of each basis before this one.
     pub relative_errors: Vec<f64>,
+    /// The same of the loss-weighted vectors.
+    pub weighted_errors: Vec<f64>,
+    /// The valid voxels' mean magnitude (summed by the coarse stage): the loss weighting's
+    /// normalisation, which every stage after the coarse one reads from its input basis.
+    pub mean_magnitude: f64,
     /// The coarse grid and its fit's iterations.
     pub coarse_dims: [usize; 3],
     /// See `coarse_dims`.
@@ -96,6 +112,18 @@ pub struct BasisState {
     pub basis_solves: Vec<BasisSolve>,
     /// What the partials computed from it record.
     fingerprint: String,
+}
+
+impl BasisState {
+    /// The relative errors and the weighted ones with those of `squares`, a stage's sums on
+    /// this basis, appended.
+    fn errors_with(&self, squares: Squares) -> (Vec<f64>, Vec<f64>) {
+        let mut relative_errors = self.relative_errors.clone();
+        relative_errors.push(relative(squares.residual, squares.energy));
+        let mut weighted_errors = self.weighted_errors.clone();
+        weighted_errors.push(relative(squares.weighted_residual, squares.weighted_energy));
+        (relative_errors, weighted_errors)
+    }
 }
 
 /// One tile's result of one stage: what the reduce sums.
@@ -110,6 +138,12 @@ pub struct Partial {
     pub residual: f64,
     /// `Σ‖f‖²` over them (0 for the coarse stage).
     pub energy: f64,
+    /// `residual` of the loss-weighted vectors `w f`.
+    pub weighted_residual: f64,
+    /// `energy` of the loss-weighted vectors.
+    pub weighted_energy: f64,
+    /// `Σ‖f‖` over the tile's valid core voxels (the coarse stage's; 0 for the others).
+    pub magnitude: f64,
     payload: Payload,
 }
 
@@ -140,6 +174,24 @@ pub struct MergeContext<'a> {
     coarse_dims: [usize; 3],
     coarse_bounds: Aabb,
     plan_hash: String,
+}
+
+/// A stage's sums of squares over valid voxels: of the vectors and of the loss-weighted vectors.
+#[derive(Debug, Clone, Copy, Default)]
+struct Squares {
+    residual: f64,
+    energy: f64,
+    weighted_residual: f64,
+    weighted_energy: f64,
+}
+
+impl Squares {
+    fn add(&mut self, other: Squares) {
+        self.residual += other.residual;
+        self.energy += other.energy;
+        self.weighted_residual += other.weighted_residual;
+        self.weighted_energy += other.weighted_energy;
+    }
 }
 
 impl<'a> MergeContext<'a> {
@@ -216,6 +268,15 @@ impl<'a> MergeContext<'a> {
         .map_err(mbd_error)
     }
 
+    /// The loss weights of the stages that start from `basis`: the config's weighting
+    /// normalised by the mean magnitude the coarse stage summed.
+    fn voxel_weights(&self, basis: &BasisState) -> VoxelWeights {
+        VoxelWeights {
+            weighting: self.config.loss_weighting,
+            mean_magnitude: basis.mean_magnitude,
+        }
+    }
+
     /// The checked stage and the basis its maps start from.
     fn input<'s>(
         &self,
@@ -257,6 +318,7 @@ impl<'a> MergeContext<'a> {
             let coarse = self.coarse_box(tile);
             let mut counts = vec![0u32; coarse.len()];
             let mut sums = vec![0.0f64; coarse.len() * d];
+            let mut magnitude = 0.0f64;
             for (v, local) in voxels {
                 let c = flat(
                     coarse.dims(),
@@ -264,6 +326,7 @@ impl<'a> MergeContext<'a> {
                 );
                 counts[c] += 1;
                 let source = &read.transfer[local * d..(local + 1) * d];
+                magnitude += LossWeighting::magnitude(source);
                 for (s, &x) in sums[c * d..(c + 1) * d].iter_mut().zip(source) {
                     *s += f64::from(x);
                 }
@@ -273,10 +336,14 @@ impl<'a> MergeContext<'a> {
                 tile: index,
                 residual: 0.0,
                 energy: 0.0,
+                weighted_residual: 0.0,
+                weighted_energy: 0.0,
+                magnitude,
                 payload: Payload::Coarse { counts, sums },
             });
         };
         let model = self.model(basis)?;
+        let weights = self.voxel_weights(basis);
         let l = model.rank();
         let coefficients_stage = stage == MergeStage::Coefficients;
         let mut normals = if coefficients_stage {
@@ -302,7 +369,7 @@ impl<'a> MergeContext<'a> {
                 0
             }
         ];
-        let (mut residual, mut energy) = (0.0f64, 0.0f64);
+        let mut squares = Squares::default();
         // Chunks in groups as wide as the pool: the sums are over the same chunks in the same
         // order on any number of threads, and at most one group's parts are held.
         let chunks: Vec<&[([usize; 3], usize)]> = voxels.chunks(CHUNK).collect();
@@ -310,12 +377,13 @@ impl<'a> MergeContext<'a> {
         for chunks in chunks.chunks(group) {
             let parts = chunks
                 .par_iter()
-                .map(|chunk| project_chunk(&model, &read, chunk, tile, !coefficients_stage))
+                .map(|chunk| {
+                    project_chunk(&model, &weights, &read, chunk, tile, !coefficients_stage)
+                })
                 .collect::<Result<Vec<_>, MbdError>>()
                 .map_err(mbd_error)?;
             for (chunk, part) in chunks.iter().zip(parts) {
-                residual += part.residual;
-                energy += part.energy;
+                squares.add(part.squares);
                 if let (Some(total), Some(sums)) = (normals.as_mut(), part.normals.as_ref()) {
                     total.add(sums).map_err(mbd_error)?;
                 }
@@ -331,8 +399,11 @@ impl<'a> MergeContext<'a> {
         Ok(Partial {
             stage,
             tile: index,
-            residual,
-            energy,
+            residual: squares.residual,
+            energy: squares.energy,
+            weighted_residual: squares.weighted_residual,
+            weighted_energy: squares.weighted_energy,
+            magnitude: 0.0,
             payload: match normals {
                 Some(normals) => Payload::Sweep(normals),
                 None => Payload::Coefficients {
@@ -390,6 +461,9 @@ impl<'a> MergeContext<'a> {
             fingerprint: self.partial_fingerprint(partial.stage, partial.tile, basis),
             residual: partial.residual,
             energy: partial.energy,
+            weighted_residual: partial.weighted_residual,
+            weighted_energy: partial.weighted_energy,
+            magnitude: partial.magnitude,
             payload_bytes: payload.len() as u64,
             checksum: Fnv1a64::of(&payload),
         };
@@ -460,9 +534,15 @@ impl<'a> MergeContext<'a> {
             }
             .into());
         }
-        for (what, v) in [("residual", header.residual), ("energy", header.energy)] {
+        for (what, v) in [
+            ("residual", header.residual),
+            ("energy", header.energy),
+            ("weighted residual", header.weighted_residual),
+            ("weighted energy", header.weighted_energy),
+            ("magnitude", header.magnitude),
+        ] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(malformed(format!("{what} {v} is not a finite sum of squares")).into());
+                return Err(malformed(format!("{what} {v} is not a finite sum of norms")).into());
             }
         }
         let payload = match (stage, model.as_ref()) {
@@ -537,6 +617,9 @@ impl<'a> MergeContext<'a> {
             tile: index,
             residual: header.residual,
             energy: header.energy,
+            weighted_residual: header.weighted_residual,
+            weighted_energy: header.weighted_energy,
+            magnitude: header.magnitude,
             payload,
         })
     }
@@ -572,8 +655,8 @@ impl<'a> MergeContext<'a> {
         Ok(StageSums {
             stage,
             next_tile: 0,
-            residual: 0.0,
-            energy: 0.0,
+            squares: Squares::default(),
+            magnitude: 0.0,
             sums,
         })
     }
@@ -590,8 +673,13 @@ impl<'a> MergeContext<'a> {
             )));
         }
         let tile = self.tile(partial.tile)?;
-        sums.residual += partial.residual;
-        sums.energy += partial.energy;
+        sums.squares.add(Squares {
+            residual: partial.residual,
+            energy: partial.energy,
+            weighted_residual: partial.weighted_residual,
+            weighted_energy: partial.weighted_energy,
+        });
+        sums.magnitude += partial.magnitude;
         let d = TRANSFER_DIM;
         match (&mut sums.sums, &partial.payload) {
             (Sums::Coarse { counts, sums }, Payload::Coarse { counts: c, sums: s }) => {
@@ -650,10 +738,11 @@ impl<'a> MergeContext<'a> {
     ) -> Result<BasisState, TileError> {
         let basis = self.input(sums.stage, basis)?;
         self.check_complete(&sums)?;
-        let stage = sums.stage;
+        let (stage, squares, magnitude) = (sums.stage, sums.squares, sums.magnitude);
         match (sums.sums, basis) {
             (Sums::Coarse { counts, mut sums }, _) => {
-                if counts.iter().all(|&n| n == 0) {
+                let valid_voxels: u64 = counts.iter().map(|&n| u64::from(n)).sum();
+                if valid_voxels == 0 {
                     return Err(mbd_error(MbdError::InvalidOption {
                         what: "validity mask",
                         why: "no voxel is valid".into(),
@@ -679,7 +768,8 @@ impl<'a> MergeContext<'a> {
                     })?,
                 )
                 .map_err(|e| mbd_error(e.into()))?;
-                // MBD on it, from the paper's start.
+                // MBD on it, from the paper's start, under the config's loss weighting (of the
+                // coarse voxels: the start of the sweeps, which weight every voxel).
                 let mbd = Mbd {
                     solver: SolverOptions {
                         lambda: self.config.lambda,
@@ -687,6 +777,7 @@ impl<'a> MergeContext<'a> {
                         seed: self.config.seed ^ 0x4D42_4400,
                         ..SolverOptions::default()
                     },
+                    loss_weighting: self.config.loss_weighting,
                     ..Mbd::new(self.config.rank, Basis::HatGrid { nodes: self.nodes })
                 };
                 let fit = mbd
@@ -694,30 +785,33 @@ impl<'a> MergeContext<'a> {
                     .map_err(mbd_error)?;
                 let coarse_iterations = fit.solve.history.len();
                 let (_, _, _, basis) = fit.model.into_parts();
-                Ok(self.state(
+                Ok(self.state(BasisState {
                     stage,
                     basis,
-                    Vec::new(),
+                    relative_errors: Vec::new(),
+                    weighted_errors: Vec::new(),
+                    mean_magnitude: magnitude / valid_voxels as f64,
+                    coarse_dims: self.coarse_dims,
                     coarse_iterations,
-                    Vec::new(),
-                    self.coarse_dims,
-                ))
+                    basis_solves: Vec::new(),
+                    fingerprint: String::new(),
+                }))
             }
             (Sums::Sweep(normals), Some(input)) => {
                 let mut model = self.model(input)?;
                 let solve = model.solve_basis(&normals).map_err(mbd_error)?;
-                let mut errors = input.relative_errors.clone();
-                errors.push(relative(sums.residual, sums.energy));
-                let mut solves = input.basis_solves.clone();
-                solves.push(solve);
-                Ok(self.state(
+                let (relative_errors, weighted_errors) = input.errors_with(squares);
+                let mut basis_solves = input.basis_solves.clone();
+                basis_solves.push(solve);
+                Ok(self.state(BasisState {
                     stage,
-                    model.basis().clone(),
-                    errors,
-                    input.coarse_iterations,
-                    solves,
-                    input.coarse_dims,
-                ))
+                    basis: model.basis().clone(),
+                    relative_errors,
+                    weighted_errors,
+                    basis_solves,
+                    fingerprint: String::new(),
+                    ..input.clone()
+                }))
             }
             _ => Err(PartialError::NoSuchStage {
                 stage: format!("{stage} (its reduce writes the bake folder: merge_from_partials)"),
@@ -739,25 +833,15 @@ impl<'a> MergeContext<'a> {
         Ok(())
     }
 
-    fn state(
-        &self,
-        stage: MergeStage,
-        basis: Array3<f32>,
-        relative_errors: Vec<f64>,
-        coarse_iterations: usize,
-        basis_solves: Vec<BasisSolve>,
-        coarse_dims: [usize; 3],
-    ) -> BasisState {
-        let payload = le_bytes(basis.as_slice().unwrap_or(&[]), f32::to_le_bytes);
-        let fingerprint = basis_fingerprint(&self.plan_hash, stage, &Fnv1a64::of(&payload));
+    /// `state` with its fingerprint: of the plan, the stage, the basis and the weights'
+    /// normalisation.
+    fn state(&self, state: BasisState) -> BasisState {
+        let mut payload = le_bytes(state.basis.as_slice().unwrap_or(&[]), f32::to_le_bytes);
+        payload.extend(state.mean_magnitude.to_le_bytes());
+        let fingerprint = basis_fingerprint(&self.plan_hash, state.stage, &Fnv1a64::of(&payload));
         BasisState {
-            stage,
-            basis,
-            relative_errors,
-            coarse_dims,
-            coarse_iterations,
-            basis_solves,
             fingerprint,
+            ..state
         }
     }
 
@@ -775,8 +859,7 @@ impl<'a> MergeContext<'a> {
                 sums.stage
             )));
         };
-        let mut errors = basis.relative_errors.clone();
-        errors.push(relative(sums.residual, sums.energy));
+        let errors = basis.errors_with(sums.squares);
         let model = self
             .model(basis)?
             .into_model(coefficients)
@@ -785,7 +868,8 @@ impl<'a> MergeContext<'a> {
     }
 
     /// `basis` (`N × L × D`, the plan's basis grid and rank) as the basis `stage`'s reduce
-    /// fitted, without history: to map from a basis made elsewhere.
+    /// fitted, without history, with `mean_magnitude` as the loss weights' normalisation: to map
+    /// from a basis made elsewhere.
     ///
     /// # Errors
     /// A basis of another shape.
@@ -793,6 +877,7 @@ impl<'a> MergeContext<'a> {
         &self,
         stage: MergeStage,
         basis: Array3<f32>,
+        mean_magnitude: f64,
     ) -> Result<BasisState, TileError> {
         let want = (self.nodes.iter().product(), self.config.rank, TRANSFER_DIM);
         if basis.dim() != want {
@@ -802,7 +887,17 @@ impl<'a> MergeContext<'a> {
                 got: basis.shape().to_vec(),
             }));
         }
-        Ok(self.state(stage, basis, Vec::new(), 0, Vec::new(), self.coarse_dims))
+        Ok(self.state(BasisState {
+            stage,
+            basis,
+            relative_errors: Vec::new(),
+            weighted_errors: Vec::new(),
+            mean_magnitude,
+            coarse_dims: self.coarse_dims,
+            coarse_iterations: 0,
+            basis_solves: Vec::new(),
+            fingerprint: String::new(),
+        }))
     }
 
     /// Writes `state` to `plan_dir`'s merge folder (atomically); returns the file and its size.
@@ -827,6 +922,8 @@ impl<'a> MergeContext<'a> {
             coarse_grid: state.coarse_dims,
             coarse_iterations: state.coarse_iterations,
             relative_errors: state.relative_errors.clone(),
+            weighted_errors: state.weighted_errors.clone(),
+            mean_magnitude: state.mean_magnitude,
             basis_solves: state
                 .basis_solves
                 .iter()
@@ -888,17 +985,24 @@ impl<'a> MergeContext<'a> {
             || header.rank != l
             || header.dim != d
             || header.relative_errors.len() != sweeps_before
+            || header.weighted_errors.len() != sweeps_before
             || header.basis_solves.len() != sweeps_before
-            || header.relative_errors.iter().any(|e| !e.is_finite())
+            || (header.relative_errors.iter())
+                .chain(&header.weighted_errors)
+                .any(|e| !e.is_finite())
+            || !(header.mean_magnitude.is_finite() && header.mean_magnitude >= 0.0)
         {
             return Err(malformed(format!(
-                "basis of {:?} nodes, rank {}, dimension {}, {} errors and {} solves; expected \
-                 {:?}, {l}, {d}, {sweeps_before} each",
+                "basis of {:?} nodes, rank {}, dimension {}, {} and {} errors and {} solves, \
+                 mean magnitude {}; expected {:?}, {l}, {d}, {sweeps_before} each, a finite \
+                 magnitude",
                 header.nodes,
                 header.rank,
                 header.dim,
                 header.relative_errors.len(),
+                header.weighted_errors.len(),
                 header.basis_solves.len(),
+                header.mean_magnitude,
                 self.nodes
             ))
             .into());
@@ -909,12 +1013,15 @@ impl<'a> MergeContext<'a> {
         }
         let basis =
             Array3::from_shape_vec((n, l, d), values).map_err(|e| malformed(e.to_string()))?;
-        Ok(self.state(
+        Ok(self.state(BasisState {
             stage,
             basis,
-            header.relative_errors,
-            header.coarse_iterations,
-            header
+            relative_errors: header.relative_errors,
+            weighted_errors: header.weighted_errors,
+            mean_magnitude: header.mean_magnitude,
+            coarse_dims: header.coarse_grid,
+            coarse_iterations: header.coarse_iterations,
+            basis_solves: header
                 .basis_solves
                 .into_iter()
                 .map(|(iterations, relative_residual)| BasisSolve {
@@ -922,8 +1029,8 @@ impl<'a> MergeContext<'a> {
                     relative_residual,
                 })
                 .collect(),
-            header.coarse_grid,
-        ))
+            fingerprint: String::new(),
+        }))
     }
 
     /// The sums of `stage` over every tile's partial file in `plan_dir`, read and added in tile
@@ -955,7 +1062,7 @@ impl<'a> MergeContext<'a> {
     fn write(
         &self,
         scene_name: &str,
-        (model, valid, relative_errors): Finished,
+        (model, valid, (relative_errors, weighted_errors)): Finished,
         basis: &BasisState,
         mut stage_times: Vec<(&'static str, Duration)>,
         progress: &dyn Progress,
@@ -986,6 +1093,8 @@ impl<'a> MergeContext<'a> {
             coarse_iterations: basis.coarse_iterations,
             basis_solves: basis.basis_solves.clone(),
             relative_errors,
+            weighted_errors,
+            mean_magnitude: basis.mean_magnitude,
             container,
             stage_times,
         })
@@ -997,8 +1106,9 @@ impl<'a> MergeContext<'a> {
 pub struct StageSums {
     stage: MergeStage,
     next_tile: usize,
-    residual: f64,
-    energy: f64,
+    squares: Squares,
+    /// `Σ‖f‖` over the valid voxels (the coarse stage's).
+    magnitude: f64,
     sums: Sums,
 }
 
@@ -1017,8 +1127,9 @@ enum Sums {
     },
 }
 
-/// The coefficient stage's result: the model, the validity per voxel, the relative errors.
-type Finished = (MbdModel<HatGrid, HatGrid>, Vec<bool>, Vec<f64>);
+/// The coefficient stage's result: the model, the validity per voxel, the relative errors and
+/// those of the weighted vectors.
+type Finished = (MbdModel<HatGrid, HatGrid>, Vec<bool>, (Vec<f64>, Vec<f64>));
 
 fn relative(residual: f64, energy: f64) -> f64 {
     if energy > 0.0 {
@@ -1222,17 +1333,34 @@ pub fn merge_from_partials(
     context.write(scene_name, finished, &basis, stage_times, progress)
 }
 
-/// One chunk's coefficients, residual and energy, and its part of the basis step's normal
+/// One chunk's coefficients, sums of squares, and its part of the basis step's normal
 /// equations (over the tile's nodes) when `accumulate` asks for them.
 struct ChunkPart {
     coefficients: Vec<f32>,
-    residual: f64,
-    energy: f64,
+    squares: Squares,
     normals: Option<BasisNormals>,
+}
+
+/// The loss weight of each voxel in the stages after the coarse one: the config's
+/// [`LossWeighting`] of the voxel's magnitude against the valid voxels' mean, as the in-memory
+/// fit weighs it; 1 without a weighting.
+#[derive(Debug, Clone, Copy)]
+struct VoxelWeights {
+    weighting: Option<LossWeighting>,
+    mean_magnitude: f64,
+}
+
+impl VoxelWeights {
+    fn of(&self, f: &[f32]) -> f32 {
+        self.weighting.map_or(1.0, |weighting| {
+            weighting.weight(LossWeighting::magnitude(f), self.mean_magnitude)
+        })
+    }
 }
 
 fn project_chunk(
     model: &StreamedMbd,
+    weights: &VoxelWeights,
     read: &TileData,
     chunk: &[([usize; 3], usize)],
     tile: &TileSpec,
@@ -1241,22 +1369,130 @@ fn project_chunk(
     let (l, d) = (model.rank(), TRANSFER_DIM);
     let mut part = ChunkPart {
         coefficients: vec![0.0; chunk.len() * l],
-        residual: 0.0,
-        energy: 0.0,
+        squares: Squares::default(),
         normals: if accumulate {
             Some(model.normals_for_voxels(tile.core.min, tile.core.max)?)
         } else {
             None
         },
     };
-    let mut scratch = ProjectScratch::default();
+    let mut scratch = VoxelScratch::default();
     for (&(v, local), c) in chunk.iter().zip(part.coefficients.chunks_exact_mut(l)) {
         let f = &read.transfer[local * d..(local + 1) * d];
-        part.residual += model.project(v, f, c, &mut scratch)?;
-        part.energy += f.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>();
-        if let Some(normals) = part.normals.as_mut() {
-            model.accumulate(v, f, c, normals, &mut scratch)?;
-        }
+        let squares = fit_voxel(
+            model,
+            weights.of(f),
+            v,
+            f,
+            c,
+            part.normals.as_mut(),
+            &mut scratch,
+        )?;
+        part.squares.add(squares);
     }
     Ok(part)
+}
+
+/// Reused buffers of [`fit_voxel`].
+#[derive(Default)]
+struct VoxelScratch {
+    project: ProjectScratch,
+    /// The weighted vector.
+    weighted: Vec<f32>,
+}
+
+/// Voxel `v`'s coefficients `c` and sums of squares, its vector `f` fitted as `w f`: the fit of
+/// `w f`, added to `normals` when given, then `c` divided by `w`. Exact to
+/// undo: the transfer is linear in the light and the voxel's coefficients are its own, so `c`
+/// is the fit of `f` itself, ridge included (`argmin ‖w f − bᵀc'‖² + λ‖c'‖²` is `w` times
+/// `argmin ‖f − bᵀc‖² + λ‖c‖²`); the weight decides how much the voxel pulls on the basis.
+fn fit_voxel(
+    model: &StreamedMbd,
+    w: f32,
+    v: [usize; 3],
+    f: &[f32],
+    c: &mut [f32],
+    normals: Option<&mut BasisNormals>,
+    scratch: &mut VoxelScratch,
+) -> Result<Squares, MbdError> {
+    let VoxelScratch { project, weighted } = scratch;
+    weighted.clear();
+    weighted.extend(f.iter().map(|&x| w * x));
+    let weighted_residual = model.project(v, weighted, c, project)?;
+    if let Some(normals) = normals {
+        model.accumulate(v, weighted, c, normals, project)?;
+    }
+    c.iter_mut().for_each(|x| *x /= w);
+    let energy = |g: &[f32]| g.iter().map(|&x| f64::from(x).powi(2)).sum::<f64>();
+    Ok(Squares {
+        residual: weighted_residual / f64::from(w).powi(2),
+        energy: energy(f),
+        weighted_residual,
+        weighted_energy: energy(weighted),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    /// The f64 values of normal equations (after their 11-word header): `G`, then `R`.
+    fn normal_values(normals: &BasisNormals) -> Vec<f64> {
+        from_le(&normals.to_bytes()[88..], f64::from_le_bytes)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// Scaling a voxel's vector by its weight and dividing its coefficients by it after the
+        /// fit is exact: at every rank (full rank included) and ridge, the coefficients, and so
+        /// the reconstruction, are the unweighted fit's; the voxel's sums of squares and its
+        /// part of the basis step's normal equations scale by w², which is the weighting.
+        #[test]
+        fn a_weighted_voxel_fits_as_the_unweighted_one_and_pulls_w_squared_on_the_basis(
+            rank in 1usize..=6,
+            w in 0.02f32..50.0,
+            lambda in prop_oneof![Just(0.0f32), Just(1e-4), Just(0.1)],
+            noise in prop::collection::vec(-0.1f32..0.1, 8 * 6 * 6),
+            f in prop::collection::vec(-2.0f32..2.0, 6),
+        ) {
+            let (d, dims) = (6, [3, 2, 2]);
+            // Well conditioned at every point (each node's basis within 0.6 of the identity's
+            // rows in norm), so that f32 rounding stays far below the tolerances.
+            let basis = Array3::from_shape_fn((8, rank, d), |(n, l, k)| {
+                f32::from(u8::from(l == k)) + noise[(n * 6 + l) * 6 + k]
+            });
+            let model = StreamedMbd::new(dims, Aabb::UNIT, [2, 2, 2], basis, lambda).unwrap();
+            let mut scratch = VoxelScratch::default();
+            let energy: f64 = f.iter().map(|&x| f64::from(x).powi(2)).sum();
+            let w2 = f64::from(w).powi(2);
+            for v in voxels(&VoxelRange { min: [0; 3], max: dims }) {
+                let (mut plain, mut weighted) = (vec![0.0f32; rank], vec![0.0f32; rank]);
+                let (mut plain_normals, mut weighted_normals) = (model.normals(), model.normals());
+                let one = fit_voxel(&model, 1.0, v, &f, &mut plain, Some(&mut plain_normals),
+                    &mut scratch).unwrap();
+                let scaled = fit_voxel(&model, w, v, &f, &mut weighted,
+                    Some(&mut weighted_normals), &mut scratch).unwrap();
+                let largest = plain.iter().fold(1.0f32, |m, c| m.max(c.abs()));
+                for (a, b) in plain.iter().zip(&weighted) {
+                    prop_assert!((a - b).abs() <= 1e-3 * largest, "{plain:?} vs {weighted:?}");
+                }
+                if rank == d && lambda == 0.0 {
+                    // Full rank: both reproduce the vector.
+                    prop_assert!(one.residual <= 1e-6 * energy, "{one:?}");
+                }
+                prop_assert!((one.residual - scaled.residual).abs() <= 1e-5 * energy);
+                prop_assert_eq!(one.energy, scaled.energy);
+                prop_assert!((scaled.weighted_residual - w2 * one.residual).abs()
+                    <= 1e-5 * w2 * energy);
+                prop_assert!((scaled.weighted_energy - w2 * energy).abs() <= 1e-6 * w2 * energy);
+                let (a, b) = (normal_values(&plain_normals), normal_values(&weighted_normals));
+                let largest = a.iter().fold(1e-30f64, |m, x| m.max(x.abs()));
+                for (a, b) in a.iter().zip(&b) {
+                    prop_assert!((w2 * a - b).abs() <= 1e-4 * w2 * largest, "{a} {b}");
+                }
+            }
+        }
+    }
 }
