@@ -27,8 +27,8 @@ use prt_mbd::{
     Basis, BasisNormals, BasisSolve, LossWeighting, Mbd, MbdError, MbdModel, ProjectScratch,
     SolverOptions, StreamedMbd,
 };
-use prt_texture::Limits;
 use prt_texture::container::WriteReport;
+use prt_texture::{Limits, RangeFit};
 use prt_trace::TRANSFER_DIM;
 use rayon::prelude::*;
 
@@ -40,7 +40,9 @@ use super::partial::{
     partial_path, read_merge_file, unframe, write_merge_file,
 };
 use super::plan::{TileError, TilePlan, TileSpec, VoxelRange, flat, voxels};
-use crate::container::{ContainerContents, write_container};
+use crate::container::{
+    ContainerContents, ContainerParts, ContainerWriter, LayoutConfig, write_container,
+};
 use crate::{BakeConfig, BakeError};
 
 /// Voxels per work unit of the passes over a tile (fixed, so that every sum is the same on any
@@ -50,8 +52,9 @@ const CHUNK: usize = 16384;
 /// What [`merge_streamed`] did.
 #[derive(Debug, Clone)]
 pub struct StreamedMerge {
-    /// The fitted model on the plan's lattice.
-    pub model: MbdModel<HatGrid, HatGrid>,
+    /// The fitted model on the plan's lattice; `None` from [`merge_from_partials`], which
+    /// writes the container a tile at a time and never holds every voxel's coefficients.
+    pub model: Option<MbdModel<HatGrid, HatGrid>>,
     /// Per voxel of the lattice (x fastest): valid in its tile's trace.
     pub valid: Vec<bool>,
     /// The coarse grid the basis was first fitted on: the lattice halved
@@ -1049,13 +1052,28 @@ impl<'a> MergeContext<'a> {
             progress
                 .check()
                 .map_err(|e| TileError::Bake(BakeError::Cancelled(e)))?;
-            let path = partial_path(plan_dir, stage, tile.index);
-            let expected = self.payload_bytes(stage, tile, model.as_ref())?;
-            let bytes = read_merge_file(&path, expected, limits, stage, Some(tile.index))?;
-            let partial = self.decode_partial(stage, tile.index, basis, &path, &bytes, limits)?;
+            let partial =
+                self.read_partial(stage, tile, basis, model.as_ref(), plan_dir, limits)?;
             self.add(&mut sums, &partial)?;
         }
         Ok(sums)
+    }
+
+    /// Tile `tile`'s partial of `stage` (input basis `basis`, its model `model`), read from
+    /// `plan_dir` and checked.
+    fn read_partial(
+        &self,
+        stage: MergeStage,
+        tile: &TileSpec,
+        basis: Option<&BasisState>,
+        model: Option<&StreamedMbd>,
+        plan_dir: &Path,
+        limits: &Limits,
+    ) -> Result<Partial, TileError> {
+        let path = partial_path(plan_dir, stage, tile.index);
+        let expected = self.payload_bytes(stage, tile, model)?;
+        let bytes = read_merge_file(&path, expected, limits, stage, Some(tile.index))?;
+        self.decode_partial(stage, tile.index, basis, &path, &bytes, limits)
     }
 
     /// The container of `model` and the [`StreamedMerge`].
@@ -1087,7 +1105,7 @@ impl<'a> MergeContext<'a> {
             None => None,
         };
         Ok(StreamedMerge {
-            model,
+            model: Some(model),
             valid,
             coarse_dims: basis.coarse_dims,
             coarse_iterations: basis.coarse_iterations,
@@ -1306,9 +1324,10 @@ pub fn reduce_stage(
 }
 
 /// `prt merge --reduce --stage coefficients`: the last basis and every tile's coefficient
-/// partial read from `plan_dir`, the model assembled and its container written as
-/// [`merge_streamed`] writes it (the same bytes). Holds the coefficients whole (L floats per
-/// voxel): the container writer takes the model whole.
+/// partial read from `plan_dir`, the container written as [`merge_streamed`] writes it (the
+/// same bytes) a tile at a time, in memory bounded by a partial, the basis and about two bytes
+/// per voxel ([`ContainerWriter`]): the partials are read twice, first for the validity, the
+/// errors and the coefficients' ranges, then to write them. The result holds no model.
 ///
 /// # Errors
 /// As [`reduce_stage`]; the container's.
@@ -1327,10 +1346,93 @@ pub fn merge_from_partials(
     progress.message("coefficients");
     let last = stage.input(sweeps).unwrap_or(MergeStage::Coarse);
     let basis = context.read_basis(plan_dir, last, limits)?;
-    let sums = context.sum_partials(stage, Some(&basis), plan_dir, limits, progress)?;
-    let finished = context.finish(sums, &basis)?;
-    let stage_times = vec![("coefficients", start.elapsed())];
-    context.write(scene_name, finished, &basis, stage_times, progress)
+    let model = context.model(&basis)?;
+    // Each tile's partial in tile order: its squares, validity and coefficients.
+    type Visit<'v> = dyn FnMut(&TileSpec, &Partial, &[bool], &[f32]) -> Result<(), TileError> + 'v;
+    let each_partial = |visit: &mut Visit<'_>| {
+        for tile in &plan.tiles {
+            progress
+                .check()
+                .map_err(|e| TileError::Bake(BakeError::Cancelled(e)))?;
+            let partial =
+                context.read_partial(stage, tile, Some(&basis), Some(&model), plan_dir, limits)?;
+            let Payload::Coefficients {
+                valid,
+                coefficients,
+            } = &partial.payload
+            else {
+                return Err(TileError::InvalidTiling(format!(
+                    "tile {}'s partial is not the coefficients'",
+                    tile.index
+                )));
+            };
+            visit(tile, &partial, valid, coefficients)?;
+        }
+        Ok::<_, TileError>(())
+    };
+    // First pass: the validity, the sums of squares (in tile order, as the streamed merge adds
+    // them) and the ranges of the coefficients the container stores.
+    let mut valid = vec![false; context.dims.iter().product()];
+    let mut squares = Squares::default();
+    let mut ranges = RangeFit::new(config.rank);
+    each_partial(&mut |tile, partial, tile_valid, coefficients| {
+        for (voxel, &v) in voxels(&tile.core).zip(tile_valid) {
+            valid[flat(context.dims, voxel)] = v;
+        }
+        squares.add(Squares {
+            residual: partial.residual,
+            energy: partial.energy,
+            weighted_residual: partial.weighted_residual,
+            weighted_energy: partial.weighted_energy,
+        });
+        ranges.add(coefficients);
+        Ok(())
+    })?;
+    let mut stage_times = vec![("coefficients", start.elapsed())];
+    let container = match &config.container {
+        Some(folder) => {
+            let start = Instant::now();
+            progress.message("write");
+            let coefficient_kernels = model.coefficient_kernels().map_err(mbd_error)?;
+            let parts = ContainerParts {
+                coefficient_kernels: &coefficient_kernels,
+                basis_kernels: model.basis_kernels(),
+                basis: model.basis(),
+                grid: context.dims,
+                valid: &valid,
+                scene: scene_name,
+                lambda: config.lambda,
+                encoding: config.encoding,
+            };
+            let container_error = |e| TileError::Bake(BakeError::Container(e));
+            let mut writer =
+                ContainerWriter::create(folder, &parts, &ranges, &LayoutConfig::default())
+                    .map_err(container_error)?;
+            each_partial(&mut |tile, _, _, coefficients| {
+                let size = [0, 1, 2].map(|a| tile.core.max[a] - tile.core.min[a]);
+                writer
+                    .write_coefficients(tile.core.min, size, coefficients)
+                    .map_err(container_error)
+            })?;
+            let report = writer.finish().map_err(container_error)?;
+            stage_times.push(("write", start.elapsed()));
+            Some(report)
+        }
+        None => None,
+    };
+    let (relative_errors, weighted_errors) = basis.errors_with(squares);
+    Ok(StreamedMerge {
+        model: None,
+        valid,
+        coarse_dims: basis.coarse_dims,
+        coarse_iterations: basis.coarse_iterations,
+        basis_solves: basis.basis_solves.clone(),
+        relative_errors,
+        weighted_errors,
+        mean_magnitude: basis.mean_magnitude,
+        container,
+        stage_times,
+    })
 }
 
 /// One chunk's coefficients, sums of squares, and its part of the basis step's normal
