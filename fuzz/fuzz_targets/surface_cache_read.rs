@@ -68,10 +68,11 @@ fuzz_target!(|data: &[u8]| {
         seed: plan.config.seed,
         cache_rays: plan.config.cache_rays,
         rays: 0,
+        visibility_rays: 0,
         time: Duration::ZERO,
         values,
     };
-    let bytes = encode_surface_cache(plan, &cache);
+    let bytes = encode_surface_cache(plan, &cache).expect("the plan's tiles");
     match decode_surface_cache(plan, &bytes, path, &limits) {
         Ok(read) => assert_eq!(read.values, cache.values),
         Err(error) => assert!(

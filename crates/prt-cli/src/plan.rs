@@ -177,12 +177,13 @@ pub fn run(args: &PlanArgs) -> Result<()> {
             cache_path.display()
         ),
         SurfaceCacheWritten::Evaluated { replaced } => println!(
-            "wrote {}: the surface cache every tile shares, {} points, {} entries evaluated with \
-             {:.2e} rays in {:.2} s{}",
+            "wrote {}: the surface cache every tile shares, {} points, {} entries (those the \
+             tiles' first rays hit, {:.2e} rays) evaluated with {:.2e} rays in {:.2} s{}",
             cache_path.display(),
             cache.points(),
             cache.evaluated(),
-            cache.rays as f64,
+            cache.visibility_rays as f64,
+            (cache.rays - cache.visibility_rays) as f64,
             cache.time.as_secs_f64(),
             replaced.map_or(String::new(), |why| format!(" (replacing one: {why})"))
         ),

@@ -1,9 +1,8 @@
 //! The 324-dimensional transfer-volume baker.
 
-use std::borrow::Cow;
 use std::f32::consts::PI;
-use std::sync::OnceLock;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use glam::{Vec2, Vec3};
@@ -36,6 +35,14 @@ const CACHE_SHRINK: f32 = 1e-3;
 const MAX_SUBDIV: u16 = 128;
 /// Budget of surface-cache points (about 300 MB with both sides); beyond it the spacing grows.
 const MAX_CACHE_POINTS: usize = 4_000_000;
+/// Icosahedra per voxel whose hits decide which entries a shared surface cache evaluates ahead
+/// ([`TransferBaker::evaluate_surface_cache`]); the bakes sharing it evaluate the rest of what
+/// their rays hit on first use.
+const VISIBILITY_GROUPS: usize = 1;
+/// Lattice steps by which the entries those hits read are grown on their triangle (a surface
+/// seen at one point is mostly seen around it: fewer entries left to the bakes, each of which
+/// would evaluate its own copy).
+const VISIBILITY_DILATION: usize = 3;
 
 /// How the direct-to-indirect (one-bounce) part is computed.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -329,6 +336,10 @@ pub(crate) struct SurfaceCache {
     /// `[point * 2 + side]`, side 0 = front, 1 = back; evaluated on first use. Each value is a
     /// pure function of (seed, point, side), so which thread evaluates it does not matter.
     values: Vec<OnceLock<[f32; SH9]>>,
+    /// The seed its entries are evaluated with (a shared cache's, else the bake's).
+    seed: u64,
+    /// Entries a shared cache gave (not evaluated by this bake).
+    given: usize,
 }
 
 fn lattice_len(m: usize) -> usize {
@@ -366,9 +377,9 @@ impl SurfaceCache {
         self.values.len() / 2
     }
 
-    /// Entries (point sides) evaluated so far.
+    /// Entries (point sides) this bake evaluated so far (not those a shared cache gave).
     pub(crate) fn evaluated(&self) -> usize {
-        self.values.iter().filter(|v| v.get().is_some()).count()
+        self.values.iter().filter(|v| v.get().is_some()).count() - self.given
     }
 
     #[inline]
@@ -381,12 +392,29 @@ impl SurfaceCache {
         uv: impl FnOnce() -> Vec2,
         eval: impl Fn(usize, usize) -> [f32; SH9],
     ) -> [f32; SH9] {
+        let value = |point: usize| self.values[point * 2 + side].get_or_init(|| eval(point, side));
+        let Corners::Three(points, weights) = self.corners(slot, uv) else {
+            return *value(self.start[slot as usize] as usize);
+        };
+        let mut out = [0.0f32; SH9];
+        for (&point, &w) in points.iter().zip(&weights) {
+            let v = value(point);
+            for k in 0..SH9 {
+                out[k] += w * v[k];
+            }
+        }
+        out
+    }
+
+    #[inline]
+    /// The lattice points [`SurfaceCache::lookup`] interpolates on `slot` at the barycentrics
+    /// `uv()`.
+    fn corners(&self, slot: u32, uv: impl FnOnce() -> Vec2) -> Corners {
         let s = slot as usize;
         let start = self.start[s] as usize;
         let m = self.subdiv[s] as usize;
-        let value = |point: usize| *self.values[point * 2 + side].get_or_init(|| eval(point, side));
         if m == 0 {
-            return value(start);
+            return Corners::One(start);
         }
         let uv = uv();
         let fu = (uv.x.clamp(0.0, 1.0)) * m as f32;
@@ -404,15 +432,51 @@ impl SurfaceCache {
                 [du + dv - 1.0, 1.0 - du, 1.0 - dv],
             )
         };
-        let mut out = [0.0f32; SH9];
-        for (&(a, b), &w) in corners.iter().zip(&weights) {
-            let v = value(start + lattice_index(m, a, b));
-            for k in 0..SH9 {
-                out[k] += w * v[k];
+        Corners::Three(
+            corners.map(|(a, b)| start + lattice_index(m, a, b)),
+            weights,
+        )
+    }
+}
+
+impl SurfaceCache {
+    /// Marks in `hits` the lattice neighbours (same slot, same side) of every marked entry.
+    fn dilate(&self, hits: &[AtomicBool]) {
+        let before: Vec<bool> = hits.iter().map(|h| h.load(Ordering::Relaxed)).collect();
+        for (s, &m) in self.subdiv.iter().enumerate() {
+            let m = m as usize;
+            if m == 0 {
+                continue;
+            }
+            let start = self.start[s] as usize;
+            for side in 0..2 {
+                for a in 0..=m {
+                    for b in 0..=(m - a) {
+                        if !before[(start + lattice_index(m, a, b)) * 2 + side] {
+                            continue;
+                        }
+                        let (a, b) = (a as i64, b as i64);
+                        for (da, db) in [(1, 0), (-1, 0), (0, 1), (0, -1), (1, -1), (-1, 1)] {
+                            let (na, nb) = (a + da, b + db);
+                            if na < 0 || nb < 0 || na + nb > m as i64 {
+                                continue;
+                            }
+                            let p = start + lattice_index(m, na as usize, nb as usize);
+                            hits[p * 2 + side].store(true, Ordering::Relaxed);
+                        }
+                    }
+                }
             }
         }
-        out
     }
+}
+
+/// The lattice points a surface-cache lookup reads.
+enum Corners {
+    /// A slot of a single point.
+    One(usize),
+    /// The corners of the lattice cell hit, with their interpolation weights.
+    Three([usize; 3], [f32; 3]),
 }
 
 /// A surface cache evaluated ahead of the bakes that share it
@@ -429,12 +493,14 @@ pub struct SharedSurfaceCache {
     pub seed: u64,
     /// Hemisphere rays per entry.
     pub cache_rays: usize,
-    /// Rays traced to evaluate it.
+    /// Rays traced to find the entries to evaluate and to evaluate them.
     pub rays: u64,
+    /// Of `rays`, those traced to find the entries voxel rays hit.
+    pub visibility_rays: u64,
     /// Wall time of laying and evaluating it.
     pub time: Duration,
-    /// Per entry (`point * 2 + side`, side 0 the front): its SH9 transfer, `None` for a side no
-    /// voxel ray can look up (facing no voxel centre, or the back of a single-sided surface).
+    /// Per entry (`point * 2 + side`, side 0 the front): its SH9 transfer, `None` for one not
+    /// evaluated ahead (no ray of the visibility pass hit it).
     pub values: Vec<Option<[f32; SH9]>>,
 }
 
@@ -467,7 +533,8 @@ impl SharedSurfaceCache {
 pub struct TransferBaker<'s> {
     scene: &'s Scene,
     pub(crate) options: BakeOptions,
-    tracer: RayTracer,
+    /// Shared with the bakes of parts of this one's scene ([`TransferBaker::part`]).
+    tracer: Arc<RayTracer>,
     materials: Vec<SlotMaterial>,
     grid: Aabb,
     /// Voxels whose centre is outside this box are skipped.
@@ -494,6 +561,26 @@ impl<'s> TransferBaker<'s> {
     /// `options.bounds` is given; [`TraceError::InvalidOption`] for a zero resolution, zero rays,
     /// a negative or non-finite margin or spacing, or invalid bounds.
     pub fn new(scene: &'s Scene, options: BakeOptions) -> Result<Self, TraceError> {
+        Self::build(scene, options, None)
+    }
+
+    /// A baker of the same scene with `options`, validated as [`TransferBaker::new`] validates
+    /// them, on this baker's ray tracer (no BVH is built; its build quality is this one's):
+    /// e.g. a tile of this bake's grid, whose surface-cache slots are this bake's.
+    fn part(&self, options: BakeOptions) -> Result<Self, TraceError> {
+        let options = BakeOptions {
+            build_quality: self.options.build_quality,
+            ..options
+        };
+        Self::build(self.scene, options, Some(Arc::clone(&self.tracer)))
+    }
+
+    /// [`TransferBaker::new`] on `tracer` when given, else on a BVH built here.
+    fn build(
+        scene: &'s Scene,
+        options: BakeOptions,
+        tracer: Option<Arc<RayTracer>>,
+    ) -> Result<Self, TraceError> {
         let invalid = |what, why: String| Err(TraceError::InvalidOption { what, why });
         if options.resolution.contains(&0) {
             return invalid(
@@ -587,7 +674,12 @@ impl<'s> TransferBaker<'s> {
                 .min(groups)
         });
         let t0 = Instant::now();
-        let tracer = RayTracer::with_quality(scene.triangles(), options.build_quality);
+        let tracer = tracer.unwrap_or_else(|| {
+            Arc::new(RayTracer::with_quality(
+                scene.triangles(),
+                options.build_quality,
+            ))
+        });
         let bvh_time = t0.elapsed();
         let materials = (0..tracer.slots() as u32)
             .map(|s| {
@@ -731,6 +823,8 @@ impl<'s> TransferBaker<'s> {
             subdiv,
             points,
             values,
+            seed: self.options.seed,
+            given: 0,
         }
     }
 
@@ -772,46 +866,87 @@ impl<'s> TransferBaker<'s> {
         Ok(GridField::new(self.options.resolution, self.grid, dim)?)
     }
 
-    /// The surface cache the indirect mode needs (`None` without one): the one given to
-    /// [`TransferBaker::with_surface_cache`], else a fresh one; and its set-up time.
-    pub(crate) fn surface_cache(&self) -> (Option<Cow<'_, SurfaceCache>>, Duration) {
+    /// The surface cache the indirect mode needs (`None` without one): a copy of the one given
+    /// to [`TransferBaker::with_surface_cache`] (what this bake evaluates stays its own), else a
+    /// fresh one; and its set-up time.
+    pub(crate) fn surface_cache(&self) -> (Option<SurfaceCache>, Duration) {
         let t0 = Instant::now();
         let cache = match (self.options.indirect, &self.shared_cache) {
-            (IndirectMode::SurfaceCache, Some(shared)) => Some(Cow::Borrowed(shared)),
-            (IndirectMode::SurfaceCache, None) => Some(Cow::Owned(self.build_cache().0)),
+            (IndirectMode::SurfaceCache, Some(shared)) => Some(shared.clone()),
+            (IndirectMode::SurfaceCache, None) => Some(self.build_cache().0),
             (IndirectMode::BruteForce | IndirectMode::Off, _) => None,
         };
         (cache, t0.elapsed())
     }
 
-    /// Whether side `side` of lattice point `point` can be looked up by a voxel ray: the side
-    /// must face some voxel centre (a ray hits the side of a triangle's plane its origin lies
-    /// on), and be the front or the back of a double-sided slot.
-    fn entry_needed(&self, cache: &SurfaceCache, point: usize, side: usize) -> bool {
-        let slot = cache.start.partition_point(|&s| s as usize <= point) - 1;
-        if side == 1 && !self.materials[slot].double_sided {
-            return false;
+    /// Marks in `hits` (`point * 2 + side`) the entries of `cache` that the first
+    /// [`VISIBILITY_GROUPS`] icosahedra of this bake's voxels look up: the rays its bake traces
+    /// first, closest hits only. Returns the rays traced.
+    fn mark_cache_hits(
+        &self,
+        cache: &SurfaceCache,
+        hits: &[AtomicBool],
+        progress: &dyn Progress,
+    ) -> Result<u64, TraceError> {
+        if self.options.indirect != IndirectMode::SurfaceCache {
+            return Ok(0);
         }
-        // The voxel centres' box; a tolerance of the ray offset keeps a centre on the plane.
-        let cell = self.grid.size() / Vec3::from_array(self.options.resolution.map(|n| n as f32));
-        let (lo, hi) = (self.grid.min + 0.5 * cell, self.grid.max - 0.5 * cell);
-        let normal = self.tracer.slot_normal(slot as u32).normalize_or_zero();
-        let normal = if side == 0 { normal } else { -normal };
-        let vertex = self.tracer.slot_vertices(slot as u32)[0];
-        let farthest = Vec3::select(normal.cmpge(Vec3::ZERO), hi, lo);
-        (farthest - vertex).dot(normal) > -self.eps
+        let grid = self.empty_field(1)?;
+        let groups = VISIBILITY_GROUPS.min(self.groups);
+        let traced = AtomicU64::new(0);
+        let mark =
+            |point: usize, side: usize| hits[point * 2 + side].store(true, Ordering::Relaxed);
+        (0..grid.num_voxels())
+            .into_par_iter()
+            .with_min_len(VOXEL_CHUNK)
+            .try_for_each(|v| {
+                progress.check()?;
+                progress.inc(1);
+                let x = grid.centre_of(v);
+                if self.outside_trace_box(x) {
+                    return Ok(());
+                }
+                for g in 0..groups {
+                    let q = self.rotation(v, g);
+                    for &d in icosahedron().iter() {
+                        let w = q * d;
+                        let Some(hit) = self.tracer.closest_slot(x, w, 0.0, f32::INFINITY) else {
+                            continue;
+                        };
+                        let front = self.tracer.slot_normal(hit.slot).dot(w) < 0.0;
+                        if !(front || self.materials[hit.slot as usize].double_sided) {
+                            continue;
+                        }
+                        let side = usize::from(!front);
+                        let uv = || self.tracer.slot_barycentrics(hit.slot, x, w);
+                        match cache.corners(hit.slot, uv) {
+                            Corners::One(point) => mark(point, side),
+                            Corners::Three(points, _) => {
+                                points.into_iter().for_each(|p| mark(p, side))
+                            }
+                        }
+                    }
+                }
+                traced.fetch_add((groups * ICOSA) as u64, Ordering::Relaxed);
+                Ok::<(), TraceError>(())
+            })?;
+        Ok(traced.into_inner())
     }
 
-    /// Evaluates this bake's whole surface cache ahead: every entry a voxel ray can look up
-    /// (the sides of the lattice points that face some voxel centre, backs only of double-sided
-    /// surfaces), each the same value a
-    /// bake with these options computes on first use. Use it to share one cache between bakes
-    /// of parts of one grid (the tiles of a tiled bake, [`TransferBaker::with_surface_cache`])
-    /// so that none traces it again. Deterministic for the seed on any thread count. Errors:
-    /// [`TraceError::InvalidOption`] when the indirect mode has no surface cache,
-    /// [`TraceError::Core`]`(Cancelled)` when cancelled.
+    /// Evaluates ahead the part of this bake's surface cache that the bakes of `parts` (bakes
+    /// of this scene, e.g. the tiles of this bake's grid) look up with the first icosahedron of
+    /// each voxel, grown by three lattice steps on each triangle; each entry the value a bake
+    /// with these options computes on first use. A bake
+    /// given it ([`TransferBaker::with_surface_cache`]) evaluates any other entry its rays hit
+    /// on first use, with the same seed, so the cache's values and the bake's bytes do not
+    /// depend on which entries were evaluated ahead. Use it to share one cache between bakes of
+    /// parts of one grid (the tiles of a tiled bake) so that they trace the entries most of
+    /// them need once. Deterministic for the seed on any thread count. Errors:
+    /// [`TraceError::InvalidOption`] when the indirect mode has no surface cache or a part's
+    /// options are invalid, [`TraceError::Core`]`(Cancelled)` when cancelled.
     pub fn evaluate_surface_cache(
         &self,
+        parts: &[BakeOptions],
         progress: &dyn Progress,
     ) -> Result<SharedSurfaceCache, TraceError> {
         if self.options.indirect != IndirectMode::SurfaceCache {
@@ -823,6 +958,23 @@ impl<'s> TransferBaker<'s> {
         let t0 = Instant::now();
         let (cache, spacing) = self.build_cache();
         let entries = cache.values.len();
+        let hits: Vec<AtomicBool> = (0..entries).map(|_| AtomicBool::new(false)).collect();
+        progress.message("surface cache: the entries voxel rays hit");
+        progress.set_len(
+            parts
+                .iter()
+                .map(|o| o.resolution.iter().product::<usize>() as u64)
+                .sum(),
+        );
+        let mut visibility_rays = 0;
+        for options in parts {
+            visibility_rays += self
+                .part(options.clone())?
+                .mark_cache_hits(&cache, &hits, progress)?;
+        }
+        for _ in 0..VISIBILITY_DILATION {
+            cache.dilate(&hits);
+        }
         progress.message("surface cache");
         progress.set_len(entries as u64);
         let values = (0..entries)
@@ -832,7 +984,7 @@ impl<'s> TransferBaker<'s> {
                 let (point, side) = (entry / 2, entry % 2);
                 progress.check()?;
                 progress.inc(1);
-                if !self.entry_needed(&cache, point, side) {
+                if !hits[entry].load(Ordering::Relaxed) {
                     return Ok(None);
                 }
                 let (p, n) = cache.points[point];
@@ -847,7 +999,8 @@ impl<'s> TransferBaker<'s> {
             layout: cache.layout_hash(),
             seed: self.options.seed,
             cache_rays: self.options.cache_rays,
-            rays: evaluated * self.options.cache_rays as u64,
+            rays: visibility_rays + evaluated * self.options.cache_rays as u64,
+            visibility_rays,
             time: t0.elapsed(),
             values,
         })
@@ -855,10 +1008,10 @@ impl<'s> TransferBaker<'s> {
 
     /// This baker using `shared` (from [`TransferBaker::evaluate_surface_cache`] of a bake of
     /// the same scene with the same cache knobs, e.g. of the whole grid this one is a part of)
-    /// as its surface cache: it traces no cache ray. Errors ([`TraceError::InvalidOption`])
+    /// as its surface cache: it traces cache rays only for the entries its rays hit that
+    /// `shared` lacks, evaluated with `shared`'s seed. Errors ([`TraceError::InvalidOption`])
     /// when this bake has no surface cache, or `shared` was laid on another lattice (another
-    /// scene, spacing or tracer), with other cache rays, or lacks an entry a voxel ray can look
-    /// up.
+    /// scene, spacing or tracer) or with other cache rays.
     pub fn with_surface_cache(mut self, shared: &SharedSurfaceCache) -> Result<Self, TraceError> {
         let invalid = |why: String| TraceError::InvalidOption {
             what: "surface cache",
@@ -882,7 +1035,7 @@ impl<'s> TransferBaker<'s> {
                 shared.spacing
             )));
         }
-        let cache = self.lay_cache(self.subdivisions(shared.spacing));
+        let mut cache = self.lay_cache(self.subdivisions(shared.spacing));
         let layout = cache.layout_hash();
         if layout != shared.layout || cache.values.len() != shared.values.len() {
             return Err(invalid(format!(
@@ -893,21 +1046,13 @@ impl<'s> TransferBaker<'s> {
                 cache.values.len()
             )));
         }
-        for (entry, value) in shared.values.iter().enumerate() {
-            match value {
-                Some(v) => {
-                    let _ = cache.values[entry].set(*v);
-                }
-                None if self.entry_needed(&cache, entry / 2, entry % 2) => {
-                    return Err(invalid(format!(
-                        "it lacks entry {entry} (point {}, side {}), which voxel rays can look up",
-                        entry / 2,
-                        entry % 2
-                    )));
-                }
-                None => {}
+        for (slot, value) in cache.values.iter().zip(&shared.values) {
+            if let Some(v) = value {
+                let _ = slot.set(*v);
+                cache.given += 1;
             }
         }
+        cache.seed = shared.seed;
         self.shared_cache = Some(cache);
         Ok(self)
     }
@@ -1032,8 +1177,7 @@ impl<'s> TransferBaker<'s> {
                     |point, side| {
                         let (p, n) = c.points[point];
                         let n = if side == 0 { n } else { -n };
-                        let scramble =
-                            hash_seed(self.options.seed, STREAM_CACHE, (2 * point + side) as u64);
+                        let scramble = hash_seed(c.seed, STREAM_CACHE, (2 * point + side) as u64);
                         cache_rays.fetch_add(self.options.cache_rays as u64, Ordering::Relaxed);
                         self.hemisphere_transfer(p, n, scramble)
                     },
@@ -1069,7 +1213,7 @@ impl<'s> TransferBaker<'s> {
         let voxels = field.num_voxels();
         let cache_rays = AtomicU64::new(0);
         let (cache, cache_time) = self.surface_cache();
-        let cache_points = cache.as_deref().map_or(0, SurfaceCache::points);
+        let cache_points = cache.as_ref().map_or(0, SurfaceCache::points);
 
         let t1 = Instant::now();
         let voxel_rays = AtomicU64::new(0);
@@ -1108,7 +1252,7 @@ impl<'s> TransferBaker<'s> {
                             continue;
                         }
                         let (is_valid, r) =
-                            self.voxel_transfer(x, v, cache.as_deref(), &cache_rays, o, var);
+                            self.voxel_transfer(x, v, cache.as_ref(), &cache_rays, o, var);
                         *okv = is_valid;
                         if !is_valid {
                             invalid.fetch_add(1, Ordering::Relaxed);
@@ -1121,7 +1265,7 @@ impl<'s> TransferBaker<'s> {
                 })?;
         }
         let voxel_time = t1.elapsed();
-        let cache_evaluated = cache.as_deref().map_or(0, SurfaceCache::evaluated);
+        let cache_evaluated = cache.as_ref().map_or(0, SurfaceCache::evaluated);
         drop(cache);
         let t2 = Instant::now();
         if let Some(options) = &self.options.denoise {
@@ -1251,6 +1395,31 @@ mod tests {
             subdiv: vec![m as u16],
             points: vec![(Vec3::ZERO, Vec3::Y); n],
             values,
+            seed: 0,
+            given: 0,
+        }
+    }
+
+    /// A dilation marks the six lattice neighbours of a marked point on its side only; at a
+    /// corner, the two that exist.
+    #[test]
+    fn a_dilation_marks_the_lattice_neighbours_on_the_same_side() {
+        let m = 4;
+        let cache = affine_cache(m);
+        let marked = |hits: &[AtomicBool], side: usize| {
+            (0..hits.len() / 2)
+                .filter(|p| hits[p * 2 + side].load(Ordering::Relaxed))
+                .count()
+        };
+        let hits: Vec<AtomicBool> = (0..cache.values.len())
+            .map(|_| AtomicBool::new(false))
+            .collect();
+        hits[2 * lattice_index(m, 1, 1)].store(true, Ordering::Relaxed);
+        hits[2 * lattice_index(m, 0, 0) + 1].store(true, Ordering::Relaxed);
+        cache.dilate(&hits);
+        assert_eq!((marked(&hits, 0), marked(&hits, 1)), (7, 3));
+        for (a, b) in [(0, 1), (2, 1), (1, 0), (1, 2), (2, 0), (0, 2)] {
+            assert!(hits[2 * lattice_index(m, a, b)].load(Ordering::Relaxed));
         }
     }
 
@@ -1382,9 +1551,11 @@ mod tests {
     }
 
     /// A bake using a cache evaluated ahead is the bake that evaluates it on the way, bit for
-    /// bit, and traces no cache ray; a cache of another lattice or other cache rays is refused.
+    /// bit, and evaluates only the entries its rays hit that the cache lacks (with the cache's
+    /// seed: an empty cache changes no byte); a cache of another lattice or other cache rays is
+    /// refused.
     #[test]
-    fn a_shared_surface_cache_gives_the_same_bake_without_cache_rays() {
+    fn a_shared_surface_cache_gives_the_same_bake_evaluating_only_what_it_lacks() {
         let scene = crate::Scene::cornell_box();
         let options = BakeOptions {
             resolution: [5, 5, 5],
@@ -1395,22 +1566,44 @@ mod tests {
         };
         let baker = TransferBaker::new(&scene, options.clone()).unwrap();
         let own = baker.bake(&prt_core::NoProgress).unwrap();
-        let shared = baker.evaluate_surface_cache(&prt_core::NoProgress).unwrap();
-        // At most both sides of every point; the walls' outer sides face no voxel.
-        assert!(shared.evaluated() < 2 * shared.points());
-        assert_eq!(shared.rays, (shared.evaluated() * 8) as u64);
-        assert!(own.stats.cache_rays <= shared.rays);
-        let with = TransferBaker::new(&scene, options.clone())
-            .unwrap()
-            .with_surface_cache(&shared)
-            .unwrap()
-            .bake(&prt_core::NoProgress)
+        let shared = baker
+            .evaluate_surface_cache(std::slice::from_ref(&options), &prt_core::NoProgress)
             .unwrap();
-        assert_eq!(with.field.data(), own.field.data());
-        assert_eq!(with.valid, own.valid);
-        assert_eq!(with.stats.cache_rays, 0);
-        assert_eq!(with.stats.voxel_rays, own.stats.voxel_rays);
-        assert_eq!(with.stats.cache_points, shared.points());
+        assert_eq!(
+            shared.visibility_rays,
+            (125 * VISIBILITY_GROUPS * ICOSA) as u64
+        );
+        assert_eq!(
+            shared.rays,
+            shared.visibility_rays + (shared.evaluated() * 8) as u64
+        );
+        let with = |shared: &SharedSurfaceCache| {
+            TransferBaker::new(&scene, options.clone())
+                .unwrap()
+                .with_surface_cache(shared)
+                .unwrap()
+                .bake(&prt_core::NoProgress)
+                .unwrap()
+        };
+        let given = with(&shared);
+        assert_eq!(given.field.data(), own.field.data());
+        assert_eq!(given.valid, own.valid);
+        // It evaluates what its rays hit beyond the shared entries.
+        assert!(given.stats.cache_evaluated < own.stats.cache_evaluated);
+        assert!(given.stats.cache_evaluated + shared.evaluated() >= own.stats.cache_evaluated);
+        assert_eq!(
+            given.stats.cache_rays,
+            8 * given.stats.cache_evaluated as u64
+        );
+        assert_eq!(given.stats.voxel_rays, own.stats.voxel_rays);
+        assert_eq!(given.stats.cache_points, shared.points());
+        let empty = SharedSurfaceCache {
+            values: vec![None; shared.values.len()],
+            ..shared.clone()
+        };
+        let again = with(&empty);
+        assert_eq!(again.field.data(), own.field.data());
+        assert_eq!(again.stats.cache_evaluated, own.stats.cache_evaluated);
 
         let refused = |options: BakeOptions, shared: &SharedSurfaceCache| {
             TransferBaker::new(&scene, options)
@@ -1431,13 +1624,7 @@ mod tests {
             ..shared.clone()
         };
         assert!(matches!(
-            refused(options.clone(), &coarser),
-            TraceError::InvalidOption { .. }
-        ));
-        let mut holed = shared.clone();
-        holed.values[0] = None;
-        assert!(matches!(
-            refused(options, &holed),
+            refused(options, &coarser),
             TraceError::InvalidOption { .. }
         ));
     }

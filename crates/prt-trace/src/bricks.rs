@@ -349,7 +349,7 @@ impl TransferBaker<'_> {
                         let (is_valid, r) = self.voxel_transfer(
                             grid.centre_of(v),
                             v,
-                            cache.as_deref(),
+                            cache.as_ref(),
                             &cache_rays,
                             o,
                             &mut var[row - base],
@@ -363,8 +363,8 @@ impl TransferBaker<'_> {
                 })?;
         }
         let voxel_time = t1.elapsed();
-        let cache_points = cache.as_deref().map_or(0, SurfaceCache::points);
-        let cache_evaluated = cache.as_deref().map_or(0, SurfaceCache::evaluated);
+        let cache_points = cache.as_ref().map_or(0, SurfaceCache::points);
+        let cache_evaluated = cache.as_ref().map_or(0, SurfaceCache::evaluated);
         drop(cache);
         let t2 = Instant::now();
         if let Some(options) = &self.options.denoise {

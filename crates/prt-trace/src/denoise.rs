@@ -267,7 +267,7 @@ mod tests {
                 let x = volume.field.centre_of(v);
                 if x.x > 1.0 / 15.0 && volume.valid[v] {
                     let (mut t, mut var) = (vec![0.0; TRANSFER_DIM], 0.0);
-                    baker.voxel_transfer(x, v, cache.as_deref(), &rays, &mut t, &mut var);
+                    baker.voxel_transfer(x, v, cache.as_ref(), &rays, &mut t, &mut var);
                     dark.push((v, f64::from(var)));
                 }
             }

@@ -1,6 +1,10 @@
 //! The plan's shared surface cache, `surface_cache.bin`: evaluated once (by `prt plan`, or by
 //! the first worker that finds none) and read by every tile, so a tiled bake traces the cache's
-//! rays once, as a one-machine bake does.
+//! rays about once, as a one-machine bake does. It holds the entries the first icosahedron of
+//! each tile's voxels hits (a visibility pass over the tiles' own first rays), grown by three
+//! lattice steps on their triangles; a tile evaluates any other entry its rays hit on first use,
+//! with the plan's seed, so the values, and the tiles' bytes, do not depend on which entries
+//! the file holds.
 //!
 //! The file: the magic `PRTSCACH`, a little-endian u32 version, a u32 length and that many bytes
 //! of JSON ([`SurfaceCacheHeader`]: the fingerprint of everything that determines the values,
@@ -20,6 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use super::checksum::Fnv1a64;
 use super::plan::{TileError, TilePlan, as_json, json_differences};
+use super::worker::{tile_options, tile_trace_box};
 use crate::{BakeError, SceneInput, scene_hash};
 
 /// File name of the shared surface cache inside a plan folder.
@@ -28,13 +33,15 @@ pub const SURFACE_CACHE_FILE: &str = "surface_cache.bin";
 const SURFACE_CACHE_TIMING_FILE: &str = "surface_cache_timing.json";
 /// The file's first bytes.
 pub const SURFACE_CACHE_MAGIC: &[u8; 8] = b"PRTSCACH";
-/// Version of the file this crate writes and reads.
-pub const SURFACE_CACHE_VERSION: u32 = 1;
+/// Version of the file this crate writes and reads (2: the entries the tiles' first rays hit,
+/// with the visibility pass's rays; 1 held every entry facing a voxel centre).
+pub const SURFACE_CACHE_VERSION: u32 = 2;
 /// Largest header read (a few hundred bytes).
 const HEADER_MAX: usize = 1 << 16;
 
-/// Everything that determines the cache's values: the scene, the lattice it is laid for, the
-/// bake's seed and the cache knobs. A file whose fingerprint is not its plan's is stale.
+/// Everything that determines the cache's values and which entries it holds: the scene, the
+/// lattice it is laid for, the bake's seed, the cache knobs and the tiles whose first rays chose
+/// the entries. A file whose fingerprint is not its plan's is stale.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SurfaceCacheFingerprint {
     /// The plan's scene hash.
@@ -49,19 +56,32 @@ pub struct SurfaceCacheFingerprint {
     pub seed: u64,
     /// Hemisphere rays per entry.
     pub cache_rays: usize,
+    /// `fnv1a64:HEX` of what decides the tiles' first rays: per tile its traced box (with the
+    /// denoiser's margin), its seed and whether its directions come in replicate streams; the
+    /// scene box's margin.
+    pub tiles: String,
 }
 
 impl SurfaceCacheFingerprint {
     /// The fingerprint `plan`'s cache must carry.
-    pub fn of(plan: &TilePlan) -> Self {
-        Self {
+    pub fn of(plan: &TilePlan) -> Result<Self, TileError> {
+        let tiles = (0..plan.tiles.len())
+            .map(|i| {
+                let options = tile_options(plan, i)?;
+                let replicated = options.adaptive.is_some() || options.denoise.is_some();
+                Ok((tile_trace_box(plan, i)?, options.seed, replicated))
+            })
+            .collect::<Result<Vec<_>, TileError>>()?;
+        let tiles = serde_json::to_vec(&(tiles, plan.config.margin)).unwrap_or_default();
+        Ok(Self {
             scene_hash: plan.scene.hash.clone(),
             lattice_dims: plan.lattice_dims,
             lattice_min: plan.lattice_min,
             lattice_max: plan.lattice_max,
             seed: plan.config.seed,
             cache_rays: plan.config.cache_rays,
-        }
+            tiles: Fnv1a64::of(&tiles),
+        })
     }
 }
 
@@ -78,8 +98,10 @@ pub struct SurfaceCacheHeader {
     pub points: usize,
     /// Entries evaluated.
     pub evaluated: usize,
-    /// Rays traced to evaluate them.
+    /// Rays traced to choose the entries and to evaluate them.
     pub rays: u64,
+    /// Of `rays`, the visibility pass's.
+    pub visibility_rays: u64,
     /// The payload's checksum, `fnv1a64:HEX`.
     pub checksum: String,
 }
@@ -98,8 +120,9 @@ fn cache_options(plan: &TilePlan) -> BakeOptions {
     }
 }
 
-/// Evaluates `plan`'s shared surface cache on `scene` (which must hash as the plan's): every
-/// entry a voxel ray of any tile can look up, with the values a one-machine bake computes.
+/// Evaluates `plan`'s shared surface cache on `scene` (which must hash as the plan's): the
+/// entries the first icosahedron of each tile's voxels hits (grown by three lattice steps),
+/// with the values a one-machine bake computes.
 pub fn evaluate_surface_cache(
     plan: &TilePlan,
     scene: &SceneInput,
@@ -114,13 +137,19 @@ pub fn evaluate_surface_cache(
     }
     let baker =
         TransferBaker::new(&scene.scene, cache_options(plan)).map_err(BakeError::TracerSetup)?;
+    let tiles = (0..plan.tiles.len())
+        .map(|i| tile_options(plan, i))
+        .collect::<Result<Vec<_>, TileError>>()?;
     Ok(baker
-        .evaluate_surface_cache(progress)
+        .evaluate_surface_cache(&tiles, progress)
         .map_err(BakeError::Trace)?)
 }
 
 /// `cache` as the bytes of `surface_cache.bin` for `plan`.
-pub fn encode_surface_cache(plan: &TilePlan, cache: &SharedSurfaceCache) -> Vec<u8> {
+pub fn encode_surface_cache(
+    plan: &TilePlan,
+    cache: &SharedSurfaceCache,
+) -> Result<Vec<u8>, TileError> {
     let mut payload = vec![0u8; cache.values.len().div_ceil(8)];
     for (entry, value) in cache.values.iter().enumerate() {
         if value.is_some() {
@@ -133,12 +162,13 @@ pub fn encode_surface_cache(plan: &TilePlan, cache: &SharedSurfaceCache) -> Vec<
         }
     }
     let header = SurfaceCacheHeader {
-        fingerprint: SurfaceCacheFingerprint::of(plan),
+        fingerprint: SurfaceCacheFingerprint::of(plan)?,
         spacing: cache.spacing,
         layout: cache.layout,
         points: cache.points(),
         evaluated: cache.evaluated(),
         rays: cache.rays,
+        visibility_rays: cache.visibility_rays,
         checksum: Fnv1a64::of(&payload),
     };
     let json = serde_json::to_vec(&header).unwrap_or_default();
@@ -148,7 +178,7 @@ pub fn encode_surface_cache(plan: &TilePlan, cache: &SharedSurfaceCache) -> Vec<
     bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
     bytes.extend_from_slice(&json);
     bytes.extend_from_slice(&payload);
-    bytes
+    Ok(bytes)
 }
 
 fn malformed(path: &Path, why: impl Into<String>) -> TileError {
@@ -194,7 +224,7 @@ fn decode_header(
         .map_err(|e| malformed(path, format!("header: {e}")))?;
     let differences = json_differences(
         &as_json(&header.fingerprint),
-        &as_json(&SurfaceCacheFingerprint::of(plan)),
+        &as_json(&SurfaceCacheFingerprint::of(plan)?),
     );
     if !differences.is_empty() {
         return Err(TileError::StaleSurfaceCache {
@@ -303,6 +333,7 @@ pub fn decode_surface_cache(
         seed: header.fingerprint.seed,
         cache_rays: header.fingerprint.cache_rays,
         rays: header.rays,
+        visibility_rays: header.visibility_rays,
         time: Duration::ZERO,
         values,
     })
@@ -437,7 +468,7 @@ pub fn ensure_surface_cache(
     })?;
     write(
         plan_dir.join(SURFACE_CACHE_FILE),
-        &encode_surface_cache(plan, &cache),
+        &encode_surface_cache(plan, &cache)?,
     )?;
     let timing = serde_json::json!({ "seconds": cache.time.as_secs_f64() });
     write(
@@ -471,18 +502,21 @@ mod tests {
         let plan = plan(0);
         let scene = SceneInput::cornell_box();
         let cache = evaluate_surface_cache(&plan, &scene, &NoProgress).unwrap();
-        let bytes = encode_surface_cache(&plan, &cache);
+        let bytes = encode_surface_cache(&plan, &cache).unwrap();
         let path = Path::new(SURFACE_CACHE_FILE);
         let limits = Limits::default();
         let read = decode_surface_cache(&plan, &bytes, path, &limits).unwrap();
         assert_eq!(read.values, cache.values);
         assert_eq!((read.layout, read.spacing), (cache.layout, cache.spacing));
-        // Another seed: stale, naming it.
+        // Another seed: stale, naming it and the tiles (seeded from it) whose rays chose the
+        // entries.
         let error =
             decode_surface_cache(&super::tests::plan(1), &bytes, path, &limits).unwrap_err();
         assert!(
             matches!(&error, TileError::StaleSurfaceCache { differences, .. }
-                if differences == &["seed: 0 → 1"]),
+                if differences.len() == 2
+                    && differences[0] == "seed: 0 → 1"
+                    && differences[1].starts_with("tiles: ")),
             "{error}"
         );
         // A flipped payload bit: damaged.

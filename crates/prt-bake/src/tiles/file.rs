@@ -141,11 +141,12 @@ pub struct TileStats {
     pub rays_per_voxel: usize,
     /// Rays traced from voxels.
     pub voxel_rays: u64,
-    /// Rays traced for the surface cache (0: the tile read the plan's shared cache).
+    /// Rays traced for the surface-cache entries the tile's rays hit that the plan's shared
+    /// cache lacks.
     pub cache_rays: u64,
     /// Points of the surface cache the tile used (the plan's shared one).
     pub cache_points: usize,
-    /// Its entries evaluated.
+    /// Its entries the tile evaluated (those the shared cache lacks).
     pub cache_evaluated: usize,
 }
 
