@@ -288,19 +288,29 @@ fn tiles_share_one_surface_cache_and_the_report_counts_it_once() {
     let limits = prt_texture::Limits::default();
     let plan = prt_bake::tiles::TilePlan::read(&plan_dir, &limits).unwrap();
     let (cache, _) = prt_bake::tiles::read_surface_cache_header(&plan, &plan_dir, &limits).unwrap();
-    let mut tile_rays = 0;
+    let (mut tile_rays, mut tile_evaluated) = (0, 0);
     for i in 0..plan.tiles.len() {
         let text =
             std::fs::read_to_string(prt_bake::tiles::tile_dir(&plan_dir, i).join("tile.json"))
                 .unwrap();
         let stats: prt_bake::tiles::TileStats = serde_json::from_str(&text).unwrap();
         // A tile traces cache rays only for the entries the shared cache lacks.
-        assert_eq!(stats.cache_rays, 8 * stats.cache_evaluated as u64, "tile {i}");
+        assert_eq!(
+            stats.cache_rays,
+            8 * stats.cache_evaluated as u64,
+            "tile {i}"
+        );
         tile_rays += stats.rays();
+        tile_evaluated += stats.cache_evaluated as u64;
     }
     let (single, tiled) = (bake_counters(&one), bake_counters(&merged));
     let rays = |c: &serde_json::Value| c["rays"].as_u64().unwrap();
     assert_eq!(rays(&tiled), tile_rays + cache.rays);
+    // Entries evaluated: the shared cache's and those each tile evaluated itself.
+    assert_eq!(
+        tiled["cache_evaluated"].as_u64(),
+        Some(cache.evaluated as u64 + tile_evaluated)
+    );
     let ratio = rays(&tiled) as f64 / rays(&single) as f64;
     assert!(ratio <= 1.1, "tiled / one bake's rays: {ratio:.3}");
     assert!(tiled["mrays_per_second"].as_f64().unwrap() > 0.0);

@@ -105,16 +105,18 @@ pub fn assemble(
         stats.skipped_voxels += info.skipped_voxels;
         stats.voxel_rays += info.voxel_rays;
         stats.cache_rays += info.cache_rays;
+        stats.cache_evaluated += info.cache_evaluated;
         stats.rays_per_voxel = info.rays_per_voxel;
         let [bvh, cache, voxel] = read_timing(plan_dir, tile.index);
         stats.bvh_time += bvh;
         stats.cache_time += cache;
         stats.voxel_time += voxel;
     }
-    // The tiles share the plan's surface cache: its points and rays once, its time as a stage.
+    // The tiles share the plan's surface cache: its points, entries and rays once, its time as a
+    // stage; the entries a tile evaluated itself (those the shared cache lacks) add up above.
     let (cache, cache_time) = read_surface_cache_header(plan, plan_dir, limits)?;
     stats.cache_points = cache.points;
-    stats.cache_evaluated = cache.evaluated;
+    stats.cache_evaluated += cache.evaluated;
     stats.cache_rays += cache.rays;
     stats.cache_time += cache_time;
     // The tiles counted their halos too; recount over the assembled cores.

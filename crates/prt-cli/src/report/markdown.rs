@@ -279,6 +279,8 @@ pub fn write_report(
         "bake": {
             "rays": stats.rays(),
             "mrays_per_second": stats.mrays_per_second(),
+            "cache_points": stats.cache_points,
+            "cache_evaluated": stats.cache_evaluated,
             "invalid_voxels": invalid_voxels,
             "voxels": stats.voxels,
         },
