@@ -54,7 +54,8 @@ pub struct BakeConfig {
     #[serde(default, with = "loss_weighting_serde")]
     pub loss_weighting: Option<prt_mbd::LossWeighting>,
     /// MBD's centre projection ([`prt_mbd::Mbd::centre_projection`]): each voxel's coefficients
-    /// re-fitted on its own vector at its centre after the solve. In a plan file: a bool
+    /// re-fitted on its own vector at its centre after the solve (default on, which the rendered
+    /// images favour; the streamed merge fits every voxel this way). In a plan file: a bool
     /// (absent in older plans: false).
     #[serde(default)]
     pub centre_projection: bool,
@@ -135,7 +136,7 @@ impl Default for BakeConfig {
             full_iterations: 16,
             lambda: 1e-4,
             loss_weighting: Some(prt_mbd::LossWeighting::default()),
-            centre_projection: false,
+            centre_projection: true,
             encoding: Encoding::F16,
             baselines: true,
             seed: 0,

@@ -117,8 +117,9 @@ pub struct RenderArgs {
     pub specular: Option<f32>,
     /// View: the scene's glTF cameras in file order, then two automatic views of the scene box:
     /// `front` (looking along -Z from +Z, the box's x-y extent filling a 40° field of view) and
-    /// `inside` (from inside the box near its +X or +Z end, whichever axis is longer, at 40 % of
-    /// the height, looking back along that axis 10° down, 60° field of view). 0 is the first.
+    /// `inside` (from inside the box near its +X or +Z end, whichever axis is longer, at the first
+    /// point 5-45 % in that is not sealed off, at 40 % of the height, looking back along that
+    /// axis 10° down, 60° field of view). 0 is the first.
     #[arg(long, default_value_t = 0)]
     pub camera: usize,
     #[command(flatten)]
