@@ -239,8 +239,8 @@ fn main() {
             .num_threads(1)
             .build()
             .expect("one thread");
-        let time: Duration = pool
-            .install(|| median_time(cli.reps, || light_basis(&model, &config).expect("light")));
+        let time: Duration =
+            pool.install(|| median_time(cli.reps, || light_basis(&model, &config).expect("light")));
         timing.row(vec![
             rank.to_string(),
             format!("{} × {rank}", nodes.iter().product::<usize>()),
