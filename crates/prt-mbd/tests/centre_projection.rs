@@ -3,25 +3,14 @@
 //! solver's coefficients do: dim voxels beside bright ones), weighted or not, masked or not.
 
 use proptest::prelude::*;
-use prt_core::{Aabb, FieldModel, GridField, NoProgress};
+use prt_core::{FieldModel, GridField, NoProgress};
 use prt_mbd::{Basis, LabelSmoothing, LossWeighting, Mbd, MbdError};
+
+mod common;
 
 /// A sunlit half beside a closed dark one, five orders darker.
 fn field(seed: u64) -> GridField {
-    let mut state = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
-    };
-    GridField::from_fn([6, 4, 3], Aabb::UNIT, 7, |p, out| {
-        let scale = if p.x < 0.5 { 1e-5 } else { 1.0 };
-        out.iter_mut().for_each(|x| *x = scale * (1.0 + next()));
-    })
-    .expect("field")
+    common::scaled_noise_field([6, 4, 3], seed, |p| if p.x < 0.5 { 1e-5 } else { 1.0 })
 }
 
 fn mbd(projection: bool, weighting: Option<LossWeighting>) -> Mbd {

@@ -5,8 +5,10 @@
 
 use proptest::prelude::*;
 use prt_core::Compressor;
-use prt_core::{Aabb, FieldModel, GridField, NoProgress};
+use prt_core::{FieldModel, GridField, NoProgress};
 use prt_mbd::{Basis, BlockPca, ClusteredPca, LossWeighting, Mbd, MbdError, PiecewisePcaModel};
+
+mod common;
 
 fn mbd(weighting: Option<LossWeighting>) -> Mbd {
     let mut mbd = Mbd::new(2, Basis::HatGrid { nodes: [2, 3, 2] });
@@ -17,20 +19,7 @@ fn mbd(weighting: Option<LossWeighting>) -> Mbd {
 
 /// A field whose voxel magnitudes span several orders (a sunlit corner and a dark one).
 fn field(seed: u64) -> GridField {
-    let mut state = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    let mut next = move || {
-        state = state
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
-    };
-    GridField::from_fn([5, 4, 3], Aabb::UNIT, 7, |p, out| {
-        let scale = 10f32.powf(3.0 * p.x - 1.5);
-        out.iter_mut().for_each(|x| *x = scale * (1.0 + next()));
-    })
-    .expect("field")
+    common::scaled_noise_field([5, 4, 3], seed, |p| 10f32.powf(3.0 * p.x - 1.5))
 }
 
 fn centre(field: &GridField, v: usize) -> prt_core::glam::Vec3 {

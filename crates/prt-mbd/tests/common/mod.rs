@@ -262,3 +262,23 @@ pub fn hat_mbd(rank: usize, nodes: [usize; 3], solver: prt_mbd::SolverOptions) -
         ..prt_mbd::Mbd::new(rank, prt_mbd::Basis::HatGrid { nodes })
     }
 }
+
+/// A `dims` field of 7-D vectors on the unit box, each entry `scale(p) · (1 + u)` with `u` uniform
+/// in [−½, ½) from a seeded LCG: magnitudes that follow `scale` across the box.
+#[allow(dead_code)] // not every test file uses every field
+pub fn scaled_noise_field(dims: [usize; 3], seed: u64, scale: impl Fn(Vec3) -> f32) -> GridField {
+    let mut state = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    let mut next = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
+    };
+    GridField::from_fn(dims, Aabb::UNIT, 7, |p, out| {
+        let s = scale(p);
+        out.iter_mut().for_each(|x| *x = s * (1.0 + next()));
+    })
+    .expect("field")
+}
