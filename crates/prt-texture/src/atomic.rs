@@ -34,6 +34,66 @@ pub fn write_atomic_with(
     Ok(())
 }
 
+/// A file written over time, seeks included, under a temporary name in its folder; it appears
+/// under its own name only when [`AtomicFile::commit`] succeeds, and dropped uncommitted it
+/// leaves nothing behind (for writers that cannot produce the content in one closure).
+#[derive(Debug)]
+pub(crate) struct AtomicFile {
+    path: PathBuf,
+    tmp: PathBuf,
+    file: Option<fs::File>,
+}
+
+impl AtomicFile {
+    /// Creates (or truncates) the temporary file for `path`.
+    pub(crate) fn open(path: &Path) -> Result<Self, TextureError> {
+        let tmp = temporary_name(path);
+        let file = fs::File::create(&tmp).map_err(|e| TextureError::io(path, e))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            tmp,
+            file: Some(file),
+        })
+    }
+
+    /// The file's final name.
+    pub(crate) fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The open temporary file.
+    pub(crate) fn file(&mut self) -> &mut fs::File {
+        self.file
+            .as_mut()
+            .expect("an AtomicFile is open until commit")
+    }
+
+    /// Flushes the file to disk and renames it over its final name; on failure the temporary
+    /// file is removed.
+    pub(crate) fn commit(mut self) -> Result<(), TextureError> {
+        let file = self
+            .file
+            .take()
+            .expect("an AtomicFile is open until commit");
+        let result = file.sync_all().and_then(|()| {
+            drop(file);
+            fs::rename(&self.tmp, &self.path)
+        });
+        result.map_err(|e| {
+            let _ = fs::remove_file(&self.tmp);
+            TextureError::io(&self.path, e)
+        })
+    }
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if self.file.take().is_some() {
+            let _ = fs::remove_file(&self.tmp);
+        }
+    }
+}
+
 pub(crate) fn temporary_name(path: &Path) -> PathBuf {
     let mut name = path
         .file_name()
@@ -48,4 +108,42 @@ pub(crate) fn read_limited(path: &Path, max_bytes: u64) -> Result<Vec<u8>, Textu
     let meta = fs::metadata(path).map_err(|e| TextureError::io(path, e))?;
     crate::limits::check_at_most("file size", meta.len(), max_bytes)?;
     fs::read(path).map_err(|e| TextureError::io(path, e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{Seek, SeekFrom, Write};
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("prt-atomic-{name}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn an_atomic_file_appears_only_on_commit_and_leaves_nothing_when_dropped() {
+        let dir = scratch("file");
+        let path = dir.join("out.bin");
+        fs::write(&path, b"old").unwrap();
+        let mut out = AtomicFile::open(&path).unwrap();
+        out.file().write_all(b"abcdef").unwrap();
+        out.file().seek(SeekFrom::Start(1)).unwrap();
+        out.file().write_all(b"X").unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"old");
+        out.commit().unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"aXcdef");
+
+        let mut dropped = AtomicFile::open(&path).unwrap();
+        dropped.file().write_all(b"half").unwrap();
+        drop(dropped);
+        assert_eq!(fs::read(&path).unwrap(), b"aXcdef");
+        let names: Vec<_> = fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("out.bin")]);
+        fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -29,7 +29,7 @@
 
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
@@ -749,10 +749,8 @@ pub struct ArrayStream {
     entry: ArrayEntry,
     /// One per quantised channel (the array's channels padded to whole texels).
     ranges: Vec<ChannelRange>,
-    path: PathBuf,
-    tmp: PathBuf,
     /// `None` once finished.
-    file: Option<std::fs::File>,
+    out: Option<crate::atomic::AtomicFile>,
     /// Where the level's texels begin in the file.
     level_offset: u64,
     placement: Placement,
@@ -876,23 +874,21 @@ impl ArrayStream {
         entry.bytes = prefix.len() as u64 + level;
         entry.validate(&UNBOUNDED)?;
         let path = folder.join(&entry.file);
-        let tmp = crate::atomic::temporary_name(&path);
-        let file = std::fs::File::create(&tmp).map_err(|e| TextureError::io(&path, e))?;
+        let out = crate::atomic::AtomicFile::open(&path)?;
         let total = entry.bytes;
         // From here on, dropping the stream removes the temporary file.
         let mut stream = ArrayStream {
             ranges: quantised_ranges,
-            path: path.clone(),
-            tmp,
             level_offset: prefix.len() as u64,
             placement,
             written: vec![0; nodes.div_ceil(64) as usize],
             pending: Vec::new(),
             buffer: Vec::new(),
             entry,
-            file: Some(file),
+            out: Some(out),
         };
-        if let Some(file) = stream.file.as_mut() {
+        if let Some(out) = stream.out.as_mut() {
+            let file = out.file();
             // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
             file.write_all(&prefix)
                 .and_then(|()| file.set_len(total))
@@ -1015,11 +1011,12 @@ impl ArrayStream {
     fn flush(&mut self) -> Result<(), TextureError> {
         use std::io::{Seek, SeekFrom, Write};
         let texel = self.entry.texture_format().bytes_per_texel();
-        let path = &self.path;
-        let file = self
-            .file
+        let out = self
+            .out
             .as_mut()
             .ok_or_else(|| TextureError::invalid("array stream", "already finished"))?;
+        let path = out.path().to_path_buf();
+        let file = out.file();
         self.pending.sort_unstable();
         let mut run: Vec<u8> = Vec::new();
         let mut run_start = 0u64;
@@ -1028,7 +1025,7 @@ impl ArrayStream {
                 if !run.is_empty() {
                     file.seek(SeekFrom::Start(run_start))
                         .and_then(|_| file.write_all(&run))
-                        .map_err(|e| TextureError::io(path, e))?;
+                        .map_err(|e| TextureError::io(&path, e))?;
                 }
                 run.clear();
                 run_start = offset;
@@ -1038,7 +1035,7 @@ impl ArrayStream {
         if !run.is_empty() {
             file.seek(SeekFrom::Start(run_start))
                 .and_then(|_| file.write_all(&run))
-                .map_err(|e| TextureError::io(path, e))?;
+                .map_err(|e| TextureError::io(&path, e))?;
         }
         self.pending.clear();
         self.buffer.clear();
@@ -1063,20 +1060,9 @@ impl ArrayStream {
                 ),
             ));
         }
-        let file = self.file.take().expect("flush checked the file");
-        file.sync_all()
-            .and_then(|()| std::fs::rename(&self.tmp, &self.path))
-            .map_err(|e| TextureError::io(&self.path, e))?;
+        let out = self.out.take().expect("flush checked the file");
+        out.commit()?;
         Ok(self.entry.clone())
-    }
-}
-
-impl Drop for ArrayStream {
-    /// An unfinished stream leaves no file behind.
-    fn drop(&mut self) {
-        if self.file.take().is_some() {
-            let _ = std::fs::remove_file(&self.tmp);
-        }
     }
 }
 
