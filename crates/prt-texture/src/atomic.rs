@@ -61,20 +61,15 @@ impl AtomicFile {
         &self.path
     }
 
-    /// The open temporary file.
-    pub(crate) fn file(&mut self) -> &mut fs::File {
-        self.file
-            .as_mut()
-            .expect("an AtomicFile is open until commit")
+    /// The open temporary file; an error once committed.
+    pub(crate) fn file(&mut self) -> Result<&mut fs::File, TextureError> {
+        self.file.as_mut().ok_or_else(Self::committed)
     }
 
     /// Flushes the file to disk and renames it over its final name; on failure the temporary
     /// file is removed.
     pub(crate) fn commit(mut self) -> Result<(), TextureError> {
-        let file = self
-            .file
-            .take()
-            .expect("an AtomicFile is open until commit");
+        let file = self.file.take().ok_or_else(Self::committed)?;
         let result = file.sync_all().and_then(|()| {
             drop(file);
             fs::rename(&self.tmp, &self.path)
@@ -83,6 +78,10 @@ impl AtomicFile {
             let _ = fs::remove_file(&self.tmp);
             TextureError::io(&self.path, e)
         })
+    }
+
+    fn committed() -> TextureError {
+        TextureError::invalid("atomic file", "already committed")
     }
 }
 
@@ -128,15 +127,15 @@ mod tests {
         let path = dir.join("out.bin");
         fs::write(&path, b"old").unwrap();
         let mut out = AtomicFile::open(&path).unwrap();
-        out.file().write_all(b"abcdef").unwrap();
-        out.file().seek(SeekFrom::Start(1)).unwrap();
-        out.file().write_all(b"X").unwrap();
+        out.file().unwrap().write_all(b"abcdef").unwrap();
+        out.file().unwrap().seek(SeekFrom::Start(1)).unwrap();
+        out.file().unwrap().write_all(b"X").unwrap();
         assert_eq!(fs::read(&path).unwrap(), b"old");
         out.commit().unwrap();
         assert_eq!(fs::read(&path).unwrap(), b"aXcdef");
 
         let mut dropped = AtomicFile::open(&path).unwrap();
-        dropped.file().write_all(b"half").unwrap();
+        dropped.file().unwrap().write_all(b"half").unwrap();
         drop(dropped);
         assert_eq!(fs::read(&path).unwrap(), b"aXcdef");
         let names: Vec<_> = fs::read_dir(&dir)

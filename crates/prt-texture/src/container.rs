@@ -749,8 +749,8 @@ pub struct ArrayStream {
     entry: ArrayEntry,
     /// One per quantised channel (the array's channels padded to whole texels).
     ranges: Vec<ChannelRange>,
-    /// `None` once finished.
-    out: Option<crate::atomic::AtomicFile>,
+    /// The texture under its temporary name (removed if the stream is dropped unfinished).
+    out: crate::atomic::AtomicFile,
     /// Where the level's texels begin in the file.
     level_offset: u64,
     placement: Placement,
@@ -874,10 +874,13 @@ impl ArrayStream {
         entry.bytes = prefix.len() as u64 + level;
         entry.validate(&UNBOUNDED)?;
         let path = folder.join(&entry.file);
-        let out = crate::atomic::AtomicFile::open(&path)?;
-        let total = entry.bytes;
-        // From here on, dropping the stream removes the temporary file.
-        let mut stream = ArrayStream {
+        let mut out = crate::atomic::AtomicFile::open(&path)?;
+        // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
+        let file = out.file()?;
+        file.write_all(&prefix)
+            .and_then(|()| file.set_len(entry.bytes))
+            .map_err(|e| TextureError::io(&path, e))?;
+        Ok(ArrayStream {
             ranges: quantised_ranges,
             level_offset: prefix.len() as u64,
             placement,
@@ -885,16 +888,8 @@ impl ArrayStream {
             pending: Vec::new(),
             buffer: Vec::new(),
             entry,
-            out: Some(out),
-        };
-        if let Some(out) = stream.out.as_mut() {
-            let file = out.file();
-            // Texels no node reaches (unused tiles, empty atlas slots) stay zero.
-            file.write_all(&prefix)
-                .and_then(|()| file.set_len(total))
-                .map_err(|e| TextureError::io(&path, e))?;
-        }
-        Ok(stream)
+            out,
+        })
     }
 
     /// Writes the nodes of the box at node `min` of `size` nodes: `values` holds `channels`
@@ -1011,12 +1006,8 @@ impl ArrayStream {
     fn flush(&mut self) -> Result<(), TextureError> {
         use std::io::{Seek, SeekFrom, Write};
         let texel = self.entry.texture_format().bytes_per_texel();
-        let out = self
-            .out
-            .as_mut()
-            .ok_or_else(|| TextureError::invalid("array stream", "already finished"))?;
-        let path = out.path().to_path_buf();
-        let file = out.file();
+        let path = self.out.path().to_path_buf();
+        let file = self.out.file()?;
         self.pending.sort_unstable();
         let mut run: Vec<u8> = Vec::new();
         let mut run_start = 0u64;
@@ -1060,9 +1051,8 @@ impl ArrayStream {
                 ),
             ));
         }
-        let out = self.out.take().expect("flush checked the file");
-        out.commit()?;
-        Ok(self.entry.clone())
+        self.out.commit()?;
+        Ok(self.entry)
     }
 }
 
