@@ -13,7 +13,7 @@ use prt_manylight::{
     LightSliceConfig, RowColumnConfig, TensorConfig, VisibilityClusterMethod, VisibilityConfig,
     light_slice, row_column_sampling, tensor_clustering, visibility_clustering,
 };
-use prt_render::{NamedView, Rendered, ToneMap, image_metrics, views};
+use prt_render::{Rendered, ToneMap, image_metrics};
 use prt_trace::camera::{GBuffer, PinholeView};
 use prt_trace::manylight::{
     DirectionalLight, LightsBudget, SunAndUniformSky, Vpl, VplOptions, VplOracle,
@@ -22,7 +22,7 @@ use prt_trace::manylight::{
 use prt_trace::{LoadOptions, RayTracer, Scene};
 
 use crate::progress::StageBar;
-use crate::render::{format_of, save_render};
+use crate::render::{format_of, pick_view, save_render};
 
 /// A many-light method.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -578,23 +578,6 @@ fn frame_path(path: &Path, t: usize, frames: usize) -> PathBuf {
         .map(|e| e.to_string_lossy().into_owned())
         .unwrap_or_default();
     sibling(path, &format!("_{t:04}.{extension}"))
-}
-
-/// The view `--camera` picks, with an error that lists them all.
-fn pick_view(scene: &Scene, camera: usize) -> Result<NamedView> {
-    let all = views(scene);
-    all.get(camera).cloned().with_context(|| {
-        let list: Vec<String> = all
-            .iter()
-            .enumerate()
-            .map(|(i, v)| format!("{i} = {}", v.name))
-            .collect();
-        format!(
-            "--camera {camera} does not exist; the scene has {} view(s): {}",
-            all.len(),
-            list.join(", ")
-        )
-    })
 }
 
 /// About `target` VPLs with one bounce: a pilot run of up to 2000 particles measures VPLs per

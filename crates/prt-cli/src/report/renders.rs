@@ -86,7 +86,9 @@ pub fn write_renders(
     scene: &Scene,
     folder: &BakeFolder,
 ) -> Result<Option<RenderSummary>> {
-    let Some(view) = views(scene).into_iter().next() else {
+    // Placing the automatic inside view traces rays: list the views once.
+    let all_views = views(scene);
+    let Some(view) = all_views.first().cloned() else {
         return Ok(None); // no triangles and no camera: nothing to look at
     };
     let sky = Sky::default();
@@ -141,7 +143,7 @@ pub fn write_renders(
     let reference = &images[0].1;
     let tone = ToneMap::auto(reference);
     let mut view_metrics = Vec::new();
-    for (index, other) in views(scene).into_iter().enumerate() {
+    for (index, other) in all_views.into_iter().enumerate() {
         let rendered = if index == 0 {
             images.clone()
         } else {
