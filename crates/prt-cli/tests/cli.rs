@@ -140,7 +140,6 @@ fn small_cornell_bake_writes_a_consistent_report() {
         out_dir.join("mbd/basis.ktx2").to_str().expect("utf-8"),
     ]);
     assert!(inspect.status.success(), "{}", stderr(&inspect));
-    let _ = std::fs::remove_dir_all(out_dir);
 }
 
 #[test]
@@ -181,7 +180,6 @@ fn bad_input_gives_one_line_errors() {
 
     assert_clean_failure(&prt(&["encode", &path("missing.hdr")]), "does not exist");
     assert_clean_failure(&prt(&["inspect", &path("not.gltf")]), "unknown file type");
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// A one-triangle glTF whose primitive is drawn as points (mode 0): not bakeable.
@@ -287,7 +285,6 @@ fn encode_fits_a_constant_map_exactly_and_inspect_reads_it() {
     let inspect = prt(&["inspect", map_arg]);
     assert!(inspect.status.success(), "{}", stderr(&inspect));
     assert!(String::from_utf8_lossy(&inspect.stdout).contains("32 x 16 RGB"));
-    let _ = std::fs::remove_dir_all(dir);
 }
 
 /// A bake far over the memory budget is refused before anything is traced or written, with the
@@ -496,5 +493,4 @@ fn every_method_of_a_cornell_bake_renders() {
             .status
             .success()
     );
-    let _ = std::fs::remove_dir_all(dir);
 }

@@ -422,5 +422,4 @@ fn the_indexed_job_flow_retries_per_index_and_the_merge_waits_for_every_tile() {
             file.display()
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

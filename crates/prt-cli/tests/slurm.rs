@@ -472,7 +472,6 @@ fn deploy_slurm_bakes_resumes_a_failed_tile_and_matches_a_local_bake_byte_for_by
     distributed_merge(&mut cluster, &dir);
 
     drop(cluster);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `submit.sh --distributed-merge` on finished tiles: per stage an array of map tasks and a

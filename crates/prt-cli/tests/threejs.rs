@@ -255,8 +255,11 @@ impl Browser {
             ]);
         }
         let log = std::fs::File::create(log).expect("browser log");
+        std::fs::create_dir_all(profile).expect("browser profile");
         command
             .arg(format!("--user-data-dir={}", profile.display()))
+            // Chromium's own temporary folders go into the test's scratch folder too.
+            .env("TMPDIR", profile)
             .arg(url)
             .stdin(Stdio::null())
             .stdout(log.try_clone().expect("log"))
@@ -969,7 +972,6 @@ fn threejs_lights_the_export_as_the_sh_volume_and_prt_render_do() {
         "bake and exports {baked:.1} s, whole test {:.1} s",
         started.elapsed().as_secs_f64()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Largest mean relative error of three.js's lightmapped Cornell box against `prt lightmap`'s
@@ -1112,7 +1114,6 @@ fn threejs_lightmap_shows_what_prt_lightmap_shows() {
         dir.display()
     );
     eprintln!("whole test {:.1} s", started.elapsed().as_secs_f64());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// three.js's lightmapped render (rows from the top, RGBA) against prt's `view.exr`: the mean

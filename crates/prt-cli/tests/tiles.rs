@@ -173,7 +173,6 @@ fn a_tiled_bake_equals_the_single_bake_within_noise_and_retries_reproduce_bytes(
         .output()
         .unwrap();
     assert_clean_failure(&outside, "tile 4 does not exist");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

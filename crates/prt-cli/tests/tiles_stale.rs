@@ -156,7 +156,6 @@ fn a_stale_plan_is_refused_and_a_stale_tile_is_retraced_and_refused_by_the_merge
         !prt_bake::tiles::tile_dir(&old, 0).exists()
             && !prt_bake::tiles::tile_dir(&old, 1).exists()
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -202,7 +201,6 @@ fn a_tile_with_altered_floats_is_refused_by_the_merge_naming_it() {
         md.contains("surface-cache points") && !md.contains(" 0 surface-cache points"),
         "{md}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -241,7 +239,6 @@ fn a_damaged_plan_is_a_clean_error_for_bake_tile_and_merge() {
             );
         }
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `OUT/report.json`'s `bake` object.
@@ -343,5 +340,4 @@ fn tiles_share_one_surface_cache_and_the_report_counts_it_once() {
         "--out",
         dir.join("m3").to_str().unwrap(),
     ]));
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -67,12 +67,46 @@ pub fn prt(args: &[&str]) -> Output {
         .expect("the prt binary runs")
 }
 
-/// A fresh empty folder under the system's temp folder, unique to this process and `name`.
-pub fn scratch(name: &str) -> PathBuf {
+/// A fresh empty folder under the system's temp folder, unique to this process and `name`;
+/// removed when dropped, unless the test is failing (its files are then left to read).
+pub fn scratch(name: &str) -> Scratch {
     let dir = std::env::temp_dir().join(format!("prt-cli-test-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
-    dir
+    Scratch(dir)
+}
+
+/// A test's scratch folder (see [`scratch`]); dereferences to its path.
+pub struct Scratch(PathBuf);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for Scratch {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("the test's folder is kept: {}", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// Requires that a run of `prt` succeeded, showing its stderr if not.
