@@ -12,12 +12,23 @@
 //! (`draft`, `default`, `high`: every knob of that `--quality` preset, the resolution staying
 //! `--res`), `rays`, `cache_rays`, `rank`, `iterations`, `full_iterations`, `seed`, `adaptive`
 //! (target relative standard error, `off`), `min_rays` (adaptive sampling's minimum), `denoise`
-//! (strength, `off`), `radius` (the denoiser's half-width), `baselines` (`on`/`off`). `--plot`
+//! (strength, `off`), `radius` (the denoiser's half-width), `baselines` (`on`/`off`),
+//! `weighting` (the loss weighting of `prt bake --loss-weighting`: `none`, `relative[:EXPONENT]`),
+//! `projection` (MBD's centre projection, `on`/`off`). `--plot`
 //! draws one line per run with its `rays` knob removed (more rays to the right). Each bake writes its container into a temporary folder, reads it
 //! back and renders it (256², the reference's exposure); the traced volume itself is rendered
 //! too (the trace's error before compression). The reference (16 × 256 rays, 16 × 64 cache rays,
 //! seed 1001, neither adaptive nor denoised) is cached in `target/clean_light/`. Times: the
 //! bake (`prt_bake::bake`, baselines as `prt bake`) in wall and process CPU seconds.
+//!
+//! `--methods mbd,bpca,cpca,traced` and `--views all` add a second table against the same
+//! reference: each listed method's image (BPCA and CPCA lit from the bake's models as the
+//! report lights them) in each view (`first`, or every view of the bake's report, each at its
+//! own reference render's exposure), and their mean over the views, which the report ranks by:
+//!
+//! ```text
+//! cargo run --release -p prt-benches --bin clean_light -- --scene gas_station --methods mbd,bpca,cpca --views all --run rays=256,denoise=off,weighting=none,projection=off --run base
+//! ```
 
 use std::path::{Path, PathBuf};
 
@@ -30,6 +41,7 @@ use prt_benches::{
     plot_lines,
 };
 use prt_core::{GridField, NoProgress};
+use prt_mbd::LossWeighting;
 use prt_render::{ImageMetrics, RenderConfig, Rendered, ToneMap, image_metrics};
 use prt_sphere::Sky;
 use prt_texture::Limits;
@@ -47,7 +59,7 @@ const RENDER_SIZE: usize = 256;
 #[derive(Debug, Parser)]
 #[command(about = "bake settings against wall time and the image error of the MBD container")]
 struct Cli {
-    /// Scene: `cornell` (built in) or `sponza` (../shared/scenes/sponza).
+    /// Scene: `cornell` (built in), `sponza` or `gas_station` (../shared/scenes).
     #[arg(long, default_value = "cornell")]
     scene: String,
     /// Voxels along the longest axis (bake and reference) [default: 32].
@@ -63,6 +75,48 @@ struct Cli {
     /// machine) into this PNG.
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// Methods of the per-view table, comma-separated: `mbd` (the container as written),
+    /// `bpca`, `cpca` (the bake's baselines), `traced` (the bake's traced volume).
+    #[arg(long, value_delimiter = ',', default_value = "mbd")]
+    methods: Vec<String>,
+    /// Views scored: the scene's `first` or `all` the views of the bake's report.
+    #[arg(long, value_enum, default_value_t = Views::First)]
+    views: Views,
+}
+
+/// Which of the scene's views are scored.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Views {
+    /// The first (the table's and the plot's).
+    First,
+    /// Every view `prt bake`'s report renders (glTF cameras, then `front` and `inside`).
+    All,
+}
+
+/// The methods `--methods` may name: the report's keys, then the traced volume.
+const METHODS: [(&str, &str); 4] = [
+    ("mbd", "MBD"),
+    ("bpca", "BPCA"),
+    ("cpca", "CPCA"),
+    ("traced", "traced"),
+];
+
+/// `weighting=`: `none` (the papers' loss) or `relative[:EXPONENT]` (the floor at its default),
+/// as `prt bake --loss-weighting` reads them.
+fn loss_weighting(value: &str) -> Result<Option<LossWeighting>, String> {
+    let exponent = match value {
+        "none" => return Ok(None),
+        "relative" => LossWeighting::default().exponent,
+        _ => value
+            .strip_prefix("relative:")
+            .ok_or_else(|| format!("weighting={value}: none or relative[:EXPONENT]"))?
+            .parse::<f32>()
+            .map_err(|e| format!("weighting={value}: {e}"))?,
+    };
+    Ok(Some(LossWeighting {
+        exponent,
+        ..LossWeighting::default()
+    }))
 }
 
 /// `base` with the settings of `run` applied.
@@ -121,6 +175,8 @@ fn apply(base: &BakeConfig, run: &str) -> Result<BakeConfig, String> {
             "min_rays" => config.adaptive_min_rays = count()?,
             "denoise" => config.denoise = optional()?,
             "radius" => config.denoise_radius = count()?,
+            "weighting" => config.loss_weighting = loss_weighting(value)?,
+            "projection" => config.centre_projection = switch()?,
             other => return Err(format!("unknown knob {other}")),
         }
     }
@@ -186,18 +242,25 @@ fn reference(scene_name: &str, scene: &SceneInput, res: usize) -> (GridField, Ve
     (volume.field, volume.valid)
 }
 
-/// The scene, its first view and the reference render, shared by every run.
-struct Target<'a> {
-    scene: &'a SceneInput,
-    tracer: RayTracer,
+/// One scored view: the reference's render of it and that render's exposure.
+struct ViewTarget {
+    name: String,
     view: prt_trace::camera::PinholeView,
-    sky: Sky,
     image: Rendered,
     tone: ToneMap,
 }
 
+/// The scene, its scored views (the first first) and their reference renders, shared by every
+/// run.
+struct Target<'a> {
+    scene: &'a SceneInput,
+    tracer: RayTracer,
+    sky: Sky,
+    views: Vec<ViewTarget>,
+}
+
 impl Target<'_> {
-    fn render(&self, volume: &LitVolume) -> Rendered {
+    fn render(&self, view: &prt_trace::camera::PinholeView, volume: &LitVolume) -> Rendered {
         let config = RenderConfig {
             width: RENDER_SIZE,
             height: RENDER_SIZE,
@@ -205,7 +268,7 @@ impl Target<'_> {
         prt_render::render(
             &self.scene.scene,
             &self.tracer,
-            &self.view,
+            view,
             volume,
             &self.sky,
             &config,
@@ -214,8 +277,14 @@ impl Target<'_> {
         .expect("render")
     }
 
-    fn metrics(&self, volume: &LitVolume) -> ImageMetrics {
-        image_metrics(&self.image, &self.render(volume), &self.tone).expect("same size")
+    /// `volume`'s image error in each scored view.
+    fn metrics(&self, volume: &LitVolume) -> Vec<ImageMetrics> {
+        self.views
+            .iter()
+            .map(|v| {
+                image_metrics(&v.image, &self.render(&v.view, volume), &v.tone).expect("same size")
+            })
+            .collect()
     }
 }
 
@@ -229,9 +298,17 @@ struct Row {
     rays_per_voxel: f64,
     mbd: ImageMetrics,
     traced: ImageMetrics,
+    /// Each of `--methods`' image errors in each scored view.
+    methods: Vec<(&'static str, Vec<ImageMetrics>)>,
 }
 
-fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str) -> Row {
+fn measure(
+    target: &Target<'_>,
+    config: &BakeConfig,
+    folder: &Path,
+    label: &str,
+    methods: &[&'static str],
+) -> Row {
     let config = BakeConfig {
         container: Some(folder.to_path_buf()),
         ..config.clone()
@@ -250,14 +327,93 @@ fn measure(target: &Target<'_>, config: &BakeConfig, folder: &Path, label: &str)
     let traced = LitVolume::from_transfer(field, &baked.volume.valid, &target.sky, &NoProgress)
         .expect("lit trace");
     let stats = &baked.volume.stats;
+    let (mbd, traced) = (target.metrics(&mbd), target.metrics(&traced));
+    let methods = methods
+        .iter()
+        .map(|&key| {
+            let metrics = match key {
+                "mbd" => mbd.clone(),
+                "traced" => traced.clone(),
+                _ => {
+                    // Lit as the bake's report lights the baselines.
+                    let baseline = baked
+                        .baselines
+                        .iter()
+                        .find(|b| b.method.key() == key)
+                        .expect("the run fits the baselines");
+                    let lit = LitVolume::from_model(
+                        &baseline.model,
+                        field.dims(),
+                        field.bounds(),
+                        &baked.volume.valid,
+                        &target.sky,
+                        &NoProgress,
+                    )
+                    .expect("lit baseline");
+                    target.metrics(&lit)
+                }
+            };
+            (key, metrics)
+        })
+        .collect();
     Row {
         label: label.to_string(),
         trace_s,
         wall_s,
         cpu_s,
         rays_per_voxel: stats.voxel_rays as f64 / stats.valid_voxels().max(1) as f64,
-        mbd: target.metrics(&mbd),
-        traced: target.metrics(&traced),
+        mbd: mbd[0],
+        traced: traced[0],
+        methods,
+    }
+}
+
+/// The per-view table: each setting's views, then their mean, with each method's image error.
+fn view_table(rows: &[Row], views: &[ViewTarget]) -> Table {
+    let mut header = vec!["setting".to_string(), "view".to_string()];
+    for (key, _) in &rows[0].methods {
+        let name = METHODS.iter().find(|(k, _)| k == key).map_or(*key, |m| m.1);
+        header.extend([
+            format!("{name}: FLIP"),
+            "mean levels".into(),
+            "> 10 levels".into(),
+        ]);
+    }
+    let mut table = Table::new(&header.iter().map(String::as_str).collect::<Vec<_>>());
+    for row in rows {
+        let means: Vec<ImageMetrics> = row.methods.iter().map(|(_, m)| mean(m)).collect();
+        let lines = views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| (v.name.clone(), i))
+            .chain((views.len() > 1).then(|| ("mean".to_string(), usize::MAX)));
+        for (name, index) in lines {
+            let mut cells = vec![row.label.clone(), name];
+            for ((_, per_view), mean) in row.methods.iter().zip(&means) {
+                let m = per_view.get(index).unwrap_or(mean);
+                cells.extend([
+                    format!("{:.4}", m.flip),
+                    format!("{:.2}", m.mean_levels),
+                    format!("{:.1} %", 100.0 * m.share_off),
+                ]);
+            }
+            table.row(cells);
+        }
+    }
+    table
+}
+
+/// The mean of each error over the views (ꟻLIP's is what the report ranks by).
+fn mean(per_view: &[ImageMetrics]) -> ImageMetrics {
+    let n = per_view.len().max(1) as f64;
+    let average = |f: fn(&ImageMetrics) -> f64| per_view.iter().map(f).sum::<f64>() / n;
+    ImageMetrics {
+        flip: average(|m| m.flip),
+        mean_levels: average(|m| m.mean_levels),
+        share_off: average(|m| m.share_off),
+        dark_levels: average(|m| m.dark_levels),
+        median_relative: average(|m| m.median_relative),
+        pixels: per_view.iter().map(|m| m.pixels).sum(),
     }
 }
 
@@ -271,6 +427,21 @@ fn main() {
         resolution: cli.res,
         ..BakeConfig::default()
     };
+    let methods: Vec<&'static str> = cli
+        .methods
+        .iter()
+        .map(|name| {
+            METHODS
+                .iter()
+                .find(|(key, _)| key == name)
+                .map(|(key, _)| *key)
+                .ok_or_else(|| format!("{name}: mbd, bpca, cpca or traced"))
+        })
+        .collect::<Result<_, _>>()
+        .unwrap_or_else(|e| {
+            eprintln!("--methods: {e}");
+            std::process::exit(2);
+        });
     let configs: Vec<(String, BakeConfig)> = cli
         .runs
         .iter()
@@ -280,36 +451,57 @@ fn main() {
             eprintln!("--run: {e}");
             std::process::exit(2);
         });
+    let baselines_scored = methods.iter().any(|m| matches!(*m, "bpca" | "cpca"));
+    if let Some((label, _)) = configs
+        .iter()
+        .find(|(_, c)| baselines_scored && !c.baselines)
+    {
+        eprintln!("--methods names a baseline, but run {label} does not fit them");
+        std::process::exit(2);
+    }
     println!("load average before: {}\n", load_average());
     let (field, valid) = reference(&cli.scene, &scene, cli.res);
     let sky = Sky::default();
     let tracer = RayTracer::new(scene.scene.triangles());
-    let Some(view) = prt_render::views(&scene.scene).into_iter().next() else {
+    let mut views = prt_render::views(&scene.scene);
+    if cli.views == Views::First {
+        views.truncate(1);
+    }
+    if views.is_empty() {
         eprintln!("the scene has no view");
         std::process::exit(2);
-    };
+    }
     let config = RenderConfig {
         width: RENDER_SIZE,
         height: RENDER_SIZE,
     };
     let lit = LitVolume::from_transfer(&field, &valid, &sky, &NoProgress).expect("lit reference");
-    let image = prt_render::render(
-        &scene.scene,
-        &tracer,
-        &view.view,
-        &lit,
-        &sky,
-        &config,
-        &NoProgress,
-    )
-    .expect("render");
+    let views: Vec<ViewTarget> = views
+        .into_iter()
+        .map(|named| {
+            let image = prt_render::render(
+                &scene.scene,
+                &tracer,
+                &named.view,
+                &lit,
+                &sky,
+                &config,
+                &NoProgress,
+            )
+            .expect("render");
+            ViewTarget {
+                name: named.name,
+                view: named.view,
+                tone: ToneMap::auto(&image),
+                image,
+            }
+        })
+        .collect();
     let target = Target {
         scene: &scene,
         tracer,
-        view: view.view,
         sky,
-        tone: ToneMap::auto(&image),
-        image,
+        views,
     };
     println!(
         "{} {:?}, view {}, reference {REFERENCE_RAYS} rays and {REFERENCE_CACHE_RAYS} cache \
@@ -317,7 +509,7 @@ fn main() {
          the reference's exposure over surface pixels.\n",
         cli.scene,
         field.dims(),
-        view.name,
+        target.views[0].name,
     );
     let scratch = Scratch::new("clean_light", &cli.scene);
     let mut table = Table::new(&[
@@ -335,7 +527,7 @@ fn main() {
     ]);
     let mut rows = Vec::new();
     for (label, config) in &configs {
-        let row = measure(&target, config, scratch.path(), label);
+        let row = measure(&target, config, scratch.path(), label, &methods);
         eprintln!("{row:?}");
         table.row(vec![
             row.label.clone(),
@@ -356,6 +548,20 @@ fn main() {
     table
         .write_csv(cli.csv.as_deref(), &format!("clean_light_{}", cli.scene))
         .expect("CSV written");
+    if methods != ["mbd"] || target.views.len() > 1 {
+        println!(
+            "Each method's image against the same reference, per view at that view's \
+             reference exposure (BPCA and CPCA as fitted, MBD as written):\n"
+        );
+        let views = view_table(&rows, &target.views);
+        println!("{}", views.markdown());
+        views
+            .write_csv(
+                cli.csv.as_deref(),
+                &format!("clean_light_{}_views", cli.scene),
+            )
+            .expect("CSV written");
+    }
     if let Some(path) = &cli.plot {
         let points: Vec<PlotPoint> = rows
             .iter()
