@@ -232,7 +232,7 @@ pub struct BakeArgs {
     #[arg(long, value_parser = parse_bytes)]
     pub max_memory: Option<u64>,
     /// Write the traced transfer volume and the baselines' reconstructions (f16) into
-    /// OUT/volumes/, for `prt export --from reference`, `prt render --method reference|bpca|cpca`
+    /// OUT/volumes/, for `prt export|render --method reference|bpca|cpca`
     /// and the viewer's comparisons.
     #[arg(long, value_enum, default_value_t = KeepVolumesArg::Auto)]
     pub keep_volumes: KeepVolumesArg,

@@ -8,6 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::BakeFolder;
+use prt_bake::volumes::REFERENCE;
 use prt_export::{
     AmbientCubeFit, BevyConfig, BevyFormat, DilateConfig, ShConfig, ThreejsConfig, WrittenFile,
     dilate, export_bevy, export_sh, export_threejs, remove_negative_light,
@@ -18,6 +19,31 @@ use prt_trace::LitVolume;
 
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;
+
+/// Which volume of a bake folder is lit (`prt export`, `prt render`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum VolumeArg {
+    /// The traced transfer volume (from DIR/volumes/).
+    Reference,
+    /// The MBD container as written (DIR/mbd/), evaluated at the voxel centres.
+    Mbd,
+    /// Blockwise PCA's reconstruction (from DIR/volumes/).
+    Bpca,
+    /// Clustered PCA's reconstruction (from DIR/volumes/).
+    Cpca,
+}
+
+impl VolumeArg {
+    /// The volume's name in the bake folder.
+    pub fn key(self) -> &'static str {
+        match self {
+            VolumeArg::Reference => REFERENCE,
+            VolumeArg::Mbd => BakeFolder::CONTAINER,
+            VolumeArg::Bpca => "bpca",
+            VolumeArg::Cpca => "cpca",
+        }
+    }
+}
 
 /// The engine an export is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -56,10 +82,9 @@ pub struct ExportArgs {
     /// The engine to export for.
     #[arg(long, value_enum)]
     pub target: Target,
-    /// What to light: `mbd` (the MBD container, BAKE_DIR/mbd/) or a volume `prt bake` kept in
-    /// BAKE_DIR/volumes/ (`reference`: the full traced volume; `bpca`, `cpca`: the baselines).
-    #[arg(long, default_value = "mbd", value_name = "mbd|reference|bpca|cpca")]
-    pub from: String,
+    /// Which volume of the bake to light (`--from` is an older name for it).
+    #[arg(long, value_enum, alias = "from", default_value_t = VolumeArg::Mbd)]
+    pub method: VolumeArg,
     #[command(flatten)]
     pub sky: SkyArgs,
     /// Dilation of valid probes into invalid ones: `RADIUS[,PASSES]` (voxels; each pass fills
@@ -104,11 +129,13 @@ fn parse_dilate(spec: &str) -> Result<DilateConfig> {
     }
 }
 
-/// The bake in `bake_dir` lit by `sky`: the MBD container (`name` = `mbd`) or a kept volume
-/// (`reference`, `bpca`, `cpca`); what `prt export` and `prt render` light.
-pub fn light_bake(bake_dir: &Path, name: &str, sky: &Sky) -> Result<LitVolume> {
+/// The volume `method` of the bake in `bake_dir` lit by `sky`: what `prt export` and `prt render`
+/// light.
+pub fn light_bake(bake_dir: &Path, method: VolumeArg, sky: &Sky) -> Result<LitVolume> {
     let stage = StageBar::start("light");
-    let lit = BakeFolder::new(bake_dir).lit_volume(name, sky, &Limits::default(), &stage)?;
+    let lit = BakeFolder::new(bake_dir)
+        .lit_volume(method.key(), sky, &Limits::default(), &stage)
+        .with_context(|| format!("--method {}", method.key()))?;
     stage.finish();
     Ok(lit)
 }
@@ -135,8 +162,7 @@ pub fn run(args: &ExportArgs) -> Result<()> {
     let dilation = parse_dilate(&args.dilate)?;
     let sky = args.sky.sky()?;
     let start = Instant::now();
-    let lit = light_bake(&args.bake_dir, &args.from, &sky)
-        .with_context(|| format!("--from {}", args.from))?;
+    let lit = light_bake(&args.bake_dir, args.method, &sky)?;
     let volume = prepare_for_engines(&lit, &dilation)?;
     let target = args
         .target

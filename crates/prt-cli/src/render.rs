@@ -7,7 +7,6 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use clap::ValueEnum;
 use prt_bake::BakeFolder;
-use prt_bake::volumes::REFERENCE;
 use prt_core::NoProgress;
 use prt_core::glam::Vec3;
 use prt_export::{AmbientCubeFit, DilateConfig, Engine, EngineLookup};
@@ -24,32 +23,9 @@ use prt_texture::exr_io::{ExrLayer, ExrSample, write_exr};
 use prt_trace::mesh::read_mesh;
 use prt_trace::{RayTracer, Scene};
 
+use crate::export::VolumeArg;
 use crate::progress::StageBar;
 use crate::sky::SkyArgs;
-
-/// Which volume lights the render.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum MethodArg {
-    /// The traced transfer volume (from DIR/volumes/).
-    Reference,
-    /// The MBD container as written (DIR/mbd/), evaluated at the voxel centres.
-    Mbd,
-    /// Blockwise PCA's reconstruction (from DIR/volumes/).
-    Bpca,
-    /// Clustered PCA's reconstruction (from DIR/volumes/).
-    Cpca,
-}
-
-impl MethodArg {
-    fn key(self) -> &'static str {
-        match self {
-            MethodArg::Reference => REFERENCE,
-            MethodArg::Mbd => BakeFolder::CONTAINER,
-            MethodArg::Bpca => "bpca",
-            MethodArg::Cpca => "cpca",
-        }
-    }
-}
 
 /// Whose probe lookup lights the render.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -125,8 +101,8 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub sky: SkyArgs,
     /// Volume that lights the scene.
-    #[arg(long, value_enum, default_value_t = MethodArg::Mbd)]
-    pub method: MethodArg,
+    #[arg(long, value_enum, default_value_t = VolumeArg::Mbd)]
+    pub method: VolumeArg,
     /// Whose lookup reads the volume: prt's own, or what Bevy or three.js computes from
     /// `prt export`'s files for the same volume and sky (dilated with the export's default,
     /// negative light removed, padded; without the texture format's rounding).
@@ -180,12 +156,11 @@ pub fn load_scene(bake_dir: &Path) -> Result<Scene> {
 /// What lights the render: the volume of `method` read by `lookup`.
 fn load_light(
     bake_dir: &Path,
-    method: MethodArg,
+    method: VolumeArg,
     lookup: LookupArg,
     sky: &Sky,
 ) -> Result<Box<dyn SurfaceLight>> {
-    let lit = crate::export::light_bake(bake_dir, method.key(), sky)
-        .with_context(|| format!("--method {}", method.key()))?;
+    let lit = crate::export::light_bake(bake_dir, method, sky)?;
     let engine = match lookup {
         LookupArg::Prt => return Ok(Box::new(lit)),
         LookupArg::Bevy => Engine::Bevy,
@@ -303,8 +278,8 @@ pub fn run(args: &RenderArgs) -> Result<()> {
              --keep-volumes always)"
         );
     }
-    if args.method != MethodArg::Reference && kept {
-        let reference = load_light(bake_dir, MethodArg::Reference, args.lookup, &sky)?;
+    if args.method != VolumeArg::Reference && kept {
+        let reference = load_light(bake_dir, VolumeArg::Reference, args.lookup, &sky)?;
         let base = render(
             &scene,
             &tracer,

@@ -74,7 +74,8 @@ fn a_small_bake_exports_for_every_target_and_sky() {
         let listing = String::from_utf8_lossy(&out.stdout);
         assert!(listing.contains("validity.ktx2"), "{listing}");
     }
-    // The kept traced volume exports too; an unknown volume is a clean error.
+    // The kept traced volume exports too (`--from`: the option's older name); an unknown
+    // volume is a clean error.
     let out = prt(&[
         "export",
         bake_s,
@@ -88,7 +89,7 @@ fn a_small_bake_exports_for_every_target_and_sky() {
     assert!(out.status.success(), "{}", stderr(&out));
     assert!(dir.join("ref/sh.json").is_file());
     assert_clean_failure(
-        &prt(&["export", bake_s, "--target", "sh", "--from", "nothing"]),
+        &prt(&["export", bake_s, "--target", "sh", "--method", "nothing"]),
         "nothing",
     );
     // The default output folder is BAKE_DIR/TARGET.
