@@ -10,9 +10,9 @@ use prt_core::{Aabb, SpatialKernels};
 use prt_kernels::HatGrid;
 use prt_mbd::MbdModel;
 use prt_texture::container::{
-    ArrayEntry, ArrayLayout, ArrayStream, BrickRequest, Container, DEFAULT_BRICK_SIZE, GridArray,
-    KernelDescription, LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest, WriteReport,
-    live_bricks,
+    ArrayLayout, ArrayStream, BrickRequest, Container, DEFAULT_BRICK_SIZE, GridArray,
+    KernelDescription, LiveBricks, LoadedContainer, MBD_BASIS, MBD_COEFFICIENTS, Manifest,
+    WriteReport,
 };
 use prt_texture::{Encoding, Limits, RangeFit};
 use serde_json::json;
@@ -79,6 +79,21 @@ pub struct LayoutBytes {
 }
 
 impl LayoutBytes {
+    /// The texel bytes of a coefficient volume of `rank` channels in `encoding`, dense and in
+    /// the bricks `live` holds live.
+    pub fn of(rank: usize, encoding: Encoding, live: &LiveBricks) -> LayoutBytes {
+        let format = encoding.rgba_format();
+        let texel = (format.bytes_per_texel() * rank.div_ceil(format.channels())) as u64;
+        let live_count = live.count();
+        let side = u64::from(live.size()) + 1;
+        LayoutBytes {
+            dense: live.dims().iter().map(|&n| u64::from(n)).product::<u64>() * texel,
+            bricks: live_count * side.pow(3) * texel + 4 * live.live().len() as u64,
+            live_bricks: live_count,
+            bricks_total: live.live().len() as u64,
+        }
+    }
+
     /// Whether the rule picks bricks: they save at least [`BRICK_MIN_SAVING`].
     pub fn bricks_pay(&self) -> bool {
         (self.bricks as f64) <= (1.0 - BRICK_MIN_SAVING) * self.dense as f64
@@ -94,17 +109,28 @@ pub fn layout_bytes(
     brick_size: u32,
     live_nodes: &[bool],
 ) -> Result<LayoutBytes, ContainerError> {
-    let format = encoding.rgba_format();
-    let texel = (format.bytes_per_texel() * rank.div_ceil(format.channels())) as u64;
-    let live = live_bricks(nodes.map(|n| n as u32), brick_size, live_nodes)?;
-    let live_count = live.iter().filter(|&&l| l).count() as u64;
-    let side = u64::from(brick_size) + 1;
-    Ok(LayoutBytes {
-        dense: nodes.iter().product::<usize>() as u64 * texel,
-        bricks: live_count * side.pow(3) * texel + 4 * live.len() as u64,
-        live_bricks: live_count,
-        bricks_total: live.len() as u64,
-    })
+    let live = LiveBricks::of_nodes(nodes.map(|n| n as u32), brick_size, live_nodes)?;
+    Ok(LayoutBytes::of(rank, encoding, &live))
+}
+
+/// The coefficient nodes voxel `i` of `g` along an axis of `n` nodes touches (the first
+/// `.1` of `.0`), in node coordinates `p = i (n − 1) / (g − 1)`: the nodes whose open hat
+/// support holds the voxel's centre.
+fn touched_nodes(n: usize, g: usize, i: usize) -> ([usize; 2], usize) {
+    if n == 1 {
+        return ([0, 0], 1);
+    }
+    let p = if g > 1 {
+        i as f64 * (n - 1) as f64 / (g - 1) as f64
+    } else {
+        0.0
+    };
+    let lo = (p.floor() as usize).min(n - 1);
+    if p - lo as f64 > 0.0 && lo + 1 < n {
+        ([lo, lo + 1], 2)
+    } else {
+        ([lo, lo], 1)
+    }
 }
 
 /// Which nodes of a coefficient hat grid are live: those whose hat support (open) holds the
@@ -126,31 +152,16 @@ pub fn node_liveness(
     if nodes == grid {
         return Ok(valid.to_vec());
     }
-    // Per axis: the nodes voxel i touches, in node coordinates p = i (n − 1) / (g − 1).
-    let touched = |a: usize, i: usize| -> Vec<usize> {
-        let (n, g) = (nodes[a], grid[a]);
-        if n == 1 {
-            return vec![0];
-        }
-        let p = if g > 1 {
-            i as f64 * (n - 1) as f64 / (g - 1) as f64
-        } else {
-            0.0
-        };
-        let lo = (p.floor() as usize).min(n - 1);
-        let f = p - lo as f64;
-        let mut out = vec![lo];
-        if f > 0.0 && lo + 1 < n {
-            out.push(lo + 1);
-        }
-        out
+    let touched = |a: usize, i: usize| {
+        let (nodes, count) = touched_nodes(nodes[a], grid[a], i);
+        nodes.into_iter().take(count)
     };
     let mut live = vec![false; nodes.iter().product()];
     for (v, _) in valid.iter().enumerate().filter(|(_, ok)| **ok) {
         let (i, j, k) = (v % grid[0], v / grid[0] % grid[1], v / (grid[0] * grid[1]));
-        for &z in &touched(2, k) {
-            for &y in &touched(1, j) {
-                for &x in &touched(0, i) {
+        for z in touched(2, k) {
+            for y in touched(1, j) {
+                for x in touched(0, i) {
                     live[x + nodes[0] * (y + nodes[1] * z)] = true;
                 }
             }
@@ -260,28 +271,46 @@ pub fn write_container_with(
         rank,
         model.coefficients().iter().copied().collect(),
     )?;
+    let live_nodes = match layout.live_nodes {
+        Some(live) => live.to_vec(),
+        None => node_liveness(coefficient_kernels, contents.grid, contents.valid)?,
+    };
+    let live = LiveBricks::of_nodes(
+        coefficient_kernels.nodes().map(|n| n as u32),
+        layout.brick_size,
+        &live_nodes,
+    )?;
     let parts = MbdParts::new(
         &ContainerParts {
             coefficient_kernels,
             basis_kernels,
             basis: model.basis(),
             grid: contents.grid,
-            valid: contents.valid,
             scene: contents.scene,
             lambda: contents.lambda,
             encoding: contents.encoding,
         },
-        layout,
+        layout.layout,
+        &live,
     )?;
-    let mut container = parts.container()?;
-    container.bricks = parts.bricks.into_iter().collect();
+    let coefficient_layout = parts.coefficient_layout;
+    let mut container = parts.into_container();
+    if coefficient_layout == ArrayLayout::Bricks {
+        container.bricks.insert(
+            MBD_COEFFICIENTS.to_string(),
+            BrickRequest {
+                size: layout.brick_size,
+                live_nodes,
+            },
+        );
+    }
     container.arrays.insert(
         0,
         (
             MBD_COEFFICIENTS.to_string(),
             coefficients,
             contents.encoding,
-            parts.coefficient_layout,
+            coefficient_layout,
         ),
     );
     container.arrays.push((
@@ -303,20 +332,22 @@ fn validity_array(grid: [usize; 3], valid: &[bool]) -> Result<GridArray, Contain
 }
 
 /// What an MBD container holds besides its coefficient and validity arrays: the attributes,
-/// the kernels, the basis, and the coefficients' layout (with its brick request).
+/// the kernels, the basis, and the coefficients' layout.
 struct MbdParts {
     attributes: BTreeMap<String, serde_json::Value>,
     kernels: BTreeMap<String, KernelDescription>,
     basis: GridArray,
     encoding: Encoding,
     coefficient_layout: ArrayLayout,
-    bricks: Option<(String, BrickRequest)>,
 }
 
 impl MbdParts {
+    /// The parts of `contents`, the coefficients laid out as `layout` says given the bricks
+    /// `live` holds live.
     fn new(
         contents: &ContainerParts<'_>,
-        layout: &LayoutConfig<'_>,
+        layout: CoefficientLayout,
+        live: &LiveBricks,
     ) -> Result<MbdParts, ContainerError> {
         let (coefficient_kernels, basis_kernels) =
             (contents.coefficient_kernels, contents.basis_kernels);
@@ -355,19 +386,19 @@ impl MbdParts {
         );
         kernels.insert(MBD_BASIS.to_string(), hat_description(basis_kernels));
         let encoding = contents.encoding;
-        let nodes = coefficient_kernels.nodes();
-        let live_nodes = match layout.live_nodes {
-            Some(live) => live.to_vec(),
-            None => node_liveness(coefficient_kernels, contents.grid, contents.valid)?,
-        };
-        let use_bricks = match layout.layout {
+        if live.dims() != coefficient_kernels.nodes().map(|n| n as u32) {
+            return Err(ContainerError::Inconsistent(format!(
+                "live bricks of {:?} nodes for a coefficient grid of {:?}",
+                live.dims(),
+                coefficient_kernels.nodes()
+            )));
+        }
+        let use_bricks = match layout {
             CoefficientLayout::Dense => false,
             CoefficientLayout::Bricks => true,
-            CoefficientLayout::Auto => {
-                layout_bytes(nodes, rank, encoding, layout.brick_size, &live_nodes)?.bricks_pay()
-            }
+            CoefficientLayout::Auto => LayoutBytes::of(rank, encoding, live).bricks_pay(),
         };
-        let (coefficient_layout, bricks) = if use_bricks {
+        let coefficient_layout = if use_bricks {
             attributes.insert(
                 "live_nodes".into(),
                 json!("coefficient nodes whose hat support holds a valid voxel centre; the bricks without one read as 0"),
@@ -376,16 +407,9 @@ impl MbdParts {
                 "texture_coordinates".into(),
                 json!("hat node coordinate p = clamp((x - domain_min) / (domain_max - domain_min), 0, 1) * (nodes - 1); brick b = min(floor(p / size), grid - 1); its indirection texel (x, y, z, live) * 255 gives the atlas brick a; uvw = (a * (size + 1) + p - b * size + 0.5 + (0, 0, group * atlas_z * (size + 1))) / texture_size"),
             );
-            let request = BrickRequest {
-                size: layout.brick_size,
-                live_nodes,
-            };
-            (
-                ArrayLayout::Bricks,
-                Some((MBD_COEFFICIENTS.to_string(), request)),
-            )
+            ArrayLayout::Bricks
         } else {
-            (ArrayLayout::Volume, None)
+            ArrayLayout::Volume
         };
         Ok(MbdParts {
             attributes,
@@ -393,28 +417,27 @@ impl MbdParts {
             basis,
             encoding,
             coefficient_layout,
-            bricks,
         })
     }
 
     /// The container of the basis alone, with the attributes and kernels.
-    fn container(&self) -> Result<Container, ContainerError> {
-        Ok(Container {
+    fn into_container(self) -> Container {
+        Container {
             bricks: BTreeMap::new(),
-            attributes: self.attributes.clone(),
-            kernels: self.kernels.clone(),
+            attributes: self.attributes,
+            kernels: self.kernels,
             arrays: vec![(
                 MBD_BASIS.to_string(),
-                self.basis.clone(),
+                self.basis,
                 self.encoding,
                 ArrayLayout::Atlas,
             )],
-        })
+        }
     }
 }
 
-/// An MBD container's contents but the coefficients: the model's kernels and basis, and the
-/// rest of [`ContainerContents`] (for [`ContainerWriter`]).
+/// An MBD container's contents but the coefficients and the validity: the model's kernels and
+/// basis, and the rest of [`ContainerContents`] (for [`ContainerWriter`]).
 #[derive(Debug, Clone, Copy)]
 pub struct ContainerParts<'a> {
     /// The coefficients' kernels (their nodes are the coefficient volume's).
@@ -425,8 +448,6 @@ pub struct ContainerParts<'a> {
     pub basis: &'a Array3<f32>,
     /// Voxels of the baked grid along x, y, z.
     pub grid: [usize; 3],
-    /// Per voxel of `grid` (x fastest): whether its transfer is meaningful.
-    pub valid: &'a [bool],
     /// The scene's name (the `scene` attribute).
     pub scene: &'a str,
     /// The ridge weight the model was fitted with (the `lambda` attribute).
@@ -435,36 +456,172 @@ pub struct ContainerParts<'a> {
     pub encoding: Encoding,
 }
 
-/// Writes the container [`write_container_with`] writes with the coefficients given a block of
-/// nodes at a time ([`ContainerWriter::write_coefficients`]), for a model too large to hold:
-/// in memory bounded by a block, a write buffer, the basis and about two bytes per voxel (the
-/// validity and which coefficient nodes are live). The validity is written at once, the
-/// coefficients' file under a temporary name renamed once every node has been written, the
-/// basis and the manifest (last) by [`ContainerWriter::finish`].
+/// What [`ContainerWriter`] must know of the validity before it writes anything, gathered a box
+/// of voxels at a time: how many voxels are valid and invalid (the validity's encoding range)
+/// and which bricks of the coefficient grid hold a live node (as [`node_liveness`] derives
+/// them), one flag per brick of the layout's brick size.
+#[derive(Debug, Clone)]
+pub struct ValiditySummary {
+    grid: [usize; 3],
+    /// Per axis, per voxel: the coefficient nodes it touches ([`touched_nodes`]).
+    touched: [Vec<([usize; 2], usize)>; 3],
+    live: LiveBricks,
+    valid: u64,
+    invalid: u64,
+}
+
+impl ValiditySummary {
+    /// No voxel yet, of a grid of `grid` voxels whose coefficients live on `coefficient_kernels`,
+    /// the coefficients' bricks of `brick_size` cells.
+    ///
+    /// # Errors
+    /// A brick size outside `1..=64`; a grid too large to count.
+    pub fn new(
+        coefficient_kernels: &HatGrid,
+        grid: [usize; 3],
+        brick_size: u32,
+    ) -> Result<ValiditySummary, ContainerError> {
+        let nodes = coefficient_kernels.nodes();
+        let live = LiveBricks::new(nodes.map(|n| n as u32), brick_size)?;
+        let touched = [0, 1, 2].map(|a| {
+            (0..grid[a])
+                .map(|i| touched_nodes(nodes[a], grid[a], i))
+                .collect()
+        });
+        Ok(ValiditySummary {
+            grid,
+            touched,
+            live,
+            valid: 0,
+            invalid: 0,
+        })
+    }
+
+    /// Adds the validity of the box of voxels at `min` of `size` (x fastest).
+    ///
+    /// # Errors
+    /// A box outside the grid; flags of another length than the box's voxels.
+    pub fn add(
+        &mut self,
+        min: [usize; 3],
+        size: [usize; 3],
+        valid: &[bool],
+    ) -> Result<(), ContainerError> {
+        check_box(self.grid, min, size, valid.len())?;
+        let [sx, sy, _] = size;
+        for (local, _) in valid.iter().enumerate().filter(|(_, v)| **v) {
+            let voxel = [
+                min[0] + local % sx,
+                min[1] + local / sx % sy,
+                min[2] + local / (sx * sy),
+            ];
+            let [(xs, nx), (ys, ny), (zs, nz)] = [0, 1, 2].map(|a| self.touched[a][voxel[a]]);
+            for &z in &zs[..nz] {
+                for &y in &ys[..ny] {
+                    for &x in &xs[..nx] {
+                        self.live.mark([x, y, z].map(|n| n as u32))?;
+                    }
+                }
+            }
+        }
+        let valid_here = valid.iter().filter(|&&v| v).count() as u64;
+        self.valid += valid_here;
+        self.invalid += valid.len() as u64 - valid_here;
+        Ok(())
+    }
+
+    /// The valid voxels added.
+    pub fn valid_voxels(&self) -> u64 {
+        self.valid
+    }
+
+    /// The invalid voxels added.
+    pub fn invalid_voxels(&self) -> u64 {
+        self.invalid
+    }
+}
+
+/// Checks a box at `min` of `size` lies in `grid` and `values` is its voxel count.
+fn check_box(
+    grid: [usize; 3],
+    min: [usize; 3],
+    size: [usize; 3],
+    values: usize,
+) -> Result<(), ContainerError> {
+    if (0..3).any(|a| min[a].saturating_add(size[a]) > grid[a]) {
+        return Err(ContainerError::Inconsistent(format!(
+            "a box of {size:?} voxels at {min:?} outside the grid of {grid:?}"
+        )));
+    }
+    if values != size.iter().product::<usize>() {
+        return Err(ContainerError::Inconsistent(format!(
+            "{values} validity flags for a box of {size:?} voxels"
+        )));
+    }
+    Ok(())
+}
+
+/// Writes the container [`write_container_with`] writes with the coefficients and the validity
+/// given a box at a time ([`ContainerWriter::write_coefficients`],
+/// [`ContainerWriter::write_validity`]), for a model too large to hold: in memory bounded by a
+/// box, the write buffers, the basis, a flag per coefficient brick ([`ValiditySummary`]) and,
+/// in bricks, four bytes per brick. Both files are written under temporary names and renamed
+/// once every node has been written exactly once, then the basis and the manifest (last) by
+/// [`ContainerWriter::finish`].
 #[derive(Debug)]
 pub struct ContainerWriter {
     folder: std::path::PathBuf,
     coefficients: ArrayStream,
-    validity: ArrayEntry,
+    validity: ArrayStream,
     container: Container,
+    grid: [usize; 3],
+    /// The valid voxels the summary counted, and those written.
+    valid_voxels: u64,
+    written_valid: u64,
 }
 
 impl ContainerWriter {
     /// Starts the container in `folder` (created if missing), the coefficients laid out as
-    /// `layout` says; `ranges` of every coefficient channel over every node (zeros included),
-    /// as the normalised encodings store them (unused by the others).
+    /// `layout` says (its brick size is `validity`'s); `ranges` of every coefficient channel
+    /// over every node (zeros included), as the normalised encodings store them (unused by the
+    /// others); `validity`, the summary of every voxel's validity.
     ///
     /// # Errors
-    /// As [`write_container_with`].
+    /// As [`write_container_with`]; a summary of another grid or not of every voxel once.
     pub fn create(
         folder: &Path,
         contents: &ContainerParts<'_>,
         ranges: &RangeFit,
-        layout: &LayoutConfig<'_>,
+        validity: &ValiditySummary,
+        layout: CoefficientLayout,
     ) -> Result<ContainerWriter, ContainerError> {
+        let voxels = contents.grid.iter().product::<usize>() as u64;
+        if validity.grid != contents.grid || validity.valid + validity.invalid != voxels {
+            return Err(ContainerError::Inconsistent(format!(
+                "a validity summary of {} voxels on {:?} for a grid of {:?}",
+                validity.valid + validity.invalid,
+                validity.grid,
+                contents.grid
+            )));
+        }
         let (_, rank, _) = contents.basis.dim();
-        let parts = MbdParts::new(contents, layout)?;
-        let validity = write_validity(folder, contents.grid, contents.valid)?;
+        let parts = MbdParts::new(contents, layout, &validity.live)?;
+        let mut validity_ranges = RangeFit::new(1);
+        for (count, value) in [(validity.valid, 1.0), (validity.invalid, 0.0)] {
+            if count > 0 {
+                validity_ranges.add(&[value]);
+            }
+        }
+        let validity_stream = ArrayStream::create(
+            folder,
+            VALIDITY,
+            contents.grid.map(|n| u32::try_from(n).unwrap_or(u32::MAX)),
+            1,
+            Encoding::Unorm8,
+            ArrayLayout::Volume,
+            None,
+            validity_ranges.ranges(Encoding::Unorm8),
+        )?;
         let coefficients = ArrayStream::create(
             folder,
             MBD_COEFFICIENTS,
@@ -472,14 +629,17 @@ impl ContainerWriter {
             rank,
             contents.encoding,
             parts.coefficient_layout,
-            parts.bricks.as_ref().map(|(_, request)| request),
+            (parts.coefficient_layout == ArrayLayout::Bricks).then_some(&validity.live),
             ranges.ranges(contents.encoding),
         )?;
         Ok(ContainerWriter {
             folder: folder.to_path_buf(),
             coefficients,
-            validity,
-            container: parts.container()?,
+            validity: validity_stream,
+            container: parts.into_container(),
+            grid: contents.grid,
+            valid_voxels: validity.valid,
+            written_valid: 0,
         })
     }
 
@@ -495,60 +655,55 @@ impl ContainerWriter {
         size: [usize; 3],
         coefficients: &[f32],
     ) -> Result<(), ContainerError> {
-        let to_u32 = |v: [usize; 3]| v.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
         Ok(self
             .coefficients
             .write_block(to_u32(min), to_u32(size), coefficients)?)
     }
 
-    /// Writes the basis and the manifest once every coefficient node is written.
+    /// Writes the validity of the box of voxels at `min` of `size` (x fastest): the flags the
+    /// summary was given for it.
     ///
     /// # Errors
-    /// A coefficient node never written; writing.
+    /// A box outside the grid or with a voxel already written; flags of another length;
+    /// writing.
+    pub fn write_validity(
+        &mut self,
+        min: [usize; 3],
+        size: [usize; 3],
+        valid: &[bool],
+    ) -> Result<(), ContainerError> {
+        check_box(self.grid, min, size, valid.len())?;
+        let values: Vec<f32> = valid.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect();
+        self.validity
+            .write_block(to_u32(min), to_u32(size), &values)?;
+        self.written_valid += valid.iter().filter(|&&v| v).count() as u64;
+        Ok(())
+    }
+
+    /// Writes the basis and the manifest once every coefficient node and every voxel's
+    /// validity is written.
+    ///
+    /// # Errors
+    /// A coefficient node or a voxel never written; validity other than the summary's;
+    /// writing.
     pub fn finish(self) -> Result<WriteReport, ContainerError> {
         let coefficients = self.coefficients.finish()?;
+        if self.written_valid != self.valid_voxels {
+            return Err(ContainerError::Inconsistent(format!(
+                "the validity written has {} valid voxels, its summary {}",
+                self.written_valid, self.valid_voxels
+            )));
+        }
+        let validity = self.validity.finish()?;
         Ok(self
             .container
-            .write_with_streamed(&self.folder, vec![(0, coefficients), (2, self.validity)])?)
+            .write_with_streamed(&self.folder, vec![(0, coefficients), (2, validity)])?)
     }
 }
 
-/// Writes the validity array's file as [`write_container_with`] does, a z plane at a time.
-fn write_validity(
-    folder: &Path,
-    grid: [usize; 3],
-    valid: &[bool],
-) -> Result<ArrayEntry, ContainerError> {
-    let voxels = grid.iter().product::<usize>();
-    if valid.len() != voxels {
-        return Err(ContainerError::Inconsistent(format!(
-            "{} validity flags for {voxels} voxels",
-            valid.len()
-        )));
-    }
-    let mut ranges = RangeFit::new(1);
-    for value in [true, false] {
-        if valid.contains(&value) {
-            ranges.add(&[if value { 1.0 } else { 0.0 }]);
-        }
-    }
-    let dims = grid.map(|n| u32::try_from(n).unwrap_or(u32::MAX));
-    let mut stream = ArrayStream::create(
-        folder,
-        VALIDITY,
-        dims,
-        1,
-        Encoding::Unorm8,
-        ArrayLayout::Volume,
-        None,
-        ranges.ranges(Encoding::Unorm8),
-    )?;
-    let plane = grid[0] * grid[1];
-    for (z, flags) in valid.chunks(plane.max(1)).enumerate() {
-        let values: Vec<f32> = flags.iter().map(|&v| if v { 1.0 } else { 0.0 }).collect();
-        stream.write_block([0, 0, z as u32], [dims[0], dims[1], 1], &values)?;
-    }
-    Ok(stream.finish()?)
+/// A box's corner or size as the texture's u32 (saturating: a box beyond u32 is outside).
+fn to_u32(v: [usize; 3]) -> [u32; 3] {
+    v.map(|n| u32::try_from(n).unwrap_or(u32::MAX))
 }
 
 /// Reads a container written by [`write_container`] (or an older one with the basis in

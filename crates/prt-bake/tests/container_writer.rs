@@ -1,6 +1,7 @@
-//! The container written a block at a time (`ContainerWriter`) is the container
-//! `write_container_with` writes, byte for byte, whatever the blocks and their order; a block
-//! outside the grid, a node written twice and a node never written are errors.
+//! The container written a block at a time (`ContainerWriter`, the validity summarised and
+//! written a block at a time too) is the container `write_container_with` writes, byte for
+//! byte, whatever the blocks and their order; a block outside the grid, a node written twice
+//! and a node never written are errors.
 
 mod common;
 
@@ -12,7 +13,7 @@ use ndarray::{Array2, Array3};
 use proptest::prelude::*;
 use prt_bake::container::{
     CoefficientLayout, ContainerContents, ContainerParts, ContainerWriter, LayoutConfig,
-    write_container_with,
+    ValiditySummary, write_container_with,
 };
 use prt_core::{Aabb, glam::Vec3};
 use prt_kernels::HatGrid;
@@ -67,14 +68,24 @@ fn block(
     size: [usize; 3],
 ) -> Vec<f32> {
     let mut out = Vec::new();
-    for z in min[2]..min[2] + size[2] {
-        for y in min[1]..min[1] + size[1] {
-            for x in min[0]..min[0] + size[0] {
-                out.extend(coefficients.row(x + dims[0] * (y + dims[1] * z)));
-            }
-        }
+    for v in box_voxels(dims, min, size) {
+        out.extend(coefficients.row(v));
     }
     out
+}
+
+/// The validity of the box at `min` of `size`, x fastest.
+fn valid_block(valid: &[bool], dims: [usize; 3], min: [usize; 3], size: [usize; 3]) -> Vec<bool> {
+    box_voxels(dims, min, size).map(|v| valid[v]).collect()
+}
+
+/// The voxels of the box at `min` of `size` in a grid of `dims`, x fastest.
+fn box_voxels(dims: [usize; 3], min: [usize; 3], size: [usize; 3]) -> impl Iterator<Item = usize> {
+    (min[2]..min[2] + size[2]).flat_map(move |z| {
+        (min[1]..min[1] + size[1]).flat_map(move |y| {
+            (min[0]..min[0] + size[0]).map(move |x| x + dims[0] * (y + dims[1] * z))
+        })
+    })
 }
 
 const ENCODINGS: [Encoding; 6] = [
@@ -146,20 +157,29 @@ proptest! {
             basis_kernels: &basis_kernels,
             basis: &basis,
             grid: dims,
-            valid: &valid,
             scene: "test",
             lambda: 1e-4,
             encoding,
         };
         let mut ranges = RangeFit::new(rank);
         ranges.add(coefficients.as_slice().expect("standard layout"));
-        let mut writer = ContainerWriter::create(&streamed, &parts, &ranges, &layout).expect("create");
         let mut blocks = boxes(dims, cuts);
         // Any order: a rotation and, by the seed's low bit, a reversal.
         let rotation = (order_seed as usize) % blocks.len();
         blocks.rotate_left(rotation);
         if order_seed & 1 == 1 {
             blocks.reverse();
+        }
+        let mut summary = ValiditySummary::new(&coefficient_kernels, dims, brick_size).expect("summary");
+        for &(min, size) in &blocks {
+            summary.add(min, size, &valid_block(&valid, dims, min, size)).expect("summary block");
+        }
+        prop_assert_eq!(summary.valid_voxels(), valid.iter().filter(|&&v| v).count() as u64);
+        let mut writer = ContainerWriter::create(&streamed, &parts, &ranges, &summary, layout.layout)
+            .expect("create");
+        // The validity in the blocks' reverse order, the coefficients in theirs.
+        for &(min, size) in blocks.iter().rev() {
+            writer.write_validity(min, size, &valid_block(&valid, dims, min, size)).expect("validity");
         }
         for &(min, size) in &blocks {
             writer
@@ -188,15 +208,45 @@ fn a_block_outside_twice_or_missing_is_an_error() {
         basis_kernels: &basis_kernels,
         basis: &basis,
         grid: dims,
-        valid: &valid,
         scene: "test",
         lambda: 1e-4,
         encoding: Encoding::F16,
     };
     let ranges = RangeFit::new(2);
     let folder = scratch("container-writer-errors");
-    let mut writer = ContainerWriter::create(&folder, &parts, &ranges, &LayoutConfig::default())
-        .expect("create");
+    let layout = LayoutConfig::default();
+    let mut summary =
+        ValiditySummary::new(&coefficient_kernels, dims, layout.brick_size).expect("summary");
+    let half = valid_block(&valid, dims, [0, 0, 0], [3, 2, 1]);
+    summary
+        .add([0, 0, 0], [3, 2, 1], &half)
+        .expect("first half");
+    assert!(
+        summary.add([0, 0, 1], [3, 2, 2], &half).is_err(),
+        "a box outside"
+    );
+    assert!(
+        ContainerWriter::create(&folder, &parts, &ranges, &summary, layout.layout).is_err(),
+        "a summary of half the voxels"
+    );
+    summary
+        .add([0, 0, 1], [3, 2, 1], &half)
+        .expect("second half");
+    let mut writer =
+        ContainerWriter::create(&folder, &parts, &ranges, &summary, layout.layout).expect("create");
+    writer
+        .write_validity([0, 0, 0], [3, 2, 1], &half)
+        .expect("validity of the first plane");
+    assert!(
+        writer.write_validity([0, 0, 0], [3, 2, 1], &half).is_err(),
+        "validity twice"
+    );
+    assert!(
+        writer
+            .write_validity([0, 0, 1], [3, 2, 1], &half[1..])
+            .is_err(),
+        "short validity"
+    );
     let plane = block(&coefficients, dims, [0, 0, 0], [3, 2, 1]);
     assert!(
         writer

@@ -252,7 +252,7 @@ fn run_streamed(
     let mesh = BakeFolder::new(out).scene_mesh();
     prt_trace::mesh::write_mesh(&mesh, &scene.scene)
         .with_context(|| format!("cannot write {}", mesh.display()))?;
-    let valid = merged.valid.iter().filter(|&&v| v).count();
+    let valid = merged.valid_voxels;
     let bytes = merged.container.as_ref().map(|c| c.total_bytes);
     let report =
         TilesReport::of_plan(plan).with_streamed(&merged, sweeps, total.elapsed().as_secs_f64());

@@ -74,42 +74,114 @@ pub fn live_bricks(
     size: u32,
     live_nodes: &[bool],
 ) -> Result<Vec<bool>, TextureError> {
-    let nodes = checked_product("brick nodes", &dims.map(u64::from))?;
-    if live_nodes.len() as u64 != nodes {
-        return Err(TextureError::LengthMismatch {
-            what: "live nodes",
-            expected: nodes as usize,
-            got: live_nodes.len(),
-        });
+    Ok(LiveBricks::of_nodes(dims, size, live_nodes)?.live)
+}
+
+/// Which bricks of a node grid hold a live node, marked a node at a time: what a streamed
+/// writer needs of the live nodes ([`live_bricks`] of them all), in one flag per brick.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LiveBricks {
+    dims: [u32; 3],
+    size: u32,
+    grid: [u32; 3],
+    live: Vec<bool>,
+}
+
+impl LiveBricks {
+    /// No live brick yet, of a grid of `dims` nodes cut in bricks of `size` cells.
+    ///
+    /// # Errors
+    /// A size outside `1..=MAX_BRICK_SIZE`; a grid whose node count overflows.
+    pub fn new(dims: [u32; 3], size: u32) -> Result<LiveBricks, TextureError> {
+        checked_product("brick nodes", &dims.map(u64::from))?;
+        if size == 0 || size > MAX_BRICK_SIZE {
+            return Err(TextureError::invalid(
+                "brick size",
+                format!("{size} is not in 1..={MAX_BRICK_SIZE}"),
+            ));
+        }
+        let grid = brick_grid(dims, size);
+        let bricks = checked_product("bricks", &grid.map(u64::from))?;
+        Ok(LiveBricks {
+            dims,
+            size,
+            grid,
+            live: vec![false; bricks as usize],
+        })
     }
-    if size == 0 || size > MAX_BRICK_SIZE {
-        return Err(TextureError::invalid(
-            "brick size",
-            format!("{size} is not in 1..={MAX_BRICK_SIZE}"),
-        ));
+
+    /// The bricks of `live_nodes` (per node of `dims`, x fastest) cut in bricks of `size`.
+    ///
+    /// # Errors
+    /// As [`LiveBricks::new`]; flags of another length than the grid's nodes.
+    pub fn of_nodes(
+        dims: [u32; 3],
+        size: u32,
+        live_nodes: &[bool],
+    ) -> Result<LiveBricks, TextureError> {
+        let nodes = checked_product("brick nodes", &dims.map(u64::from))?;
+        if live_nodes.len() as u64 != nodes {
+            return Err(TextureError::LengthMismatch {
+                what: "live nodes",
+                expected: nodes as usize,
+                got: live_nodes.len(),
+            });
+        }
+        let mut live = LiveBricks::new(dims, size)?;
+        let [nx, ny, _] = dims.map(|d| d as usize);
+        for (n, _) in live_nodes.iter().enumerate().filter(|(_, l)| **l) {
+            live.mark([n % nx, n / nx % ny, n / (nx * ny)].map(|i| i as u32))?;
+        }
+        Ok(live)
     }
-    let grid = brick_grid(dims, size);
-    let [nx, ny, _] = dims.map(|d| d as usize);
-    let [gx, gy, gz] = grid.map(|g| g as usize);
-    let mut live = vec![false; gx * gy * gz];
-    for (n, _) in live_nodes.iter().enumerate().filter(|(_, l)| **l) {
-        let node = [n % nx, n / nx % ny, n / (nx * ny)].map(|i| i as u32);
-        // A node is in the brick that owns it and, on a brick border, in the apron of the
-        // brick before it.
+
+    /// Marks the bricks holding `node`: the brick that owns it and, on a brick border, the one
+    /// before it (whose apron it is).
+    ///
+    /// # Errors
+    /// A node outside the grid.
+    pub fn mark(&mut self, node: [u32; 3]) -> Result<(), TextureError> {
+        if (0..3).any(|a| node[a] >= self.dims[a]) {
+            return Err(TextureError::invalid(
+                "live node",
+                format!("{node:?} outside a grid of {:?} nodes", self.dims),
+            ));
+        }
         let span = |a: usize| {
-            let (b, q) = brick_of(node[a], size, grid[a]);
+            let (b, q) = brick_of(node[a], self.size, self.grid[a]);
             let first = if q == 0 && b > 0 { b - 1 } else { b };
             first as usize..=b as usize
         };
+        let [gx, gy, _] = self.grid.map(|g| g as usize);
         for bz in span(2) {
             for by in span(1) {
                 for bx in span(0) {
-                    live[bx + gx * (by + gy * bz)] = true;
+                    self.live[bx + gx * (by + gy * bz)] = true;
                 }
             }
         }
+        Ok(())
     }
-    Ok(live)
+
+    /// The grid's nodes along x, y, z.
+    pub fn dims(&self) -> [u32; 3] {
+        self.dims
+    }
+
+    /// Cells per brick edge.
+    pub fn size(&self) -> u32 {
+        self.size
+    }
+
+    /// Per brick (x fastest): whether it holds a live node.
+    pub fn live(&self) -> &[bool] {
+        &self.live
+    }
+
+    /// The live bricks.
+    pub fn count(&self) -> u64 {
+        self.live.iter().filter(|&&l| l).count() as u64
+    }
 }
 
 /// The atlas arrangement of `live` bricks: close to a cube, x first, then y, then z, at most

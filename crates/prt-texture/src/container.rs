@@ -34,8 +34,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 pub use crate::bricks::{
-    BrickRequest, Bricks, DEFAULT_BRICK_SIZE, MAX_ATLAS_BRICKS, MAX_BRICK_SIZE, brick_atlas,
-    brick_grid, live_bricks,
+    BrickRequest, Bricks, DEFAULT_BRICK_SIZE, LiveBricks, MAX_ATLAS_BRICKS, MAX_BRICK_SIZE,
+    brick_atlas, brick_grid, live_bricks,
 };
 use crate::bricks::{atlas_texels, brick_of, slot_coordinate};
 use crate::ktx2::{KEY_PRT_ARRAY, Ktx2Texture, Shape};
@@ -582,17 +582,26 @@ impl Container {
         let mut files = Vec::with_capacity(self.arrays.len());
         for (name, array, encoding, layout) in &self.arrays {
             array.check()?;
-            let (mut entry, live) = new_entry(
+            let live = match (layout, self.bricks.get(name)) {
+                (ArrayLayout::Bricks, Some(request)) => Some(LiveBricks::of_nodes(
+                    array.dims,
+                    request.size,
+                    &request.live_nodes,
+                )?),
+                _ => None,
+            };
+            let mut entry = new_entry(
                 name,
                 array.dims,
                 array.channels,
                 *encoding,
                 *layout,
-                self.bricks.get(name),
+                live.as_ref(),
             )?;
-            let (texture, ranges) = encode_array(&entry, array, live.as_deref())?;
+            let live = live.as_ref().map(LiveBricks::live);
+            let (texture, ranges) = encode_array(&entry, array, live)?;
             entry.ranges = ranges;
-            if let (Some(live), Some(bricks)) = (&live, &entry.bricks) {
+            if let (Some(live), Some(bricks)) = (live, &entry.bricks) {
                 let bytes = indirection_texture(bricks, live)?.to_bytes()?;
                 if let Some(b) = entry.bricks.as_mut() {
                     b.indirection_bytes = bytes.len() as u64;
@@ -673,16 +682,16 @@ const UNBOUNDED: Limits = Limits {
     max_bytes: u64::MAX,
 };
 
-/// The manifest entry of an array (sizes and ranges still to fill in) and, for the bricks
-/// layout, which bricks are live.
+/// The manifest entry of an array (sizes and ranges still to fill in); `live`, which bricks are
+/// live, for the bricks layout.
 fn new_entry(
     name: &str,
     dims: [u32; 3],
     channels: usize,
     encoding: Encoding,
     layout: ArrayLayout,
-    request: Option<&BrickRequest>,
-) -> Result<(ArrayEntry, Option<Vec<bool>>), TextureError> {
+    live: Option<&LiveBricks>,
+) -> Result<ArrayEntry, TextureError> {
     let mut entry = ArrayEntry {
         name: name.to_string(),
         file: format!("{name}.ktx2"),
@@ -699,19 +708,26 @@ fn new_entry(
     if layout == ArrayLayout::Atlas {
         entry.tiles = Some(atlas_tiles(dims, entry.groups()));
     }
-    let live = match (layout, request) {
-        (ArrayLayout::Bricks, Some(request)) => {
-            let live = live_bricks(dims, request.size, &request.live_nodes)?;
-            let count = live.iter().filter(|&&l| l).count() as u64;
+    match (layout, live) {
+        (ArrayLayout::Bricks, Some(live)) => {
+            if live.dims() != dims {
+                return Err(TextureError::invalid(
+                    "container",
+                    format!(
+                        "array {name:?} of {dims:?} nodes given the live bricks of {:?}",
+                        live.dims()
+                    ),
+                ));
+            }
+            let count = live.count();
             entry.bricks = Some(Bricks {
-                size: request.size,
-                grid: brick_grid(dims, request.size),
+                size: live.size(),
+                grid: brick_grid(dims, live.size()),
                 live: count,
                 atlas: brick_atlas(count)?,
                 indirection: format!("{name}.bricks.ktx2"),
                 indirection_bytes: 0,
             });
-            Some(live)
         }
         (ArrayLayout::Bricks, None) => {
             return Err(TextureError::invalid(
@@ -719,9 +735,9 @@ fn new_entry(
                 format!("array {name:?} has the bricks layout but no brick request"),
             ));
         }
-        _ => None,
-    };
-    Ok((entry, live))
+        _ => {}
+    }
+    Ok(entry)
 }
 
 /// The entry a texture embeds to name its manifest entry (a reader tells it from another
@@ -734,11 +750,17 @@ fn embedded_entry(entry: &ArrayEntry) -> Result<Vec<u8>, TextureError> {
     serde_json::to_vec(&embedded).map_err(|e| TextureError::Json(e.to_string()))
 }
 
-/// Bytes of texels [`ArrayStream`] holds before writing them out (sorted by file offset).
+/// The atlas slot of an empty brick in [`ArrayStream`]'s table (the atlas has at most
+/// `MAX_ATLAS_BRICKS³` = 2²⁴ slots).
+const NO_SLOT: u32 = u32::MAX;
+
+/// Bytes of texels and of their file offsets [`ArrayStream`] holds before writing them out
+/// (sorted by offset): an offset (16 bytes) outweighs a small texel.
 const STREAM_BUFFER_BYTES: usize = 16 << 20;
 
-/// One array's texture written a block of nodes at a time, in memory bounded by the block and a
-/// write buffer, for an array too large to hold: the file [`Container::write`] writes for the
+/// One array's texture written a block of nodes at a time, in memory bounded by the block, a
+/// write buffer, the blocks written so far (their corners) and, in bricks, four bytes per brick,
+/// for an array too large to hold: the file [`Container::write`] writes for the
 /// same values, encoding and layout, given the channel ranges of the whole array up front
 /// ([`crate::RangeFit`]; ignored by the encodings without ranges). The file is written under a
 /// temporary name, its texels placed by offset, and renamed by [`ArrayStream::finish`] once
@@ -754,8 +776,10 @@ pub struct ArrayStream {
     /// Where the level's texels begin in the file.
     level_offset: u64,
     placement: Placement,
-    /// One bit per node: written.
-    written: Vec<u64>,
+    /// The blocks written (corner and size): a new block must overlap none.
+    written: Vec<([u32; 3], [u32; 3])>,
+    /// Their nodes.
+    written_nodes: u64,
     /// Texels waiting to be written: (file offset, index into `buffer` in texels).
     pending: Vec<(u64, usize)>,
     buffer: Vec<u8>,
@@ -771,8 +795,8 @@ enum Placement {
         map: BrickMap,
         atlas: [u32; 3],
         grid: [usize; 3],
-        /// Per brick (x fastest): its atlas slot, `None` when empty.
-        slots: Vec<Option<u32>>,
+        /// Per brick (x fastest): its atlas slot, [`NO_SLOT`] when empty.
+        slots: Vec<u32>,
         /// Per axis, per node: the (brick, position) pairs that hold it, apron included.
         holders: [Vec<Vec<(u32, u32)>>; 3],
     },
@@ -780,8 +804,8 @@ enum Placement {
 
 impl ArrayStream {
     /// Starts `name`'s texture in `folder` (created if missing): `dims` nodes of `channels`
-    /// values in `encoding` and `layout` (`bricks` for [`ArrayLayout::Bricks`], whose
-    /// indirection file is written at once), `ranges` one per channel.
+    /// values in `encoding` and `layout` (`live`, the live bricks, for [`ArrayLayout::Bricks`],
+    /// whose indirection file is written at once), `ranges` one per channel.
     ///
     /// # Errors
     /// What [`Container::encode`] refuses; ranges other than one per channel; writing.
@@ -792,7 +816,7 @@ impl ArrayStream {
         channels: usize,
         encoding: Encoding,
         layout: ArrayLayout,
-        bricks: Option<&BrickRequest>,
+        live: Option<&LiveBricks>,
         ranges: Vec<ChannelRange>,
     ) -> Result<ArrayStream, TextureError> {
         if ranges.len() != channels {
@@ -802,7 +826,7 @@ impl ArrayStream {
                 got: ranges.len(),
             });
         }
-        let (mut entry, live) = new_entry(name, dims, channels, encoding, layout, bricks)?;
+        let mut entry = new_entry(name, dims, channels, encoding, layout, live)?;
         let nodes = checked_product("array nodes", &dims.map(u64::from))?;
         if nodes == 0 || channels == 0 {
             return Err(TextureError::invalid(
@@ -825,16 +849,23 @@ impl ArrayStream {
         let shape = entry.texture_shape()?;
         let placement = match (&entry.bricks, live) {
             (Some(b), Some(live)) => {
-                let indirection = indirection_texture(b, &live)?.to_bytes()?;
-                crate::write_atomic(&folder.join(&b.indirection), &indirection)?;
+                let live = live.live();
+                // Written and dropped before the slots are made.
+                let indirection_bytes = {
+                    let indirection = indirection_texture(b, live)?.to_bytes()?;
+                    crate::write_atomic(&folder.join(&b.indirection), &indirection)?;
+                    indirection.len() as u64
+                };
                 let mut slot = 0u32;
                 let slots = live
                     .iter()
                     .map(|&l| {
-                        l.then(|| {
+                        if l {
                             slot += 1;
                             slot - 1
-                        })
+                        } else {
+                            NO_SLOT
+                        }
                     })
                     .collect();
                 let holders = [0, 1, 2].map(|a| {
@@ -857,7 +888,7 @@ impl ArrayStream {
                     holders,
                 };
                 if let Some(stored) = entry.bricks.as_mut() {
-                    stored.indirection_bytes = indirection.len() as u64;
+                    stored.indirection_bytes = indirection_bytes;
                 }
                 placement
             }
@@ -884,7 +915,8 @@ impl ArrayStream {
             ranges: quantised_ranges,
             level_offset: prefix.len() as u64,
             placement,
-            written: vec![0; nodes.div_ceil(64) as usize],
+            written: Vec::new(),
+            written_nodes: 0,
             pending: Vec::new(),
             buffer: Vec::new(),
             entry,
@@ -921,6 +953,20 @@ impl ArrayStream {
                 got: values.len(),
             });
         }
+        if size.iter().all(|&s| s > 0) {
+            let overlaps = |&&(m, z): &&([u32; 3], [u32; 3])| {
+                (0..3).all(|a| min[a] < m[a] + z[a] && m[a] < min[a] + size[a])
+            };
+            if let Some(&(m, _)) = self.written.iter().find(overlaps) {
+                let node = [0, 1, 2].map(|a| min[a].max(m[a]));
+                return Err(TextureError::invalid(
+                    "array block",
+                    format!("node {node:?} of {name:?} written twice"),
+                ));
+            }
+            self.written.push((min, size));
+            self.written_nodes += (sx * sy * sz) as u64;
+        }
         let (groups, padded) = (self.entry.groups(), self.ranges.len());
         let mut padded_values = vec![0.0f32; sx * sy * sz * padded];
         for (dst, src) in padded_values
@@ -950,14 +996,6 @@ impl ArrayStream {
                 min[2] as usize + local / (sx * sy),
             ];
             let n = node[0] + nx * (node[1] + ny * node[2]);
-            let (word, bit) = (n / 64, 1u64 << (n % 64));
-            if self.written[word] & bit != 0 {
-                return Err(TextureError::invalid(
-                    "array block",
-                    format!("node {node:?} of {name:?} written twice"),
-                ));
-            }
-            self.written[word] |= bit;
             for (g, bytes) in node_texels.chunks_exact(texel).enumerate() {
                 match &self.placement {
                     Placement::Rows => self.pending.push((
@@ -980,7 +1018,8 @@ impl ArrayStream {
                                 for &(bx, px) in &holders[0][node[0]] {
                                     let brick = bx as usize
                                         + grid[0] * (by as usize + grid[1] * bz as usize);
-                                    if let Some(slot) = slots[brick] {
+                                    let slot = slots[brick];
+                                    if slot != NO_SLOT {
                                         let at = slot_coordinate(slot as usize, *atlas);
                                         let to = map.texel(at, [px, py, pz], g) * texel;
                                         self.pending.push((
@@ -995,7 +1034,8 @@ impl ArrayStream {
                 }
                 self.buffer.extend_from_slice(bytes);
             }
-            if self.buffer.len() >= STREAM_BUFFER_BYTES {
+            let held = self.buffer.len() + self.pending.len() * size_of::<(u64, usize)>();
+            if held >= STREAM_BUFFER_BYTES {
                 self.flush()?;
             }
         }
@@ -1041,7 +1081,7 @@ impl ArrayStream {
     pub fn finish(mut self) -> Result<ArrayEntry, TextureError> {
         self.flush()?;
         let nodes: u64 = self.entry.dims.iter().map(|&d| u64::from(d)).product();
-        let written: u64 = self.written.iter().map(|w| u64::from(w.count_ones())).sum();
+        let written = self.written_nodes;
         if written != nodes {
             return Err(TextureError::invalid(
                 "array stream",

@@ -110,7 +110,7 @@ impl TilesReport {
 
     /// With a streamed merge's figures: `sweeps` asked for, `total_seconds` of the whole merge.
     pub fn with_streamed(self, merged: &StreamedMerge, sweeps: usize, total_seconds: f64) -> Self {
-        let valid = merged.valid.iter().filter(|&&v| v).count();
+        let valid = merged.valid_voxels as usize;
         let bytes = merged.container.as_ref().map(|c| c.total_bytes);
         Self {
             streamed: Some(StreamedRecord {

@@ -41,7 +41,8 @@ use super::partial::{
 };
 use super::plan::{TileError, TilePlan, TileSpec, VoxelRange, flat, voxels};
 use crate::container::{
-    ContainerContents, ContainerParts, ContainerWriter, LayoutConfig, write_container,
+    ContainerContents, ContainerParts, ContainerWriter, LayoutConfig, ValiditySummary,
+    write_container,
 };
 use crate::{BakeConfig, BakeError};
 
@@ -55,8 +56,11 @@ pub struct StreamedMerge {
     /// The fitted model on the plan's lattice; `None` from [`merge_from_partials`], which
     /// writes the container a tile at a time and never holds every voxel's coefficients.
     pub model: Option<MbdModel<HatGrid, HatGrid>>,
-    /// Per voxel of the lattice (x fastest): valid in its tile's trace.
-    pub valid: Vec<bool>,
+    /// Per voxel of the lattice (x fastest): valid in its tile's trace; `None` from
+    /// [`merge_from_partials`], which reads it a tile at a time.
+    pub valid: Option<Vec<bool>>,
+    /// The valid voxels of the lattice.
+    pub valid_voxels: u64,
     /// The coarse grid the basis was first fitted on: the lattice halved
     /// [`BakeConfig::coarse_levels`] times (at least once, and no further than the basis grid
     /// allows).
@@ -507,9 +511,25 @@ impl<'a> MergeContext<'a> {
         limits: &Limits,
     ) -> Result<Partial, TileError> {
         let basis = self.input(stage, basis)?;
-        let tile = self.tile(index)?;
         let model = basis.map(|b| self.model(b)).transpose()?;
-        let expected = self.payload_bytes(stage, tile, model.as_ref())?;
+        self.decode_partial_on(stage, index, basis.zip(model.as_ref()), path, bytes, limits)
+    }
+
+    /// [`MergeContext::decode_partial`] given the input basis with its model (one copy of the
+    /// basis fewer per partial read).
+    fn decode_partial_on(
+        &self,
+        stage: MergeStage,
+        index: usize,
+        input: Option<(&BasisState, &StreamedMbd)>,
+        path: &Path,
+        bytes: &[u8],
+        limits: &Limits,
+    ) -> Result<Partial, TileError> {
+        let basis = self.input(stage, input.map(|(basis, _)| basis))?;
+        let model = input.map(|(_, model)| model);
+        let tile = self.tile(index)?;
+        let expected = self.payload_bytes(stage, tile, model)?;
         let (header, payload) = unframe::<PartialHeader>(
             path,
             bytes,
@@ -548,7 +568,7 @@ impl<'a> MergeContext<'a> {
                 return Err(malformed(format!("{what} {v} is not a finite sum of norms")).into());
             }
         }
-        let payload = match (stage, model.as_ref()) {
+        let payload = match (stage, model) {
             (MergeStage::Coarse, _) | (_, None) => {
                 let n = self.coarse_box(tile).len();
                 let (counts, sums) = payload.split_at(4 * n);
@@ -1073,7 +1093,7 @@ impl<'a> MergeContext<'a> {
         let path = partial_path(plan_dir, stage, tile.index);
         let expected = self.payload_bytes(stage, tile, model)?;
         let bytes = read_merge_file(&path, expected, limits, stage, Some(tile.index))?;
-        self.decode_partial(stage, tile.index, basis, &path, &bytes, limits)
+        self.decode_partial_on(stage, tile.index, basis.zip(model), &path, &bytes, limits)
     }
 
     /// The container of `model` and the [`StreamedMerge`].
@@ -1106,7 +1126,8 @@ impl<'a> MergeContext<'a> {
         };
         Ok(StreamedMerge {
             model: Some(model),
-            valid,
+            valid_voxels: valid.iter().filter(|&&v| v).count() as u64,
+            valid: Some(valid),
             coarse_dims: basis.coarse_dims,
             coarse_iterations: basis.coarse_iterations,
             basis_solves: basis.basis_solves.clone(),
@@ -1271,7 +1292,14 @@ pub fn map_tile(
     let expected = context.payload_bytes(stage, context.tile(tile)?, model.as_ref())?;
     if let Ok(bytes) = read_merge_file(&path, expected, limits, stage, Some(tile))
         && context
-            .decode_partial(stage, tile, basis.as_ref(), &path, &bytes, limits)
+            .decode_partial_on(
+                stage,
+                tile,
+                basis.as_ref().zip(model.as_ref()),
+                &path,
+                &bytes,
+                limits,
+            )
             .is_ok()
     {
         return Ok(MapOutcome::AlreadyDone { path });
@@ -1325,9 +1353,10 @@ pub fn reduce_stage(
 
 /// `prt merge --reduce --stage coefficients`: the last basis and every tile's coefficient
 /// partial read from `plan_dir`, the container written as [`merge_streamed`] writes it (the
-/// same bytes) a tile at a time, in memory bounded by a partial, the basis and about two bytes
-/// per voxel ([`ContainerWriter`]): the partials are read twice, first for the validity, the
-/// errors and the coefficients' ranges, then to write them. The result holds no model.
+/// same bytes) a tile at a time, in memory bounded by a partial, the basis, a flag per brick
+/// of coefficient nodes and the write buffers ([`ContainerWriter`]): the partials are read
+/// twice, first for the summary of the validity, the errors and the coefficients' ranges, then
+/// to write the validity and the coefficients. The result holds neither model nor validity.
 ///
 /// # Errors
 /// As [`reduce_stage`]; the container's.
@@ -1370,15 +1399,19 @@ pub fn merge_from_partials(
         }
         Ok::<_, TileError>(())
     };
-    // First pass: the validity, the sums of squares (in tile order, as the streamed merge adds
-    // them) and the ranges of the coefficients the container stores.
-    let mut valid = vec![false; context.dims.iter().product()];
+    // First pass: the validity's summary, the sums of squares (in tile order, as the streamed
+    // merge adds them) and the ranges of the coefficients the container stores.
+    let coefficient_kernels = model.coefficient_kernels().map_err(mbd_error)?;
+    let layout = LayoutConfig::default();
+    let container_error = |e| TileError::Bake(BakeError::Container(e));
+    let mut validity = ValiditySummary::new(&coefficient_kernels, context.dims, layout.brick_size)
+        .map_err(container_error)?;
     let mut squares = Squares::default();
     let mut ranges = RangeFit::new(config.rank);
     each_partial(&mut |tile, partial, tile_valid, coefficients| {
-        for (voxel, &v) in voxels(&tile.core).zip(tile_valid) {
-            valid[flat(context.dims, voxel)] = v;
-        }
+        validity
+            .add(tile.core.min, tile.core.dims(), tile_valid)
+            .map_err(container_error)?;
         squares.add(Squares {
             residual: partial.residual,
             energy: partial.energy,
@@ -1393,25 +1426,23 @@ pub fn merge_from_partials(
         Some(folder) => {
             let start = Instant::now();
             progress.message("write");
-            let coefficient_kernels = model.coefficient_kernels().map_err(mbd_error)?;
             let parts = ContainerParts {
                 coefficient_kernels: &coefficient_kernels,
                 basis_kernels: model.basis_kernels(),
                 basis: model.basis(),
                 grid: context.dims,
-                valid: &valid,
                 scene: scene_name,
                 lambda: config.lambda,
                 encoding: config.encoding,
             };
-            let container_error = |e| TileError::Bake(BakeError::Container(e));
             let mut writer =
-                ContainerWriter::create(folder, &parts, &ranges, &LayoutConfig::default())
+                ContainerWriter::create(folder, &parts, &ranges, &validity, layout.layout)
                     .map_err(container_error)?;
-            each_partial(&mut |tile, _, _, coefficients| {
-                let size = [0, 1, 2].map(|a| tile.core.max[a] - tile.core.min[a]);
+            each_partial(&mut |tile, _, tile_valid, coefficients| {
+                let (min, size) = (tile.core.min, tile.core.dims());
                 writer
-                    .write_coefficients(tile.core.min, size, coefficients)
+                    .write_validity(min, size, tile_valid)
+                    .and_then(|()| writer.write_coefficients(min, size, coefficients))
                     .map_err(container_error)
             })?;
             let report = writer.finish().map_err(container_error)?;
@@ -1423,7 +1454,8 @@ pub fn merge_from_partials(
     let (relative_errors, weighted_errors) = basis.errors_with(squares);
     Ok(StreamedMerge {
         model: None,
-        valid,
+        valid: None,
+        valid_voxels: validity.valid_voxels(),
         coarse_dims: basis.coarse_dims,
         coarse_iterations: basis.coarse_iterations,
         basis_solves: basis.basis_solves.clone(),
