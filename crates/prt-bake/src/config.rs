@@ -170,7 +170,7 @@ impl BakeConfig {
     ///
     /// - `Draft`: 16 MBD iterations.
     /// - `Default`: [`BakeConfig::default`] exactly.
-    /// - `High`: 4096 rays per voxel.
+    /// - `High`: 8192 rays per voxel.
     pub fn preset(quality: Quality) -> BakeConfig {
         let default = BakeConfig::default();
         match quality {
@@ -180,7 +180,7 @@ impl BakeConfig {
             },
             Quality::Default => default,
             Quality::High => BakeConfig {
-                rays_per_voxel: 4096,
+                rays_per_voxel: 8192,
                 ..default
             },
         }
