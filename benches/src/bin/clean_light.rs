@@ -104,19 +104,7 @@ const METHODS: [(&str, &str); 4] = [
 /// `weighting=`: `none` (the papers' loss) or `relative[:EXPONENT]` (the floor at its default),
 /// as `prt bake --loss-weighting` reads them.
 fn loss_weighting(value: &str) -> Result<Option<LossWeighting>, String> {
-    let exponent = match value {
-        "none" => return Ok(None),
-        "relative" => LossWeighting::default().exponent,
-        _ => value
-            .strip_prefix("relative:")
-            .ok_or_else(|| format!("weighting={value}: none or relative[:EXPONENT]"))?
-            .parse::<f32>()
-            .map_err(|e| format!("weighting={value}: {e}"))?,
-    };
-    Ok(Some(LossWeighting {
-        exponent,
-        ..LossWeighting::default()
-    }))
+    LossWeighting::parse(value).map_err(|e| format!("weighting={value}: {e}"))
 }
 
 /// `base` with the settings of `run` applied.

@@ -280,31 +280,9 @@ const ASSUMED_RAYS_PER_SECOND_PER_THREAD: f64 = 6.0e6;
 pub struct LossWeightingArg(Option<prt_mbd::LossWeighting>);
 
 fn parse_loss_weighting(spec: &str) -> Result<LossWeightingArg, String> {
-    if spec == "none" {
-        return Ok(LossWeightingArg(None));
-    }
-    let Some(rest) = spec.strip_prefix("relative") else {
-        return Err(format!(
-            "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
-        ));
-    };
-    let mut weighting = prt_mbd::LossWeighting::default();
-    if let Some(values) = rest.strip_prefix(':') {
-        let numbers: Vec<f32> = values
-            .split(',')
-            .map(|v| v.trim().parse::<f32>().map_err(|e| format!("{spec}: {e}")))
-            .collect::<Result<_, _>>()?;
-        match numbers[..] {
-            [exponent] => weighting.exponent = exponent,
-            [exponent, floor] => weighting = prt_mbd::LossWeighting { exponent, floor },
-            _ => return Err(format!("{spec}: expected relative[:EXPONENT[,FLOOR]]")),
-        }
-    } else if !rest.is_empty() {
-        return Err(format!(
-            "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
-        ));
-    }
-    Ok(LossWeightingArg(Some(weighting)))
+    prt_mbd::LossWeighting::parse(spec)
+        .map(LossWeightingArg)
+        .map_err(|e| e.to_string())
 }
 
 /// A number or `off` (`--adaptive-error`, `--denoise`).

@@ -78,6 +78,52 @@ impl LossWeighting {
         (norm.max(floor) / mean).powf(-f64::from(self.exponent)) as f32
     }
 
+    /// Reads `none` (the paper's loss: `None`) or `relative[:EXPONENT[,FLOOR]]` (the default's
+    /// values for what is left out), as `prt bake --loss-weighting` takes it, and validates it.
+    ///
+    /// Errors: [`MbdError::InvalidOption`] for any other text or a value out of range.
+    pub fn parse(spec: &str) -> Result<Option<LossWeighting>, MbdError> {
+        let invalid = |why: String| MbdError::InvalidOption {
+            what: "loss weighting",
+            why,
+        };
+        if spec == "none" {
+            return Ok(None);
+        }
+        let values = match spec.strip_prefix("relative") {
+            Some("") => None,
+            Some(rest) => Some(rest.strip_prefix(':').ok_or_else(|| {
+                invalid(format!(
+                    "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
+                ))
+            })?),
+            None => {
+                return Err(invalid(format!(
+                    "{spec}: expected none or relative[:EXPONENT[,FLOOR]]"
+                )));
+            }
+        };
+        let mut weighting = LossWeighting::default();
+        if let Some(values) = values {
+            let numbers = values
+                .split(',')
+                .map(|v| v.trim().parse::<f32>())
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| invalid(format!("{spec}: {e}")))?;
+            match numbers[..] {
+                [exponent] => weighting.exponent = exponent,
+                [exponent, floor] => weighting = LossWeighting { exponent, floor },
+                _ => {
+                    return Err(invalid(format!(
+                        "{spec}: expected relative[:EXPONENT[,FLOOR]]"
+                    )));
+                }
+            }
+        }
+        weighting.validate()?;
+        Ok(Some(weighting))
+    }
+
     /// Refuses an exponent outside `[0, 4]` or a floor outside `(0, 1]`
     /// ([`MbdError::InvalidOption`]).
     pub fn validate(&self) -> Result<(), MbdError> {
@@ -131,4 +177,52 @@ pub(crate) fn unweight_coefficients(
         row.iter_mut().for_each(|c| *c /= w);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parse_reads_what_prt_bake_takes() {
+        assert_eq!(LossWeighting::parse("none").unwrap(), None);
+        assert_eq!(
+            LossWeighting::parse("relative").unwrap(),
+            Some(LossWeighting::default())
+        );
+        assert_eq!(
+            LossWeighting::parse("relative:0.5").unwrap(),
+            Some(LossWeighting {
+                exponent: 0.5,
+                ..LossWeighting::default()
+            })
+        );
+        assert_eq!(
+            LossWeighting::parse("relative:2, 0.1").unwrap(),
+            Some(LossWeighting {
+                exponent: 2.0,
+                floor: 0.1
+            })
+        );
+        for bad in [
+            "",
+            "None",
+            "relativ",
+            "relative:",
+            "relative1",
+            "relative:x",
+            "relative:1,2,3",
+            "relative:5",
+            "relative:1,0",
+            "relative:NaN",
+        ] {
+            assert!(
+                matches!(
+                    LossWeighting::parse(bad),
+                    Err(MbdError::InvalidOption { .. })
+                ),
+                "{bad:?} accepted"
+            );
+        }
+    }
 }
