@@ -154,7 +154,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
             sweeps,
             args.reduce,
             &plan,
-            &scene,
+            scene,
             total,
         );
     }
@@ -218,17 +218,21 @@ pub fn run(args: &MergeArgs) -> Result<()> {
 }
 
 /// `prt merge --stream` (every stage here) or `--reduce --stage coefficients` (the last stage's
-/// reduce, from the partials): the container, scene.mesh and tiles.json, in memory bounded by a
-/// tile.
+/// reduce, from the partials): scene.mesh first (the scene is dropped before the merge), then the
+/// container and tiles.json, in memory bounded by a tile.
 fn run_streamed(
     plan_dir: &Path,
     out: &Path,
     sweeps: usize,
     from_partials: bool,
     plan: &prt_bake::tiles::TilePlan,
-    scene: &prt_bake::SceneInput,
+    scene: prt_bake::SceneInput,
     total: Instant,
 ) -> Result<()> {
+    let mesh = BakeFolder::new(out).scene_mesh();
+    prt_trace::mesh::write_mesh(&mesh, &scene.scene)
+        .with_context(|| format!("cannot write {}", mesh.display()))?;
+    let scene_name = scene.name;
     let config = prt_bake::BakeConfig {
         container: Some(BakeFolder::new(out).container_dir()),
         ..plan.config.clone()
@@ -242,16 +246,13 @@ fn run_streamed(
     let merged = merge(
         plan,
         plan_dir,
-        &scene.name,
+        &scene_name,
         &config,
         sweeps,
         &limits(),
         &stage,
     )?;
     stage.finish();
-    let mesh = BakeFolder::new(out).scene_mesh();
-    prt_trace::mesh::write_mesh(&mesh, &scene.scene)
-        .with_context(|| format!("cannot write {}", mesh.display()))?;
     let valid = merged.valid_voxels;
     let bytes = merged.container.as_ref().map(|c| c.total_bytes);
     let report =
