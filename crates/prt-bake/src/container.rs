@@ -497,6 +497,21 @@ impl ValiditySummary {
         })
     }
 
+    /// Bytes [`ValiditySummary::new`] allocates for a grid of `grid` voxels whose coefficient
+    /// grid has `nodes` nodes, in bricks of `brick_size` cells: a flag per brick and, per axis
+    /// and voxel, the nodes it touches (`u64::MAX` when it overflows).
+    pub fn bytes_for(grid: [usize; 3], nodes: [usize; 3], brick_size: u32) -> u64 {
+        let size = u64::from(brick_size.max(1));
+        let bricks = nodes.iter().fold(1u64, |n, &d| {
+            n.saturating_mul((d as u64).saturating_sub(1).div_ceil(size).max(1))
+        });
+        let per_voxel = size_of::<([usize; 2], usize)>() as u64;
+        let tables = grid.iter().fold(0u64, |n, &g| {
+            n.saturating_add((g as u64).saturating_mul(per_voxel))
+        });
+        bricks.saturating_add(tables)
+    }
+
     /// Adds the validity of the box of voxels at `min` of `size` (x fastest).
     ///
     /// # Errors

@@ -195,6 +195,22 @@ proptest! {
 }
 
 #[test]
+fn the_validity_summary_of_a_1_km_world_is_a_flag_per_brick() {
+    // 2000 × 2000 × 200 voxels, a coefficient node per voxel, bricks of 4 cells: 500 × 500 × 50
+    // bricks and 24 bytes per voxel along each axis, 12.6 MB against the 800 MB of a flag per
+    // voxel.
+    let world = [2000, 2000, 200];
+    assert_eq!(
+        ValiditySummary::bytes_for(world, world, 4),
+        500 * 500 * 50 + 24 * 4200
+    );
+    assert_eq!(
+        ValiditySummary::bytes_for([usize::MAX; 3], [usize::MAX; 3], 1),
+        u64::MAX
+    );
+}
+
+#[test]
 fn a_block_outside_twice_or_missing_is_an_error() {
     let dims = [3, 2, 2];
     let voxels = 12;

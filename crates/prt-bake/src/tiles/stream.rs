@@ -1404,6 +1404,16 @@ pub fn merge_from_partials(
     let coefficient_kernels = model.coefficient_kernels().map_err(mbd_error)?;
     let layout = LayoutConfig::default();
     let container_error = |e| TileError::Bake(BakeError::Container(e));
+    let summary_bytes =
+        ValiditySummary::bytes_for(context.dims, coefficient_kernels.nodes(), layout.brick_size);
+    if summary_bytes > limits.max_bytes {
+        return Err(TileError::TooLarge {
+            path: plan_dir.to_path_buf(),
+            what: "the validity's summary (a flag per coefficient brick)",
+            value: summary_bytes,
+            limit: limits.max_bytes,
+        });
+    }
     let mut validity = ValiditySummary::new(&coefficient_kernels, context.dims, layout.brick_size)
         .map_err(container_error)?;
     let mut squares = Squares::default();
