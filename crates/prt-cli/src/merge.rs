@@ -28,10 +28,11 @@ pub struct MergeArgs {
     /// The scene file, when it lives at another path on this machine than in the plan.
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// Merge in memory bounded by one tile: never assemble the volume; fit MBD's basis to the
-    /// volume averaged down below 64³ voxels, refine it by `--sweeps` passes over the tiles, fit
-    /// each voxel's coefficients on it. Writes the container, scene.mesh and tiles.json (no baselines, report or seam
-    /// views, which need the whole volume).
+    /// Merge in memory bounded by one tile plus the coefficients (rank floats per voxel; the
+    /// distributed `--map`/`--reduce` keep no per-voxel array): never assemble the volume; fit
+    /// MBD's basis to the volume averaged down below 64³ voxels, refine it by `--sweeps` passes
+    /// over the tiles, fit each voxel's coefficients on it. Writes the container, scene.mesh and
+    /// tiles.json (no baselines, report or seam views, which need the whole volume).
     #[arg(long, conflicts_with = "keep_volumes")]
     pub stream: bool,
     /// With `--stream`, `--map` or `--reduce`: alternating least-squares sweeps over the tiles
@@ -219,7 +220,7 @@ pub fn run(args: &MergeArgs) -> Result<()> {
 
 /// `prt merge --stream` (every stage here) or `--reduce --stage coefficients` (the last stage's
 /// reduce, from the partials): scene.mesh first (the scene is dropped before the merge), then the
-/// container and tiles.json, in memory bounded by a tile.
+/// container and tiles.json, in memory bounded by a tile plus, for `--stream`, the coefficients.
 fn run_streamed(
     plan_dir: &Path,
     out: &Path,
