@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::scratch;
+use common::{ENCODINGS, scratch};
 use std::path::Path;
 
 use ndarray::{Array2, Array3};
@@ -87,15 +87,6 @@ fn assert_within(original: &[f32], back: &[f32], channels: usize, encoding: Enco
         }
     }
 }
-
-const ENCODINGS: [Encoding; 6] = [
-    Encoding::F32,
-    Encoding::F16,
-    Encoding::Unorm8,
-    Encoding::Unorm16,
-    Encoding::Snorm8,
-    Encoding::Snorm16,
-];
 
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::scratch;
+use common::{ENCODINGS, scratch};
 use std::collections::BTreeMap;
 use std::path::Path;
 
@@ -87,15 +87,6 @@ fn box_voxels(dims: [usize; 3], min: [usize; 3], size: [usize; 3]) -> impl Itera
         })
     })
 }
-
-const ENCODINGS: [Encoding; 6] = [
-    Encoding::F32,
-    Encoding::F16,
-    Encoding::Unorm8,
-    Encoding::Unorm16,
-    Encoding::Snorm8,
-    Encoding::Snorm16,
-];
 
 const LAYOUTS: [CoefficientLayout; 3] = [
     CoefficientLayout::Auto,
